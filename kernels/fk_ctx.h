@@ -1,0 +1,99 @@
+/* fk_ctx.h - the kernel context: ISA choice, thread pool, scratch, errors.
+ *
+ * Every kernel in kernels/ takes an fk_ctx. The context owns
+ *   - the instruction set chosen once at creation (scored from cpuid, or forced),
+ *   - a small pthread pool (the caller's thread is worker 0),
+ *   - per-thread and shared scratch arenas, reserved up front and optionally
+ *     frozen so that the per-frame path provably never allocates,
+ *   - the message of the last error.
+ *
+ *     fk_ctx *ctx;
+ *     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
+ *     if (fk_ctx_new(&cfg, &ctx) != FK_OK) ...;
+ *     if (fk_layernorm(ctx, x, rows, cols, cols, w, b, 1e-5f, y, cols) != FK_OK)
+ *         fprintf(stderr, "%s\n", fk_ctx_error(ctx));
+ *     fk_ctx_free(ctx);
+ *
+ * A context is used by one caller thread at a time; make one per pipeline stage
+ * that runs concurrently. Kernels never call exit() or abort() on bad input:
+ * they return a negative fk_status and leave a message naming what is wrong.
+ *
+ * Non-finite inputs (NaN, +-Inf) propagate: a kernel never crashes on them and
+ * the affected outputs become non-finite; finite rows stay unaffected.
+ */
+#ifndef FK_CTX_H
+#define FK_CTX_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+enum fk_status {
+    FK_OK      =  0,
+    FK_EINVAL  = -1, /* bad argument: shape, stride, NULL pointer, unknown enum */
+    FK_ENOMEM  = -2, /* allocation failed, or scratch needed after fk_ctx_freeze */
+    FK_ENOTSUP = -3, /* valid request this build or ISA does not implement      */
+    FK_ERANGE  = -4, /* a size would overflow (e.g. int8 accumulation length)   */
+};
+
+/* Instruction sets. Values are stored in files and never renumbered. */
+enum fk_isa {
+    FK_ISA_AUTO      = 0, /* best available on this CPU                         */
+    FK_ISA_REF       = 1, /* portable scalar C: the specification               */
+    FK_ISA_AVX2      = 2, /* x86-64 AVX2 + FMA + F16C                           */
+    FK_ISA_AVX2_VNNI = 3, /* AVX2 plus AVX-VNNI (VEX vpdpbusd) for int8 GEMM     */
+    FK_ISA_NEON      = 4, /* AArch64 NEON: the seam for ARM boards (no kernels yet) */
+};
+
+/* CPU feature bits reported by fk_cpu_features(). */
+enum {
+    FK_CPU_AVX2     = 1u << 0,
+    FK_CPU_FMA      = 1u << 1,
+    FK_CPU_F16C     = 1u << 2,
+    FK_CPU_AVX_VNNI = 1u << 3,
+    FK_CPU_NEON     = 1u << 4,
+};
+
+struct fk_ctx_config {
+    enum fk_isa isa;     /* FK_ISA_AUTO picks the best the CPU supports          */
+    int         threads; /* 0 = all online CPUs; 1 = no pool threads at all      */
+};
+
+typedef struct fk_ctx fk_ctx;
+
+/* Creates a context. An explicitly requested ISA the CPU lacks is FK_ENOTSUP. */
+int          fk_ctx_new      (const struct fk_ctx_config *cfg, fk_ctx **out);
+void         fk_ctx_free     (fk_ctx *ctx);
+enum fk_isa  fk_ctx_isa      (const fk_ctx *ctx);
+int          fk_ctx_threads  (const fk_ctx *ctx);
+const char * fk_ctx_error    (const fk_ctx *ctx);   /* "" when no error yet     */
+
+/* Scratch. Kernels grow the arenas on demand until the context is frozen;
+ * after fk_ctx_freeze a kernel that needs more scratch fails with FK_ENOMEM.
+ * fk_ctx_reserve grows every per-thread arena to at least `per_thread` bytes
+ * and the shared arena to at least `shared` bytes. */
+int          fk_ctx_reserve  (fk_ctx *ctx, size_t per_thread, size_t shared);
+void         fk_ctx_freeze   (fk_ctx *ctx, int frozen);
+size_t       fk_ctx_scratch_bytes(const fk_ctx *ctx); /* total reserved now  */
+
+unsigned     fk_cpu_features (void);
+int          fk_isa_supported(enum fk_isa isa);
+const char * fk_isa_name     (enum fk_isa isa);
+enum fk_isa  fk_isa_from_name(const char *name);     /* -1 cast when unknown */
+
+/* Parallel loop: fn(arg, task, thread) for task in [0, n_tasks), tasks handed
+ * out dynamically; returns when all are done. `thread` is in [0, threads) and
+ * indexes per-thread scratch. With n_tasks <= 1, or when `work` (an estimate of
+ * the whole job in scalar operations) is below FK_PARALLEL_MIN_WORK, it runs
+ * inline on the caller: a barrier per tiny op costs a scheduler tick here. */
+#define FK_PARALLEL_MIN_WORK 200000.0
+typedef void (*fk_task_fn)(void *arg, int task, int thread);
+void         fk_parallel_for (fk_ctx *ctx, int n_tasks, double work, fk_task_fn fn, void *arg);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* FK_CTX_H */

@@ -1,0 +1,31 @@
+/* fk_resize.h - image and feature-map resampling on channels-last (HWC) data.
+ *
+ * Bilinear, separable, PyTorch semantics (F.interpolate, antialias off):
+ *   align_corners = 1: src = i * (n_in - 1) / (n_out - 1)   (0 when n_out == 1)
+ *   align_corners = 0: src = max((i + 0.5) * n_in / n_out - 0.5, 0)
+ *   i0 = floor(src), i1 = min(i0 + 1, n_in - 1), linear blend.
+ * Antialiased bicubic (PIL / torch antialias=True, a = -0.5), vggt.md 2:
+ *   s = n_in / n_out, support = 2 s (s >= 1) or 2, taps normalised to sum 1,
+ *   identity when n_in == n_out. Used for the DINOv2 position-embedding resize
+ *   and for image preprocessing.
+ *
+ *     fk_resize_bilinear(ctx, x, 37, 37, 256, y, 148, 148, 1);
+ */
+#ifndef FK_RESIZE_H
+#define FK_RESIZE_H
+
+#include "fk_ctx.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+int fk_resize_bilinear  (fk_ctx *ctx, const float *x, int h, int w, int c,
+                         float *y, int ho, int wo, int align_corners);
+int fk_resize_bicubic_aa(fk_ctx *ctx, const float *x, int h, int w, int c,
+                         float *y, int ho, int wo);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* FK_RESIZE_H */

@@ -1,0 +1,52 @@
+/* fk_internal.h - what the kernel modules share behind the public headers:
+ * the context layout, error reporting, scratch access and ISA entry points. */
+#ifndef FK_INTERNAL_H
+#define FK_INTERNAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include "../fk_ctx.h"
+
+#define FK_ERR_LEN 256
+#define FK_ALIGN 64
+
+struct fk_pool;
+
+struct fk_arena {
+    void  *ptr;
+    size_t bytes;
+};
+
+struct fk_ctx {
+    enum fk_isa      isa;
+    int              threads;
+    int              frozen;
+    struct fk_pool  *pool;       /* NULL when threads == 1           */
+    struct fk_arena *local;      /* [threads] per-thread scratch      */
+    struct fk_arena  shared;
+    char             err[FK_ERR_LEN];
+};
+
+/* Records "func: message" as the context's error and returns status. */
+int   fk__fail(fk_ctx *ctx, int status, const char *func, const char *fmt, ...)
+      __attribute__((format(printf, 4, 5)));
+#define FK_FAIL(ctx, st, ...) fk__fail((ctx), (st), __func__, __VA_ARGS__)
+
+/* Scratch, reserved on the caller's thread before a parallel loop:
+ * fk__scratch_reserve makes every per-thread arena at least `per_thread`
+ * bytes and the shared one at least `shared` bytes (FK_ENOMEM with a message
+ * when frozen or out of memory). Inside tasks, fk__scratch(ctx, thread) and
+ * fk__scratch_shared(ctx) return the 64-byte aligned arenas. */
+int   fk__scratch_reserve(fk_ctx *ctx, size_t per_thread, size_t shared);
+static inline void *fk__scratch(fk_ctx *ctx, int thread) { return ctx->local[thread].ptr; }
+static inline void *fk__scratch_shared(fk_ctx *ctx) { return ctx->shared.ptr; }
+
+/* 64-byte aligned allocation for packed weights (free with free()). */
+void *fk__alloc(size_t bytes);
+
+static inline size_t fk__round_up(size_t x, size_t a) { return (x + a - 1) / a * a; }
+
+/* Checks shared by the front ends. */
+#define FK_CHECK_CTX(ctx) do { if (!(ctx)) return FK_EINVAL; } while (0)
+
+#endif /* FK_INTERNAL_H */

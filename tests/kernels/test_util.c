@@ -1,0 +1,98 @@
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "test_util.h"
+
+uint64_t rng_u64(struct rng *r)
+{
+    uint64_t x = r->s;
+    x ^= x >> 12;
+    x ^= x << 25;
+    x ^= x >> 27;
+    r->s = x;
+    return x * 0x2545F4914F6CDD1Dull;
+}
+
+float rng_uniform(struct rng *r, float lo, float hi)
+{
+    double u = (double)(rng_u64(r) >> 11) * (1.0 / 9007199254740992.0);
+    return (float)(lo + (hi - lo) * u);
+}
+
+float rng_normal(struct rng *r)
+{
+    double u1 = ((double)(rng_u64(r) >> 11) + 1.0) * (1.0 / 9007199254740993.0);
+    double u2 = (double)(rng_u64(r) >> 11) * (1.0 / 9007199254740992.0);
+    return (float)(sqrt(-2.0 * log(u1)) * cos(6.283185307179586 * u2));
+}
+
+void rng_fill(struct rng *r, float *x, size_t n, float lo, float hi)
+{
+    for (size_t i = 0; i < n; i++)
+        x[i] = rng_uniform(r, lo, hi);
+}
+
+void rng_fill_normal(struct rng *r, float *x, size_t n, float std)
+{
+    for (size_t i = 0; i < n; i++)
+        x[i] = std * rng_normal(r);
+}
+
+int test_isas(enum fk_isa out[4])
+{
+    static const enum fk_isa all[] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_NEON };
+    int n = 0;
+    for (size_t i = 0; i < sizeof all / sizeof all[0]; i++)
+        if (fk_isa_supported(all[i]))
+            out[n++] = all[i];
+    return n;
+}
+
+fk_ctx *test_ctx(enum fk_isa isa, int threads)
+{
+    fk_ctx *ctx = NULL;
+    struct fk_ctx_config cfg = { isa, threads };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    return ctx;
+}
+
+double budget_ratio(const float *a, const float *b, size_t n, double atol, double rtol)
+{
+    double worst = 0;
+    for (size_t i = 0; i < n; i++) {
+        int na = isnan(a[i]), nb = isnan(b[i]);
+        if (na || nb) {
+            if (na != nb)
+                return INFINITY;
+            continue;
+        }
+        if (isinf(a[i]) || isinf(b[i])) {
+            if (a[i] != b[i])
+                return INFINITY;
+            continue;
+        }
+        double r = fabs((double)a[i] - b[i]) / (atol + rtol * fabs((double)b[i]));
+        if (r > worst)
+            worst = r;
+    }
+    return worst;
+}
+
+double max_abs_diff(const float *a, const float *b, size_t n)
+{
+    double m = 0;
+    for (size_t i = 0; i < n; i++) {
+        double d = fabs((double)a[i] - b[i]);
+        if (d > m || isnan(d))
+            m = d;
+    }
+    return m;
+}
+
+void *xmalloc(size_t bytes)
+{
+    void *p = calloc(1, bytes ? bytes : 1);
+    assert_non_null(p);
+    return p;
+}

@@ -1,0 +1,33 @@
+/* test_util.h - shared helpers of the kernel tests: deterministic random data,
+ * contexts for every ISA this CPU runs, and error-budget comparisons. */
+#ifndef FK_TEST_UTIL_H
+#define FK_TEST_UTIL_H
+
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "fk_ctx.h"
+
+struct rng { uint64_t s; };
+static inline void     rng_seed(struct rng *r, uint64_t seed) { r->s = seed * 0x9E3779B97F4A7C15ull + 1; }
+uint64_t rng_u64(struct rng *r);
+float    rng_uniform(struct rng *r, float lo, float hi);
+float    rng_normal(struct rng *r);
+void     rng_fill(struct rng *r, float *x, size_t n, float lo, float hi);
+void     rng_fill_normal(struct rng *r, float *x, size_t n, float std);
+
+/* Optimized ISAs this CPU supports (REF excluded); returns the count. */
+int      test_isas(enum fk_isa out[4]);
+fk_ctx  *test_ctx(enum fk_isa isa, int threads);   /* asserts success */
+
+/* max |a-b| / (atol + rtol*|b|) over n values: <= 1 means within budget.
+ * NaN in exactly one of a, b counts as out of budget. */
+double   budget_ratio(const float *a, const float *b, size_t n, double atol, double rtol);
+double   max_abs_diff(const float *a, const float *b, size_t n);
+
+void    *xmalloc(size_t bytes);   /* asserts success, zero-filled */
+
+#endif
