@@ -1,0 +1,13 @@
+/* bench.h - f4d-bench: benchmarks that print speed beside error.
+ * Each subcommand lives in its own bench_<name>.c and is listed in the table
+ * of bench_main.c. Timing takes the best of several runs; every speed is
+ * reported with a peer measured in the same run. */
+#ifndef F4D_BENCH_H
+#define F4D_BENCH_H
+
+int bench_kernels(int argc, char **argv);
+
+/* Seconds on CLOCK_MONOTONIC. */
+double bench_now(void);
+
+#endif

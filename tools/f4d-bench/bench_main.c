@@ -1,0 +1,44 @@
+/* bench_main.c - f4d-bench entry: dispatches to one benchmark per subcommand. */
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#include "bench.h"
+
+struct subcommand {
+    const char *name;
+    int (*run)(int argc, char **argv);
+    const char *help;
+};
+
+static const struct subcommand table[] = {
+    { "kernels", bench_kernels, "GEMM f32/f16/int8 and attention vs OpenBLAS and the FMA peak" },
+};
+
+double bench_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void usage(FILE *f)
+{
+    fprintf(f, "usage: f4d-bench SUBCOMMAND [options] [--json FILE]\n");
+    for (size_t i = 0; i < sizeof table / sizeof table[0]; i++)
+        fprintf(f, "  %-10s %s\n", table[i].name, table[i].help);
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
+        usage(argc < 2 ? stderr : stdout);
+        return argc < 2 ? 2 : 0;
+    }
+    for (size_t i = 0; i < sizeof table / sizeof table[0]; i++)
+        if (!strcmp(argv[1], table[i].name))
+            return table[i].run(argc - 1, argv + 1);
+    fprintf(stderr, "f4d-bench: unknown subcommand '%s'\n", argv[1]);
+    usage(stderr);
+    return 2;
+}

@@ -1,0 +1,84 @@
+/* peak_fma.c - the machine's fp32 FMA peak, measured: independent FMA chains
+ * on every thread, long enough to hide the latency (2 ports x 4 cycles). */
+#include <pthread.h>
+#include <stdint.h>
+
+#include "bench.h"
+#include "peak.h"
+
+#if defined(__x86_64__)
+#include <immintrin.h>
+
+__attribute__((target("avx2,fma")))
+static double fma_loop(long iters)
+{
+    /* distinct starting values, so the compiler cannot merge the chains */
+    __m256 a0 = _mm256_set1_ps(1.00f), a1 = _mm256_set1_ps(1.01f), a2 = _mm256_set1_ps(1.02f);
+    __m256 a3 = _mm256_set1_ps(1.03f), a4 = _mm256_set1_ps(1.04f), a5 = _mm256_set1_ps(1.05f);
+    __m256 a6 = _mm256_set1_ps(1.06f), a7 = _mm256_set1_ps(1.07f), a8 = _mm256_set1_ps(1.08f);
+    __m256 a9 = _mm256_set1_ps(1.09f), a10 = _mm256_set1_ps(1.10f), a11 = _mm256_set1_ps(1.11f);
+    const __m256 m = _mm256_set1_ps(0.999999f), c = _mm256_set1_ps(1e-7f);
+    for (long i = 0; i < iters; i++) {
+        a0 = _mm256_fmadd_ps(a0, m, c);   a1 = _mm256_fmadd_ps(a1, m, c);
+        a2 = _mm256_fmadd_ps(a2, m, c);   a3 = _mm256_fmadd_ps(a3, m, c);
+        a4 = _mm256_fmadd_ps(a4, m, c);   a5 = _mm256_fmadd_ps(a5, m, c);
+        a6 = _mm256_fmadd_ps(a6, m, c);   a7 = _mm256_fmadd_ps(a7, m, c);
+        a8 = _mm256_fmadd_ps(a8, m, c);   a9 = _mm256_fmadd_ps(a9, m, c);
+        a10 = _mm256_fmadd_ps(a10, m, c); a11 = _mm256_fmadd_ps(a11, m, c);
+    }
+    __m256 s = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(a0, a1), _mm256_add_ps(a2, a3)),
+                             _mm256_add_ps(_mm256_add_ps(a4, a5), _mm256_add_ps(a6, a7)));
+    s = _mm256_add_ps(s, _mm256_add_ps(_mm256_add_ps(a8, a9), _mm256_add_ps(a10, a11)));
+    float out[8];
+    _mm256_storeu_ps(out, s);
+    return out[0];
+}
+#define FLOPS_PER_ITER (12.0 * 8 * 2)
+#else
+static double fma_loop(long iters)
+{
+    float a = 1.0f;
+    for (long i = 0; i < iters; i++)
+        a = a * 0.999999f + 1e-7f;
+    return a;
+}
+#define FLOPS_PER_ITER 2.0
+#endif
+
+struct peak_arg {
+    long   iters;
+    double sink;
+};
+
+static void *peak_thread(void *v)
+{
+    struct peak_arg *a = v;
+    a->sink = fma_loop(a->iters);
+    return NULL;
+}
+
+double bench_fma_peak_gflops(int threads, int repeats)
+{
+    const long iters = 20000000;
+    double best = 0;
+    for (int r = 0; r < repeats; r++) {
+        pthread_t tid[64];
+        struct peak_arg args[64];
+        if (threads > 64)
+            threads = 64;
+        double t0 = bench_now();
+        for (int t = 1; t < threads; t++) {
+            args[t].iters = iters;
+            pthread_create(&tid[t], NULL, peak_thread, &args[t]);
+        }
+        args[0].iters = iters;
+        peak_thread(&args[0]);
+        for (int t = 1; t < threads; t++)
+            pthread_join(tid[t], NULL);
+        double dt = bench_now() - t0;
+        double g = FLOPS_PER_ITER * (double)iters * threads / dt * 1e-9;
+        if (g > best)
+            best = g;
+    }
+    return best;
+}
