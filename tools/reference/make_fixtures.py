@@ -1,0 +1,133 @@
+#!/usr/bin/python3
+"""make_fixtures.py - tiny random-weight VGGT parity fixtures for tests/model/.
+
+    /usr/bin/python3 tools/reference/make_fixtures.py [OUT_DIR]
+
+For each tiny config it writes OUT_DIR/<config>/:
+    config.json            the f4d-convert config (the issue's keys)
+    weights.safetensors    the random state_dict, F32, released parameter names
+    s<S>/input.npy         [S, 3, H, W] in [0, 1]
+    s<S>/<checkpoint>.npy  intermediates and outputs, channels as PyTorch gives them
+
+The model runs in float64 on float32-representable weights and inputs, so the
+fixtures are the exact answer and a C port in float32 is judged by its own
+rounding only. Results are saved as float32.
+"""
+import json
+import os
+import struct
+import sys
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from vggt_ref import VGGT, Config, aa_bicubic_weights  # noqa: E402
+
+CONFIGS = {
+    # DINO patch embed; 42x70 input: pos-embed grid 4x4 -> 3x5 (down rows, up columns).
+    "tiny": dict(cfg=Config(img_size=56, patch_size=14, embed_dim=32, depth=5, num_heads=2,
+                            mlp_ratio=2.0, num_register_tokens=2, patch_embed="dino",
+                            dino_depth=2, dino_num_heads=2, camera_trunk_depth=2,
+                            camera_num_heads=2, camera_iters=4, dpt_features=16,
+                            dpt_out_channels=[8, 16, 24, 24], dpt_layer_idx=[0, 2, 3, 4]),
+                 H=42, W=70, views=[1, 3, 4]),
+    # conv patch embed, odd grid (3x3 -> level 3 rounds up to 2x2).
+    "tiny_conv": dict(cfg=Config(img_size=42, patch_size=14, embed_dim=16, depth=3, num_heads=1,
+                                 mlp_ratio=4.0, num_register_tokens=1, patch_embed="conv",
+                                 dino_depth=0, dino_num_heads=1, camera_trunk_depth=1,
+                                 camera_num_heads=1, camera_iters=2, dpt_features=8,
+                                 dpt_out_channels=[4, 8, 8, 12], dpt_layer_idx=[0, 1, 1, 2]),
+                      H=42, W=42, views=[2]),
+}
+
+
+def init_weights(model, gen):
+    """Random weights that keep every path active: LayerScales near 1 (not the
+    0.01 init, which would hide most of the network), moderate logits."""
+    sd = model.state_dict()
+    for name, t in sd.items():
+        if name.endswith("ls1.gamma") or name.endswith("ls2.gamma"):
+            v = 0.5 + 0.5 * torch.rand(t.shape, generator=gen)
+        elif "norm" in name and name.endswith("weight"):
+            v = 1.0 + 0.2 * torch.randn(t.shape, generator=gen)
+        elif name.endswith("bias"):
+            v = 0.1 * torch.randn(t.shape, generator=gen)
+        elif name.endswith("weight"):
+            fan_in = t[0].numel() if "resize_layers.0" not in name and "resize_layers.1" not in name \
+                else t.shape[0]
+            v = torch.randn(t.shape, generator=gen) / (fan_in ** 0.5)
+        else:  # tokens, pos_embed
+            v = 0.5 * torch.randn(t.shape, generator=gen)
+        sd[name] = v.to(torch.float32)
+    # FoV: positive (about 1 rad) so the intrinsics stay finite.
+    sd["camera_head.pose_branch.fc2.weight"] *= 0.2
+    sd["camera_head.pose_branch.fc2.bias"][7:9] = 0.3
+    for h in ("depth_head", "point_head"):
+        sd[f"{h}.scratch.output_conv2.2.weight"] *= 0.3
+    model.load_state_dict(sd)
+
+
+def write_safetensors(path, sd):
+    header, blobs, off = {}, [], 0
+    for name in sorted(sd):
+        a = sd[name].detach().to(torch.float32).contiguous().numpy()
+        b = a.astype("<f4").tobytes()
+        header[name] = {"dtype": "F32", "shape": list(a.shape), "data_offsets": [off, off + len(b)]}
+        blobs.append(b)
+        off += len(b)
+    header["__metadata__"] = {"format": "pt"}
+    hj = json.dumps(header, separators=(",", ":")).encode()
+    hj += b" " * ((8 - len(hj) % 8) % 8)
+    with open(path, "wb") as f:
+        f.write(struct.pack("<Q", len(hj)))
+        f.write(hj)
+        for b in blobs:
+            f.write(b)
+
+
+def check_aa_bicubic():
+    """The spec's PIL-style bicubic against torch's antialiased interpolate."""
+    for n_in, n_out in ((37, 28), (37, 20), (5, 7), (4, 3), (4, 5)):
+        m = torch.tensor(aa_bicubic_weights(n_in, n_out), dtype=torch.float32)
+        x = torch.randn(1, 1, n_in, 1)
+        ref = F.interpolate(x, size=(n_out, 1), mode="bicubic", antialias=True, align_corners=False)
+        err = (m @ x[0, 0, :, 0] - ref[0, 0, :, 0]).abs().max().item()
+        assert err < 1e-5, f"aa bicubic {n_in}->{n_out}: {err}"
+
+
+def main():
+    out_root = sys.argv[1] if len(sys.argv) > 1 else os.path.join(
+        os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "model", "fixtures")
+    check_aa_bicubic()
+    for ci, (cname, spec) in enumerate(CONFIGS.items()):
+        cfg, H, W = spec["cfg"], spec["H"], spec["W"]
+        gen = torch.Generator().manual_seed(1234 + ci)
+        model = VGGT(cfg).eval()
+        init_weights(model, gen)
+        d = os.path.join(out_root, cname)
+        os.makedirs(d, exist_ok=True)
+        sd = {k: v for k, v in model.state_dict().items()}
+        write_safetensors(os.path.join(d, "weights.safetensors"), sd)
+        with open(os.path.join(d, "config.json"), "w") as f:
+            json.dump({k: getattr(cfg, k) for k in cfg.__dataclass_fields__}, f, indent=1)
+            f.write("\n")
+        model64 = model.double()
+        for S in spec["views"]:
+            sdir = os.path.join(d, f"s{S}")
+            os.makedirs(sdir, exist_ok=True)
+            img = torch.rand(S, 3, H, W, generator=gen).to(torch.float32)
+            out = model64(img.double())
+            np.save(os.path.join(sdir, "input.npy"), img.numpy())
+            for k, v in out.items():
+                if k.endswith(".logits"):  # the final outputs hold the same numbers
+                    continue
+                np.save(os.path.join(sdir, f"{k}.npy"), v.to(torch.float32).contiguous().numpy())
+            print(f"{cname} S={S} {H}x{W}: {len(out)} tensors, depth range "
+                  f"{out['depth'].min().item():.3g}..{out['depth'].max().item():.3g}")
+        model.float()
+
+
+if __name__ == "__main__":
+    main()
