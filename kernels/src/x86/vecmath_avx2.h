@@ -1,0 +1,245 @@
+/* vecmath_avx2.h - AVX2/FMA vector math shared by the element-wise ops, the
+ * GEMM epilogues and attention. Header-only, static inline; every function
+ * carries FK_AVX2_FN, so it also inlines into a function of a translation
+ * unit built without -mavx2 that has the same target attribute (the tests).
+ *
+ * Accuracy against the exact value (measured in tests/kernels/test_vecmath.c
+ * by dense sweeps against double libm):
+ *   fk__exp_avx2, fk__exp2_avx2  <= 2 ulp on the whole float range, subnormal
+ *                                  results included (measured: 1.0 ulp); 0
+ *                                  below -103.97 / -150, +Inf above 88.72 / 128
+ *   fk__erf_avx2                 absolute error <= 2e-7
+ *   fk__erfc_avx2                relative error <= 1e-6 while the result is a
+ *                                normal float (x < ~9.1), then subnormal / 0
+ *   fk__gelu_avx2                x Phi(x), exact-erf GELU: relative error
+ *                                <= 1e-6 wherever the result is a normal float,
+ *                                negative tail included (gelu(-10) = -7.62e-23)
+ *   fk__sigmoid_avx2             relative error <= 5e-7
+ *   fk__silu_avx2                relative error <= 5e-7
+ * Special values: NaN in gives NaN out everywhere. exp(+Inf) = +Inf,
+ * exp(-Inf) = 0, erf(+-Inf) = +-1, gelu and silu return their limits at
+ * +-Inf (+Inf and -0), sigmoid(+-Inf) = 1 and 0.
+ *
+ * NaN and clamping: _mm256_min_ps / _mm256_max_ps return their SECOND operand
+ * when either is NaN, so every clamp below puts the value second.
+ *
+ * fk__hmax_avx2 may drop NaN lanes: use it where a NaN shows up later anyway,
+ * as in softmax, where exp(NaN - max) is NaN. */
+#ifndef FK_VECMATH_AVX2_H
+#define FK_VECMATH_AVX2_H
+
+#include <immintrin.h>
+
+#define FK_AVX2_FN __attribute__((target("avx2,fma,f16c"))) static inline
+
+/* 2^n for integral n in [-252, 254], applied to p as p * 2^(n/2) * 2^(n - n/2)
+ * so both factors are normal: results overflow to Inf and underflow into
+ * correctly rounded subnormals with a single rounding. */
+FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n)
+{
+    __m256i k = _mm256_cvtps_epi32(n);
+    __m256i k1 = _mm256_srai_epi32(k, 1);
+    __m256i k2 = _mm256_sub_epi32(k, k1);
+    const __m256i bias = _mm256_set1_epi32(127);
+    __m256 s1 = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(k1, bias), 23));
+    __m256 s2 = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(k2, bias), 23));
+    return _mm256_mul_ps(_mm256_mul_ps(p, s1), s2);
+}
+
+/* e^r for |r| <= ln2/2 (Cephes expf minimax polynomial, ~1 ulp). */
+FK_AVX2_FN __m256 fk__exp_core_avx2(__m256 r)
+{
+    __m256 p = _mm256_set1_ps(1.9875691500e-4f);
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(1.3981999507e-3f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(8.3334519073e-3f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(4.1665795894e-2f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(1.6666665459e-1f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(5.0000001201e-1f));
+    p = _mm256_fmadd_ps(p, _mm256_mul_ps(r, r), r);
+    return _mm256_add_ps(p, _mm256_set1_ps(1.0f));   /* exp(0) == 1 exactly */
+}
+
+/* e^x = p * 2^n with p in [0.7, 1.42]: callers that multiply the result by
+ * something scale p first, so a result near the subnormal range is rounded
+ * once, at the end (see fk__erfc_tail_avx2 and fk__silu_avx2). */
+FK_AVX2_FN __m256 fk__exp_split_avx2(__m256 x, __m256 *n)
+{
+    /* e^89 overflows and even 1e38 e^-170 is below 2^-150: clamping there
+     * keeps n inside fk__scale2n_avx2's range and changes no result, also
+     * not of a product m p 2^n with |m| < 1e38. */
+    x = _mm256_min_ps(_mm256_set1_ps(89.0f), _mm256_max_ps(_mm256_set1_ps(-170.0f), x));
+    *n = _mm256_round_ps(_mm256_mul_ps(x, _mm256_set1_ps(1.44269502e+0f)),
+                         _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    __m256 r = _mm256_fnmadd_ps(*n, _mm256_set1_ps(6.93147182e-1f), x);   /* ln2 hi */
+    r = _mm256_fnmadd_ps(*n, _mm256_set1_ps(-1.90465432e-9f), r);         /* ln2 lo */
+    return fk__exp_core_avx2(r);
+}
+
+/* Natural exponential. */
+FK_AVX2_FN __m256 fk__exp_avx2(__m256 x)
+{
+    __m256 n;
+    __m256 p = fk__exp_split_avx2(x, &n);
+    return fk__scale2n_avx2(p, n);
+}
+
+/* 2^x. */
+FK_AVX2_FN __m256 fk__exp2_avx2(__m256 x)
+{
+    x = _mm256_min_ps(_mm256_set1_ps(129.0f), _mm256_max_ps(_mm256_set1_ps(-151.0f), x));
+    __m256 n = _mm256_round_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    __m256 f = _mm256_sub_ps(x, n);                                      /* exact */
+    __m256 r = _mm256_fmadd_ps(f, _mm256_set1_ps(6.93147182e-1f),
+                               _mm256_mul_ps(f, _mm256_set1_ps(-1.90465432e-9f)));
+    return fk__scale2n_avx2(fk__exp_core_avx2(r), n);
+}
+
+/* erf(a) / a as a polynomial in a^2, for |a| <= 0.5 (relative error 1.4e-9). */
+FK_AVX2_FN __m256 fk__erf_small_avx2(__m256 a2)
+{
+    __m256 p = _mm256_set1_ps(4.719082732e-03f);
+    p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(-2.675773203e-02f));
+    p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(1.128283143e-01f));
+    p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(-3.761260808e-01f));
+    return _mm256_fmadd_ps(p, a2, _mm256_set1_ps(1.128379107e+00f));
+}
+
+/* m erfc(a) for a >= 0.5 with relative accuracy, given a^2 = s + t as an
+ * unevaluated sum (s rounded, t its rounding error: without t, exp(-a^2)
+ * would lose a^2 * 2^-24 relative, 3e-6 at a = 7). The factor m goes in
+ * before the final scaling by 2^n, so a product near FLT_MIN is rounded once.
+ * erfc(a) = exp(-a^2) R(a), R(a) = exp(a^2) erfc(a) a polynomial in
+ * q = (a - 2) / (a + 2) fitted on a in [0.5, 10.1] (relative error 6e-9).
+ * Beyond a = 10.1, exp(-s) is 0 and so is the result. */
+FK_AVX2_FN __m256 fk__erfc_tail_avx2(__m256 a, __m256 s, __m256 t, __m256 m)
+{
+    const __m256 two = _mm256_set1_ps(2.0f);
+    a = _mm256_min_ps(_mm256_set1_ps(10.1f), a);
+    __m256 q = _mm256_div_ps(_mm256_sub_ps(a, two), _mm256_add_ps(a, two));
+    __m256 p = _mm256_set1_ps(1.509543217e-04f);
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(6.107941590e-05f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-9.750566678e-04f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-8.517430979e-04f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(6.996694952e-03f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(3.733400023e-03f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-7.897856086e-02f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(2.416581810e-01f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-4.271858335e-01f));
+    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(2.553956807e-01f));
+    __m256 n;
+    __m256 e = fk__exp_split_avx2(_mm256_sub_ps(_mm256_setzero_ps(), s), &n);
+    __m256 r = _mm256_mul_ps(m, p);
+    r = _mm256_fnmadd_ps(r, t, r);             /* exp(-s - t) = exp(-s) (1 - t) */
+    return fk__scale2n_avx2(_mm256_mul_ps(r, e), n);
+}
+
+FK_AVX2_FN __m256 fk__abs_avx2(__m256 x)
+{
+    return _mm256_andnot_ps(_mm256_set1_ps(-0.0f), x);
+}
+
+/* |x| clamped to c (NaN stays NaN), with its square as s + t. */
+FK_AVX2_FN __m256 fk__abs_sq_avx2(__m256 x, float c, __m256 *s, __m256 *t)
+{
+    __m256 a = _mm256_min_ps(_mm256_set1_ps(c), fk__abs_avx2(x));
+    *s = _mm256_mul_ps(a, a);
+    *t = _mm256_fmsub_ps(a, a, *s);
+    return a;
+}
+
+FK_AVX2_FN __m256 fk__erf_avx2(__m256 x)
+{
+    __m256 s, t;
+    __m256 a = fk__abs_sq_avx2(x, 12.0f, &s, &t);   /* erf(12) == 1 in float */
+    __m256 small = _mm256_mul_ps(x, fk__erf_small_avx2(_mm256_mul_ps(x, x)));
+    __m256 big = _mm256_sub_ps(_mm256_set1_ps(1.0f), fk__erfc_tail_avx2(a, s, t, _mm256_set1_ps(1.0f)));
+    big = _mm256_or_ps(big, _mm256_and_ps(x, _mm256_set1_ps(-0.0f)));   /* sign of x */
+    return _mm256_blendv_ps(big, small, _mm256_cmp_ps(a, _mm256_set1_ps(0.5f), _CMP_LT_OQ));
+}
+
+FK_AVX2_FN __m256 fk__erfc_avx2(__m256 x)
+{
+    __m256 s, t;
+    __m256 a = fk__abs_sq_avx2(x, 12.0f, &s, &t);
+    __m256 small = _mm256_fnmadd_ps(x, fk__erf_small_avx2(_mm256_mul_ps(x, x)),
+                                    _mm256_set1_ps(1.0f));
+    __m256 tail = fk__erfc_tail_avx2(a, s, t, _mm256_set1_ps(1.0f));
+    __m256 neg = _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ);
+    tail = _mm256_blendv_ps(tail, _mm256_sub_ps(_mm256_set1_ps(2.0f), tail), neg);
+    return _mm256_blendv_ps(tail, small, _mm256_cmp_ps(a, _mm256_set1_ps(0.5f), _CMP_LT_OQ));
+}
+
+/* Exact-erf GELU, x Phi(x) = 0.5 x (1 + erf(x / sqrt 2)) = 0.5 x erfc(-x / sqrt 2).
+ * For |x| >= 0.5 sqrt 2 it goes through erfc(|x| / sqrt 2), with x^2 / 2 taken
+ * from x directly (not from the rounded x / sqrt 2), so the negative tail keeps
+ * its relative accuracy. */
+FK_AVX2_FN __m256 fk__gelu_avx2(__m256 x)
+{
+    const __m256 half = _mm256_set1_ps(0.5f);
+    /* gelu(-17) and 1 - gelu(17)/17 vanish in float: the clamp changes
+     * nothing but keeps Inf out of x^2 (Inf - Inf) */
+    __m256 xc = _mm256_min_ps(_mm256_set1_ps(17.0f), _mm256_max_ps(_mm256_set1_ps(-17.0f), x));
+    __m256 h = _mm256_mul_ps(xc, xc);
+    __m256 s = _mm256_mul_ps(h, half);
+    __m256 t = _mm256_mul_ps(_mm256_fmsub_ps(xc, xc, h), half);
+    __m256 u = _mm256_mul_ps(xc, _mm256_set1_ps(7.071067691e-01f));
+    __m256 a = fk__abs_avx2(u);
+    __m256 hx = _mm256_mul_ps(half, xc);
+    __m256 neg = _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ);
+    /* x < 0: 0.5 x erfc(|x| / sqrt 2) directly; x >= 0: x (1 - 0.5 erfc) */
+    __m256 m = _mm256_blendv_ps(_mm256_set1_ps(-0.5f), hx, neg);
+    __m256 c = fk__erfc_tail_avx2(a, s, t, m);
+    __m256 big = _mm256_blendv_ps(_mm256_mul_ps(x, _mm256_add_ps(_mm256_set1_ps(1.0f), c)), c, neg);
+    __m256 small = _mm256_fmadd_ps(hx, _mm256_mul_ps(u, fk__erf_small_avx2(_mm256_mul_ps(u, u))), hx);
+    return _mm256_blendv_ps(big, small, _mm256_cmp_ps(a, half, _CMP_LT_OQ));
+}
+
+/* 1 / (1 + e^-x) from e = e^-|x| in (0, 1]: 1/(1+e) for x >= 0, e/(1+e) below,
+ * so both tails keep their relative accuracy. */
+FK_AVX2_FN __m256 fk__sigmoid_avx2(__m256 x)
+{
+    __m256 e = fk__exp_avx2(_mm256_or_ps(x, _mm256_set1_ps(-0.0f)));   /* -|x| */
+    __m256 r = _mm256_div_ps(_mm256_set1_ps(1.0f), _mm256_add_ps(_mm256_set1_ps(1.0f), e));
+    __m256 neg = _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ);
+    return _mm256_blendv_ps(r, _mm256_mul_ps(e, r), neg);
+}
+
+/* x sigmoid(x): x / (1 + e) for x >= 0 and x e / (1 + e) below, with x e
+ * rounded once even where e = e^x is subnormal. x is clamped below at -170
+ * first, where the result is -0 anyway, so silu(-Inf) is -0, not -Inf * 0. */
+FK_AVX2_FN __m256 fk__silu_avx2(__m256 x)
+{
+    x = _mm256_max_ps(_mm256_set1_ps(-170.0f), x);
+    __m256 n;
+    __m256 p = fk__exp_split_avx2(_mm256_or_ps(x, _mm256_set1_ps(-0.0f)), &n);
+    __m256 e = fk__scale2n_avx2(p, n);
+    __m256 r = _mm256_div_ps(_mm256_set1_ps(1.0f), _mm256_add_ps(_mm256_set1_ps(1.0f), e));
+    __m256 neg = _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ);
+    __m256 num = _mm256_blendv_ps(x, fk__scale2n_avx2(_mm256_mul_ps(x, p), n), neg);
+    return _mm256_mul_ps(num, r);
+}
+
+FK_AVX2_FN float fk__hsum_avx2(__m256 v)
+{
+    __m128 s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+    s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+    s = _mm_add_ss(s, _mm_movehdup_ps(s));
+    return _mm_cvtss_f32(s);
+}
+
+FK_AVX2_FN float fk__hmax_avx2(__m256 v)
+{
+    __m128 m = _mm_max_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+    m = _mm_max_ps(m, _mm_movehl_ps(m, m));
+    m = _mm_max_ss(m, _mm_movehdup_ps(m));
+    return _mm_cvtss_f32(m);
+}
+
+/* Loads / stores the first n < 8 floats (the tail of a row); other lanes 0. */
+FK_AVX2_FN __m256i fk__tail_mask_avx2(int n)
+{
+    const __m256i idx = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    return _mm256_cmpgt_epi32(_mm256_set1_epi32(n), idx);
+}
+
+#endif /* FK_VECMATH_AVX2_H */
