@@ -1,0 +1,226 @@
+/* model.h - the inference core: VGGT (vggt.md) on the fk kernels.
+ *
+ * Three phases, after TFLite Micro:
+ *   Init     model_init: opens the GGUF weight file (tools/f4d-convert), reads
+ *            every dimension from its forge4d.* metadata, validates each tensor
+ *            (name, type, shape) and packs the weights for the kernels in the
+ *            requested precision (f32, f16 or int8 per output channel).
+ *   Prepare  model_prepare: plans ONE arena for the largest frame set it will
+ *            see (views x height x width) and allocates it. model_arena_bytes
+ *            reports its size; model_plan_bytes gives it without weights.
+ *   Eval     model_eval: runs the network; it never allocates and never logs.
+ *
+ *     fk_ctx *ctx;  struct model *m;  struct model_outputs out;  char err[256];
+ *     fk_ctx_new(&(struct fk_ctx_config){ .threads = 0 }, &ctx);
+ *     if (model_init(ctx, "vggt.gguf", FK_W_F32, &m, err, sizeof err) < 0) puts(err);
+ *     model_prepare(m, 4, 518, 518);                 // arena for up to 4 views
+ *     model_eval(m, images, 4, 392, 518, &out);      // images [S,3,H,W] in [0,1]
+ *     ... out.depth[(s * H + y) * W + x] ...
+ *     model_free(m);
+ *
+ * Shape of the model, so that Forge4D's parts plug in without rework:
+ *   - per-layer features are addressable: model_layer() returns aggregator
+ *     output l (frame || global, [S*P', 2C]) for every layer a head reads,
+ *     and a tap callback sees every checkpoint (patch embed, layers, camera
+ *     iterations, DPT levels) as it is produced;
+ *   - state carried between time steps is explicit: struct model_hooks gives
+ *     a callback after each global block with the token stream, where a state
+ *     block reads and writes its own state (the model itself keeps none);
+ *   - heads are added by registration: struct model_head_ops (init / layers /
+ *     plan / eval / free) in a static table of built-in heads (camera, depth,
+ *     point) plus model_register_head() for more before model_prepare.
+ *
+ * Errors: functions return 0 or a negative MODEL_E* code, with a message in
+ * the caller's buffer (init) or model_error() naming the tensor, key or
+ * argument at fault.
+ */
+#ifndef F4D_MODEL_H
+#define F4D_MODEL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "fk_ctx.h"
+#include "fk_linear.h"
+#include "gguf.h"
+
+#define MODEL_LAYERS_MAX  64   /* aggregator depth limit (bit mask width)   */
+#define MODEL_VIEWS_MAX   8
+#define MODEL_HEADS_MAX   8
+#define MODEL_POSE_DIM    9
+#define MODEL_NAME_MAX    96
+#define MODEL_DPT_HIDDEN2 32   /* output_conv2.0 width, fixed in VGGT        */
+
+enum model_status {
+    MODEL_OK      =  0,
+    MODEL_EINVAL  = -1, /* bad argument or shape                                  */
+    MODEL_EFORMAT = -2, /* weight file inconsistent (names the tensor or key)      */
+    MODEL_ENOMEM  = -3,
+    MODEL_EKERNEL = -4, /* a kernel failed (its message is passed on)               */
+    MODEL_EIO     = -5,
+};
+
+enum model_patch_embed { MODEL_PATCH_DINO = 0, MODEL_PATCH_CONV = 1 };
+
+/* Every dimension of the network. Defaults (model_config_default) are VGGT-1B;
+ * the weight file stores each one as a forge4d.<field> key. */
+struct model_config {
+    int   img_size, patch_size, embed_dim, depth, num_heads;
+    float mlp_ratio;
+    int   num_register_tokens;
+    int   patch_embed;              /* enum model_patch_embed */
+    int   dino_depth, dino_num_heads;
+    int   camera_trunk_depth, camera_num_heads, camera_iters;
+    int   dpt_features, dpt_out_channels[4], dpt_layer_idx[4];
+};
+
+void model_config_default(struct model_config *c);
+/* Range and divisibility checks; the message names the field. */
+int  model_config_check  (const struct model_config *c, char *err, size_t err_size);
+int  model_config_read   (gguf_file *f, struct model_config *c, char *err, size_t err_size);
+int  model_config_write  (const struct model_config *c, gguf_writer *w);
+int  model_mlp_hidden    (const struct model_config *c, int dim);  /* int(dim * ratio) */
+
+/* ---- weight schema: the one table of parameter names (vggt.md keys) ------ */
+
+/* Tensor groups; a weight file holds the aggregator and any subset of heads. */
+enum model_group {
+    MODEL_G_AGGREGATOR = 1u << 0,
+    MODEL_G_CAMERA     = 1u << 1,
+    MODEL_G_DEPTH      = 1u << 2,
+    MODEL_G_POINT      = 1u << 3,
+};
+#define MODEL_G_ALL 0xfu
+
+enum model_tclass {
+    MODEL_T_F32    = 0, /* kept f32: norms, biases, LayerScale, tokens, pos-embeds,
+                           the patchify conv                                         */
+    MODEL_T_QUANT  = 1, /* linear / conv weights: f32, f16 or int8 as converted     */
+    MODEL_T_UNUSED = 2, /* known but unused at inference (mask_token): dropped      */
+};
+
+struct model_tensor_info {
+    char    name[MODEL_NAME_MAX];
+    int     n_dims;
+    int64_t shape[4];               /* PyTorch order, outermost first         */
+    int     tclass;                 /* enum model_tclass                      */
+    int     qaxis;                  /* int8 scale axis: the output channel (1
+                                       for ConvTranspose [in,out,k,k], else 0) */
+    unsigned group;
+};
+
+typedef int (*model_tensor_fn)(void *user, const struct model_tensor_info *t);
+/* Calls fn for every tensor of the groups, in a fixed order; stops on fn < 0. */
+int         model_schema_foreach(const struct model_config *c, unsigned groups,
+                                 model_tensor_fn fn, void *user);
+/* Group of a tensor name by its prefix (0 when none matches). */
+unsigned    model_group_of(const char *name);
+const char *model_group_prefix(unsigned group);
+
+/* ---- runtime ------------------------------------------------------------ */
+
+struct model;
+
+struct model_outputs {
+    int          S, H, W;
+    const float *pose_enc;          /* [S, 9]           camera head, else NULL */
+    const float *pose_enc_list;     /* [iters, S, 9]                           */
+    const float *extrinsic;         /* [S, 3, 4] world-to-camera                */
+    const float *intrinsic;         /* [S, 3, 3]                                */
+    const float *depth;             /* [S, H, W]        depth head, else NULL  */
+    const float *depth_conf;        /* [S, H, W]                               */
+    const float *world_points;      /* [S, H, W, 3]     point head, else NULL  */
+    const float *world_points_conf; /* [S, H, W]                               */
+};
+
+/* Checkpoint callback. Names and layouts (f = frame, -1 = all frames):
+ *   "patch_embed"       f=-1 [S, P, C]        patch tokens after the patch embed
+ *   "layer<l>"          f=-1 [S, P', 2C]      aggregator output l (kept layers)
+ *   "camera_iter<i>"    f=-1 [S, 9]           activated pose encoding, iteration i
+ *   "<head>.level<i>"   f    [h_i, w_i, c_i]  DPT level i after its resize (HWC)
+ *   "<head>.fused"      f    [8h, 8w, F]      DPT fusion output (HWC)
+ * Called from Eval: it must not keep the pointer. */
+typedef void (*model_tap_fn)(void *user, const char *name, int frame,
+                             const float *data, size_t count);
+
+/* Extension points between layers (the hook for Forge4D state blocks). */
+struct model_hooks {
+    /* After global block `layer`: x is the token stream [S*P', C] (row
+     * f*P' + t), which the hook may update in place. Return < 0 to abort. */
+    int  (*after_global)(void *user, int layer, float *x, int S, int tokens, int C);
+    void  *user;
+};
+
+/* What a head sees during Eval. */
+struct model_run {
+    struct model          *m;
+    const struct model_config *cfg;
+    int                    S, H, W, h, w, P, tokens; /* P patches, P' tokens/frame */
+    const float * const   *layers;   /* [depth]; non-NULL for every kept layer */
+    float                 *scratch;  /* the arena's scratch part (phase overlay) */
+    size_t                 scratch_bytes;
+    struct model_outputs  *out;
+};
+
+#define MODEL_HEAD_API_VERSION 1u
+
+/* A head plugged into the model. `init` returns 1 when the weight file holds
+ * no tensors under `prefix` (the head is then skipped), 0 when loaded, < 0 on
+ * error. `persist` is the head's share of the arena kept across Eval (its
+ * outputs), `scratch` what it needs while running; both sized for the largest
+ * frame set. */
+struct model_head_ops {
+    uint32_t    api_version;
+    const char *prefix;
+    int      (*init)   (struct model *m, void **head);
+    uint64_t (*layers) (const void *head);                    /* bit l: reads layer l */
+    void     (*plan)   (const void *head, int S, int H, int W,
+                        size_t *persist, size_t *scratch);
+    int      (*eval)   (void *head, struct model_run *run, float *persist);
+    void     (*free)   (void *head);
+};
+
+int   model_init        (fk_ctx *ctx, const char *path, enum fk_wtype wtype,
+                         struct model **out, char *err, size_t err_size);
+/* Adds a head after the built-in ones; before model_prepare. */
+int   model_register_head(struct model *m, const struct model_head_ops *ops);
+int   model_prepare     (struct model *m, int max_views, int max_h, int max_w);
+int   model_eval        (struct model *m, const float *images, int S, int H, int W,
+                         struct model_outputs *out);
+void  model_free        (struct model *m);
+
+const char                *model_error      (const struct model *m);
+const struct model_config *model_get_config (const struct model *m);
+fk_ctx                    *model_ctx        (struct model *m);
+enum fk_wtype              model_wtype      (const struct model *m);
+size_t                     model_arena_bytes(const struct model *m);
+size_t                     model_weight_bytes(const struct model *m); /* packed */
+/* Aggregator output l of the last Eval, [S*P', 2C], or NULL when not kept. */
+const float               *model_layer      (const struct model *m, int l);
+void  model_set_tap   (struct model *m, model_tap_fn fn, void *user);
+void  model_set_hooks (struct model *m, const struct model_hooks *hooks);
+
+/* Arena bytes model_prepare would allocate for this config and frame set
+ * with the built-in heads of `groups` (no weights needed). */
+size_t model_plan_bytes(const struct model_config *c, unsigned groups, int views, int h, int w);
+
+/* Per-stage time and FLOPs of the last Eval (FLOPs = 2 x MACs of linear,
+ * conv and attention matmuls, as vggt.md 8 counts them). */
+struct model_stage {
+    const char *name;
+    double      seconds;
+    double      flops;
+};
+int   model_stages(const struct model *m, struct model_stage *st, int cap);
+
+/* Helpers for heads (and tests): weights of the open file, packed in the
+ * model's precision; vectors stay in the mapping. Names are full names. */
+gguf_file *model_gguf   (struct model *m);
+int   model_load_vec    (struct model *m, const char *name, int n, const float **v);
+int   model_load_linear (struct model *m, struct fk_linear *L, const char *wname,
+                         const char *bname, int n, int k);
+
+/* vggt.md 5a: pose encoding [9] to extrinsic [3x4] and intrinsic [3x3]. */
+void  model_pose_to_extri_intri(const float *enc, int H, int W, float *ext, float *intr);
+
+#endif /* F4D_MODEL_H */

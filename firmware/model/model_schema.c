@@ -1,0 +1,195 @@
+/* model_schema.c - every parameter name and shape of VGGT (vggt.md 2-6), from
+ * the config. The converter checks a checkpoint against it and the loader reads
+ * the weight file through it, so there is one table of names. */
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "model.h"
+
+struct emit {
+    model_tensor_fn fn;
+    void           *user;
+    unsigned        group;
+    int             rc;
+};
+
+static void put(struct emit *e, int tclass, int qaxis, int nd, const int64_t *shape,
+                const char *fmt, ...)
+{
+    if (e->rc < 0)
+        return;
+    struct model_tensor_info t;
+    memset(&t, 0, sizeof t);
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(t.name, sizeof t.name, fmt, ap);
+    va_end(ap);
+    t.n_dims = nd;
+    for (int i = 0; i < nd; i++)
+        t.shape[i] = shape[i];
+    t.tclass = tclass;
+    t.qaxis = qaxis;
+    t.group = e->group;
+    e->rc = e->fn(e->user, &t);
+}
+
+#define S1(a) (const int64_t[]){ (a) }
+#define S2(a, b) (const int64_t[]){ (a), (b) }
+#define S3(a, b, c) (const int64_t[]){ (a), (b), (c) }
+#define S4(a, b, c, d) (const int64_t[]){ (a), (b), (c), (d) }
+
+static void linear(struct emit *e, const char *p, int out, int in)
+{
+    put(e, MODEL_T_QUANT, 0, 2, S2(out, in), "%s.weight", p);
+    put(e, MODEL_T_F32, 0, 1, S1(out), "%s.bias", p);
+}
+
+static void norm(struct emit *e, const char *p, int n)
+{
+    put(e, MODEL_T_F32, 0, 1, S1(n), "%s.weight", p);
+    put(e, MODEL_T_F32, 0, 1, S1(n), "%s.bias", p);
+}
+
+static void conv(struct emit *e, const char *p, int out, int in, int k, int bias)
+{
+    put(e, MODEL_T_QUANT, 0, 4, S4(out, in, k, k), "%s.weight", p);
+    if (bias)
+        put(e, MODEL_T_F32, 0, 1, S1(out), "%s.bias", p);
+}
+
+static void block(struct emit *e, const char *p, int dim, int heads, int hidden, int qk_norm)
+{
+    char b[MODEL_NAME_MAX];
+    snprintf(b, sizeof b, "%s.norm1", p);      norm(e, b, dim);
+    snprintf(b, sizeof b, "%s.attn.qkv", p);   linear(e, b, 3 * dim, dim);
+    if (qk_norm) {
+        snprintf(b, sizeof b, "%s.attn.q_norm", p); norm(e, b, dim / heads);
+        snprintf(b, sizeof b, "%s.attn.k_norm", p); norm(e, b, dim / heads);
+    }
+    snprintf(b, sizeof b, "%s.attn.proj", p);  linear(e, b, dim, dim);
+    put(e, MODEL_T_F32, 0, 1, S1(dim), "%s.ls1.gamma", p);
+    snprintf(b, sizeof b, "%s.norm2", p);      norm(e, b, dim);
+    snprintf(b, sizeof b, "%s.mlp.fc1", p);    linear(e, b, hidden, dim);
+    snprintf(b, sizeof b, "%s.mlp.fc2", p);    linear(e, b, dim, hidden);
+    put(e, MODEL_T_F32, 0, 1, S1(dim), "%s.ls2.gamma", p);
+}
+
+static void dpt(struct emit *e, const char *h, const struct model_config *c, int out_dim)
+{
+    char b[MODEL_NAME_MAX];
+    const int *oc = c->dpt_out_channels, F = c->dpt_features, D = 2 * c->embed_dim;
+    snprintf(b, sizeof b, "%s.norm", h); norm(e, b, D);
+    for (int i = 0; i < 4; i++) {
+        snprintf(b, sizeof b, "%s.projects.%d", h, i);
+        conv(e, b, oc[i], D, 1, 1);
+    }
+    put(e, MODEL_T_QUANT, 1, 4, S4(oc[0], oc[0], 4, 4), "%s.resize_layers.0.weight", h);
+    put(e, MODEL_T_F32, 0, 1, S1(oc[0]), "%s.resize_layers.0.bias", h);
+    put(e, MODEL_T_QUANT, 1, 4, S4(oc[1], oc[1], 2, 2), "%s.resize_layers.1.weight", h);
+    put(e, MODEL_T_F32, 0, 1, S1(oc[1]), "%s.resize_layers.1.bias", h);
+    snprintf(b, sizeof b, "%s.resize_layers.3", h); conv(e, b, oc[3], oc[3], 3, 1);
+    for (int i = 0; i < 4; i++) {
+        snprintf(b, sizeof b, "%s.scratch.layer%d_rn", h, i + 1);
+        conv(e, b, F, oc[i], 3, 0);
+    }
+    for (int r = 1; r <= 4; r++)
+        for (int u = (r == 4 ? 2 : 1); u <= 2; u++)
+            for (int k = 1; k <= 2; k++) {
+                snprintf(b, sizeof b, "%s.scratch.refinenet%d.resConfUnit%d.conv%d", h, r, u, k);
+                conv(e, b, F, F, 3, 1);
+            }
+    for (int r = 1; r <= 4; r++) {
+        snprintf(b, sizeof b, "%s.scratch.refinenet%d.out_conv", h, r);
+        conv(e, b, F, F, 1, 1);
+    }
+    snprintf(b, sizeof b, "%s.scratch.output_conv1", h);   conv(e, b, F / 2, F, 3, 1);
+    snprintf(b, sizeof b, "%s.scratch.output_conv2.0", h); conv(e, b, MODEL_DPT_HIDDEN2, F / 2, 3, 1);
+    snprintf(b, sizeof b, "%s.scratch.output_conv2.2", h); conv(e, b, out_dim, MODEL_DPT_HIDDEN2, 1, 1);
+}
+
+int model_schema_foreach(const struct model_config *c, unsigned groups, model_tensor_fn fn,
+                         void *user)
+{
+    struct emit e = { fn, user, 0, 0 };
+    char b[MODEL_NAME_MAX];
+    const int C = c->embed_dim, D = 2 * C, R = c->num_register_tokens, p = c->patch_size;
+    const int hid = model_mlp_hidden(c, C);
+    if (groups & MODEL_G_AGGREGATOR) {
+        e.group = MODEL_G_AGGREGATOR;
+        if (c->patch_embed == MODEL_PATCH_DINO) {
+            const int g = c->img_size / p;
+            /* The patchify conv stays f32: it sees raw pixels (6.6 GFLOP only). */
+            put(&e, MODEL_T_F32, 0, 4, S4(C, 3, p, p), "aggregator.patch_embed.patch_embed.proj.weight");
+            put(&e, MODEL_T_F32, 0, 1, S1(C), "aggregator.patch_embed.patch_embed.proj.bias");
+            put(&e, MODEL_T_F32, 0, 3, S3(1, 1, C), "aggregator.patch_embed.cls_token");
+            put(&e, MODEL_T_F32, 0, 3, S3(1, 1 + g * g, C), "aggregator.patch_embed.pos_embed");
+            if (R > 0)
+                put(&e, MODEL_T_F32, 0, 3, S3(1, R, C), "aggregator.patch_embed.register_tokens");
+            put(&e, MODEL_T_UNUSED, 0, 2, S2(1, C), "aggregator.patch_embed.mask_token");
+            for (int i = 0; i < c->dino_depth; i++) {
+                snprintf(b, sizeof b, "aggregator.patch_embed.blocks.%d", i);
+                block(&e, b, C, c->dino_num_heads, hid, 0);
+            }
+            norm(&e, "aggregator.patch_embed.norm", C);
+        } else {
+            put(&e, MODEL_T_F32, 0, 4, S4(C, 3, p, p), "aggregator.patch_embed.proj.weight");
+            put(&e, MODEL_T_F32, 0, 1, S1(C), "aggregator.patch_embed.proj.bias");
+        }
+        put(&e, MODEL_T_F32, 0, 4, S4(1, 2, 1, C), "aggregator.camera_token");
+        if (R > 0)
+            put(&e, MODEL_T_F32, 0, 4, S4(1, 2, R, C), "aggregator.register_token");
+        for (int i = 0; i < c->depth; i++) {
+            snprintf(b, sizeof b, "aggregator.frame_blocks.%d", i);
+            block(&e, b, C, c->num_heads, hid, 1);
+        }
+        for (int i = 0; i < c->depth; i++) {
+            snprintf(b, sizeof b, "aggregator.global_blocks.%d", i);
+            block(&e, b, C, c->num_heads, hid, 1);
+        }
+    }
+    if (groups & MODEL_G_CAMERA) {
+        e.group = MODEL_G_CAMERA;
+        norm(&e, "camera_head.token_norm", D);
+        norm(&e, "camera_head.trunk_norm", D);
+        put(&e, MODEL_T_F32, 0, 3, S3(1, 1, MODEL_POSE_DIM), "camera_head.empty_pose_tokens");
+        linear(&e, "camera_head.embed_pose", D, MODEL_POSE_DIM);
+        linear(&e, "camera_head.poseLN_modulation.1", 3 * D, D);
+        for (int i = 0; i < c->camera_trunk_depth; i++) {
+            snprintf(b, sizeof b, "camera_head.trunk.%d", i);
+            block(&e, b, D, c->camera_num_heads, model_mlp_hidden(c, D), 0);
+        }
+        linear(&e, "camera_head.pose_branch.fc1", D / 2, D);
+        linear(&e, "camera_head.pose_branch.fc2", MODEL_POSE_DIM, D / 2);
+    }
+    if (groups & MODEL_G_DEPTH) {
+        e.group = MODEL_G_DEPTH;
+        dpt(&e, "depth_head", c, 2);
+    }
+    if (groups & MODEL_G_POINT) {
+        e.group = MODEL_G_POINT;
+        dpt(&e, "point_head", c, 4);
+    }
+    return e.rc;
+}
+
+static const struct { unsigned g; const char *prefix; } groups_tab[] = {
+    { MODEL_G_AGGREGATOR, "aggregator." }, { MODEL_G_CAMERA, "camera_head." },
+    { MODEL_G_DEPTH, "depth_head." },      { MODEL_G_POINT, "point_head." },
+};
+
+unsigned model_group_of(const char *name)
+{
+    for (size_t i = 0; i < sizeof groups_tab / sizeof groups_tab[0]; i++)
+        if (!strncmp(name, groups_tab[i].prefix, strlen(groups_tab[i].prefix)))
+            return groups_tab[i].g;
+    return 0;
+}
+
+const char *model_group_prefix(unsigned group)
+{
+    for (size_t i = 0; i < sizeof groups_tab / sizeof groups_tab[0]; i++)
+        if (groups_tab[i].g == group)
+            return groups_tab[i].prefix;
+    return "";
+}
