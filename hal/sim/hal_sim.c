@@ -1,0 +1,640 @@
+/* hal_sim.c: the simulated world (trigger generator, cameras, clock). */
+#include "hal_sim.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define SIM_QUEUE_MAX 64   /* caller buffers queued per camera */
+#define SIM_EVENTS_MAX 64  /* frames in flight per camera */
+#define SIM_EDGES_MAX 256  /* edges not yet read by the host */
+#define SIM_TRANSFER_NS 1500000u
+#define SIM_DUP_DELAY_NS 1000000u
+#define SIM_DEVICE_EPOCH_NS 1000000000000ull /* device clocks started 1000 s before the rig */
+
+enum sim_kind { SIM_EV_NORMAL, SIM_EV_DUPLICATE, SIM_EV_LATE, SIM_EV_INCOMPLETE };
+
+struct sim_event {
+    uint64_t arrival_ns;
+    uint64_t pulse_ns;
+    uint64_t seq;
+    uint64_t device_ts_ns;
+    uint64_t frame_id;
+    uint32_t clock_epoch; /* which device clock stamped it (bumped by reconnects) */
+    uint8_t kind;
+};
+
+struct sim_world;
+
+struct sim_cam {
+    struct sim_world *w;
+    uint32_t index;
+    const struct hal_camera_config *cfg;
+    struct hal_format fmt;
+    bool configured, started;
+    struct hal_buffer *queue[SIM_QUEUE_MAX];
+    uint32_t q_head, q_count;
+    struct hal_buffer *aborted[SIM_QUEUE_MAX];
+    uint32_t n_aborted;
+    struct sim_event ev[SIM_EVENTS_MAX];
+    uint32_t n_ev;
+    int64_t offset_ns;
+    double drift;
+    uint64_t frame_id;
+    uint64_t disconnected_until;
+    uint32_t clock_epoch, delivered_epoch;
+    char err[256];
+};
+
+struct sim_world {
+    const struct hal_board *board;
+    struct hal_sim_config cfg;
+    uint64_t rng;
+    uint64_t now;
+    uint64_t real_t0;
+    /* trigger */
+    bool trig_open, armed;
+    uint64_t period_ns, width_ns;
+    uint64_t next_pulse_ns, scheduled_limit;
+    uint64_t extra_at; /* 0 = none pending */
+    uint64_t seq;
+    struct hal_edge edges[SIM_EDGES_MAX];
+    uint32_t e_head, e_count;
+    uint64_t edges_overrun;
+    struct sim_cam *cams[HAL_RIG_CAMERAS_MAX];
+    uint32_t n_cams;
+    struct hal_sim_injected inj;
+    hal_sim_render_fn render;
+    void *render_user;
+    char err[256];
+};
+
+/* ---- deterministic random numbers (splitmix64) ---- */
+static uint64_t rng_next(uint64_t *s)
+{
+    uint64_t z = (*s += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+static double rng_unit(uint64_t *s) { return (double)(rng_next(s) >> 11) * (1.0 / 9007199254740992.0); }
+/* uniform in [-a, a] */
+static double rng_sym(uint64_t *s, double a) { return (2.0 * rng_unit(s) - 1.0) * a; }
+
+static uint64_t real_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static void cam_new_clock(struct sim_cam *c)
+{
+    const struct hal_sim_faults *f = &c->w->cfg.faults;
+    c->offset_ns = (int64_t)rng_sym(&c->w->rng, (double)f->clock_offset_ms * 1e6);
+    c->drift = rng_sym(&c->w->rng, (double)f->clock_drift_ppm * 1e-6);
+}
+
+/* Inserts keeping events sorted by arrival (stable for equal times). */
+static void cam_push_event(struct sim_cam *c, const struct sim_event *e)
+{
+    if (c->n_ev == SIM_EVENTS_MAX) { /* nobody is dequeuing: the oldest is lost */
+        memmove(&c->ev[0], &c->ev[1], (SIM_EVENTS_MAX - 1) * sizeof c->ev[0]);
+        c->n_ev--;
+        c->w->inj.underruns++;
+    }
+    uint32_t i = c->n_ev;
+    while (i > 0 && c->ev[i - 1].arrival_ns > e->arrival_ns) {
+        c->ev[i] = c->ev[i - 1];
+        i--;
+    }
+    c->ev[i] = *e;
+    c->n_ev++;
+}
+
+static void world_emit_pulse(struct sim_world *w, uint64_t t)
+{
+    const struct hal_sim_faults *f = &w->cfg.faults;
+    uint64_t seq = ++w->seq;
+    w->inj.edges++;
+    if (w->e_count == SIM_EDGES_MAX) {
+        w->e_head = (w->e_head + 1) % SIM_EDGES_MAX;
+        w->e_count--;
+        w->edges_overrun++;
+    }
+    struct hal_edge *e = &w->edges[(w->e_head + w->e_count++) % SIM_EDGES_MAX];
+    e->seq = seq;
+    e->ts_ns = t;
+    e->line = w->board->trigger.line >= 0 ? (uint32_t)w->board->trigger.line : 0;
+    e->rising = true;
+
+    for (uint32_t i = 0; i < w->n_cams; i++) {
+        struct sim_cam *c = w->cams[i];
+        if (!c || !c->started)
+            continue;
+        if (t < c->disconnected_until) {
+            w->inj.frames_lost_disconnected++;
+            w->inj.frames_dropped++;
+            continue;
+        }
+        if (f->disconnect > 0 && rng_unit(&w->rng) < f->disconnect) {
+            c->disconnected_until = t + (uint64_t)f->disconnect_ms * 1000000u;
+            c->clock_epoch++;
+            cam_new_clock(c);
+            w->inj.disconnects++;
+            w->inj.frames_lost_disconnected++;
+            w->inj.frames_dropped++;
+            continue;
+        }
+        w->inj.frames_exposed++;
+        struct sim_event ev = {0};
+        ev.pulse_ns = t;
+        ev.seq = seq;
+        ev.frame_id = ++c->frame_id;
+        double dev = (double)SIM_DEVICE_EPOCH_NS + (double)t * (1.0 + c->drift) +
+                     (double)c->offset_ns + rng_sym(&w->rng, (double)f->jitter_us * 1000.0);
+        ev.device_ts_ns = (uint64_t)(dev > 0 ? dev : 0);
+        ev.clock_epoch = c->clock_epoch;
+        ev.arrival_ns = t + (uint64_t)c->fmt.exposure_us * 1000u + SIM_TRANSFER_NS +
+                        (uint64_t)(rng_unit(&w->rng) * SIM_TRANSFER_NS);
+        double u = rng_unit(&w->rng);
+        double p = f->drop;
+        if (u < p) {
+            w->inj.frames_dropped++;
+            continue;
+        }
+        if (u < (p += f->duplicate)) {
+            cam_push_event(c, &ev);
+            ev.kind = SIM_EV_DUPLICATE;
+            ev.arrival_ns += SIM_DUP_DELAY_NS;
+            w->inj.frames_duplicate++;
+        } else if (u < (p += f->late)) {
+            ev.kind = SIM_EV_LATE;
+            ev.arrival_ns += (uint64_t)f->late_ms * 1000000u;
+            w->inj.frames_late++;
+        } else if (u < (p += f->incomplete)) {
+            ev.kind = SIM_EV_INCOMPLETE;
+            w->inj.frames_incomplete++;
+        }
+        cam_push_event(c, &ev);
+    }
+}
+
+/* Runs the trigger generator up to time t. */
+static void world_advance(struct sim_world *w, uint64_t t)
+{
+    const struct hal_sim_faults *f = &w->cfg.faults;
+    for (;;) {
+        bool regular = w->armed && w->next_pulse_ns <= t &&
+                       (w->scheduled_limit == 0 || w->inj.pulses_scheduled < w->scheduled_limit);
+        bool extra = w->extra_at && w->extra_at <= t;
+        if (!regular && !extra)
+            break;
+        if (extra && (!regular || w->extra_at < w->next_pulse_ns)) {
+            uint64_t at = w->extra_at;
+            w->extra_at = 0;
+            w->inj.triggers_extra++;
+            world_emit_pulse(w, at);
+            continue;
+        }
+        uint64_t at = w->next_pulse_ns;
+        w->next_pulse_ns += w->period_ns;
+        w->inj.pulses_scheduled++;
+        if (f->trigger_missing > 0 && rng_unit(&w->rng) < f->trigger_missing)
+            w->inj.triggers_missing++;
+        else
+            world_emit_pulse(w, at);
+        if (f->trigger_extra > 0 && rng_unit(&w->rng) < f->trigger_extra)
+            w->extra_at = at + w->period_ns / 2;
+    }
+}
+
+static uint64_t world_now(struct sim_world *w)
+{
+    if (w->cfg.realtime)
+        w->now = real_now() - w->real_t0;
+    world_advance(w, w->now);
+    return w->now;
+}
+
+static void world_sleep_until(struct sim_world *w, uint64_t t)
+{
+    if (w->cfg.realtime) {
+        uint64_t target = w->real_t0 + t;
+        struct timespec ts = {(time_t)(target / 1000000000u), (long)(target % 1000000000u)};
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
+        }
+    } else if (t > w->now) {
+        w->now = t;
+    }
+    world_now(w);
+}
+
+static uint64_t world_next_event(struct sim_world *w)
+{
+    uint64_t n = UINT64_MAX;
+    if (w->armed && (w->scheduled_limit == 0 || w->inj.pulses_scheduled < w->scheduled_limit))
+        n = w->next_pulse_ns;
+    if (w->extra_at && w->extra_at < n)
+        n = w->extra_at;
+    for (uint32_t i = 0; i < w->n_cams; i++) {
+        struct sim_cam *c = w->cams[i];
+        if (c && c->n_ev && c->ev[0].arrival_ns < n)
+            n = c->ev[0].arrival_ns;
+        if (c && c->disconnected_until > w->now && c->disconnected_until < n)
+            n = c->disconnected_until;
+    }
+    return n;
+}
+
+/* ---- clock ops ---- */
+static uint64_t clk_now(void *ctx) { return world_now(ctx); }
+static void clk_sleep(void *ctx, uint64_t t) { world_sleep_until(ctx, t); }
+static uint64_t clk_next(void *ctx)
+{
+    struct sim_world *w = ctx;
+    world_now(w);
+    return world_next_event(w);
+}
+
+/* ---- camera ops ---- */
+static int cam_fail(struct sim_cam *c, int rc, const char *what)
+{
+    snprintf(c->err, sizeof c->err, "sim camera %s: %s", c->cfg->id, what);
+    return rc;
+}
+
+static int cam_validate(void *ctx, struct hal_format *f)
+{
+    struct sim_cam *c = ctx;
+    struct hal_format in = *f;
+    if (f->pixfmt != HAL_PIXFMT_MONO8 && f->pixfmt != HAL_PIXFMT_RGB8)
+        f->pixfmt = c->cfg->pixfmt == HAL_PIXFMT_MONO8 ? HAL_PIXFMT_MONO8 : HAL_PIXFMT_RGB8;
+    if (f->width < 16)
+        f->width = 16;
+    if (f->width > 4096)
+        f->width = 4096;
+    if (f->height < 16)
+        f->height = 16;
+    if (f->height > 4096)
+        f->height = 4096;
+    f->width &= ~1u;
+    f->height &= ~1u;
+    if (f->rate_mhz < 1000)
+        f->rate_mhz = 1000;
+    if (f->rate_mhz > 1000000)
+        f->rate_mhz = 1000000;
+    f->trigger = HAL_TRIGGER_HARDWARE;
+    if (f->exposure_us > 1000000000u / (f->rate_mhz / 1000u) / 1000u / 2u)
+        f->exposure_us = 1000000000u / (f->rate_mhz / 1000u) / 1000u / 2u;
+    uint32_t tight = f->width * hal_pixfmt_bytes_per_pixel(f->pixfmt);
+    if (f->stride < tight)
+        f->stride = tight;
+    if (hal_format_finish(f) < 0)
+        return cam_fail(c, HAL_EINVAL, "format cannot be represented");
+    return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
+}
+
+static int cam_configure(void *ctx, const struct hal_format *f)
+{
+    struct sim_cam *c = ctx;
+    if (c->started)
+        return cam_fail(c, HAL_ESTATE, "configure while started");
+    struct hal_format v = *f;
+    int rc = cam_validate(c, &v);
+    if (rc != HAL_FORMAT_VALID)
+        return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged");
+    c->fmt = v;
+    c->configured = true;
+    return HAL_OK;
+}
+
+static int cam_start(void *ctx)
+{
+    struct sim_cam *c = ctx;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "start before configure");
+    c->started = true;
+    return HAL_OK;
+}
+
+static int cam_stop(void *ctx)
+{
+    struct sim_cam *c = ctx;
+    c->started = false;
+    c->n_ev = 0;
+    while (c->q_count) {
+        struct hal_buffer *b = c->queue[c->q_head];
+        c->q_head = (c->q_head + 1) % SIM_QUEUE_MAX;
+        c->q_count--;
+        b->status = HAL_FRAME_ABORTED;
+        b->bytes_used = 0;
+        c->aborted[c->n_aborted++] = b;
+    }
+    return HAL_OK;
+}
+
+static int cam_enqueue(void *ctx, struct hal_buffer *b)
+{
+    struct sim_cam *c = ctx;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "enqueue before configure");
+    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
+        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image");
+    if (c->q_count == SIM_QUEUE_MAX)
+        return cam_fail(c, HAL_EBUSY, "buffer queue full");
+    c->queue[(c->q_head + c->q_count++) % SIM_QUEUE_MAX] = b;
+    return HAL_OK;
+}
+
+static void stamp_write(uint8_t *d, size_t n, uint64_t seq, uint32_t cam)
+{
+    if (n < HAL_SIM_STAMP_BYTES)
+        return;
+    memcpy(d, "F4S1", 4);
+    for (int i = 0; i < 4; i++)
+        d[4 + i] = (uint8_t)(cam >> (8 * i));
+    for (int i = 0; i < 8; i++)
+        d[8 + i] = (uint8_t)(seq >> (8 * i));
+}
+
+int hal_sim_stamp_read(const uint8_t *d, size_t n, uint64_t *seq, uint32_t *cam)
+{
+    if (!d || n < HAL_SIM_STAMP_BYTES || memcmp(d, "F4S1", 4) != 0)
+        return HAL_EINVAL;
+    uint32_t c = 0;
+    uint64_t s = 0;
+    for (int i = 0; i < 4; i++)
+        c |= (uint32_t)d[4 + i] << (8 * i);
+    for (int i = 0; i < 8; i++)
+        s |= (uint64_t)d[8 + i] << (8 * i);
+    *cam = c;
+    *seq = s;
+    return HAL_OK;
+}
+
+static int cam_deliver(struct sim_cam *c, struct hal_buffer **out)
+{
+    struct sim_world *w = c->w;
+    struct sim_event e = c->ev[0];
+    memmove(&c->ev[0], &c->ev[1], (c->n_ev - 1) * sizeof c->ev[0]);
+    c->n_ev--;
+    if (c->q_count == 0) {
+        w->inj.underruns++;
+        return HAL_EBUSY;
+    }
+    struct hal_buffer *b = c->queue[c->q_head];
+    c->q_head = (c->q_head + 1) % SIM_QUEUE_MAX;
+    c->q_count--;
+    b->format = c->fmt;
+    int rc = w->render(w->render_user, c->index, e.pulse_ns, &c->fmt, b->data);
+    if (rc < 0)
+        hal_sim_render_pattern(NULL, c->index, e.pulse_ns, &c->fmt, b->data);
+    stamp_write(b->data, c->fmt.image_bytes, e.seq, c->index);
+    b->bytes_used = c->fmt.image_bytes;
+    b->status = HAL_FRAME_OK;
+    if (e.kind == SIM_EV_INCOMPLETE) {
+        /* the last quarter of the packets never arrived */
+        size_t keep = c->fmt.image_bytes - c->fmt.image_bytes / 4;
+        memset(b->data + keep, 0, c->fmt.image_bytes - keep);
+        b->bytes_used = keep;
+        b->status = HAL_FRAME_MISSING_PACKETS;
+    }
+    /* a frame from another clock epoch than the last one delivered */
+    b->flags = e.clock_epoch != c->delivered_epoch ? HAL_FRAME_FLAG_CLOCK_RESET : 0;
+    if (e.clock_epoch > c->delivered_epoch)
+        c->delivered_epoch = e.clock_epoch;
+    b->camera_index = c->index;
+    b->device_ts_ns = e.device_ts_ns;
+    b->host_ts_ns = e.arrival_ns;
+    b->frame_id = e.frame_id;
+    b->trigger_seq = e.seq;
+    *out = b;
+    return HAL_OK;
+}
+
+static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
+{
+    struct sim_cam *c = ctx;
+    struct sim_world *w = c->w;
+    *out = NULL;
+    if (c->n_aborted) {
+        *out = c->aborted[--c->n_aborted];
+        return HAL_OK;
+    }
+    if (!c->started)
+        return cam_fail(c, HAL_ESTATE, "dequeue while stopped");
+    uint64_t now = world_now(w);
+    uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
+    for (;;) {
+        while (c->n_ev && c->ev[0].arrival_ns <= now) {
+            if (cam_deliver(c, out) == HAL_OK)
+                return HAL_OK;
+        }
+        if (now < c->disconnected_until)
+            return cam_fail(c, HAL_ENODEV, "disconnected");
+        if (now >= deadline)
+            return HAL_ETIMEDOUT;
+        uint64_t next = world_next_event(w);
+        world_sleep_until(w, next < deadline ? next : deadline);
+        now = w->now;
+    }
+}
+
+static void cam_close(void *ctx)
+{
+    struct sim_cam *c = ctx;
+    c->w->cams[c->index] = NULL;
+    free(c);
+}
+
+static const char *cam_last_error(void *ctx) { return ((struct sim_cam *)ctx)->err; }
+
+static const struct hal_camera_ops sim_camera_ops = {
+    .api_version = HAL_API_VERSION,
+    .validate = cam_validate,
+    .configure = cam_configure,
+    .start = cam_start,
+    .stop = cam_stop,
+    .enqueue = cam_enqueue,
+    .dequeue = cam_dequeue,
+    .close = cam_close,
+    .last_error = cam_last_error,
+};
+
+/* ---- trigger ops ---- */
+static int trig_arm(void *ctx, const struct hal_pulse_train *p)
+{
+    struct sim_world *w = ctx;
+    if (p->rate_mhz == 0 || p->rate_mhz > 10000000u) {
+        snprintf(w->err, sizeof w->err, "sim trigger: rate %u mHz out of range", (unsigned)p->rate_mhz);
+        return HAL_EINVAL;
+    }
+    world_now(w);
+    w->period_ns = 1000000000000ull / p->rate_mhz;
+    w->width_ns = (uint64_t)p->width_us * 1000u;
+    if (w->width_ns >= w->period_ns) {
+        snprintf(w->err, sizeof w->err, "sim trigger: pulse width %u us >= period", (unsigned)p->width_us);
+        return HAL_EINVAL;
+    }
+    w->next_pulse_ns = w->now + w->period_ns;
+    w->scheduled_limit = w->inj.pulses_scheduled + p->count;
+    if (p->count == 0)
+        w->scheduled_limit = 0;
+    w->armed = true;
+    return HAL_OK;
+}
+
+static int trig_disarm(void *ctx)
+{
+    struct sim_world *w = ctx;
+    world_now(w);
+    w->armed = false;
+    w->extra_at = 0;
+    return HAL_OK;
+}
+
+static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
+{
+    struct sim_world *w = ctx;
+    uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
+    while (w->e_count == 0 && w->now < deadline) {
+        uint64_t next = world_next_event(w);
+        world_sleep_until(w, next < deadline ? next : deadline);
+    }
+    uint32_t n = 0;
+    while (n < max && w->e_count) {
+        e[n++] = w->edges[w->e_head];
+        w->e_head = (w->e_head + 1) % SIM_EDGES_MAX;
+        w->e_count--;
+    }
+    return (int)n;
+}
+
+static bool trig_done(void *ctx)
+{
+    struct sim_world *w = ctx;
+    world_now(w);
+    return w->scheduled_limit != 0 && w->inj.pulses_scheduled >= w->scheduled_limit && !w->extra_at;
+}
+
+static void trig_close(void *ctx)
+{
+    struct sim_world *w = ctx;
+    w->armed = false;
+    w->trig_open = false;
+}
+
+static const char *trig_last_error(void *ctx) { return ((struct sim_world *)ctx)->err; }
+
+static const struct hal_trigger_ops sim_trigger_ops = {
+    .api_version = HAL_API_VERSION,
+    .arm = trig_arm,
+    .disarm = trig_disarm,
+    .read_edges = trig_read_edges,
+    .close = trig_close,
+    .done = trig_done,
+    .last_error = trig_last_error,
+};
+
+/* ---- backend ---- */
+static int sim_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+{
+    const struct hal_sim_faults *f = &board->sim.faults;
+    double sum = f->drop + f->duplicate + f->late + f->incomplete;
+    if (f->drop < 0 || f->duplicate < 0 || f->late < 0 || f->incomplete < 0 || sum > 1.0 ||
+        f->trigger_missing < 0 || f->trigger_missing > 1 || f->trigger_extra < 0 ||
+        f->trigger_extra > 1 || f->disconnect < 0 || f->disconnect > 1)
+        return hal_fail(err, n, HAL_EINVAL,
+                        "sim faults: probabilities must be in [0,1] and drop+duplicate+late+incomplete <= 1 (got %.3f)",
+                        sum);
+    struct sim_world *w = calloc(1, sizeof *w);
+    if (!w)
+        return hal_fail(err, n, HAL_ENOMEM, "sim: out of memory");
+    w->board = board;
+    w->cfg = board->sim;
+    w->rng = board->sim.seed ^ 0x5EEDF4D0ull;
+    w->real_t0 = real_now();
+    w->render = hal_sim_render_pattern;
+    *session = w;
+    return HAL_OK;
+}
+
+static void sim_session_close(void *s) { free(s); }
+
+static int sim_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
+                           struct hal_camera *out, char *err, size_t n)
+{
+    struct sim_world *w = session;
+    if (index >= HAL_RIG_CAMERAS_MAX || w->cams[index])
+        return hal_fail(err, n, HAL_EBUSY, "sim camera %s: index %u already open", cfg->id, (unsigned)index);
+    struct sim_cam *c = calloc(1, sizeof *c);
+    if (!c)
+        return hal_fail(err, n, HAL_ENOMEM, "sim camera %s: out of memory", cfg->id);
+    c->w = w;
+    c->index = index;
+    c->cfg = cfg;
+    cam_new_clock(c);
+    /* the board's format is the starting point of negotiation */
+    c->fmt.pixfmt = cfg->pixfmt;
+    c->fmt.width = cfg->width;
+    c->fmt.height = cfg->height;
+    c->fmt.rate_mhz = w->board->trigger.rate_mhz;
+    c->fmt.exposure_us = cfg->exposure_us;
+    c->fmt.trigger = HAL_TRIGGER_HARDWARE;
+    w->cams[index] = c;
+    if (index + 1 > w->n_cams)
+        w->n_cams = index + 1;
+    out->ops = sim_camera_ops;
+    out->ctx = c;
+    out->index = index;
+    return HAL_OK;
+}
+
+static int sim_trigger_open(void *session, const struct hal_trigger_config *cfg,
+                            struct hal_trigger *out, char *err, size_t n)
+{
+    struct sim_world *w = session;
+    if (w->trig_open)
+        return hal_fail(err, n, HAL_EBUSY, "sim trigger already open");
+    w->trig_open = true;
+    out->ops = sim_trigger_ops;
+    out->ctx = w;
+    return HAL_OK;
+}
+
+static int sim_clock_get(void *session, struct hal_clock *out)
+{
+    out->ops.api_version = HAL_API_VERSION;
+    out->ops.now_ns = clk_now;
+    out->ops.sleep_until_ns = clk_sleep;
+    out->ops.next_event_ns = clk_next;
+    out->ctx = session;
+    return HAL_OK;
+}
+
+const struct hal_backend hal_sim_backend = {
+    .api_version = HAL_API_VERSION,
+    .name = "sim",
+    .session_open = sim_session_open,
+    .session_close = sim_session_close,
+    .camera_open = sim_camera_open,
+    .trigger_open = sim_trigger_open,
+    .clock_get = sim_clock_get,
+};
+
+int hal_sim_injected_get(const void *world, struct hal_sim_injected *out)
+{
+    if (!world)
+        return HAL_EINVAL;
+    *out = ((const struct sim_world *)world)->inj;
+    return HAL_OK;
+}
+
+void hal_sim_set_renderer(void *world, hal_sim_render_fn fn, void *user)
+{
+    struct sim_world *w = world;
+    w->render = fn ? fn : hal_sim_render_pattern;
+    w->render_user = fn ? user : NULL;
+}
