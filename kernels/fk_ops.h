@@ -8,8 +8,20 @@
  *     fk_residual_add(ctx, x, C, r, C, gamma, n_tok, C);   // x += gamma (.) r
  *
  * LayerNorm uses the biased variance (PyTorch), computed in two passes from
- * the row mean, so a constant row gives exactly 0 before the affine part
- * (output = bias). GELU is the exact erf form. NaN/Inf propagate.
+ * the row mean with the statistics in double, so a constant row gives exactly
+ * 0 before the affine part (output = bias) and rows of any finite magnitude
+ * (1e-30 ... 3e38) neither overflow nor underflow. GELU is the exact erf form.
+ *
+ * Shapes: rows == 0 or n == 0 is a no-op; rows < 0, cols < 1, a stride below
+ * cols, a NULL buffer, eps < 0 or non-finite, or an output that overlaps the
+ * input without being it (same pointer and stride) is FK_EINVAL with a
+ * message naming the argument.
+ *
+ * Non-finite values: a NaN or Inf in a LayerNorm or softmax row makes that
+ * whole row NaN (an all -Inf softmax row too: 0/0); -Inf logits next to
+ * finite ones get probability 0. Element-wise functions give NaN for NaN and
+ * their limits at +-Inf: gelu and silu (+Inf) = +Inf, (-Inf) = -0, relu(-Inf)
+ * = 0; relu passes NaN and -0 through (as maxps(0, x)).
  */
 #ifndef FK_OPS_H
 #define FK_OPS_H
