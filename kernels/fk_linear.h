@@ -82,7 +82,9 @@ int    fk_linear_pack_q8 (fk_ctx *ctx, struct fk_linear *L, const int8_t *q,
                           const float *scale, int n, int k, const float *bias);
 void   fk_linear_free    (struct fk_linear *L);
 
-/* Quantize one fp32 row of weights the way fk_linear_pack does (reference). */
+/* Quantize one fp32 row the way fk_linear_pack does for weights and the
+ * forward pass does for activations (reference): returns the scale amax/127,
+ * 0 for a zero row, NaN (codes all 0) when the row holds Inf or NaN. */
 float  fk_quantize_row_q8(const float *w, int k, int8_t *q);
 
 /* y = epilogue(x W^T + b). m == 0 is a no-op. ld* are in elements and must be

@@ -1,0 +1,59 @@
+/* gemm.h - the blocked GEMM driver shared by fk_linear and fk_conv.
+ *
+ * The driver computes y = epilogue(A W^T + b) where the rows of A come from an
+ * fk__asrc (a dense matrix, or an im2col view of an HWC image) and the rows of
+ * y go to an fk__cdst (a dense matrix, or the scatter of a stride == kernel
+ * transposed convolution). Packed layouts for the optimized ISAs:
+ *   f32  [n_pad/16][k][16]              panels of 16 output channels
+ *   f16  [n_pad/16][k][16] (fp16 bits)  widened per cache block
+ *   q8   [n_pad/16][k_pad/4][16][4]     4 consecutive k per 32-bit lane
+ * The reference ISA keeps W as given: [n][k]. */
+#ifndef FK_GEMM_H
+#define FK_GEMM_H
+
+#include "../fk_linear.h"
+
+#define FK_GEMM_NR 16  /* output channels per packed panel        */
+#define FK_GEMM_MR 6   /* rows per register tile                  */
+#define FK_GEMM_KC 256 /* k per cache block of the fp32 kernels   */
+#define FK_Q8_K_MAX 65536
+
+/* Where rows of A come from. */
+struct fk__asrc {
+    const float *x;    /* dense: x[m * ldx + k]; conv: the HWC image       */
+    int          ldx;
+    int          conv; /* nonzero: im2col view below                       */
+    int          h, w, cin, kh, kw, stride, pad, wo;
+};
+
+/* Where rows of y go. */
+struct fk__cdst {
+    float       *y;    /* dense: y[m * ldy + n]; tconv: the HWC output     */
+    int          ldy;
+    int          tconv_k; /* nonzero: (m = i*w + j, n = (a*k + b)*cout + o)
+                           * goes to y[((k*i + a) * k*w + k*j + b) * cout + o] */
+    int          tconv_cout, tconv_w;
+};
+
+/* Copies columns [k0, k0 + kn) of row m of A into dst (zero padding outside
+ * the image for conv). */
+void fk__asrc_row(const struct fk__asrc *a, int m, int k0, int kn, float *dst);
+
+int  fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
+                   int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
+/* Validates the epilogue and the packing ISA, then runs the ISA's driver. */
+int  fk__gemm_run (fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
+                   int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
+int  fk__gemm_ref (fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
+                   int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
+
+/* int8 micro-kernel with AVX-VNNI: c[6][16] = sum over k4 of u8 a * s8 b. */
+void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c);
+
+
+
+
+
+/* Address of element (m, n) of the destination. */
+float *fk__cdst_ptr(const struct fk__cdst *c, int m, int n);
+#endif

@@ -1,0 +1,438 @@
+/* gemm_avx2.c - blocked GEMM for AVX2/FMA/F16C: the driver shared by
+ * fk_linear and fk_conv, the 6x16 fp32 micro-kernel (fp16 weights widened per
+ * cache block into it), and the exact int8 micro-kernel for CPUs without
+ * AVX-VNNI (sign-extended int16 pairs through vpmaddwd: no int16 sums, so
+ * no saturation).
+ *
+ * Blocking: a task owns mc rows of A (packed for the whole k, sized to stay in
+ * L2) and a range of 16-wide weight panels. For each panel it walks k in
+ * blocks of FK_GEMM_KC (the panel slice stays in L1) over all 6-row
+ * micro-panels, accumulating in a small mc x 16 tile, then applies the
+ * epilogue (bias, activation, LayerScale, residual) while the tile is hot. */
+#include <immintrin.h>
+#include <math.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "../fk_internal.h"
+#include "../gemm.h"
+#include "vecmath_avx2.h"
+#include "x86.h"
+
+#define MR FK_GEMM_MR
+#define NR FK_GEMM_NR
+#define KC FK_GEMM_KC
+
+/* ----------------------------------------------------------- micro-kernels */
+
+/* c[6][16] (+)= a[kc][6] * b[kc][16]. Kept out of line: inlined into the
+ * driver, GCC runs out of general registers and spills the A pointer. */
+__attribute__((noinline)) static void ukr_f32(int kc, const float *a, const float *b, float *c, int accumulate)
+{
+    __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
+    if (accumulate) {
+        c00 = _mm256_load_ps(c + 0);  c01 = _mm256_load_ps(c + 8);
+        c10 = _mm256_load_ps(c + 16); c11 = _mm256_load_ps(c + 24);
+        c20 = _mm256_load_ps(c + 32); c21 = _mm256_load_ps(c + 40);
+        c30 = _mm256_load_ps(c + 48); c31 = _mm256_load_ps(c + 56);
+        c40 = _mm256_load_ps(c + 64); c41 = _mm256_load_ps(c + 72);
+        c50 = _mm256_load_ps(c + 80); c51 = _mm256_load_ps(c + 88);
+    } else {
+        c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
+        c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
+    }
+#pragma GCC unroll 4
+    for (int k = 0; k < kc; k++) {
+        __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
+        t = _mm256_broadcast_ss(a + 0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
+        t = _mm256_broadcast_ss(a + 1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
+        t = _mm256_broadcast_ss(a + 2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
+        t = _mm256_broadcast_ss(a + 3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
+        t = _mm256_broadcast_ss(a + 4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
+        t = _mm256_broadcast_ss(a + 5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
+        a += 6;
+        b += 16;
+    }
+    _mm256_store_ps(c + 0, c00);  _mm256_store_ps(c + 8, c01);
+    _mm256_store_ps(c + 16, c10); _mm256_store_ps(c + 24, c11);
+    _mm256_store_ps(c + 32, c20); _mm256_store_ps(c + 40, c21);
+    _mm256_store_ps(c + 48, c30); _mm256_store_ps(c + 56, c31);
+    _mm256_store_ps(c + 64, c40); _mm256_store_ps(c + 72, c41);
+    _mm256_store_ps(c + 80, c50); _mm256_store_ps(c + 88, c51);
+}
+
+static inline long long load_i64(const int16_t *p)
+{
+    long long v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+/* c[6][16] = sum over k4 of a[k4][6][4] (int16) * b[k4][16][4] (int8).
+ * Two passes of 8 columns; each 32-bit lane holds a pair sum, reduced at
+ * the end with hadd. */
+__attribute__((noinline)) static void ukr_q8_avx2(int k4, const int16_t *a, const int8_t *b, int32_t *c)
+{
+    for (int half = 0; half < 2; half++) {
+        __m256i s00 = _mm256_setzero_si256(), s01 = s00, s10 = s00, s11 = s00, s20 = s00, s21 = s00;
+        __m256i s30 = s00, s31 = s00, s40 = s00, s41 = s00, s50 = s00, s51 = s00;
+        const int8_t *bp = b + half * 32;
+        const int16_t *ap = a;
+        for (int k = 0; k < k4; k++) {
+            /* columns 0-3 and 4-7 of this half, 4 k each, as int16 */
+            __m256i b0 = _mm256_cvtepi8_epi16(_mm_load_si128((const __m128i *)bp));
+            __m256i b1 = _mm256_cvtepi8_epi16(_mm_load_si128((const __m128i *)(bp + 16)));
+            __m256i t;
+#define ROW(r, lo, hi)                                                        \
+    t = _mm256_set1_epi64x(load_i64(ap + 4 * (r)));                           \
+    lo = _mm256_add_epi32(lo, _mm256_madd_epi16(t, b0));                      \
+    hi = _mm256_add_epi32(hi, _mm256_madd_epi16(t, b1));
+            ROW(0, s00, s01) ROW(1, s10, s11) ROW(2, s20, s21)
+            ROW(3, s30, s31) ROW(4, s40, s41) ROW(5, s50, s51)
+#undef ROW
+            ap += 24;
+            bp += 64;
+        }
+        /* lanes [c0 c0 c1 c1 | c2 c2 c3 c3] and [c4 c4 c5 c5 | c6 c6 c7 c7] -> c0..c7 */
+#define FOLD(r, lo, hi)                                                        \
+    _mm256_storeu_si256((__m256i *)(c + 16 * (r) + 8 * half),                 \
+        _mm256_permute4x64_epi64(_mm256_hadd_epi32(lo, hi), 0xd8));
+        FOLD(0, s00, s01) FOLD(1, s10, s11) FOLD(2, s20, s21)
+        FOLD(3, s30, s31) FOLD(4, s40, s41) FOLD(5, s50, s51)
+#undef FOLD
+    }
+}
+
+/* ----------------------------------------------------------------- packing */
+
+/* Rows [m0, m0 + rows) of A as micro-panels [i][k][6], zero rows to pad. */
+static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k, float *ap, float *tmp)
+{
+    for (int i = 0; i * MR < rows; i++) {
+        const float *r[MR];
+        for (int rr = 0; rr < MR; rr++) {
+            int row = i * MR + rr;
+            if (row >= rows) {
+                r[rr] = NULL;
+            } else if (!src->conv) {
+                r[rr] = src->x + (size_t)(m0 + row) * (size_t)src->ldx;
+            } else {
+                fk__asrc_row(src, m0 + row, 0, k, tmp + (size_t)rr * (size_t)k);
+                r[rr] = tmp + (size_t)rr * (size_t)k;
+            }
+        }
+        float *d = ap + (size_t)i * (size_t)k * MR;
+        for (int rr = 0; rr < MR; rr++) {
+            if (r[rr]) {
+                for (int kk = 0; kk < k; kk++)
+                    d[(size_t)kk * MR + (size_t)rr] = r[rr][kk];
+            } else {
+                for (int kk = 0; kk < k; kk++)
+                    d[(size_t)kk * MR + (size_t)rr] = 0;
+            }
+        }
+    }
+}
+
+/* Quantizes one row exactly like fk_quantize_row_q8 (bit for bit; its clamp
+ * to +-127 never binds because |x| * 127 / amax <= 127). */
+static float quantize_row(const float *x, int k, int8_t *q)
+{
+    __m256 amax = _mm256_setzero_ps(), poison = _mm256_setzero_ps();
+    const __m256 absmask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+    const __m256 zero = _mm256_setzero_ps();
+    int i = 0;
+    for (; i + 8 <= k; i += 8) {
+        __m256 v = _mm256_loadu_ps(x + i);
+        poison = _mm256_add_ps(poison, _mm256_mul_ps(v, zero));
+        amax = _mm256_max_ps(amax, _mm256_and_ps(v, absmask));
+    }
+    float am = fk__hmax_avx2(amax);
+    float pz = fk__hsum_avx2(poison);
+    for (; i < k; i++) {
+        pz += x[i] * 0.0f;
+        float a = fabsf(x[i]);
+        if (a > am)
+            am = a;
+    }
+    if (am == 0 || pz != 0) {
+        memset(q, 0, (size_t)k);
+        return am == 0 && pz == 0 ? 0.0f : NAN;
+    }
+    float invs = 127.0f / am;
+    __m256 inv = _mm256_set1_ps(invs);
+    for (i = 0; i + 8 <= k; i += 8) {
+        __m256i v = _mm256_cvtps_epi32(_mm256_mul_ps(_mm256_loadu_ps(x + i), inv));
+        __m128i w = _mm_packs_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+        _mm_storel_epi64((__m128i *)(q + i), _mm_packs_epi16(w, w));
+    }
+    for (; i < k; i++)
+        q[i] = (int8_t)(int)nearbyintf(x[i] * invs);
+    return am / 127.0f;
+}
+
+/* Quantizes rows [m0, m0 + rows) and packs them as micro-panels
+ * [i][k4][6][4]: int16 for the AVX2 kernel, uint8 (+128) for VNNI. */
+static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int vnni,
+                      void *ap, float *sa, float *rowbuf, int8_t *q)
+{
+    int mp = (rows + MR - 1) / MR;
+    size_t panel = (size_t)k_pad * MR;
+    for (int row = 0; row < mp * MR; row++) {
+        int i = row / MR, rr = row % MR;
+        if (row < rows) {
+            const float *x;
+            if (!src->conv) {
+                x = src->x + (size_t)(m0 + row) * (size_t)src->ldx;
+            } else {
+                fk__asrc_row(src, m0 + row, 0, k, rowbuf);
+                x = rowbuf;
+            }
+            sa[row] = quantize_row(x, k, q);
+        } else {
+            sa[row] = 0;
+            memset(q, 0, (size_t)k);
+        }
+        for (int kk = k; kk < k_pad; kk++)
+            q[kk] = 0;
+        if (vnni) {
+            uint8_t *d = (uint8_t *)ap + (size_t)i * panel;
+            for (int kk = 0; kk < k_pad; kk++)
+                d[(size_t)(kk / 4) * MR * 4 + (size_t)rr * 4 + (size_t)(kk % 4)] = (uint8_t)(q[kk] + 128);
+        } else {
+            int16_t *d = (int16_t *)ap + (size_t)i * panel;
+            for (int kk = 0; kk < k_pad; kk++)
+                d[(size_t)(kk / 4) * MR * 4 + (size_t)rr * 4 + (size_t)(kk % 4)] = q[kk];
+        }
+    }
+}
+
+/* ---------------------------------------------------------------- epilogue */
+
+static const int32_t mask_table[32] = {
+    -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1,
+    0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+};
+
+static inline __m256 activate(enum fk_act act, __m256 v)
+{
+    switch (act) {
+    case FK_ACT_RELU: return _mm256_max_ps(_mm256_setzero_ps(), v); /* NaN stays NaN */
+    case FK_ACT_GELU: return fk__gelu_avx2(v);
+    case FK_ACT_SILU: return fk__silu_avx2(v);
+    default:          return v;
+    }
+}
+
+/* Writes t[0..nn) (already biased and activated) to row m, columns n0..,
+ * applying LayerScale and the residual accumulation. */
+static void store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0,
+                      int nn, __m256 t0, __m256 t1)
+{
+    int contiguous = !c->tconv_k || (n0 % c->tconv_cout) + nn <= c->tconv_cout;
+    if (!contiguous) {
+        float t[16];
+        _mm256_storeu_ps(t, t0);
+        _mm256_storeu_ps(t + 8, t1);
+        for (int j = 0; j < nn; j++) {
+            float v = ep->gamma ? t[j] * ep->gamma[n0 + j] : t[j];
+            float *d = fk__cdst_ptr(c, m, n0 + j);
+            *d = ep->accumulate ? *d + v : v;
+        }
+        return;
+    }
+    float *d = fk__cdst_ptr(c, m, n0);
+    if (nn == 16) {
+        if (ep->gamma) {
+            t0 = _mm256_mul_ps(t0, _mm256_loadu_ps(ep->gamma + n0));
+            t1 = _mm256_mul_ps(t1, _mm256_loadu_ps(ep->gamma + n0 + 8));
+        }
+        if (ep->accumulate) {
+            t0 = _mm256_add_ps(_mm256_loadu_ps(d), t0);
+            t1 = _mm256_add_ps(_mm256_loadu_ps(d + 8), t1);
+        }
+        _mm256_storeu_ps(d, t0);
+        _mm256_storeu_ps(d + 8, t1);
+        return;
+    }
+    __m256i k0 = _mm256_loadu_si256((const __m256i *)(mask_table + 16 - nn));
+    __m256i k1 = _mm256_loadu_si256((const __m256i *)(mask_table + 24 - nn));
+    if (ep->gamma) {
+        t0 = _mm256_mul_ps(t0, _mm256_maskload_ps(ep->gamma + n0, k0));
+        t1 = _mm256_mul_ps(t1, _mm256_maskload_ps(ep->gamma + n0 + 8, k1));
+    }
+    if (ep->accumulate) {
+        t0 = _mm256_add_ps(_mm256_maskload_ps(d, k0), t0);
+        t1 = _mm256_add_ps(_mm256_maskload_ps(d + 8, k1), t1);
+    }
+    _mm256_maskstore_ps(d, k0, t0);
+    _mm256_maskstore_ps(d + 8, k1, t1);
+}
+
+/* ------------------------------------------------------------------ driver */
+
+struct gemm_job {
+    fk_ctx                   *ctx;
+    const struct fk_linear   *L;
+    const struct fk__asrc    *a;
+    const struct fk__cdst    *c;
+    const struct fk_epilogue *ep;
+    int    m, mc, n_chunks, panels, panels_per_chunk, k_pad, vnni;
+    size_t off_c, off_b, off_tmp, off_q, off_sa;
+};
+
+static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
+{
+    const struct fk_linear *L = j->L;
+    int k = L->k, mp = (rows + MR - 1) / MR;
+    float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
+    pack_a_f32(j->a, m0, rows, k, ap, (float *)(s + j->off_tmp));
+    for (int jp = jp0; jp < jp1; jp++) {
+        for (int k0 = 0; k0 < k; k0 += KC) {
+            int kc = k - k0 < KC ? k - k0 : KC;
+            const float *bp;
+            if (L->type == FK_W_F32) {
+                bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
+            } else {
+                const uint16_t *h = (const uint16_t *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
+                for (int e = 0; e < kc * NR; e += 8)
+                    _mm256_store_ps(bconv + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
+                bp = bconv;
+            }
+            /* Pull the next weight slice towards L1 while this one is in use,
+             * a few lines per micro-panel (fp32 reads the packed weights in place). */
+            const char *next = NULL;
+            size_t next_lines = 0;
+            if (L->type == FK_W_F32) {
+                size_t off = (size_t)jp * (size_t)k + (size_t)k0 + (size_t)kc;
+                if (k0 + kc >= k)
+                    off = (size_t)(jp + 1) * (size_t)k;
+                if (jp + 1 < jp1 || k0 + kc < k) {
+                    next = (const char *)((const float *)L->data + off * NR);
+                    size_t kn = (size_t)(k - (int)(off % (size_t)k));
+                    next_lines = (kn < KC ? kn : KC) * NR * 4 / 64;
+                }
+            }
+            size_t per = next ? (next_lines + (size_t)mp - 1) / (size_t)mp : 0;
+            for (int i = 0; i < mp; i++) {
+                for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < next_lines; l++)
+                    _mm_prefetch(next + l * 64, _MM_HINT_T0);
+                ukr_f32(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp,
+                        ct + (size_t)i * MR * NR, k0 > 0);
+            }
+        }
+        int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+        __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+        for (int r = 0; r < rows; r++) {
+            __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(ct + r * NR), b0));
+            __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(ct + r * NR + 8), b1));
+            store_row(j->c, j->ep, m0 + r, n0, nn, t0, t1);
+        }
+    }
+}
+
+static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
+{
+    const struct fk_linear *L = j->L;
+    int mp = (rows + MR - 1) / MR, k4 = j->k_pad / 4;
+    int32_t *ct = (int32_t *)(s + j->off_c);
+    float *sa = (float *)(s + j->off_sa);
+    size_t panel_a = (size_t)j->k_pad * MR * (j->vnni ? 1 : 2);
+    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, j->vnni, s, sa, (float *)(s + j->off_tmp),
+              (int8_t *)(s + j->off_q));
+    for (int jp = jp0; jp < jp1; jp++) {
+        const int8_t *bp = (const int8_t *)L->data + (size_t)jp * (size_t)j->k_pad * NR;
+        for (int i = 0; i < mp; i++) {
+            if (j->vnni)
+                fk__gemm_q8_ukr_vnni(k4, (const uint8_t *)(s + (size_t)i * panel_a), bp,
+                                     ct + (size_t)i * MR * NR);
+            else
+                ukr_q8_avx2(k4, (const int16_t *)(s + (size_t)i * panel_a), bp,
+                            ct + (size_t)i * MR * NR);
+        }
+        int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+        __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+        __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
+        __m256i z0 = _mm256_setzero_si256(), z1 = z0;
+        if (j->vnni) {
+            z0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
+            z1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
+        }
+        for (int r = 0; r < rows; r++) {
+            __m256 s_r = _mm256_set1_ps(sa[r]);
+            __m256i a0 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR)), z0);
+            __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR + 8)), z1);
+            __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
+            __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
+            store_row(j->c, j->ep, m0 + r, n0, nn, activate(j->ep->act, t0), activate(j->ep->act, t1));
+        }
+    }
+}
+
+static void gemm_task(void *arg, int task, int thread)
+{
+    const struct gemm_job *j = arg;
+    int mb = task / j->n_chunks, nb = task % j->n_chunks;
+    int m0 = mb * j->mc, rows = j->m - m0 < j->mc ? j->m - m0 : j->mc;
+    int jp0 = nb * j->panels_per_chunk;
+    int jp1 = jp0 + j->panels_per_chunk < j->panels ? jp0 + j->panels_per_chunk : j->panels;
+    char *s = fk__scratch(j->ctx, thread);
+    if (j->L->type == FK_W_Q8)
+        task_q8(j, m0, rows, jp0, jp1, s);
+    else
+        task_float(j, m0, rows, jp0, jp1, s);
+}
+
+int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a, int m,
+                  const struct fk__cdst *c, const struct fk_epilogue *ep)
+{
+    struct gemm_job j = { ctx, L, a, c, ep, m, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
+    int k = L->k, q8 = L->type == FK_W_Q8;
+    j.vnni = q8 && ctx->isa == FK_ISA_AVX2_VNNI;
+    j.k_pad = q8 ? (int)fk__round_up((size_t)k, 4) : k;
+    j.panels = (L->n + NR - 1) / NR;
+
+    /* The packed rows of A stay in L2 for the whole task: half of it. */
+    long l2 = sysconf(_SC_LEVEL2_CACHE_SIZE);
+    size_t budget = l2 >= 256 * 1024 && l2 <= 64l << 20 ? (size_t)l2 / 2 : 512 * 1024;
+    size_t a_row = q8 ? (size_t)j.k_pad * (j.vnni ? 1 : 2) : (size_t)k * 4;
+    int mc = (int)(budget / a_row) / MR * MR;
+    if (mc > 144)
+        mc = 144;
+    if (mc < MR)
+        mc = MR;
+    /* Enough tasks for both threads: shrink mc, then split the panels. */
+    int threads = ctx->threads, m_pad = (int)fk__round_up((size_t)m, MR);
+    if (threads > 1 && m_pad < 4 * threads * mc) {
+        int want = (int)fk__round_up((size_t)((m_pad + 4 * threads - 1) / (4 * threads)), MR);
+        mc = want < 4 * MR && m_pad >= 4 * MR ? 4 * MR : (want < mc ? want : mc);
+    }
+    if (mc > m_pad)
+        mc = m_pad;
+    j.mc = mc;
+    int m_blocks = (m + mc - 1) / mc;
+    if (threads > 1 && m_blocks < 4 * threads) {
+        int chunks = (4 * threads + m_blocks - 1) / m_blocks;
+        int max_chunks = j.panels / 4 > 0 ? j.panels / 4 : 1;
+        j.n_chunks = chunks < max_chunks ? chunks : max_chunks;
+    }
+    j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
+    j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
+
+    size_t mcp = fk__round_up((size_t)mc, MR);
+    size_t bytes_a = fk__round_up(mcp * a_row, FK_ALIGN);
+    j.off_c = bytes_a;
+    j.off_b = j.off_c + fk__round_up(mcp * NR * 4, FK_ALIGN);
+    j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : (size_t)KC * NR * 4);
+    size_t tmp = a->conv ? (size_t)(q8 ? 1 : MR) * (size_t)k * 4 : 0;
+    j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
+    j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
+    size_t need = j.off_sa + (q8 ? mcp * 4 : 0) + FK_ALIGN;
+    int st = fk__scratch_reserve(ctx, need, 0);
+    if (st)
+        return st;
+
+    double work = 2.0 * m * (double)L->n * k;
+    fk_parallel_for(ctx, m_blocks * j.n_chunks, work, gemm_task, &j);
+    return FK_OK;
+}

@@ -1,0 +1,242 @@
+/* fk_attention: the optimized kernels against the scalar reference
+ * (self- and cross-attention, qk-norm, RoPE, awkward token counts), the
+ * online softmax on hard logits, non-finite inputs and bad arguments.
+ *
+ * Error budget: |out - ref| <= 2e-5 (atol) + 2e-5 |ref| per element. The
+ * reference accumulates in double; the budget covers fp32 dot products of
+ * length head_dim and the fp32 running sums over up to a few thousand keys. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fk_attention.h"
+#include "test_util.h"
+
+struct attn_case {
+    int heads, d, nq, nk, rope, norm, cross;
+};
+
+static void make_pos(int32_t *pos, int n, int side)
+{
+    for (int t = 0; t < n; t++) {
+        int p = t % (side * side + 5);
+        pos[2 * t] = p < 5 ? 0 : (p - 5) / side + 1;
+        pos[2 * t + 1] = p < 5 ? 0 : (p - 5) % side + 1;
+    }
+}
+
+static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale)
+{
+    struct rng r;
+    rng_seed(&r, seed);
+    int C = c->heads * c->d, ld = 3 * C + 5; /* strided views of a qkv buffer */
+    int nkv = c->cross ? c->nk : c->nq;
+    float *qkv = xmalloc(sizeof(float) * (size_t)(c->nq > nkv ? c->nq : nkv) * ld);
+    rng_fill_normal(&r, qkv, (size_t)(c->nq > nkv ? c->nq : nkv) * ld, logit_scale);
+    float *kv = c->cross ? xmalloc(sizeof(float) * (size_t)nkv * 2 * C) : NULL;
+    if (kv)
+        rng_fill_normal(&r, kv, (size_t)nkv * 2 * C, logit_scale);
+    float *nw = xmalloc(sizeof(float) * c->d), *nb = xmalloc(sizeof(float) * c->d);
+    for (int i = 0; i < c->d; i++) {
+        nw[i] = 1.0f + 0.3f * rng_normal(&r);
+        nb[i] = 0.1f * rng_normal(&r);
+    }
+    int32_t *pq = xmalloc(sizeof(int32_t) * 2 * c->nq), *pk = xmalloc(sizeof(int32_t) * 2 * nkv);
+    make_pos(pq, c->nq, 7);
+    make_pos(pk, nkv, 7);
+    struct fk_attention_desc a = { .heads = c->heads, .head_dim = c->d };
+    if (c->norm) {
+        a.q_norm_w = nw; a.q_norm_b = nb; a.k_norm_w = nb; a.k_norm_b = nw; a.norm_eps = 1e-5f;
+    }
+    if (c->rope) {
+        a.pos_q = pq; a.pos_k = pk; a.rope_base = 100.0f;
+    }
+    const float *q = qkv, *k = kv ? kv : qkv + C, *v = kv ? kv + C : qkv + 2 * C;
+    int ldk = kv ? 2 * C : ld;
+    float *want = xmalloc(sizeof(float) * (size_t)c->nq * C), *got = xmalloc(sizeof(float) * (size_t)c->nq * C);
+    fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
+    assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), FK_OK);
+    fk_ctx_free(ref);
+    enum fk_isa isas[4];
+    int n_isa = test_isas(isas);
+    for (int i = 0; i < n_isa; i++)
+        for (int threads = 1; threads <= 2; threads++) {
+            fk_ctx *ctx = test_ctx(isas[i], threads);
+            memset(got, 0xff, sizeof(float) * (size_t)c->nq * C);
+            int st = fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C);
+            if (st != FK_OK)
+                fail_msg("%s", fk_ctx_error(ctx));
+            double e = budget_ratio(got, want, (size_t)c->nq * C, 2e-5, 2e-5);
+            if (e > 1.0)
+                fail_msg("%s threads %d heads %d d %d nq %d nk %d rope %d norm %d: error %.3g of budget",
+                         fk_isa_name(isas[i]), threads, c->heads, c->d, c->nq, nkv, c->rope, c->norm, e);
+            fk_ctx_free(ctx);
+        }
+    free(qkv); free(kv); free(nw); free(nb); free(pq); free(pk); free(want); free(got);
+}
+
+static void test_vs_reference(void **state)
+{
+    (void)state;
+    static const struct attn_case cases[] = {
+        { 1, 16, 1, 1, 0, 0, 0 },   { 2, 16, 7, 7, 1, 1, 0 },    { 4, 16, 59, 59, 1, 1, 0 },
+        { 3, 64, 131, 131, 1, 1, 0 }, { 2, 64, 200, 200, 0, 0, 0 }, { 2, 32, 16, 301, 0, 0, 1 },
+        { 2, 64, 301, 16, 0, 1, 1 }, { 1, 128, 13, 5, 0, 0, 1 },  { 2, 8, 9, 11, 1, 1, 0 },
+        { 1, 12, 5, 70, 1, 0, 1 },  { 2, 64, 65, 65, 1, 1, 0 },
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+        run_case(&cases[i], 40 + i, 1.0f);
+}
+
+/* Logits of +-1e4: q and k scaled up so that q.k/sqrt(d) reaches ~1e4. */
+static void test_huge_logits(void **state)
+{
+    (void)state;
+    static const struct attn_case c = { 2, 16, 23, 23, 0, 0, 0 };
+    run_case(&c, 7, 50.0f);
+}
+
+/* Exact expectations: one dominant key gives its value; equal logits give the mean. */
+static void test_onehot_and_uniform(void **state)
+{
+    (void)state;
+    enum fk_isa all[5] = { FK_ISA_REF };
+    int n_isa = 1 + test_isas(all + 1);
+    const int d = 16, nk = 37, nq = 3;
+    float *q = xmalloc(sizeof(float) * nq * d), *k = xmalloc(sizeof(float) * nk * d);
+    float *v = xmalloc(sizeof(float) * nk * d), *o = xmalloc(sizeof(float) * nq * d);
+    for (int j = 0; j < nk; j++)
+        for (int c = 0; c < d; c++)
+            v[j * d + c] = (float)(j * 3 + c);
+    /* query 0: key 20 has logit +1e4, the rest 0 or -1e4 */
+    for (int c = 0; c < d; c++)
+        q[c] = c == 0 ? 4e4f : 0;
+    for (int j = 0; j < nk; j++)
+        for (int c = 0; c < d; c++)
+            k[j * d + c] = c == 0 ? (j == 20 ? 1.0f : (j % 2 ? -1.0f : 0.0f)) : 0.0f;
+    /* queries 1, 2: all logits equal (zero query; then a huge but equal one) */
+    for (int c = 0; c < d; c++) {
+        q[d + c] = 0;
+        q[2 * d + c] = c == 1 ? 1e4f : 0;
+    }
+    for (int a = 0; a < n_isa; a++) {
+        fk_ctx *ctx = test_ctx(all[a], 2);
+        struct fk_attention_desc desc = { .heads = 1, .head_dim = d };
+        assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, o, d), FK_OK);
+        for (int c = 0; c < d; c++) {
+            assert_float_equal(o[c], v[20 * d + c], 1e-4);
+            float mean = (float)((nk - 1) * 3) / 2.0f + (float)c;
+            assert_float_equal(o[d + c], mean, 1e-3);
+            assert_float_equal(o[2 * d + c], mean, 1e-3);
+            assert_true(isfinite(o[c]) && isfinite(o[2 * d + c]));
+        }
+        fk_ctx_free(ctx);
+    }
+    free(q); free(k); free(v); free(o);
+}
+
+static void test_nonfinite(void **state)
+{
+    (void)state;
+    enum fk_isa all[5] = { FK_ISA_REF };
+    int n_isa = 1 + test_isas(all + 1);
+    const int d = 16, n = 20, heads = 2, C = heads * d;
+    struct rng r;
+    rng_seed(&r, 5);
+    float *q = xmalloc(sizeof(float) * n * C), *k = xmalloc(sizeof(float) * n * C);
+    float *v = xmalloc(sizeof(float) * n * C), *o = xmalloc(sizeof(float) * n * C);
+    rng_fill_normal(&r, q, (size_t)n * C, 1);
+    rng_fill_normal(&r, k, (size_t)n * C, 1);
+    rng_fill_normal(&r, v, (size_t)n * C, 1);
+    q[3 * C + 2] = NAN;             /* query 3, head 0 */
+    q[7 * C + d + 1] = INFINITY;    /* query 7, head 1 */
+    for (int a = 0; a < n_isa; a++) {
+        fk_ctx *ctx = test_ctx(all[a], 1);
+        struct fk_attention_desc desc = { .heads = heads, .head_dim = d };
+        assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), FK_OK);
+        for (int i = 0; i < n; i++)
+            for (int h = 0; h < heads; h++) {
+                int bad = (i == 3 && h == 0) || (i == 7 && h == 1);
+                for (int c = 0; c < d; c++) {
+                    float x = o[i * C + h * d + c];
+                    if (bad && i == 3)
+                        assert_true(isnan(x));
+                    else if (!bad && !isfinite(x))
+                        fail_msg("%s: finite query %d head %d became %g", fk_isa_name(all[a]), i, h, x);
+                }
+            }
+        /* a NaN value row poisons every query that attends to it */
+        v[5 * C + 3] = NAN;
+        assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), FK_OK);
+        for (int i = 0; i < n; i++)
+            assert_true(isnan(o[i * C + 3]));
+        v[5 * C + 3] = 0;
+        fk_ctx_free(ctx);
+    }
+    free(q); free(k); free(v); free(o);
+}
+
+static void test_bad_arguments(void **state)
+{
+    (void)state;
+    fk_ctx *ctx = test_ctx(FK_ISA_AUTO, 1);
+    float x[64] = { 0 }, o[64];
+    int32_t pos[8] = { 0 };
+    struct fk_attention_desc a = { .heads = 2, .head_dim = 8 };
+    assert_int_equal(fk_attention(ctx, NULL, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 2, o, 15), FK_EINVAL);
+    assert_non_null(strstr(fk_ctx_error(ctx), "stride"));
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 0, o, 16), FK_EINVAL);
+    assert_non_null(strstr(fk_ctx_error(ctx), "no keys"));
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 0, x, 16, x, 16, 0, o, 16), FK_OK);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, -1, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, NULL, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 2, x + 4, 16), FK_EINVAL);
+    assert_non_null(strstr(fk_ctx_error(ctx), "overlap"));
+    struct fk_attention_desc odd = { .heads = 1, .head_dim = 7 };
+    assert_int_equal(fk_attention(ctx, &odd, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    struct fk_attention_desc half_rope = { .heads = 2, .head_dim = 8, .pos_q = pos };
+    assert_int_equal(fk_attention(ctx, &half_rope, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    struct fk_attention_desc rope6 = { .heads = 1, .head_dim = 6, .pos_q = pos, .pos_k = pos };
+    assert_int_equal(fk_attention(ctx, &rope6, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    struct fk_attention_desc noeps = { .heads = 2, .head_dim = 8, .qk_norm = 1 };
+    assert_int_equal(fk_attention(ctx, &noeps, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_non_null(strstr(fk_ctx_error(ctx), "eps"));
+    struct fk_attention_desc badscale = { .heads = 2, .head_dim = 8, .scale = NAN };
+    assert_int_equal(fk_attention(ctx, &badscale, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    fk_ctx_free(ctx);
+}
+
+/* RoPE reference: the (0,0) position is the identity; rotations preserve
+ * each pair's norm; y rotates the first half and x the second. */
+static void test_rope_reference(void **state)
+{
+    (void)state;
+    float t[16], u[16];
+    for (int i = 0; i < 16; i++)
+        t[i] = u[i] = (float)(i + 1);
+    fk_rope2d_ref(u, 16, 0, 0, 100.0f);
+    assert_memory_equal(t, u, sizeof t);
+    fk_rope2d_ref(u, 16, 3, 0, 100.0f);
+    for (int i = 8; i < 16; i++)
+        assert_true(u[i] == t[i]); /* x = 0 leaves the second half */
+    for (int kk = 0; kk < 4; kk++) {
+        float n0 = t[kk] * t[kk] + t[kk + 4] * t[kk + 4], n1 = u[kk] * u[kk] + u[kk + 4] * u[kk + 4];
+        assert_float_equal(n0, n1, 1e-4 * n0);
+    }
+    /* k = 0 frequency is 1: angle = position */
+    assert_float_equal(u[0], t[0] * cosf(3.0f) - t[4] * sinf(3.0f), 1e-5);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_vs_reference),
+        cmocka_unit_test(test_huge_logits),
+        cmocka_unit_test(test_onehot_and_uniform),
+        cmocka_unit_test(test_nonfinite),
+        cmocka_unit_test(test_rope_reference),
+        cmocka_unit_test(test_bad_arguments),
+    };
+    return cmocka_run_group_tests_name("kernels/attention", tests, NULL, NULL);
+}
