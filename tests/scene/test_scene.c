@@ -1,0 +1,275 @@
+/* test_scene.c - synthetic 4D scenes: figure size, exact motion at any real
+ * time, every preset finite and moving, the default rig, the hard presets
+ * really being hard, determinism, bad input. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scene.h"
+
+static scene *make(enum scene_preset p, uint64_t seed)
+{
+    scene *s = NULL;
+    struct splat_error err;
+    if (scene_new(p, seed, 0, &s, &err) < 0)
+        fail_msg("%s", err.msg);
+    return s;
+}
+
+static void test_figure_height_and_counts(void **state)
+{
+    (void)state;
+    for (uint64_t seed = 0; seed < 12; seed++) {
+        scene *s = make(SCENE_WAVE, seed);
+        assert_true(scene_height(s) >= 1.6f && scene_height(s) <= 1.9f);
+        struct splat_frame f = { 0 };
+        assert_int_equal(scene_eval(s, 0.0, 0.0, &f, NULL), 0);
+        float zmax = 0;
+        for (size_t i = 0; i < f.count; i++)
+            zmax = fmaxf(zmax, f.pos[3 * i + 2]);
+        /* the top of the head is the figure's height within a few centimetres */
+        assert_true(fabsf(zmax - scene_height(s)) < 0.08f);
+        assert_true(f.count > 20000 && f.count < 60000);
+        splat_frame_free(&f);
+        scene_free(s);
+    }
+}
+
+static void test_motion_is_exact_at_any_time(void **state)
+{
+    (void)state;
+    const double times[] = { 0.0, 0.5 / SCENE_FPS, 1.37, -0.25, 12.3456 };
+    for (int p = 0; p < SCENE_PRESET_COUNT; p++) {
+        scene *s = make((enum scene_preset)p, 3);
+        struct splat_frame f = { 0 };
+        size_t n = scene_count(s);
+        float *a = malloc(3 * n * sizeof(float)), *b = malloc(3 * n * sizeof(float));
+        for (size_t k = 0; k < sizeof times / sizeof times[0]; k++) {
+            double t = times[k], dt = 1.0 / SCENE_FPS;
+            assert_int_equal(scene_eval(s, t, dt, &f, NULL), 0);
+            struct splat_error err;
+            assert_int_equal(splat_frame_validate(&f, &err), 0);
+            scene_positions(s, t - dt, a);
+            scene_positions(s, t + dt, b);
+            double maxd = 0, moved = 0;
+            for (size_t i = 0; i < 3 * n; i++) {
+                maxd = fmax(maxd, fabs((double)f.pos[i] + f.motion_bwd[i] - a[i]));
+                maxd = fmax(maxd, fabs((double)f.pos[i] + f.motion_fwd[i] - b[i]));
+                moved = fmax(moved, fabs((double)f.motion_fwd[i]));
+            }
+            assert_true(maxd < 1e-5);  /* motion = exact displacement (float rounding only) */
+            assert_true(moved > 1e-3); /* every preset moves at every time */
+            /* continuity: a tiny time step moves nothing far (the ball included) */
+            scene_positions(s, t + 1e-5, a);
+            double step = 0;
+            for (size_t i = 0; i < 3 * n; i++)
+                step = fmax(step, fabs((double)a[i] - f.pos[i]));
+            assert_true(step < 1e-3);
+        }
+        free(a);
+        free(b);
+        splat_frame_free(&f);
+        scene_free(s);
+    }
+}
+
+static void test_default_rig(void **state)
+{
+    (void)state;
+    scene *s = make(SCENE_WALK, 1);
+    struct splat_rig rig;
+    scene_default_rig(s, SCENE_VIEWS_DEFAULT, 518, 518, &rig);
+    assert_int_equal(rig.count, 4);
+    float c[4][3];
+    for (int k = 0; k < 4; k++) {
+        struct splat_error err;
+        assert_int_equal(splat_camera_validate(&rig.cams[k], &err), 0);
+        assert_int_equal(rig.cams[k].width, 518);
+        splat_camera_center(&rig.cams[k], c[k]);
+        /* the subject's middle projects near the image centre */
+        float mid[3] = { 0, 0, 0.95f * scene_height(s) / 1.78f }, q[3];
+        splat_camera_to_cam(&rig.cams[k], mid, q);
+        assert_true(q[2] > 2.5f);
+        assert_true(fabsf(rig.cams[k].fx * q[0] / q[2]) < 2.0f);
+    }
+    for (int k = 0; k < 3; k++) {
+        float a0 = atan2f(c[k][0], c[k][1]), a1 = atan2f(c[k + 1][0], c[k + 1][1]);
+        assert_float_equal(fabsf(a1 - a0) * 180.0f / 3.14159265f, 45.0f, 0.01f);
+    }
+    scene_free(s);
+}
+
+static float min_camera_distance(const scene *s, const struct splat_camera *cam, double t)
+{
+    struct splat_frame f = { 0 };
+    assert_int_equal(scene_eval(s, t, 0.0, &f, NULL), 0);
+    float c[3], best = 1e9f;
+    splat_camera_center(cam, c);
+    for (size_t i = 0; i < f.count; i++) {
+        if (f.pos[3 * i + 2] < 0.01f)
+            continue; /* floor */
+        float d = 0;
+        for (int k = 0; k < 3; k++)
+            d += (f.pos[3 * i + k] - c[k]) * (f.pos[3 * i + k] - c[k]);
+        best = fminf(best, sqrtf(d));
+    }
+    splat_frame_free(&f);
+    return best;
+}
+
+static void test_close_preset_has_a_camera_within_half_a_metre(void **state)
+{
+    (void)state;
+    scene *s = make(SCENE_CLOSE, 2);
+    struct splat_rig rig;
+    scene_default_rig(s, 4, 518, 518, &rig);
+    for (double t = 0; t < 4.0; t += 0.5)
+        assert_true(min_camera_distance(s, &rig.cams[3], t) < 0.5f);
+    assert_true(min_camera_distance(s, &rig.cams[0], 0.0) > 2.0f);
+    scene_free(s);
+}
+
+/* Is any Gaussian of the ball (the ones far above the body or away from it)
+ * inside the image of any camera? */
+static int ball_visible(const scene *s, const struct splat_rig *rig, double t, size_t b0, size_t b1)
+{
+    struct splat_frame f = { 0 };
+    assert_int_equal(scene_eval(s, t, 0.0, &f, NULL), 0);
+    int vis = 0;
+    for (size_t i = b0; i < b1 && !vis; i++)
+        for (int c = 0; c < rig->count && !vis; c++) {
+            float q[3];
+            splat_camera_to_cam(&rig->cams[c], f.pos + 3 * i, q);
+            if (q[2] <= 0.2f)
+                continue;
+            float u = rig->cams[c].fx * q[0] / q[2] + rig->cams[c].cx;
+            float v = rig->cams[c].fy * q[1] / q[2] + rig->cams[c].cy;
+            vis = u >= 0 && v >= 0 && u < rig->cams[c].width && v < rig->cams[c].height;
+        }
+    splat_frame_free(&f);
+    return vis;
+}
+
+static void test_exit_ball_leaves_and_returns(void **state)
+{
+    (void)state;
+    scene *s = make(SCENE_EXIT, 4);
+    struct splat_rig rig;
+    scene_default_rig(s, 4, 518, 518, &rig);
+    size_t n = scene_count(s);
+    /* locate the ball: the contiguous run of Gaussians around the highest point at the apex */
+    struct splat_frame f = { 0 };
+    assert_int_equal(scene_eval(s, 1.0, 0.0, &f, NULL), 0);
+    size_t top = 0;
+    for (size_t i = 0; i < n; i++)
+        if (f.pos[3 * i + 2] > f.pos[3 * top + 2])
+            top = i;
+    assert_true(f.pos[3 * top + 2] > 4.0f); /* way above every camera's view */
+    size_t b0 = top, b1 = top + 1;
+    while (b0 > 0 && f.pos[3 * (b0 - 1) + 2] > 3.5f)
+        b0--;
+    while (b1 < n && f.pos[3 * b1 + 2] > 3.5f)
+        b1++;
+    assert_true(b1 - b0 > 100);
+    assert_true(ball_visible(s, &rig, 0.0, b0, b1));
+    assert_false(ball_visible(s, &rig, 1.0, b0, b1));
+    assert_true(ball_visible(s, &rig, 2.0, b0, b1));
+    splat_frame_free(&f);
+    scene_free(s);
+}
+
+static double max_step(const scene *s, double t)
+{
+    struct splat_frame f = { 0 };
+    assert_int_equal(scene_eval(s, t, 1.0 / SCENE_FPS, &f, NULL), 0);
+    double m = 0;
+    for (size_t i = 0; i < f.count; i++) {
+        const float *d = f.motion_fwd + 3 * i;
+        m = fmax(m, sqrt((double)d[0] * d[0] + (double)d[1] * d[1] + (double)d[2] * d[2]));
+    }
+    splat_frame_free(&f);
+    return m;
+}
+
+static void test_fast_moves_far_per_frame(void **state)
+{
+    (void)state;
+    scene *fast = make(SCENE_FAST, 5), *walk = make(SCENE_WALK, 5);
+    double mf = 0, mw = 0;
+    for (double t = 0; t < 1.0; t += 0.1) {
+        mf = fmax(mf, max_step(fast, t));
+        mw = fmax(mw, max_step(walk, t));
+    }
+    assert_true(mf > 0.15);     /* > 15 cm per 1/30 s */
+    assert_true(mf > 2.5 * mw);
+    assert_true(mw < 0.12);
+    scene_free(fast);
+    scene_free(walk);
+}
+
+static void test_deterministic_by_seed(void **state)
+{
+    (void)state;
+    scene *a = make(SCENE_THROW, 9), *b = make(SCENE_THROW, 9), *c = make(SCENE_THROW, 10);
+    struct splat_frame fa = { 0 }, fb = { 0 }, fc = { 0 };
+    assert_int_equal(scene_eval(a, 0.7, 0.0, &fa, NULL), 0);
+    assert_int_equal(scene_eval(b, 0.7, 0.0, &fb, NULL), 0);
+    assert_int_equal(scene_eval(c, 0.7, 0.0, &fc, NULL), 0);
+    assert_int_equal(fa.count, fb.count);
+    assert_memory_equal(fa.pos, fb.pos, 3 * fa.count * sizeof(float));
+    assert_memory_equal(fa.rgb, fb.rgb, 3 * fa.count * sizeof(float));
+    assert_true(fa.count != fc.count || memcmp(fa.pos, fc.pos, 3 * fa.count * sizeof(float)) != 0);
+    splat_frame_free(&fa); splat_frame_free(&fb); splat_frame_free(&fc);
+    scene_free(a); scene_free(b); scene_free(c);
+}
+
+static void test_sized_scene(void **state)
+{
+    (void)state;
+    scene *s = NULL;
+    assert_int_equal(scene_new(SCENE_WALK, 1, 100000, &s, NULL), 0);
+    assert_true(scene_count(s) > 80000 && scene_count(s) < 125000);
+    scene_free(s);
+}
+
+static void test_bad_input_rejected(void **state)
+{
+    (void)state;
+    struct splat_error err;
+    assert_int_equal(scene_preset_from_name("dance", &err), -1);
+    assert_non_null(strstr(err.msg, "'dance'"));
+    assert_non_null(strstr(err.msg, "throw"));
+    assert_int_equal(scene_preset_from_name("close", &err), SCENE_CLOSE);
+    scene *s = NULL;
+    assert_int_equal(scene_new((enum scene_preset)42, 1, 0, &s, &err), SPLAT_EINVAL);
+    assert_non_null(strstr(err.msg, "preset"));
+    assert_int_equal(scene_new(SCENE_WALK, 1, 10, &s, &err), SPLAT_EINVAL);
+    assert_non_null(strstr(err.msg, "10 Gaussians"));
+    s = make(SCENE_WALK, 1);
+    struct splat_frame f = { 0 };
+    assert_int_equal(scene_eval(s, NAN, 0.0, &f, &err), SPLAT_EINVAL);
+    assert_int_equal(scene_eval(s, 0.0, -1.0, &f, &err), SPLAT_EINVAL);
+    scene_free(s);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_figure_height_and_counts),
+        cmocka_unit_test(test_motion_is_exact_at_any_time),
+        cmocka_unit_test(test_default_rig),
+        cmocka_unit_test(test_close_preset_has_a_camera_within_half_a_metre),
+        cmocka_unit_test(test_exit_ball_leaves_and_returns),
+        cmocka_unit_test(test_fast_moves_far_per_frame),
+        cmocka_unit_test(test_deterministic_by_seed),
+        cmocka_unit_test(test_sized_scene),
+        cmocka_unit_test(test_bad_input_rejected),
+    };
+    return cmocka_run_group_tests_name("scene", tests, NULL, NULL);
+}
