@@ -7,7 +7,15 @@
  * Antialiased bicubic (PIL / torch antialias=True, a = -0.5), vggt.md 2:
  *   s = n_in / n_out, support = 2 s (s >= 1) or 2, taps normalised to sum 1,
  *   identity when n_in == n_out. Used for the DINOv2 position-embedding resize
- *   and for image preprocessing.
+ *   and for image preprocessing. Width pass first, then height (as PIL).
+ *
+ * Same input and output size is an exact copy for both. Bilinear positions on
+ * or past the last pixel use that pixel with weight exactly 1. Every ISA gives
+ * the same bits (same tables, same operations). A NaN or Inf input spoils only
+ * the outputs whose taps reach it (an Inf may come out as NaN). Errors
+ * (FK_EINVAL): h, w, c, ho or wo < 1, NULL x or y, x and y overlapping,
+ * align_corners not 0 or 1; FK_ENOMEM when the table / intermediate scratch
+ * does not fit a frozen context (bicubic: h * wo * c floats when both axes change).
  *
  *     fk_resize_bilinear(ctx, x, 37, 37, 256, y, 148, 148, 1);
  */
