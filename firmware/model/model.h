@@ -134,7 +134,7 @@ struct model_outputs {
 };
 
 /* Checkpoint callback. Names and layouts (f = frame, -1 = all frames):
- *   "patch_embed"       f=-1 [S, P, C]        patch tokens after the patch embed
+ *   "patch_embed"       f    [P, C]           patch tokens after the patch embed
  *   "layer<l>"          f=-1 [S, P', 2C]      aggregator output l (kept layers)
  *   "camera_iter<i>"    f=-1 [S, 9]           activated pose encoding, iteration i
  *   "<head>.level<i>"   f    [h_i, w_i, c_i]  DPT level i after its resize (HWC)

@@ -1,0 +1,219 @@
+/* model_aggregator.c - patch embed (DINOv2 or conv, vggt.md 2) and the
+ * alternating frame / global attention aggregator (vggt.md 3). */
+#include <stdlib.h>
+#include <string.h>
+
+#include "model_internal.h"
+
+static const float resnet_mean[3] = { 0.485f, 0.456f, 0.406f };
+static const float resnet_std[3] = { 0.229f, 0.224f, 0.225f };
+
+int model_aggregator_load(struct model *m)
+{
+    const struct model_config *c = &m->cfg;
+    const int C = c->embed_dim, R = c->num_register_tokens, p = c->patch_size;
+    const int hid = model_mlp_hidden(c, C);
+    char b[MODEL_NAME_MAX];
+    int rc;
+    if (c->patch_embed == MODEL_PATCH_DINO) {
+        const int g = c->img_size / p;
+        if ((rc = model_load_conv(m, &m->patch, "aggregator.patch_embed.patch_embed.proj", C, 3,
+                                  p, p, 0, 1, FK_W_F32)) < 0)
+            return rc;
+        m->patch_packed = 1;
+        if ((rc = model_load_f32(m, "aggregator.patch_embed.cls_token", (size_t)C, &m->cls)) < 0 ||
+            (rc = model_load_f32(m, "aggregator.patch_embed.pos_embed",
+                                 (size_t)(1 + g * g) * C, &m->pos_embed)) < 0)
+            return rc;
+        if (R > 0 && (rc = model_load_f32(m, "aggregator.patch_embed.register_tokens",
+                                          (size_t)R * C, &m->dino_reg)) < 0)
+            return rc;
+        if ((rc = model_load_f32(m, "aggregator.patch_embed.norm.weight", (size_t)C, &m->dino_nw)) < 0 ||
+            (rc = model_load_f32(m, "aggregator.patch_embed.norm.bias", (size_t)C, &m->dino_nb)) < 0)
+            return rc;
+        m->dino = calloc((size_t)c->dino_depth, sizeof *m->dino);
+        if (!m->dino)
+            return model_fail(m, MODEL_ENOMEM, "model: out of memory");
+        for (int i = 0; i < c->dino_depth; i++) {
+            snprintf(b, sizeof b, "aggregator.patch_embed.blocks.%d", i);
+            if ((rc = model_load_block(m, &m->dino[i], b, C, c->dino_num_heads, hid, 1e-6f, 0)) < 0)
+                return rc;
+        }
+    } else {
+        if ((rc = model_load_conv(m, &m->patch, "aggregator.patch_embed.proj", C, 3, p, p, 0, 1,
+                                  FK_W_F32)) < 0)
+            return rc;
+        m->patch_packed = 1;
+    }
+    if ((rc = model_load_f32(m, "aggregator.camera_token", (size_t)2 * C, &m->cam_tok)) < 0)
+        return rc;
+    if (R > 0 && (rc = model_load_f32(m, "aggregator.register_token", (size_t)2 * R * C,
+                                      &m->reg_tok)) < 0)
+        return rc;
+    m->frame = calloc((size_t)c->depth, sizeof *m->frame);
+    m->global = calloc((size_t)c->depth, sizeof *m->global);
+    if (!m->frame || !m->global)
+        return model_fail(m, MODEL_ENOMEM, "model: out of memory");
+    for (int i = 0; i < c->depth; i++) {
+        snprintf(b, sizeof b, "aggregator.frame_blocks.%d", i);
+        if ((rc = model_load_block(m, &m->frame[i], b, C, c->num_heads, hid, 1e-5f, 1)) < 0)
+            return rc;
+        snprintf(b, sizeof b, "aggregator.global_blocks.%d", i);
+        if ((rc = model_load_block(m, &m->global[i], b, C, c->num_heads, hid, 1e-5f, 1)) < 0)
+            return rc;
+    }
+    return 0;
+}
+
+void model_aggregator_free(struct model *m)
+{
+    if (m->patch_packed)
+        fk_conv2d_free(&m->patch);
+    for (int i = 0; m->dino && i < m->cfg.dino_depth; i++)
+        model_free_block(&m->dino[i]);
+    for (int i = 0; m->frame && i < m->cfg.depth; i++) {
+        model_free_block(&m->frame[i]);
+        model_free_block(&m->global[i]);
+    }
+    free(m->dino);
+    free(m->frame);
+    free(m->global);
+}
+
+/* Scratch layout of the aggregator phase (shared by plan and eval). */
+struct agg_bufs {
+    float          *img, *x;
+    struct blk_bufs bb;
+};
+
+static void agg_layout(struct bump *b, const struct model_config *c, int S, int H, int W,
+                       struct agg_bufs *a)
+{
+    const int p = c->patch_size, P1 = 1 + c->num_register_tokens + (H / p) * (W / p);
+    const int n = S * P1, C = c->embed_dim;
+    a->img = BUMP_F(b, (size_t)H * W * 3);
+    a->x = BUMP_F(b, (size_t)n * C);
+    model_block_bufs(b, C, model_mlp_hidden(c, C), n, &a->bb);
+}
+
+void model_aggregator_plan(const struct model_config *c, uint64_t keep, int S, int H, int W,
+                           size_t *persist, size_t *scratch)
+{
+    const int p = c->patch_size, P = (H / p) * (W / p), P1 = 1 + c->num_register_tokens + P;
+    const size_t n = (size_t)S * P1, C = (size_t)c->embed_dim;
+    struct bump b = { NULL, 0 };
+    bump_take(&b, n * 2 * sizeof(int32_t));                    /* RoPE positions */
+    if (c->patch_embed == MODEL_PATCH_DINO)
+        BUMP_F(&b, (size_t)P * C);                             /* resized pos-embed */
+    for (int l = 0; l < c->depth; l++)
+        if (keep >> l & 1)
+            BUMP_F(&b, n * 2 * C);                             /* kept layer l */
+    *persist = b.off;
+    struct bump s = { NULL, 0 };
+    struct agg_bufs a;
+    agg_layout(&s, c, S, H, W, &a);
+    *scratch = s.off;
+}
+
+static void copy_rows(float *dst, int ldd, const float *src, int lds, int rows, int cols)
+{
+    for (int r = 0; r < rows; r++)
+        memcpy(dst + (size_t)r * ldd, src + (size_t)r * lds, (size_t)cols * sizeof *dst);
+}
+
+int model_aggregator_eval(struct model *m, const float *images, int S, int H, int W)
+{
+    const struct model_config *c = &m->cfg;
+    const int p = c->patch_size, h = H / p, w = W / p, P = h * w;
+    const int R = c->num_register_tokens, ns = 1 + R, P1 = ns + P, C = c->embed_dim;
+    const int n = S * P1;
+    struct bump sb = { (unsigned char *)m->scratch, 0 };
+    struct agg_bufs a;
+    agg_layout(&sb, c, S, H, W, &a);
+    float *x = a.x;
+    int rc;
+    double t0 = model_now();
+    m->flops = &m->st_flops[ST_PATCH];
+
+    /* RoPE positions: specials (0, 0), patch (row + 1, col + 1); same per frame. */
+    for (int f = 0; f < S; f++)
+        for (int t = 0; t < P1; t++) {
+            int32_t *q = m->pos + 2 * ((size_t)f * P1 + t);
+            q[0] = t < ns ? 0 : (t - ns) / w + 1;
+            q[1] = t < ns ? 0 : (t - ns) % w + 1;
+        }
+    if (c->patch_embed == MODEL_PATCH_DINO && (m->pe_h != h || m->pe_w != w)) {
+        const int g = c->img_size / p;
+        if (fk_resize_bicubic_aa(m->ctx, m->pos_embed + C, g, g, C, m->pe_grid, h, w) != FK_OK)
+            return model_kfail(m, "pos-embed resize");
+        m->pe_h = h;
+        m->pe_w = w;
+    }
+    for (int f = 0; f < S; f++) {
+        const float *im = images + (size_t)f * 3 * H * W;
+        for (int y = 0; y < H; y++)
+            for (int xx = 0; xx < W; xx++)
+                for (int ch = 0; ch < 3; ch++)
+                    a.img[((size_t)y * W + xx) * 3 + ch] =
+                        (im[((size_t)ch * H + y) * W + xx] - resnet_mean[ch]) / resnet_std[ch];
+        float *tok = x + (size_t)f * P1 * C;
+        if ((rc = model_conv(m, &m->patch, a.img, H, W, tok + (size_t)ns * C, FK_ACT_NONE)) < 0)
+            return rc;
+        if (c->patch_embed == MODEL_PATCH_DINO) {
+            for (int i = 0; i < C; i++)
+                tok[i] = m->cls[i] + m->pos_embed[i];
+            if (R)
+                memcpy(tok + C, m->dino_reg, (size_t)R * C * sizeof *tok);
+            if (fk_residual_add(m->ctx, tok + (size_t)ns * C, C, m->pe_grid, C, NULL, P, C) != FK_OK)
+                return model_kfail(m, "pos-embed add");
+        }
+    }
+    double t1 = model_now();
+    m->st_sec[ST_PATCH] += t1 - t0;
+    if (c->patch_embed == MODEL_PATCH_DINO) {
+        m->flops = &m->st_flops[ST_DINO];
+        for (int i = 0; i < c->dino_depth; i++)
+            if ((rc = model_block_forward(m, &m->dino[i], x, S, P1, NULL, &a.bb)) < 0)
+                return rc;
+        if (fk_layernorm(m->ctx, x, n, C, C, m->dino_nw, m->dino_nb, 1e-6f, x, C) != FK_OK)
+            return model_kfail(m, "dino norm");
+        m->st_sec[ST_DINO] += model_now() - t1;
+    }
+    for (int f = 0; f < S; f++) {
+        float *tok = x + (size_t)f * P1 * C;
+        if (m->tap)
+            m->tap(m->tap_user, "patch_embed", f, tok + (size_t)ns * C, (size_t)P * C);
+        int slot = f == 0 ? 0 : 1;
+        memcpy(tok, m->cam_tok + (size_t)slot * C, (size_t)C * sizeof *tok);
+        if (R)
+            memcpy(tok + C, m->reg_tok + (size_t)slot * R * C, (size_t)R * C * sizeof *tok);
+    }
+
+    for (int i = 0; i < c->depth; i++) {
+        double ta = model_now();
+        m->flops = &m->st_flops[ST_FRAME];
+        if ((rc = model_block_forward(m, &m->frame[i], x, S, P1, m->pos, &a.bb)) < 0)
+            return rc;
+        if (m->layers[i])
+            copy_rows(m->layers[i], 2 * C, x, C, n, C);
+        double tb = model_now();
+        m->st_sec[ST_FRAME] += tb - ta;
+        m->flops = &m->st_flops[ST_GLOBAL];
+        if ((rc = model_block_forward(m, &m->global[i], x, 1, n, m->pos, &a.bb)) < 0)
+            return rc;
+        m->st_sec[ST_GLOBAL] += model_now() - tb;
+        if (m->hooks.after_global &&
+            (rc = m->hooks.after_global(m->hooks.user, i, x, S, P1, C)) < 0)
+            return model_fail(m, MODEL_EINVAL, "model: after_global hook failed at layer %d (%d)",
+                              i, rc);
+        if (m->layers[i]) {
+            copy_rows(m->layers[i] + C, 2 * C, x, C, n, C);
+            if (m->tap) {
+                char nm[32];
+                snprintf(nm, sizeof nm, "layer%d", i);
+                m->tap(m->tap_user, nm, -1, m->layers[i], (size_t)n * 2 * C);
+            }
+        }
+    }
+    return 0;
+}

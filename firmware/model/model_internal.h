@@ -1,0 +1,137 @@
+/* model_internal.h - shared between the model's files: the model struct, the
+ * transformer block, the arena bump allocator and the built-in heads. */
+#ifndef F4D_MODEL_INTERNAL_H
+#define F4D_MODEL_INTERNAL_H
+
+#include <stdio.h>
+
+#include "fk_attention.h"
+#include "fk_conv.h"
+#include "fk_linear.h"
+#include "fk_ops.h"
+#include "fk_resize.h"
+#include "model.h"
+
+#define MODEL_ALIGN 64
+
+/* Bump allocator over one region; with base == NULL it only measures, so the
+ * same layout code plans (Prepare) and places (Eval). */
+struct bump {
+    unsigned char *base;
+    size_t         off;
+};
+
+static inline void *bump_take(struct bump *b, size_t bytes)
+{
+    void *p = b->base ? (void *)(b->base + b->off) : NULL;
+    b->off += (bytes + MODEL_ALIGN - 1) / MODEL_ALIGN * MODEL_ALIGN;
+    return p;
+}
+#define BUMP_F(b, n) ((float *)bump_take((b), (size_t)(n) * sizeof(float)))
+
+/* Pre-norm transformer block (vggt.md 4). */
+struct blk {
+    int              dim, heads, hidden, qk_norm;
+    float            eps;
+    const float     *n1w, *n1b, *n2w, *n2b, *g1, *g2;
+    const float     *qnw, *qnb, *knw, *knb;
+    struct fk_linear qkv, proj, fc1, fc2;
+};
+
+struct blk_bufs {
+    float *ln, *qkv, *o, *hid;
+};
+
+enum model_stage_id {
+    ST_PATCH = 0, ST_DINO, ST_FRAME, ST_GLOBAL, ST_HEAD0,
+    ST_COUNT = ST_HEAD0 + MODEL_HEADS_MAX,
+};
+
+struct model {
+    fk_ctx             *ctx;
+    gguf_file          *gf;
+    enum fk_wtype       wtype;
+    struct model_config cfg;
+    char                err[512];
+    size_t              weight_bytes;
+    unsigned            groups;            /* groups present in the file */
+
+    /* aggregator */
+    struct fk_conv2d    patch;
+    const float        *cls, *pos_embed, *dino_reg, *dino_nw, *dino_nb;
+    const float        *cam_tok, *reg_tok;
+    struct blk         *dino, *frame, *global;
+    int                 patch_packed;
+
+    /* heads */
+    const struct model_head_ops *head_ops[MODEL_HEADS_MAX];
+    void               *head[MODEL_HEADS_MAX];
+    int                 n_heads;
+    uint64_t            keep;               /* aggregator layers kept */
+
+    /* arena */
+    unsigned char      *arena;
+    size_t              arena_bytes, persist_bytes, scratch_bytes;
+    int                 max_S, max_H, max_W;
+    int32_t            *pos;                /* [S*P'][2] */
+    float              *pe_grid;            /* resized DINO pos-embed [P, C] */
+    int                 pe_h, pe_w;         /* size pe_grid holds (0 = none) */
+    float              *layers[MODEL_LAYERS_MAX];
+    float              *head_persist[MODEL_HEADS_MAX];
+    size_t              head_persist_bytes[MODEL_HEADS_MAX];
+    float              *scratch;
+
+    model_tap_fn        tap;
+    void               *tap_user;
+    struct model_hooks  hooks;
+
+    double              st_sec[ST_COUNT], st_flops[ST_COUNT];
+    double             *flops;              /* stage counter being charged */
+};
+
+int  model_fail(struct model *m, int rc, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+int  model_kfail(struct model *m, const char *what);  /* kernel error -> message */
+double model_now(void);
+
+/* Loading (model.c). */
+int  model_load_f32(struct model *m, const char *name, size_t count, const float **v);
+int  model_load_conv(struct model *m, struct fk_conv2d *c, const char *prefix, int cout,
+                     int cin, int k, int stride, int pad, int bias, enum fk_wtype as);
+int  model_load_convt(struct model *m, struct fk_conv_transpose2d *c, const char *prefix,
+                      int cin, int cout, int k);
+int  model_load_block(struct model *m, struct blk *b, const char *prefix, int dim,
+                      int heads, int hidden, float eps, int qk_norm);
+void model_free_block(struct blk *b);
+
+/* Kernels with FLOP accounting (model_block.c). */
+int  model_linear(struct model *m, const struct fk_linear *L, const float *x, int rows,
+                  int ldx, float *y, int ldy, const struct fk_epilogue *ep);
+int  model_conv(struct model *m, const struct fk_conv2d *c, const float *x, int h, int w,
+                float *y, enum fk_act act);
+int  model_convt(struct model *m, const struct fk_conv_transpose2d *c, const float *x,
+                 int h, int w, float *y);
+void model_block_bufs(struct bump *b, int dim, int hidden, int n, struct blk_bufs *bb);
+/* x [nseq*seqlen, dim] in place; pos [seqlen][2] or NULL (no RoPE). */
+int  model_block_forward(struct model *m, const struct blk *b, float *x, int nseq,
+                         int seqlen, const int32_t *pos, const struct blk_bufs *bb);
+
+/* Aggregator (model_aggregator.c). */
+int  model_aggregator_load(struct model *m);
+void model_aggregator_free(struct model *m);
+void model_aggregator_plan(const struct model_config *c, uint64_t keep, int S, int H, int W,
+                           size_t *persist, size_t *scratch);
+int  model_aggregator_eval(struct model *m, const float *images, int S, int H, int W);
+
+/* Built-in heads. */
+extern const struct model_head_ops model_camera_head_ops;
+extern const struct model_head_ops model_depth_head_ops;
+extern const struct model_head_ops model_point_head_ops;
+void model_camera_plan(const struct model_config *c, int S, size_t *persist, size_t *scratch);
+void model_dpt_plan(const struct model_config *c, int out_dim, int S, int H, int W,
+                    size_t *persist, size_t *scratch);
+
+#endif

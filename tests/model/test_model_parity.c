@@ -1,0 +1,311 @@
+/* test_model_parity.c - the C model against the PyTorch reference fixtures
+ * (tools/reference/make_fixtures.py) at every checkpoint, in f32, f16, int8.
+ *
+ *   test_model_parity FIXTURE_DIR GGUF_DIR
+ *
+ * GGUF_DIR holds <config>_<type>.gguf written by f4d-convert (ctest fixtures).
+ * Error of a checkpoint = max |c - ref| / max |ref| over the whole tensor. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "fk_ctx.h"
+#include "model.h"
+#include "npy.h"
+
+static const char *fixture_dir, *gguf_dir;
+
+/* Budgets per precision (f32 from the issue; f16 / int8 measured on these
+ * fixtures with margin: f16 ~1e-3, int8 ~2e-2 at the heads, see the report). */
+static const double budget_f32 = 1e-4, budget_f16 = 5e-3, budget_int8 = 8e-2;
+
+#define MAX_CK 48
+
+struct ck {
+    char    name[64];
+    float  *ref;           /* fixture array                          */
+    int64_t shape[NPY_MAX_DIMS];
+    int     nd;
+    int     nchw;          /* fixture [S,c,h,w] vs C taps HWC per frame */
+    double  max_diff, max_ref;
+    int     seen;
+};
+
+struct run {
+    struct ck ck[MAX_CK];
+    int       n;
+    int       bad_size;
+};
+
+static struct ck *ck_add(struct run *r, const char *dir, const char *name, int nchw)
+{
+    char path[2200], err[256];
+    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
+    struct ck *c = &r->ck[r->n];
+    memset(c, 0, sizeof *c);
+    if (npy_load_f32(path, &c->ref, c->shape, &c->nd, err, sizeof err) < 0) {
+        print_error("%s\n", err);
+        return NULL;
+    }
+    snprintf(c->name, sizeof c->name, "%s", name);
+    c->nchw = nchw;
+    r->n++;
+    return c;
+}
+
+static size_t numel(const struct ck *c, int from)
+{
+    size_t n = 1;
+    for (int i = from; i < c->nd; i++)
+        n *= (size_t)c->shape[i];
+    return n;
+}
+
+static void compare(struct ck *c, int frame, const float *data, size_t count)
+{
+    size_t per = frame < 0 ? numel(c, 0) : numel(c, 1);
+    const float *ref = frame < 0 ? c->ref : c->ref + (size_t)frame * per;
+    if (count != per) {
+        print_error("%s: %zu values, fixture has %zu\n", c->name, count, per);
+        c->max_diff = INFINITY;
+        return;
+    }
+    if (c->nchw) { /* ref [ch, h, w] vs data [h, w, ch] */
+        size_t ch = (size_t)c->shape[1], hw = per / ch;
+        for (size_t i = 0; i < hw; i++)
+            for (size_t k = 0; k < ch; k++) {
+                double r = ref[k * hw + i], d = fabs((double)data[i * ch + k] - r);
+                c->max_diff = isnan(d) ? INFINITY : fmax(c->max_diff, d);
+                c->max_ref = fmax(c->max_ref, fabs(r));
+            }
+    } else {
+        for (size_t i = 0; i < count; i++) {
+            double r = ref[i], d = fabs((double)data[i] - r);
+            c->max_diff = isnan(d) ? INFINITY : fmax(c->max_diff, d);
+            c->max_ref = fmax(c->max_ref, fabs(r));
+        }
+    }
+    c->seen = 1;
+}
+
+static void on_tap(void *user, const char *name, int frame, const float *data, size_t count)
+{
+    struct run *r = user;
+    char nm[64];
+    /* camera_iter<i> compares with pose_enc_list[i] */
+    if (!strncmp(name, "camera_iter", 11)) {
+        for (int i = 0; i < r->n; i++)
+            if (!strcmp(r->ck[i].name, "pose_enc_list")) {
+                struct ck *c = &r->ck[i];
+                int it = atoi(name + 11);
+                size_t per = numel(c, 1);
+                struct ck tmp = *c;
+                tmp.ref = c->ref + (size_t)it * per;
+                tmp.nd = c->nd - 1;
+                memmove(tmp.shape, c->shape + 1, sizeof(int64_t) * (size_t)tmp.nd);
+                tmp.max_diff = c->max_diff;
+                tmp.max_ref = c->max_ref;
+                compare(&tmp, -1, data, count);
+                c->max_diff = tmp.max_diff;
+                c->max_ref = tmp.max_ref;
+                c->seen = 1;
+            }
+        return;
+    }
+    snprintf(nm, sizeof nm, "%s", name);
+    for (int i = 0; i < r->n; i++)
+        if (!strcmp(r->ck[i].name, nm)) {
+            compare(&r->ck[i], frame, data, count);
+            return;
+        }
+}
+
+static double rel(const struct ck *c)
+{
+    return c->max_ref > 0 ? c->max_diff / c->max_ref : c->max_diff;
+}
+
+/* Runs one fixture set with one precision; returns the worst relative error. */
+static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtype wt,
+                          double budget, int prep_S, int prep_H, int prep_W)
+{
+    char dir[1024], path[2200], err[512];
+    snprintf(dir, sizeof dir, "%s/%s/s%d", fixture_dir, cfg, S);
+    snprintf(path, sizeof path, "%s/%s_%s.gguf", gguf_dir, cfg, type);
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    struct model *m = NULL;
+    int rc = model_init(ctx, path, wt, &m, err, sizeof err);
+    if (rc < 0)
+        print_error("%s\n", err);
+    assert_int_equal(rc, 0);
+    const struct model_config *mc = model_get_config(m);
+    rc = model_prepare(m, prep_S, prep_H, prep_W);
+    if (rc < 0)
+        print_error("%s\n", model_error(m));
+    assert_int_equal(rc, 0);
+
+    static struct run r;
+    memset(&r, 0, sizeof r);
+    float *img;
+    int64_t ish[NPY_MAX_DIMS];
+    int ind;
+    snprintf(path, sizeof path, "%s/input.npy", dir);
+    assert_int_equal(npy_load_f32(path, &img, ish, &ind, err, sizeof err), 0);
+    assert_int_equal(ind, 4);
+    assert_int_equal(ish[0], S);
+    const int H = (int)ish[2], W = (int)ish[3];
+    assert_non_null(ck_add(&r, dir, "patch_embed", 0));
+    int seen_layer[MODEL_LAYERS_MAX] = { 0 };
+    for (int i = 0; i < 4; i++)
+        seen_layer[mc->dpt_layer_idx[i]] = 1;
+    seen_layer[mc->depth - 1] = 1;
+    for (int l = 0; l < mc->depth; l++)
+        if (seen_layer[l]) {
+            char nm[32];
+            snprintf(nm, sizeof nm, "layer%d", l);
+            assert_non_null(ck_add(&r, dir, nm, 0));
+        }
+    assert_non_null(ck_add(&r, dir, "pose_enc_list", 0));
+    static const char *heads[2] = { "depth_head", "point_head" };
+    for (int hd = 0; hd < 2; hd++) {
+        char nm[64];
+        for (int l = 0; l < 4; l++) {
+            snprintf(nm, sizeof nm, "%s.level%d", heads[hd], l);
+            assert_non_null(ck_add(&r, dir, nm, 1));
+        }
+        snprintf(nm, sizeof nm, "%s.fused", heads[hd]);
+        assert_non_null(ck_add(&r, dir, nm, 1));
+    }
+    int first_out = r.n;
+    static const char *outs[7] = { "pose_enc", "extrinsic", "intrinsic", "depth", "depth_conf",
+                                   "world_points", "world_points_conf" };
+    for (int i = 0; i < 7; i++)
+        assert_non_null(ck_add(&r, dir, outs[i], 0));
+
+    model_set_tap(m, on_tap, &r);
+    struct model_outputs out;
+    rc = model_eval(m, img, S, H, W, &out);
+    if (rc < 0)
+        print_error("%s\n", model_error(m));
+    assert_int_equal(rc, 0);
+    assert_non_null(out.pose_enc);
+    assert_non_null(out.depth);
+    assert_non_null(out.world_points);
+    const float *o[7] = { out.pose_enc, out.extrinsic, out.intrinsic, out.depth, out.depth_conf,
+                          out.world_points, out.world_points_conf };
+    for (int i = 0; i < 7; i++)
+        compare(&r.ck[first_out + i], -1, o[i], numel(&r.ck[first_out + i], 0));
+
+    double worst = 0;
+    for (int i = 0; i < r.n; i++) {
+        struct ck *c = &r.ck[i];
+        double e = rel(c);
+        printf("  %-10s %-5s S=%d %-22s rel_err %.3e%s\n", cfg, type, S, c->name, e,
+               !c->seen ? "  NOT SEEN" : e > budget ? "  OVER BUDGET" : "");
+        assert_true(c->seen);
+        worst = fmax(worst, e);
+        free(c->ref);
+    }
+    printf("  %-10s %-5s S=%d worst %.3e (budget %.0e), arena %zu bytes\n", cfg, type, S, worst,
+           budget, model_arena_bytes(m));
+    free(img);
+    model_free(m);
+    fk_ctx_free(ctx);
+    assert_true(worst <= budget);
+    return worst;
+}
+
+static void test_tiny_f32(void **state)
+{
+    (void)state;
+    for (int S = 1; S <= 4; S++)
+        if (S != 2)
+            run_fixture("tiny", S, "f32", FK_W_F32, budget_f32, 4, 42, 70);
+}
+
+static void test_tiny_conv_f32(void **state)
+{
+    (void)state;
+    run_fixture("tiny_conv", 2, "f32", FK_W_F32, budget_f32, 2, 42, 42);
+}
+
+static void test_tiny_f16(void **state)
+{
+    (void)state;
+    run_fixture("tiny", 3, "f16", FK_W_F16, budget_f16, 4, 42, 70);
+}
+
+static void test_tiny_int8(void **state)
+{
+    (void)state;
+    run_fixture("tiny", 3, "int8", FK_W_Q8, budget_int8, 4, 42, 70);
+}
+
+/* An f32 file packed as int8 at load gives the same budget as an int8 file. */
+static void test_tiny_f32_file_as_int8(void **state)
+{
+    (void)state;
+    run_fixture("tiny", 4, "f32", FK_W_Q8, budget_int8, 4, 42, 70);
+}
+
+/* The arena planned for a bigger set serves a smaller one; a larger set is
+ * refused by name, and no eval allocates kernel scratch after the first. */
+static void test_arena_bounds(void **state)
+{
+    (void)state;
+    char path[1024], err[512];
+    snprintf(path, sizeof path, "%s/tiny_f32.gguf", gguf_dir);
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    struct model *m;
+    assert_int_equal(model_init(ctx, path, FK_W_F32, &m, err, sizeof err), 0);
+    assert_int_equal(model_prepare(m, 2, 42, 70), 0);
+    const struct model_config *c = model_get_config(m);
+    assert_int_equal(model_arena_bytes(m), model_plan_bytes(c, MODEL_G_ALL, 2, 42, 70));
+    float *img = calloc((size_t)3 * 3 * 42 * 70, sizeof *img);
+    struct model_outputs out;
+    assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
+    size_t scratch = fk_ctx_scratch_bytes(ctx);
+    fk_ctx_freeze(ctx, 1);
+    assert_int_equal(model_eval(m, img, 1, 28, 56, &out), 0);
+    assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
+    assert_int_equal(fk_ctx_scratch_bytes(ctx), scratch);
+    assert_int_equal(model_eval(m, img, 3, 42, 70, &out), MODEL_EINVAL);
+    assert_non_null(strstr(model_error(m), "exceed the arena"));
+    assert_int_equal(model_eval(m, img, 1, 42, 71, &out), MODEL_EINVAL);
+    assert_non_null(strstr(model_error(m), "multiple of the patch"));
+    /* Wider than planned but smaller in total: fits. More patches per view than
+     * planned (the resized pos-embed grid): refused. */
+    assert_int_equal(model_eval(m, img, 1, 28, 84, &out), 0);
+    assert_int_equal(model_eval(m, img, 1, 42, 126, &out), MODEL_EINVAL);
+    free(img);
+    model_free(m);
+    fk_ctx_free(ctx);
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 3) {
+        fprintf(stderr, "usage: %s FIXTURE_DIR GGUF_DIR\n", argv[0]);
+        return 2;
+    }
+    fixture_dir = argv[1];
+    gguf_dir = argv[2];
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_tiny_f32),
+        cmocka_unit_test(test_tiny_conv_f32),
+        cmocka_unit_test(test_tiny_f16),
+        cmocka_unit_test(test_tiny_int8),
+        cmocka_unit_test(test_tiny_f32_file_as_int8),
+        cmocka_unit_test(test_arena_bounds),
+    };
+    return cmocka_run_group_tests_name("/model/parity", tests, NULL, NULL);
+}
