@@ -21,7 +21,7 @@
 #define MR 6
 #define NR 16
 #define BK 64                  /* keys per block                    */
-#define QB 48                  /* queries per task (8 register rows) */
+#define QB 96                  /* queries per task: 16 register tiles share each K/V block */
 #define GROUP_BYTES (8u << 20) /* shared scratch per head group      */
 #define LOG2E 1.4426950408889634f
 
