@@ -105,15 +105,43 @@ __attribute__((noinline)) static void ukr_q8_avx2(int k4, const int16_t *a, cons
 
 /* ----------------------------------------------------------------- packing */
 
-/* Rows [m0, m0 + rows) of A as micro-panels [i][k][6], zero rows to pad. */
-static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k, float *ap, float *tmp)
+/* Six rows of 8 values -> 8 columns of 6, each stored as 8 floats at
+ * d + 6 j (the last two lanes are overwritten by the next column). */
+static inline void transpose_6x8(const float *const r[MR], int k0, float *d)
+{
+    __m256 z = _mm256_setzero_ps();
+    __m256 a0 = _mm256_loadu_ps(r[0] + k0), a1 = _mm256_loadu_ps(r[1] + k0);
+    __m256 a2 = _mm256_loadu_ps(r[2] + k0), a3 = _mm256_loadu_ps(r[3] + k0);
+    __m256 a4 = _mm256_loadu_ps(r[4] + k0), a5 = _mm256_loadu_ps(r[5] + k0);
+    __m256 t0 = _mm256_unpacklo_ps(a0, a1), t1 = _mm256_unpackhi_ps(a0, a1);
+    __m256 t2 = _mm256_unpacklo_ps(a2, a3), t3 = _mm256_unpackhi_ps(a2, a3);
+    __m256 t4 = _mm256_unpacklo_ps(a4, a5), t5 = _mm256_unpackhi_ps(a4, a5);
+    __m256 u0 = _mm256_shuffle_ps(t0, t2, 0x44), u1 = _mm256_shuffle_ps(t0, t2, 0xee);
+    __m256 u2 = _mm256_shuffle_ps(t1, t3, 0x44), u3 = _mm256_shuffle_ps(t1, t3, 0xee);
+    __m256 u4 = _mm256_shuffle_ps(t4, z, 0x44), u5 = _mm256_shuffle_ps(t4, z, 0xee);
+    __m256 u6 = _mm256_shuffle_ps(t5, z, 0x44), u7 = _mm256_shuffle_ps(t5, z, 0xee);
+    /* column j = rows 0-3 from u*, rows 4-5 from the matching u4..u7 half */
+    _mm256_storeu_ps(d + 0 * MR, _mm256_permute2f128_ps(u0, u4, 0x20));
+    _mm256_storeu_ps(d + 1 * MR, _mm256_permute2f128_ps(u1, u5, 0x20));
+    _mm256_storeu_ps(d + 2 * MR, _mm256_permute2f128_ps(u2, u6, 0x20));
+    _mm256_storeu_ps(d + 3 * MR, _mm256_permute2f128_ps(u3, u7, 0x20));
+    _mm256_storeu_ps(d + 4 * MR, _mm256_permute2f128_ps(u0, u4, 0x31));
+    _mm256_storeu_ps(d + 5 * MR, _mm256_permute2f128_ps(u1, u5, 0x31));
+    _mm256_storeu_ps(d + 6 * MR, _mm256_permute2f128_ps(u2, u6, 0x31));
+    _mm256_storeu_ps(d + 7 * MR, _mm256_permute2f128_ps(u3, u7, 0x31));
+}
+
+/* Rows [m0, m0 + rows) of A as micro-panels [i][k][6], zero rows to pad.
+ * Writes up to 2 floats past the last panel (the scratch has room). */
+static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k, float *ap, float *tmp,
+                       const float *zeros)
 {
     for (int i = 0; i * MR < rows; i++) {
         const float *r[MR];
         for (int rr = 0; rr < MR; rr++) {
             int row = i * MR + rr;
             if (row >= rows) {
-                r[rr] = NULL;
+                r[rr] = zeros;
             } else if (!src->conv) {
                 r[rr] = src->x + (size_t)(m0 + row) * (size_t)src->ldx;
             } else {
@@ -122,15 +150,12 @@ static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k, floa
             }
         }
         float *d = ap + (size_t)i * (size_t)k * MR;
-        for (int rr = 0; rr < MR; rr++) {
-            if (r[rr]) {
-                for (int kk = 0; kk < k; kk++)
-                    d[(size_t)kk * MR + (size_t)rr] = r[rr][kk];
-            } else {
-                for (int kk = 0; kk < k; kk++)
-                    d[(size_t)kk * MR + (size_t)rr] = 0;
-            }
-        }
+        int kk = 0;
+        for (; kk + 8 <= k; kk += 8)
+            transpose_6x8(r, kk, d + (size_t)kk * MR);
+        for (; kk < k; kk++)
+            for (int rr = 0; rr < MR; rr++)
+                d[(size_t)kk * MR + (size_t)rr] = r[rr][kk];
     }
 }
 
@@ -226,8 +251,9 @@ static inline __m256 activate(enum fk_act act, __m256 v)
 
 /* Writes t[0..nn) (already biased and activated) to row m, columns n0..,
  * applying LayerScale and the residual accumulation. */
-static void store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0,
-                      int nn, __m256 t0, __m256 t1)
+static inline __attribute__((always_inline)) void
+store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0, int nn,
+          __m256 t0, __m256 t1)
 {
     int contiguous = !c->tconv_k || (n0 % c->tconv_cout) + nn <= c->tconv_cout;
     if (!contiguous) {
@@ -278,7 +304,7 @@ struct gemm_job {
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
     int    m, mc, n_chunks, panels, panels_per_chunk, k_pad, vnni;
-    size_t off_c, off_b, off_tmp, off_q, off_sa;
+    size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero;
 };
 
 static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
@@ -286,7 +312,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
     const struct fk_linear *L = j->L;
     int k = L->k, mp = (rows + MR - 1) / MR;
     float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
-    pack_a_f32(j->a, m0, rows, k, ap, (float *)(s + j->off_tmp));
+    pack_a_f32(j->a, m0, rows, k, ap, (float *)(s + j->off_tmp), (const float *)(s + j->off_zero));
     for (int jp = jp0; jp < jp1; jp++) {
         for (int k0 = 0; k0 < k; k0 += KC) {
             int kc = k - k0 < KC ? k - k0 : KC;
@@ -386,7 +412,7 @@ static void gemm_task(void *arg, int task, int thread)
 int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a, int m,
                   const struct fk__cdst *c, const struct fk_epilogue *ep)
 {
-    struct gemm_job j = { ctx, L, a, c, ep, m, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
+    struct gemm_job j = { ctx, L, a, c, ep, m, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
     int k = L->k, q8 = L->type == FK_W_Q8;
     j.vnni = q8 && ctx->isa == FK_ISA_AVX2_VNNI;
     j.k_pad = q8 ? (int)fk__round_up((size_t)k, 4) : k;
@@ -420,17 +446,22 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
 
     size_t mcp = fk__round_up((size_t)mc, MR);
-    size_t bytes_a = fk__round_up(mcp * a_row, FK_ALIGN);
+    size_t bytes_a = fk__round_up(mcp * a_row + 8 * sizeof(float), FK_ALIGN); /* + transpose spill */
     j.off_c = bytes_a;
     j.off_b = j.off_c + fk__round_up(mcp * NR * 4, FK_ALIGN);
     j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : (size_t)KC * NR * 4);
     size_t tmp = a->conv ? (size_t)(q8 ? 1 : MR) * (size_t)k * 4 : 0;
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
-    size_t need = j.off_sa + (q8 ? mcp * 4 : 0) + FK_ALIGN;
+    /* a row of zeros stands in for the padding rows of the last micro-panel */
+    j.off_zero = j.off_sa + fk__round_up(q8 ? mcp * 4 : 0, FK_ALIGN);
+    size_t need = j.off_zero + (q8 ? 0 : (size_t)k * 4) + FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
     if (st)
         return st;
+    if (!q8)
+        for (int t = 0; t < ctx->threads; t++)
+            memset((char *)fk__scratch(ctx, t) + j.off_zero, 0, (size_t)k * 4);
 
     double work = 2.0 * m * (double)L->n * k;
     fk_parallel_for(ctx, m_blocks * j.n_chunks, work, gemm_task, &j);
