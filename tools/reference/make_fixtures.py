@@ -21,6 +21,7 @@ import sys
 import numpy as np
 import torch
 import torch.nn.functional as F
+from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from vggt_ref import VGGT, Config, aa_bicubic_weights  # noqa: E402
@@ -97,10 +98,71 @@ def check_aa_bicubic():
         assert err < 1e-5, f"aa bicubic {n_in}->{n_out}: {err}"
 
 
+def vggt_load(img, mode, target):
+    """vggt.md 1a (load_and_preprocess_images) on a PIL image, any target size."""
+    if img.mode == "RGBA":
+        bg = Image.new("RGBA", img.size, (255, 255, 255, 255))
+        img = Image.alpha_composite(bg, img)
+    img = img.convert("RGB")
+    w, h = img.size
+    if mode == "pad":
+        if w >= h:
+            nw, nh = target, round(h * (target / w) / 14) * 14
+        else:
+            nh, nw = target, round(w * (target / h) / 14) * 14
+    else:
+        nw, nh = target, round(h * (target / w) / 14) * 14
+    a = np.asarray(img.resize((nw, nh), Image.Resampling.BICUBIC), dtype=np.float32) / 255.0
+    t = torch.from_numpy(a).permute(2, 0, 1)
+    if mode == "crop" and nh > target:
+        s = (nh - target) // 2
+        t = t[:, s:s + target]
+    if mode == "pad":
+        hp, wp = target - t.shape[1], target - t.shape[2]
+        if hp > 0 or wp > 0:
+            t = F.pad(t, (wp // 2, wp - wp // 2, hp // 2, hp - hp // 2), value=1.0)
+    return t
+
+
+def vggt_batch(ts):
+    H = max(t.shape[1] for t in ts)
+    W = max(t.shape[2] for t in ts)
+    out = []
+    for t in ts:
+        hp, wp = H - t.shape[1], W - t.shape[2]
+        out.append(F.pad(t, (wp // 2, wp - wp // 2, hp // 2, hp - hp // 2), value=1.0))
+    return torch.stack(out)
+
+
+def prep_fixtures(out_root):
+    """Preprocessing fixtures: PIL bicubic as VGGT's loader uses it, small target
+    sizes so the files stay small (the rules do not depend on 518)."""
+    d = os.path.join(out_root, "prep")
+    os.makedirs(d, exist_ok=True)
+    rng = np.random.default_rng(7)
+    cases = {"rgb_40x30": (30, 40, 3), "rgb_100x77": (77, 100, 3), "rgb_30x50": (50, 30, 3),
+             "mono_45x33": (33, 45, 1)}
+    imgs = {}
+    for name, (h, w, c) in cases.items():
+        a = rng.integers(0, 256, size=(h, w, c), dtype=np.uint8)
+        # smooth part so bicubic overshoot and clipping both happen
+        a[: h // 2] = (np.linspace(0, 255, w)[None, :, None]).astype(np.uint8)
+        np.save(os.path.join(d, f"{name}.npy"), a.astype(np.float32))
+        imgs[name] = Image.fromarray(a[..., 0] if c == 1 else a, "L" if c == 1 else "RGB")
+    for name, img in imgs.items():
+        for mode in ("crop", "pad"):
+            for target in (28, 56):
+                t = vggt_load(img, mode, target)
+                np.save(os.path.join(d, f"{name}_{mode}{target}.npy"), t.numpy())
+    b = vggt_batch([vggt_load(imgs["rgb_40x30"], "crop", 56), vggt_load(imgs["rgb_30x50"], "crop", 56)])
+    np.save(os.path.join(d, "batch_crop56.npy"), b.numpy())
+
+
 def main():
     out_root = sys.argv[1] if len(sys.argv) > 1 else os.path.join(
         os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "model", "fixtures")
     check_aa_bicubic()
+    prep_fixtures(out_root)
     for ci, (cname, spec) in enumerate(CONFIGS.items()):
         cfg, H, W = spec["cfg"], spec["H"], spec["W"]
         gen = torch.Generator().manual_seed(1234 + ci)
