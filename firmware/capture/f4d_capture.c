@@ -104,6 +104,10 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             goto out;
         }
     }
+    if (cfg->on_ready && (rc = cfg->on_ready(user, out)) < 0) {
+        rc = hal_fail(err, errlen, rc, "capture: the set consumer could not start");
+        goto out;
+    }
     struct hal_pulse_train train = {board->trigger.rate_mhz, board->trigger.pulse_width_us,
                                      cfg->triggers};
     if ((rc = hal_trigger_arm(&rig->trigger, &train)) < 0) {
@@ -151,7 +155,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
                         out->disconnects++;
                         f4d_sync_camera_reset(&r->sync, i);
                     }
-                } else if (d != HAL_ETIMEDOUT) {
+                } else if (d != HAL_ETIMEDOUT && d != HAL_EEOF) {
                     out->dequeue_errors++;
                 }
                 break;
@@ -174,7 +178,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             armed = false;
             last_edge = now;
         }
-        if (armed && cfg->triggers && hal_trigger_done(&rig->trigger))
+        if (armed && hal_trigger_done(&rig->trigger))
             armed = false;
         if (!armed) {
             /* drained when nothing more is due (simulated) or after the drain window */

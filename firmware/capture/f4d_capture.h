@@ -19,6 +19,7 @@
 #include "f4d_sync.h"
 #include "hal.h"
 
+struct f4d_capture_stats;
 struct f4d_capture_config {
     uint64_t triggers;        /* pulses to send; 0 = until duration_ns or *stop */
     uint64_t duration_ns;     /* 0 = no time limit */
@@ -26,6 +27,9 @@ struct f4d_capture_config {
     uint32_t poll_us;         /* real clocks: polling period (0 = 1000) */
     uint64_t drain_ns;        /* real clocks: wait after the last edge (0 = latency + 100 ms) */
     uint64_t progress_ns;     /* rig-clock period of on_progress (0 = 1 s) */
+    /* optional: called once formats are negotiated, before the trigger is armed
+     * (st->formats is filled); <0 aborts the capture */
+    int (*on_ready)(void *user, const struct f4d_capture_stats *st);
 };
 
 struct f4d_capture_stats {

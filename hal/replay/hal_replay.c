@@ -1,0 +1,522 @@
+/* hal_replay.c: a take played back as cameras + trigger (see hal_replay.h). */
+#include "hal_replay.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "f4d_take.h"
+
+#define RP_QUEUE_MAX 64
+#define RP_EVENTS_MAX 64
+#define RP_EDGES_MAX 64
+
+struct rp_event {
+    uint64_t arrival_ns;
+    uint64_t set_index;
+};
+
+struct rp_world;
+struct rp_cam {
+    struct rp_world *w;
+    uint32_t index;
+    struct hal_format fmt;
+    bool configured, started;
+    struct hal_buffer *queue[RP_QUEUE_MAX];
+    uint32_t q_head, q_count;
+    struct hal_buffer *aborted[RP_QUEUE_MAX];
+    uint32_t n_aborted;
+    struct rp_event ev[RP_EVENTS_MAX];
+    uint32_t n_ev;
+    char err[256];
+};
+
+struct rp_world {
+    struct f4d_take_reader *take;  /* emission: walks the sets in order */
+    struct f4d_take_reader *frames; /* delivery: its last set is reused by every camera */
+    uint64_t frames_index;          /* set held by `frames`, UINT64_MAX = none */
+    struct f4d_take_set fset;
+    char dir[HAL_PATH_MAX];
+    bool realtime, armed, trig_open;
+    uint64_t real_t0, now, base_ns;
+    uint64_t next_set, n_sets;
+    uint64_t next_set_ns; /* emission time of next_set */
+    uint64_t corrupt;
+    struct hal_edge edges[RP_EDGES_MAX];
+    uint32_t e_head, e_count;
+    struct rp_cam *cams[HAL_RIG_CAMERAS_MAX];
+    struct f4d_take_set cur;
+    char err[256];
+};
+
+static uint64_t real_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* Rig time at which a set is "triggered": its edge, else its earliest frame. */
+static uint64_t set_time(const struct rp_world *w, const struct f4d_take_set *s)
+{
+    uint64_t t = UINT64_MAX;
+    if (s->has_edge)
+        t = s->trigger_ts_ns;
+    for (uint32_t c = 0; c < HAL_RIG_CAMERAS_MAX; c++)
+        if (s->frames[c].present && s->frames[c].meta.host_ts_ns < t)
+            t = s->frames[c].meta.host_ts_ns;
+    if (t == UINT64_MAX)
+        t = w->base_ns;
+    return t < w->base_ns ? 0 : t - w->base_ns;
+}
+
+/* Finds the next readable set and its emission time (skipping corrupt ones). */
+static void load_next_time(struct rp_world *w)
+{
+    while (w->next_set < w->n_sets) {
+        if (f4d_take_read(w->take, w->next_set, &w->cur) == HAL_OK) {
+            uint64_t t = set_time(w, &w->cur);
+            w->next_set_ns = t > w->next_set_ns ? t : w->next_set_ns;
+            return;
+        }
+        w->corrupt++;
+        w->next_set++;
+    }
+}
+
+static void cam_push(struct rp_cam *c, uint64_t arrival, uint64_t set_index)
+{
+    if (c->n_ev == RP_EVENTS_MAX) { /* nobody dequeues: lose the oldest */
+        memmove(&c->ev[0], &c->ev[1], (RP_EVENTS_MAX - 1) * sizeof c->ev[0]);
+        c->n_ev--;
+    }
+    uint32_t i = c->n_ev;
+    while (i > 0 && c->ev[i - 1].arrival_ns > arrival) {
+        c->ev[i] = c->ev[i - 1];
+        i--;
+    }
+    c->ev[i].arrival_ns = arrival;
+    c->ev[i].set_index = set_index;
+    c->n_ev++;
+}
+
+static void world_advance(struct rp_world *w, uint64_t t)
+{
+    while (w->armed && w->next_set < w->n_sets && w->next_set_ns <= t) {
+        /* w->cur holds next_set (read by load_next_time) */
+        const struct f4d_take_set *s = &w->cur;
+        uint64_t at = w->next_set_ns;
+        if (s->has_edge && w->e_count < RP_EDGES_MAX) {
+            struct hal_edge *e = &w->edges[(w->e_head + w->e_count++) % RP_EDGES_MAX];
+            e->seq = s->seq;
+            e->ts_ns = at;
+            e->line = 0;
+            e->rising = true;
+        }
+        for (uint32_t c = 0; c < HAL_RIG_CAMERAS_MAX; c++) {
+            struct rp_cam *cam = w->cams[c];
+            if (!cam || !cam->started || !s->frames[c].present)
+                continue;
+            uint64_t h = s->frames[c].meta.host_ts_ns;
+            uint64_t arr = h > w->base_ns ? h - w->base_ns : 0;
+            cam_push(cam, arr > at ? arr : at, w->next_set);
+        }
+        w->next_set++;
+        load_next_time(w);
+    }
+}
+
+static uint64_t world_now(struct rp_world *w)
+{
+    if (w->realtime)
+        w->now = real_now() - w->real_t0;
+    world_advance(w, w->now);
+    return w->now;
+}
+
+static void world_sleep_until(struct rp_world *w, uint64_t t)
+{
+    if (w->realtime) {
+        uint64_t target = w->real_t0 + t;
+        struct timespec ts = {(time_t)(target / 1000000000u), (long)(target % 1000000000u)};
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
+        }
+    } else if (t > w->now) {
+        w->now = t;
+    }
+    world_now(w);
+}
+
+static uint64_t world_next_event(struct rp_world *w)
+{
+    uint64_t n = UINT64_MAX;
+    if (w->armed && w->next_set < w->n_sets)
+        n = w->next_set_ns;
+    for (uint32_t i = 0; i < HAL_RIG_CAMERAS_MAX; i++)
+        if (w->cams[i] && w->cams[i]->n_ev && w->cams[i]->ev[0].arrival_ns < n)
+            n = w->cams[i]->ev[0].arrival_ns;
+    return n;
+}
+
+static uint64_t clk_now(void *ctx) { return world_now(ctx); }
+static void clk_sleep(void *ctx, uint64_t t) { world_sleep_until(ctx, t); }
+static uint64_t clk_next(void *ctx)
+{
+    world_now(ctx);
+    return world_next_event(ctx);
+}
+
+/* ---- camera ---- */
+static int cam_fail(struct rp_cam *c, int rc, const char *what)
+{
+    snprintf(c->err, sizeof c->err, "replay camera %u: %s", (unsigned)c->index, what);
+    return rc;
+}
+
+static int cam_validate(void *ctx, struct hal_format *f)
+{
+    struct rp_cam *c = ctx;
+    const struct hal_format *rec = &f4d_take_get_info(c->w->take)->formats[c->index];
+    struct hal_format in = *f;
+    /* a recording has exactly one format: everything else is adjusted to it */
+    f->pixfmt = rec->pixfmt;
+    f->width = rec->width;
+    f->height = rec->height;
+    f->stride = rec->stride;
+    f->image_bytes = rec->image_bytes;
+    if (f->rate_mhz == 0)
+        f->rate_mhz = rec->rate_mhz;
+    f->trigger = HAL_TRIGGER_HARDWARE;
+    return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
+}
+
+static int cam_configure(void *ctx, const struct hal_format *f)
+{
+    struct rp_cam *c = ctx;
+    if (c->started)
+        return cam_fail(c, HAL_ESTATE, "configure while started");
+    struct hal_format v = *f;
+    if (cam_validate(c, &v) != HAL_FORMAT_VALID)
+        return cam_fail(c, HAL_EINVAL, "format differs from the recording");
+    c->fmt = v;
+    c->configured = true;
+    return HAL_OK;
+}
+
+static int cam_start(void *ctx)
+{
+    struct rp_cam *c = ctx;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "start before configure");
+    c->started = true;
+    return HAL_OK;
+}
+
+static int cam_stop(void *ctx)
+{
+    struct rp_cam *c = ctx;
+    c->started = false;
+    c->n_ev = 0;
+    while (c->q_count) {
+        struct hal_buffer *b = c->queue[c->q_head];
+        c->q_head = (c->q_head + 1) % RP_QUEUE_MAX;
+        c->q_count--;
+        b->status = HAL_FRAME_ABORTED;
+        b->bytes_used = 0;
+        c->aborted[c->n_aborted++] = b;
+    }
+    return HAL_OK;
+}
+
+static int cam_enqueue(void *ctx, struct hal_buffer *b)
+{
+    struct rp_cam *c = ctx;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "enqueue before configure");
+    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
+        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image");
+    if (c->q_count == RP_QUEUE_MAX)
+        return cam_fail(c, HAL_EBUSY, "buffer queue full");
+    c->queue[(c->q_head + c->q_count++) % RP_QUEUE_MAX] = b;
+    return HAL_OK;
+}
+
+static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
+{
+    struct rp_world *w = c->w;
+    struct rp_event e = c->ev[0];
+    memmove(&c->ev[0], &c->ev[1], (c->n_ev - 1) * sizeof c->ev[0]);
+    c->n_ev--;
+    if (c->q_count == 0)
+        return HAL_EBUSY;
+    if (w->frames_index != e.set_index) {
+        w->frames_index = UINT64_MAX;
+        if (f4d_take_read(w->frames, e.set_index, &w->fset) != HAL_OK) {
+            w->corrupt++;
+            return HAL_ECORRUPT;
+        }
+        w->frames_index = e.set_index;
+    }
+    const struct f4d_take_frame *f = &w->fset.frames[c->index];
+    struct hal_buffer *b = c->queue[c->q_head];
+    c->q_head = (c->q_head + 1) % RP_QUEUE_MAX;
+    c->q_count--;
+    uint8_t *data = b->data;
+    size_t cap = b->capacity;
+    void *user = b->user;
+    *b = f->meta;
+    b->data = data;
+    b->capacity = cap;
+    b->user = user;
+    memcpy(b->data, f->data, f->bytes);
+    b->bytes_used = f->bytes;
+    b->camera_index = c->index;
+    b->format = c->fmt;
+    uint64_t h = f->meta.host_ts_ns;
+    b->host_ts_ns = h > w->base_ns ? h - w->base_ns : 0;
+    *out = b;
+    return HAL_OK;
+}
+
+static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
+{
+    struct rp_cam *c = ctx;
+    struct rp_world *w = c->w;
+    *out = NULL;
+    if (c->n_aborted) {
+        *out = c->aborted[--c->n_aborted];
+        return HAL_OK;
+    }
+    if (!c->started)
+        return cam_fail(c, HAL_ESTATE, "dequeue while stopped");
+    uint64_t now = world_now(w);
+    uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
+    for (;;) {
+        while (c->n_ev && c->ev[0].arrival_ns <= now)
+            if (cam_deliver(c, out) == HAL_OK)
+                return HAL_OK;
+        if (w->next_set >= w->n_sets && c->n_ev == 0)
+            return HAL_EEOF;
+        if (now >= deadline)
+            return HAL_ETIMEDOUT;
+        uint64_t next = world_next_event(w);
+        world_sleep_until(w, next < deadline ? next : deadline);
+        now = w->now;
+    }
+}
+
+static void cam_close(void *ctx)
+{
+    struct rp_cam *c = ctx;
+    c->w->cams[c->index] = NULL;
+    free(c);
+}
+
+static const char *cam_last_error(void *ctx) { return ((struct rp_cam *)ctx)->err; }
+
+static const struct hal_camera_ops rp_camera_ops = {
+    .api_version = HAL_API_VERSION,
+    .validate = cam_validate,
+    .configure = cam_configure,
+    .start = cam_start,
+    .stop = cam_stop,
+    .enqueue = cam_enqueue,
+    .dequeue = cam_dequeue,
+    .close = cam_close,
+    .last_error = cam_last_error,
+};
+
+/* ---- trigger ---- */
+static int trig_arm(void *ctx, const struct hal_pulse_train *p)
+{
+    (void)p; /* the take decides when pulses come */
+    struct rp_world *w = ctx;
+    if (w->realtime)
+        w->real_t0 = real_now() - w->now;
+    w->armed = true;
+    world_now(w);
+    return HAL_OK;
+}
+static int trig_disarm(void *ctx)
+{
+    ((struct rp_world *)ctx)->armed = false;
+    return HAL_OK;
+}
+static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
+{
+    struct rp_world *w = ctx;
+    uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
+    while (w->e_count == 0 && w->now < deadline) {
+        uint64_t next = world_next_event(w);
+        world_sleep_until(w, next < deadline ? next : deadline);
+    }
+    uint32_t n = 0;
+    while (n < max && w->e_count) {
+        e[n++] = w->edges[w->e_head];
+        w->e_head = (w->e_head + 1) % RP_EDGES_MAX;
+        w->e_count--;
+    }
+    return (int)n;
+}
+static bool trig_done(void *ctx)
+{
+    struct rp_world *w = ctx;
+    world_now(w);
+    return w->next_set >= w->n_sets;
+}
+static void trig_close(void *ctx) { ((struct rp_world *)ctx)->trig_open = false; }
+static const char *trig_last_error(void *ctx) { return ((struct rp_world *)ctx)->err; }
+
+static const struct hal_trigger_ops rp_trigger_ops = {
+    .api_version = HAL_API_VERSION,
+    .arm = trig_arm,
+    .disarm = trig_disarm,
+    .read_edges = trig_read_edges,
+    .close = trig_close,
+    .done = trig_done,
+    .last_error = trig_last_error,
+};
+
+/* ---- backend ---- */
+static int rp_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+{
+    const char *dir = NULL;
+    for (uint32_t i = 0; i < board->n_cams; i++) {
+        if (strcmp(board->cams[i].backend, "replay") != 0)
+            continue;
+        if (dir && strcmp(dir, board->cams[i].address) != 0)
+            return hal_fail(err, n, HAL_EINVAL, "replay: all replay cameras must play the same take");
+        dir = board->cams[i].address;
+    }
+    if (!dir || !dir[0])
+        return hal_fail(err, n, HAL_EINVAL, "replay: no camera names a take directory (address)");
+    struct rp_world *w = calloc(1, sizeof *w);
+    if (!w)
+        return hal_fail(err, n, HAL_ENOMEM, "replay: out of memory");
+    snprintf(w->dir, sizeof w->dir, "%s", dir);
+    int rc = f4d_take_open(&w->take, dir, err, n);
+    if (rc < 0) {
+        free(w);
+        return rc;
+    }
+    if ((rc = f4d_take_open(&w->frames, dir, err, n)) < 0) {
+        f4d_take_reader_close(w->take);
+        free(w);
+        return rc;
+    }
+    w->frames_index = UINT64_MAX;
+    w->realtime = board->sim.realtime;
+    w->real_t0 = real_now();
+    w->n_sets = f4d_take_count(w->take);
+    /* time base: the first readable set starts 1 ms after rig time 0 */
+    w->base_ns = 0;
+    load_next_time(w);
+    if (w->next_set < w->n_sets) {
+        uint64_t t0 = set_time(w, &w->cur);
+        w->base_ns = t0 > 1000000u ? t0 - 1000000u : 0;
+        w->next_set_ns = 0;
+        w->next_set_ns = set_time(w, &w->cur);
+    }
+    *session = w;
+    return HAL_OK;
+}
+
+static void rp_session_close(void *s)
+{
+    struct rp_world *w = s;
+    f4d_take_reader_close(w->take);
+    f4d_take_reader_close(w->frames);
+    free(w);
+}
+
+static int rp_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
+                          struct hal_camera *out, char *err, size_t n)
+{
+    struct rp_world *w = session;
+    const struct f4d_take_info *info = f4d_take_get_info(w->take);
+    if (index >= info->n_cams)
+        return hal_fail(err, n, HAL_ENODEV, "replay camera %s: take %s has only %u cameras", cfg->id,
+                        w->dir, (unsigned)info->n_cams);
+    if (w->cams[index])
+        return hal_fail(err, n, HAL_EBUSY, "replay camera %u already open", (unsigned)index);
+    struct rp_cam *c = calloc(1, sizeof *c);
+    if (!c)
+        return hal_fail(err, n, HAL_ENOMEM, "replay: out of memory");
+    c->w = w;
+    c->index = index;
+    w->cams[index] = c;
+    out->ops = rp_camera_ops;
+    out->ctx = c;
+    out->index = index;
+    return HAL_OK;
+}
+
+static int rp_trigger_open(void *session, const struct hal_trigger_config *cfg,
+                           struct hal_trigger *out, char *err, size_t n)
+{
+    (void)cfg;
+    struct rp_world *w = session;
+    if (w->trig_open)
+        return hal_fail(err, n, HAL_EBUSY, "replay trigger already open");
+    w->trig_open = true;
+    out->ops = rp_trigger_ops;
+    out->ctx = w;
+    return HAL_OK;
+}
+
+static int rp_clock_get(void *session, struct hal_clock *out)
+{
+    out->ops.api_version = HAL_API_VERSION;
+    out->ops.now_ns = clk_now;
+    out->ops.sleep_until_ns = clk_sleep;
+    out->ops.next_event_ns = clk_next;
+    out->ctx = session;
+    return HAL_OK;
+}
+
+const struct hal_backend hal_replay_backend = {
+    .api_version = HAL_API_VERSION,
+    .name = "replay",
+    .session_open = rp_session_open,
+    .session_close = rp_session_close,
+    .camera_open = rp_camera_open,
+    .trigger_open = rp_trigger_open,
+    .clock_get = rp_clock_get,
+};
+
+uint64_t hal_replay_corrupt_sets(const void *session)
+{
+    return session ? ((const struct rp_world *)session)->corrupt : 0;
+}
+
+int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, char *err, size_t errlen)
+{
+    struct f4d_take_reader *r;
+    int rc = f4d_take_open(&r, dir, err, errlen);
+    if (rc < 0)
+        return rc;
+    const struct f4d_take_info *info = f4d_take_get_info(r);
+    hal_board_defaults(b);
+    snprintf(b->name, sizeof b->name, "replay");
+    b->n_cams = info->n_cams;
+    b->sim.realtime = realtime;
+    snprintf(b->trigger.backend, sizeof b->trigger.backend, "replay");
+    b->trigger.rate_mhz = info->rate_mhz ? info->rate_mhz : 30000;
+    for (uint32_t i = 0; i < info->n_cams; i++) {
+        struct hal_camera_config *c = &b->cams[i];
+        snprintf(c->backend, sizeof c->backend, "replay");
+        snprintf(c->id, sizeof c->id, "%s", info->cam_ids[i][0] ? info->cam_ids[i] : "replay");
+        if (strlen(dir) >= sizeof c->address) {
+            f4d_take_reader_close(r);
+            return hal_fail(err, errlen, HAL_EINVAL, "replay: take path too long");
+        }
+        snprintf(c->address, sizeof c->address, "%s", dir);
+        c->width = info->formats[i].width;
+        c->height = info->formats[i].height;
+        c->pixfmt = info->formats[i].pixfmt;
+        c->exposure_us = info->formats[i].exposure_us;
+    }
+    f4d_take_reader_close(r);
+    return HAL_OK;
+}
