@@ -4,18 +4,17 @@
  * unit built without -mavx2 that has the same target attribute (the tests).
  *
  * Accuracy against the exact value (measured in tests/kernels/test_vecmath.c
- * by dense sweeps against double libm):
- *   fk__exp_avx2, fk__exp2_avx2  <= 2 ulp on the whole float range, subnormal
- *                                  results included (measured: 1.0 ulp); 0
- *                                  below -103.97 / -150, +Inf above 88.72 / 128
+ * by dense sweeps against double libm), for results of normal magnitude:
+ *   fk__exp_avx2, fk__exp2_avx2  <= 2 ulp (measured 1.0); +Inf above 88.72 / 128
  *   fk__erf_avx2                 absolute error <= 2e-7
- *   fk__erfc_avx2                relative error <= 1e-6 while the result is a
- *                                normal float (x < ~9.1), then subnormal / 0
+ *   fk__erfc_avx2                relative error <= 1e-6
  *   fk__gelu_avx2                x Phi(x), exact-erf GELU: relative error
- *                                <= 1e-6 wherever the result is a normal float,
- *                                negative tail included (gelu(-10) = -7.62e-23)
+ *                                <= 1e-6, negative tail included
+ *                                (gelu(-10) = -7.62e-23)
  *   fk__sigmoid_avx2             relative error <= 5e-7
  *   fk__silu_avx2                relative error <= 5e-7
+ * Results below FLT_MIN (2^-126) come out as 0, or as a subnormal in a narrow
+ * window just below FLT_MIN: see fk__scale2n_avx2 for why.
  * Special values: NaN in gives NaN out everywhere. exp(+Inf) = +Inf,
  * exp(-Inf) = 0, erf(+-Inf) = +-1, gelu and silu return their limits at
  * +-Inf (+Inf and -0), sigmoid(+-Inf) = 1 and 0.
@@ -32,10 +31,14 @@
 
 #define FK_AVX2_FN __attribute__((target("avx2,fma,f16c"))) static inline
 
-/* 2^n for integral n in [-252, 254], applied to p as p * 2^(n/2) * 2^(n - n/2)
- * so both factors are normal: results overflow to Inf and underflow into
- * correctly rounded subnormals with a single rounding. */
-FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n)
+/* p 2^n for integral n in [-252, 254], as p * 2^(n/2) * 2^(n - n/2) so both
+ * factors are normal: results overflow to Inf, and where n < kmin the result
+ * is 0. Producing a subnormal costs a microcode assist of ~100 cycles per
+ * instruction on x86 (and softmax / attention feed these functions logits far
+ * below the row max all the time), so callers pick kmin such that everything
+ * flushed is below FLT_MIN anyway: kmin = -126 with p in [0.7, 1.42] flushes
+ * only results < 2^-126 and leaves subnormal results only for n = -126. */
+FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n, int kmin)
 {
     __m256i k = _mm256_cvtps_epi32(n);
     __m256i k1 = _mm256_srai_epi32(k, 1);
@@ -43,6 +46,8 @@ FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n)
     const __m256i bias = _mm256_set1_epi32(127);
     __m256 s1 = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(k1, bias), 23));
     __m256 s2 = _mm256_castsi256_ps(_mm256_slli_epi32(_mm256_add_epi32(k2, bias), 23));
+    __m256i low = _mm256_cmpgt_epi32(_mm256_set1_epi32(kmin), k);
+    s2 = _mm256_andnot_ps(_mm256_castsi256_ps(low), s2);
     return _mm256_mul_ps(_mm256_mul_ps(p, s1), s2);
 }
 
@@ -80,7 +85,7 @@ FK_AVX2_FN __m256 fk__exp_avx2(__m256 x)
 {
     __m256 n;
     __m256 p = fk__exp_split_avx2(x, &n);
-    return fk__scale2n_avx2(p, n);
+    return fk__scale2n_avx2(p, n, -126);
 }
 
 /* 2^x. */
@@ -91,7 +96,7 @@ FK_AVX2_FN __m256 fk__exp2_avx2(__m256 x)
     __m256 f = _mm256_sub_ps(x, n);                                      /* exact */
     __m256 r = _mm256_fmadd_ps(f, _mm256_set1_ps(6.93147182e-1f),
                                _mm256_mul_ps(f, _mm256_set1_ps(-1.90465432e-9f)));
-    return fk__scale2n_avx2(fk__exp_core_avx2(r), n);
+    return fk__scale2n_avx2(fk__exp_core_avx2(r), n, -126);
 }
 
 /* erf(a) / a as a polynomial in a^2, for |a| <= 0.5 (relative error 1.4e-9). */
@@ -130,7 +135,7 @@ FK_AVX2_FN __m256 fk__erfc_tail_avx2(__m256 a, __m256 s, __m256 t, __m256 m)
     __m256 e = fk__exp_split_avx2(_mm256_sub_ps(_mm256_setzero_ps(), s), &n);
     __m256 r = _mm256_mul_ps(m, p);
     r = _mm256_fnmadd_ps(r, t, r);             /* exp(-s - t) = exp(-s) (1 - t) */
-    return fk__scale2n_avx2(_mm256_mul_ps(r, e), n);
+    return fk__scale2n_avx2(_mm256_mul_ps(r, e), n, -126);
 }
 
 FK_AVX2_FN __m256 fk__abs_avx2(__m256 x)
@@ -205,17 +210,18 @@ FK_AVX2_FN __m256 fk__sigmoid_avx2(__m256 x)
 }
 
 /* x sigmoid(x): x / (1 + e) for x >= 0 and x e / (1 + e) below, with x e
- * rounded once even where e = e^x is subnormal. x is clamped below at -170
+ * scaled by 2^n in one step (|x| p <= 241 < 2^8, hence kmin = -133: what is
+ * flushed is below FLT_MIN, what is kept is rounded once). x is clamped below at -170
  * first, where the result is -0 anyway, so silu(-Inf) is -0, not -Inf * 0. */
 FK_AVX2_FN __m256 fk__silu_avx2(__m256 x)
 {
     x = _mm256_max_ps(_mm256_set1_ps(-170.0f), x);
     __m256 n;
     __m256 p = fk__exp_split_avx2(_mm256_or_ps(x, _mm256_set1_ps(-0.0f)), &n);
-    __m256 e = fk__scale2n_avx2(p, n);
+    __m256 e = fk__scale2n_avx2(p, n, -126);
     __m256 r = _mm256_div_ps(_mm256_set1_ps(1.0f), _mm256_add_ps(_mm256_set1_ps(1.0f), e));
     __m256 neg = _mm256_cmp_ps(x, _mm256_setzero_ps(), _CMP_LT_OQ);
-    __m256 num = _mm256_blendv_ps(x, fk__scale2n_avx2(_mm256_mul_ps(x, p), n), neg);
+    __m256 num = _mm256_blendv_ps(x, fk__scale2n_avx2(_mm256_mul_ps(x, p), n, -133), neg);
     return _mm256_mul_ps(num, r);
 }
 
