@@ -68,38 +68,43 @@ static inline long long load_i64(const int16_t *p)
     return v;
 }
 
-/* c[6][16] = sum over k4 of a[k4][6][4] (int16) * b[k4][16][4] (int8).
- * Two passes of 8 columns; each 32-bit lane holds a pair sum, reduced at
- * the end with hadd. */
+/* Rows [r0, r0 + R) of c[6][16], columns 8 half .. 8 half + 7: each 32-bit
+ * lane holds a pair sum (k01 or k23 of one column), folded with hadd at the
+ * end. R <= 4 keeps accumulators, weights and the broadcast in 16 registers
+ * (all six rows at once made GCC spill accumulators). */
+static inline __attribute__((always_inline)) void
+q8_rows(int k4, const int16_t *a, int r0, int R, const int8_t *b, int32_t *c, int half)
+{
+    __m256i acc[4][2];
+    for (int r = 0; r < R; r++)
+        acc[r][0] = acc[r][1] = _mm256_setzero_si256();
+    const int8_t *bp = b + half * 32;
+    const int16_t *ap = a + 4 * r0;
+    for (int k = 0; k < k4; k++) {
+        /* columns 0-3 and 4-7 of this half, 4 k each, as int16 */
+        __m256i b0 = _mm256_cvtepi8_epi16(_mm_load_si128((const __m128i *)bp));
+        __m256i b1 = _mm256_cvtepi8_epi16(_mm_load_si128((const __m128i *)(bp + 16)));
+        for (int r = 0; r < R; r++) {
+            __m256i t = _mm256_set1_epi64x(load_i64(ap + 4 * r));
+            acc[r][0] = _mm256_add_epi32(acc[r][0], _mm256_madd_epi16(t, b0));
+            acc[r][1] = _mm256_add_epi32(acc[r][1], _mm256_madd_epi16(t, b1));
+        }
+        ap += 4 * MR;
+        bp += 4 * NR;
+    }
+    /* lanes [c0 c0 c1 c1 | c2 c2 c3 c3] and [c4 c4 c5 c5 | c6 c6 c7 c7] -> c0..c7 */
+    for (int r = 0; r < R; r++)
+        _mm256_storeu_si256((__m256i *)(c + NR * (r0 + r) + 8 * half),
+                            _mm256_permute4x64_epi64(_mm256_hadd_epi32(acc[r][0], acc[r][1]), 0xd8));
+}
+
+/* c[6][16] = sum over k4 of a[k4][6][4] (int16) * b[k4][16][4] (int8), exact:
+ * vpmaddwd sums two int16 products into int32, no int16 intermediate. */
 __attribute__((noinline)) static void ukr_q8_avx2(int k4, const int16_t *a, const int8_t *b, int32_t *c)
 {
     for (int half = 0; half < 2; half++) {
-        __m256i s00 = _mm256_setzero_si256(), s01 = s00, s10 = s00, s11 = s00, s20 = s00, s21 = s00;
-        __m256i s30 = s00, s31 = s00, s40 = s00, s41 = s00, s50 = s00, s51 = s00;
-        const int8_t *bp = b + half * 32;
-        const int16_t *ap = a;
-        for (int k = 0; k < k4; k++) {
-            /* columns 0-3 and 4-7 of this half, 4 k each, as int16 */
-            __m256i b0 = _mm256_cvtepi8_epi16(_mm_load_si128((const __m128i *)bp));
-            __m256i b1 = _mm256_cvtepi8_epi16(_mm_load_si128((const __m128i *)(bp + 16)));
-            __m256i t;
-#define ROW(r, lo, hi)                                                        \
-    t = _mm256_set1_epi64x(load_i64(ap + 4 * (r)));                           \
-    lo = _mm256_add_epi32(lo, _mm256_madd_epi16(t, b0));                      \
-    hi = _mm256_add_epi32(hi, _mm256_madd_epi16(t, b1));
-            ROW(0, s00, s01) ROW(1, s10, s11) ROW(2, s20, s21)
-            ROW(3, s30, s31) ROW(4, s40, s41) ROW(5, s50, s51)
-#undef ROW
-            ap += 24;
-            bp += 64;
-        }
-        /* lanes [c0 c0 c1 c1 | c2 c2 c3 c3] and [c4 c4 c5 c5 | c6 c6 c7 c7] -> c0..c7 */
-#define FOLD(r, lo, hi)                                                        \
-    _mm256_storeu_si256((__m256i *)(c + 16 * (r) + 8 * half),                 \
-        _mm256_permute4x64_epi64(_mm256_hadd_epi32(lo, hi), 0xd8));
-        FOLD(0, s00, s01) FOLD(1, s10, s11) FOLD(2, s20, s21)
-        FOLD(3, s30, s31) FOLD(4, s40, s41) FOLD(5, s50, s51)
-#undef FOLD
+        q8_rows(k4, a, 0, 4, b, c, half);
+        q8_rows(k4, a, 4, 2, b, c, half);
     }
 }
 
@@ -220,14 +225,27 @@ static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k
         }
         for (int kk = k; kk < k_pad; kk++)
             q[kk] = 0;
+        /* 4 consecutive k of this row go to one 32-bit (VNNI: code + 128,
+         * which is code ^ 0x80 per byte) or 64-bit (int16) slot per k4 */
         if (vnni) {
-            uint8_t *d = (uint8_t *)ap + (size_t)i * panel;
-            for (int kk = 0; kk < k_pad; kk++)
-                d[(size_t)(kk / 4) * MR * 4 + (size_t)rr * 4 + (size_t)(kk % 4)] = (uint8_t)(q[kk] + 128);
+            uint8_t *d = (uint8_t *)ap + (size_t)i * panel + (size_t)rr * 4;
+            for (int k4 = 0; k4 < k_pad / 4; k4++) {
+                uint32_t w;
+                memcpy(&w, q + 4 * k4, 4);
+                w ^= 0x80808080u;
+                memcpy(d + (size_t)k4 * MR * 4, &w, 4);
+            }
         } else {
-            int16_t *d = (int16_t *)ap + (size_t)i * panel;
-            for (int kk = 0; kk < k_pad; kk++)
-                d[(size_t)(kk / 4) * MR * 4 + (size_t)rr * 4 + (size_t)(kk % 4)] = q[kk];
+            int16_t *d = (int16_t *)ap + (size_t)i * panel + (size_t)rr * 4;
+            int k4 = 0, k4n = k_pad / 4;
+            for (; k4 + 1 < k4n; k4 += 2) {
+                __m128i v = _mm_cvtepi8_epi16(_mm_loadl_epi64((const __m128i *)(q + 4 * k4)));
+                _mm_storel_epi64((__m128i *)(d + (size_t)k4 * MR * 4), v);
+                _mm_storeh_pd((double *)(void *)(d + (size_t)(k4 + 1) * MR * 4), _mm_castsi128_pd(v));
+            }
+            for (; k4 < k4n; k4++)
+                for (int e = 0; e < 4; e++)
+                    d[(size_t)k4 * MR * 4 + (size_t)e] = q[4 * k4 + e];
         }
     }
 }
@@ -366,31 +384,36 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
     size_t panel_a = (size_t)j->k_pad * MR * (j->vnni ? 1 : 2);
     pack_a_q8(j->a, m0, rows, L->k, j->k_pad, j->vnni, s, sa, (float *)(s + j->off_tmp),
               (int8_t *)(s + j->off_q));
-    for (int jp = jp0; jp < jp1; jp++) {
-        const int8_t *bp = (const int8_t *)L->data + (size_t)jp * (size_t)j->k_pad * NR;
-        for (int i = 0; i < mp; i++) {
+    /* Row panels outside, weight panels inside: the epilogue then writes
+     * each output row left to right (panel-major writes 4 KB apart thrash L1
+     * sets and dominated the int8 time); the int8 weights, a quarter of fp32,
+     * stream from L2. */
+    for (int i = 0; i < mp; i++) {
+        const void *ai = s + (size_t)i * panel_a;
+        int r0 = i * MR, nr = rows - r0 < MR ? rows - r0 : MR;
+        for (int jp = jp0; jp < jp1; jp++) {
+            const int8_t *bp = (const int8_t *)L->data + (size_t)jp * (size_t)j->k_pad * NR;
             if (j->vnni)
-                fk__gemm_q8_ukr_vnni(k4, (const uint8_t *)(s + (size_t)i * panel_a), bp,
-                                     ct + (size_t)i * MR * NR);
+                fk__gemm_q8_ukr_vnni(k4, (const uint8_t *)ai, bp, ct);
             else
-                ukr_q8_avx2(k4, (const int16_t *)(s + (size_t)i * panel_a), bp,
-                            ct + (size_t)i * MR * NR);
-        }
-        int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-        __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
-        __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
-        __m256i z0 = _mm256_setzero_si256(), z1 = z0;
-        if (j->vnni) {
-            z0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
-            z1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
-        }
-        for (int r = 0; r < rows; r++) {
-            __m256 s_r = _mm256_set1_ps(sa[r]);
-            __m256i a0 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR)), z0);
-            __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR + 8)), z1);
-            __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
-            __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
-            store_row(j->c, j->ep, m0 + r, n0, nn, activate(j->ep->act, t0), activate(j->ep->act, t1));
+                ukr_q8_avx2(k4, (const int16_t *)ai, bp, ct);
+            int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+            __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+            __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
+            __m256i z0 = _mm256_setzero_si256(), z1 = z0;
+            if (j->vnni) {
+                z0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
+                z1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
+            }
+            for (int r = 0; r < nr; r++) {
+                __m256 s_r = _mm256_set1_ps(sa[r0 + r]);
+                __m256i a0 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR)), z0);
+                __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR + 8)), z1);
+                __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
+                __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
+                store_row(j->c, j->ep, m0 + r0 + r, n0, nn, activate(j->ep->act, t0),
+                          activate(j->ep->act, t1));
+            }
         }
     }
 }
