@@ -291,6 +291,67 @@ static void test_arena_bounds(void **state)
     fk_ctx_free(ctx);
 }
 
+static double npy_rel(const char *a_path, const char *b_path, int64_t *shape, int *nd)
+{
+    char err[256];
+    float *a, *b;
+    int64_t sb[NPY_MAX_DIMS];
+    int nb;
+    if (npy_load_f32(a_path, &a, shape, nd, err, sizeof err) < 0) {
+        print_error("%s\n", err);
+        return INFINITY;
+    }
+    if (npy_load_f32(b_path, &b, sb, &nb, err, sizeof err) < 0) {
+        print_error("%s\n", err);
+        free(a);
+        return INFINITY;
+    }
+    size_t n = 1;
+    int same = nb == *nd;
+    for (int i = 0; i < *nd; i++) {
+        same = same && sb[i] == shape[i];
+        n *= (size_t)shape[i];
+    }
+    double md = 0, mr = 0;
+    for (size_t i = 0; same && i < n; i++) {
+        md = fmax(md, fabs((double)a[i] - b[i]));
+        mr = fmax(mr, fabs((double)b[i]));
+    }
+    free(a);
+    free(b);
+    return same ? md / (mr > 0 ? mr : 1) : INFINITY;
+}
+
+/* f4d-infer's files (ctest model/infer_raw, model/infer_png). */
+static void test_infer_outputs(void **state)
+{
+    (void)state;
+    static const char *outs[7] = { "pose_enc", "extrinsic", "intrinsic", "depth", "depth_conf",
+                                   "world_points", "world_points_conf" };
+    char a[2200], b[2200];
+    int64_t sh[NPY_MAX_DIMS];
+    int nd;
+    for (int i = 0; i < 7; i++) {
+        snprintf(a, sizeof a, "%s/infer_raw/%s.npy", gguf_dir, outs[i]);
+        snprintf(b, sizeof b, "%s/tiny/s3/%s.npy", fixture_dir, outs[i]);
+        double e = npy_rel(a, b, sh, &nd);
+        printf("  f4d-infer raw %-18s rel_err %.3e\n", outs[i], e);
+        assert_true(e <= budget_f32);
+    }
+    /* PNG -> preprocessing -> input.npy equals PIL's batch; outputs have the shapes */
+    snprintf(a, sizeof a, "%s/infer_png/input.npy", gguf_dir);
+    snprintf(b, sizeof b, "%s/prep/batch_crop56.npy", fixture_dir);
+    assert_true(npy_rel(a, b, sh, &nd) < 1e-6);
+    snprintf(a, sizeof a, "%s/infer_png/depth.npy", gguf_dir);
+    snprintf(b, sizeof b, "%s/infer_png/depth.npy", gguf_dir);
+    assert_true(npy_rel(a, b, sh, &nd) == 0.0);
+    assert_int_equal(nd, 4);
+    assert_int_equal(sh[0], 2);
+    assert_int_equal(sh[1], 56);
+    assert_int_equal(sh[2], 56);
+    assert_int_equal(sh[3], 1);
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3) {
@@ -306,6 +367,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_tiny_int8),
         cmocka_unit_test(test_tiny_f32_file_as_int8),
         cmocka_unit_test(test_arena_bounds),
+        cmocka_unit_test(test_infer_outputs),
     };
     return cmocka_run_group_tests_name("/model/parity", tests, NULL, NULL);
 }

@@ -154,6 +154,8 @@ def prep_fixtures(out_root):
             for target in (28, 56):
                 t = vggt_load(img, mode, target)
                 np.save(os.path.join(d, f"{name}_{mode}{target}.npy"), t.numpy())
+    imgs["rgb_40x30"].save(os.path.join(d, "rgb_40x30.png"))
+    imgs["rgb_30x50"].save(os.path.join(d, "rgb_30x50.png"))
     b = vggt_batch([vggt_load(imgs["rgb_40x30"], "crop", 56), vggt_load(imgs["rgb_30x50"], "crop", 56)])
     np.save(os.path.join(d, "batch_crop56.npy"), b.numpy())
 
