@@ -3,44 +3,65 @@
  *
  * Stages per frame, all in buffers owned by the renderer:
  *   1. preprocess (parallel over Gaussians): cull, EWA covariance, conic,
- *      radius, tile rectangle, colour;
+ *      radius, tile rectangle, colour, depth key; each chunk compacts its
+ *      visible Gaussians;
  *   2. a stable LSD radix sort of the visible Gaussians by depth bits
  *      (depth > 0.2, so IEEE bits order like the values; ties keep index
- *      order, the same order R's (tile | depth) radix sort produces);
- *   3. binning: per-tile counts, prefix sum, scatter in depth order, so every
- *      tile list is depth-ordered;
+ *      order, the same order R's (tile | depth) radix sort produces), then a
+ *      gather of the records into depth order;
+ *   3. binning, a parallel counting sort by tile that keeps depth order, so
+ *      every tile list is depth-ordered;
  *   4. compositing (parallel over tiles). Each Gaussian of a tile's list is
- *      applied to the pixels of the tile where its alpha can reach 1/255 (a
- *      box around the ellipse o exp(power) = 1/255, with a pixel of margin);
- *      every other pixel of the tile would skip it in R as well, so the
- *      per-pixel sequence of operations is R's. */
+ *      applied to the pixels of the tile inside the ellipse where its alpha
+ *      can reach 1/255 (with a margin for rounding); every other pixel of the
+ *      tile would skip it in R as well, so the per-pixel sequence of
+ *      operations is R's. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "splat_internal.h"
 
-#define PREP_CHUNK 4096
+#define PREP_CHUNK     4096   /* Gaussians per preprocessing task      */
+#define BIN_CHUNK      16384  /* visible Gaussians per binning task    */
+#define PREFETCH_AHEAD 6
+
+#if defined(__GNUC__) || defined(__clang__)
+#define splat_prefetch(p) __builtin_prefetch((p), 0, 3)
+#else
+#define splat_prefetch(p) ((void)(p))
+#endif
+
+/* One projected Gaussian: one cache line, read once per tile it touches. */
+struct projected {
+    float   mx, my;       /* mean in pixels, R convention (integer centres) */
+    float   A, B, C;      /* conic: inverse of the dilated 2D covariance */
+    float   o;            /* opacity */
+    float   k2;           /* alpha >= 1/255 needs d' conic d <= k2 */
+    float   ey;           /* half height (px) of that ellipse, with margin */
+    float   inv_a;        /* 1 / A */
+    float   z;            /* camera depth */
+    float   col[3];       /* colour (or feature) */
+    int32_t id;           /* index in the frame */
+    int16_t rect[4];      /* tiles x0, y0, x1, y1 (exclusive) */
+};
+_Static_assert(sizeof(struct projected) == 64, "one projected Gaussian per cache line");
 
 struct splat_renderer {
     fk_ctx *ctx;
     int     width, height, tiles_x, tiles_y, n_tiles;
     size_t  cap_g, cap_pairs;
     /* per Gaussian (capacity cap_g) */
-    float   *mean;     /* [2] pixel coordinates, R convention (integer centres) */
-    float   *conic;    /* [3] A, B, C of the inverse 2D covariance */
-    float   *opac;
-    float   *cut;      /* power below which alpha < 1/255 for sure */
-    float   *ext;      /* [2] half extent (pixels) of the alpha >= 1/255 box */
-    float   *color;    /* [3] */
-    float   *depth;
-    int32_t *rect;     /* [4] tile x0, y0, x1, y1 (exclusive); x0 == x1: culled */
+    struct projected *proj;   /* frame order */
+    struct projected *sorted; /* visible ones in depth order */
+    int16_t  *rect;           /* [4 * cap] tile rectangles in depth order */
     uint32_t *key, *key_tmp;
-    int32_t *idx, *idx_tmp;
+    int32_t  *idx, *idx_tmp;
+    uint32_t *chunk_visible;  /* per preprocessing chunk */
+    uint32_t *hist;           /* [bin chunks * n_tiles] counts, then cursors */
     /* per tile */
-    uint32_t *tile_start; /* [n_tiles + 1] */
-    uint32_t *tile_fill;  /* [n_tiles] */
-    int32_t  *pairs;      /* [cap_pairs] Gaussian indices, tile-major, depth-ordered */
+    uint32_t *tile_start;     /* [n_tiles + 1] */
+    int32_t  *pairs;          /* [cap_pairs] indices into sorted, tile-major, ascending */
     struct splat_error err;
 };
 
@@ -52,14 +73,17 @@ static int fail(splat_renderer *r, int code, const char *msg, const char *detail
 
 static void free_gaussian_buffers(splat_renderer *r)
 {
-    free(r->mean); free(r->conic); free(r->opac); free(r->cut); free(r->ext);
-    free(r->color); free(r->depth); free(r->rect);
+    free(r->proj); free(r->sorted); free(r->rect);
     free(r->key); free(r->key_tmp); free(r->idx); free(r->idx_tmp);
-    r->mean = r->conic = r->opac = r->cut = r->ext = r->color = r->depth = NULL;
-    r->rect = r->idx = r->idx_tmp = NULL;
-    r->key = r->key_tmp = NULL;
+    free(r->chunk_visible); free(r->hist);
+    r->proj = r->sorted = NULL;
+    r->rect = NULL;
+    r->idx = r->idx_tmp = NULL;
+    r->key = r->key_tmp = r->chunk_visible = r->hist = NULL;
     r->cap_g = 0;
 }
+
+static size_t round_up(size_t n, size_t m) { return (n + m - 1) / m * m; }
 
 int splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs)
 {
@@ -69,21 +93,18 @@ int splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs)
         if (gaussians > (size_t)INT32_MAX)
             return fail(r, SPLAT_EINVAL, "renderer: more than 2^31 Gaussians", NULL);
         free_gaussian_buffers(r);
-        size_t n = gaussians;
-        r->mean = malloc(2 * n * sizeof(float));
-        r->conic = malloc(3 * n * sizeof(float));
-        r->opac = malloc(n * sizeof(float));
-        r->cut = malloc(n * sizeof(float));
-        r->ext = malloc(2 * n * sizeof(float));
-        r->color = malloc(3 * n * sizeof(float));
-        r->depth = malloc(n * sizeof(float));
-        r->rect = malloc(4 * n * sizeof(int32_t));
-        r->key = malloc(n * sizeof(uint32_t));
-        r->key_tmp = malloc(n * sizeof(uint32_t));
-        r->idx = malloc(n * sizeof(int32_t));
-        r->idx_tmp = malloc(n * sizeof(int32_t));
-        if (!r->mean || !r->conic || !r->opac || !r->cut || !r->ext || !r->color || !r->depth ||
-            !r->rect || !r->key || !r->key_tmp || !r->idx || !r->idx_tmp) {
+        size_t n = round_up(gaussians, PREP_CHUNK);
+        r->proj = aligned_alloc(64, n * sizeof *r->proj); /* records on cache lines */
+        r->sorted = aligned_alloc(64, n * sizeof *r->sorted);
+        r->rect = malloc(4 * n * sizeof *r->rect);
+        r->key = malloc(n * sizeof *r->key);
+        r->key_tmp = malloc(n * sizeof *r->key_tmp);
+        r->idx = malloc(n * sizeof *r->idx);
+        r->idx_tmp = malloc(n * sizeof *r->idx_tmp);
+        r->chunk_visible = malloc((n / PREP_CHUNK + 1) * sizeof *r->chunk_visible);
+        r->hist = malloc((n / BIN_CHUNK + 1) * (size_t)r->n_tiles * sizeof *r->hist);
+        if (!r->proj || !r->sorted || !r->rect || !r->key || !r->key_tmp || !r->idx || !r->idx_tmp ||
+            !r->chunk_visible || !r->hist) {
             free_gaussian_buffers(r);
             return fail(r, SPLAT_ENOMEM, "renderer: out of memory for the Gaussian buffers", NULL);
         }
@@ -121,8 +142,7 @@ int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out,
     r->tiles_y = (height + SPLAT_TILE - 1) / SPLAT_TILE;
     r->n_tiles = r->tiles_x * r->tiles_y;
     r->tile_start = calloc((size_t)r->n_tiles + 1, sizeof *r->tile_start);
-    r->tile_fill = calloc((size_t)r->n_tiles, sizeof *r->tile_fill);
-    if (!r->tile_start || !r->tile_fill || splat_renderer_reserve(r, 1024, 4096) < 0) {
+    if (!r->tile_start || splat_renderer_reserve(r, 1024, 4096) < 0) {
         splat_renderer_free(r);
         return splat__fail(err, SPLAT_ENOMEM, "splat_renderer_new: out of memory");
     }
@@ -136,7 +156,6 @@ void splat_renderer_free(splat_renderer *r)
         return;
     free_gaussian_buffers(r);
     free(r->tile_start);
-    free(r->tile_fill);
     free(r->pairs);
     free(r);
 }
@@ -161,24 +180,23 @@ static float clampf(float v, float lo, float hi)
     return v < lo ? lo : (v > hi ? hi : v);
 }
 
-static void prep_one(const struct prep_job *j, size_t i)
+static int prep_one(const struct prep_job *j, size_t i)
 {
     splat_renderer *r = j->r;
     const struct splat_camera *cam = j->cam;
     const struct splat_frame *f = j->f;
     const float *V = cam->w2c;
-    int32_t *rect = r->rect + 4 * i;
-    rect[0] = rect[1] = rect[2] = rect[3] = 0;
+    struct projected *P = r->proj + i;
 
     const float *p = f->pos + 3 * i;
     float tx = V[0] * p[0] + V[1] * p[1] + V[2] * p[2] + V[3];
     float ty = V[4] * p[0] + V[5] * p[1] + V[6] * p[2] + V[7];
     float tz = V[8] * p[0] + V[9] * p[1] + V[10] * p[2] + V[11];
     if (!(tz > SPLAT_NEAR) || !isfinite(tx) || !isfinite(ty) || !isfinite(tz))
-        return; /* near-plane cull (R: z <= 0.2), and NaN/Inf positions */
+        return 0; /* near-plane cull (R: z <= 0.2), and NaN/Inf positions */
     float o = f->opacity[i];
     if (!(o >= SPLAT_ALPHA_MIN))
-        return; /* alpha = min(0.99, o exp(power <= 0)) <= o never reaches 1/255 */
+        return 0; /* alpha = min(0.99, o exp(power <= 0)) <= o never reaches 1/255 */
 
     /* 3D covariance Sigma = M M^T with M = R S. */
     float Rm[9];
@@ -219,58 +237,67 @@ static void prep_one(const struct prep_job *j, size_t i)
     float c = T1[0] * ST1[0] + T1[1] * ST1[1] + T1[2] * ST1[2] + SPLAT_DILATION;
     float det = a * c - b * b;
     if (!(det > 0.0f) || !isfinite(det))
-        return; /* R skips det == 0; a non-finite or negative one cannot be drawn either */
+        return 0; /* R skips det == 0; a non-finite or negative one cannot be drawn either */
     float det_inv = 1.0f / det;
     float mid = 0.5f * (a + c);
-    float disc = sqrtf(fmaxf(0.1f, mid * mid - det));
-    float lam = fmaxf(mid + disc, mid - disc);
+    float d2 = mid * mid - det;
+    float disc = sqrtf(d2 > 0.1f ? d2 : 0.1f);
+    float lam = mid + disc; /* the larger root: disc >= 0 */
     float radius = ceilf(3.0f * sqrtf(lam));
     if (!isfinite(radius))
-        return;
+        return 0;
 
     /* ndc2Pix of R == fx x / z + cx - 0.5 for the centred principal point. */
     float pw = 1.0f / (tz + 0.0000001f);
     float mx = fx * tx * pw + cam->cx - 0.5f;
     float my = fy * ty * pw + cam->cy - 0.5f;
     if (!isfinite(mx) || !isfinite(my))
-        return;
+        return 0;
     float gx = (float)r->tiles_x, gy = (float)r->tiles_y;
     int x0 = (int)clampf((mx - radius) / SPLAT_TILE, 0.0f, gx);
     int y0 = (int)clampf((my - radius) / SPLAT_TILE, 0.0f, gy);
     int x1 = (int)clampf((mx + radius + SPLAT_TILE - 1) / SPLAT_TILE, 0.0f, gx);
     int y1 = (int)clampf((my + radius + SPLAT_TILE - 1) / SPLAT_TILE, 0.0f, gy);
     if ((x1 - x0) * (y1 - y0) == 0)
-        return;
+        return 0;
 
-    r->mean[2 * i] = mx;
-    r->mean[2 * i + 1] = my;
-    r->conic[3 * i] = c * det_inv;
-    r->conic[3 * i + 1] = -b * det_inv;
-    r->conic[3 * i + 2] = a * det_inv;
-    r->opac[i] = o;
-    float k2 = 2.0f * logf(255.0f * o); /* d' Sigma^-1 d <= k2 where alpha >= 1/255 */
-    r->cut[i] = -0.5f * k2 - 0.001f;
-    r->ext[2 * i] = sqrtf(fmaxf(k2, 0.0f) * a) * 1.001f + 1.0f;
-    r->ext[2 * i + 1] = sqrtf(fmaxf(k2, 0.0f) * c) * 1.001f + 1.0f;
-    r->depth[i] = tz;
+    P->mx = mx;
+    P->my = my;
+    P->A = c * det_inv;
+    P->B = -b * det_inv;
+    P->C = a * det_inv;
+    P->o = o;
+    float k2 = 2.0f * logf(255.0f * o); /* alpha >= 1/255 <=> d' conic d <= k2 */
+    k2 = k2 > 0.0f ? k2 : 0.0f;
+    P->k2 = k2;
+    P->inv_a = 1.0f / P->A;
+    P->ey = sqrtf(k2 * c) * 1.0001f + 0.001f;
+    P->z = tz;
     const float *col = j->features ? j->features + 3 * i : f->rgb + 3 * i;
     for (int k = 0; k < 3; k++)
-        r->color[3 * i + k] = j->features ? col[k] : fmaxf(col[k], 0.0f);
-    rect[0] = x0; rect[1] = y0; rect[2] = x1; rect[3] = y1;
+        P->col[k] = j->features ? col[k] : (col[k] > 0.0f ? col[k] : 0.0f);
+    P->rect[0] = (int16_t)x0; P->rect[1] = (int16_t)y0; P->rect[2] = (int16_t)x1; P->rect[3] = (int16_t)y1;
+    P->id = (int32_t)i;
+    return 1;
 }
 
 static void prep_task(void *arg, int task, int thread)
 {
     (void)thread;
     const struct prep_job *j = arg;
-    size_t lo = (size_t)task * PREP_CHUNK, hi = lo + PREP_CHUNK;
+    splat_renderer *r = j->r;
+    size_t lo = (size_t)task * PREP_CHUNK, hi = lo + PREP_CHUNK, out = lo;
     if (hi > j->f->count)
         hi = j->f->count;
     for (size_t i = lo; i < hi; i++)
-        prep_one(j, i);
+        if (prep_one(j, i)) { /* compacted at the chunk's start, in index order */
+            memcpy(&r->key[out], &r->proj[i].z, sizeof(uint32_t));
+            r->idx[out++] = (int32_t)i;
+        }
+    r->chunk_visible[task] = (uint32_t)(out - lo);
 }
 
-/* ---- 2. depth sort --------------------------------------------------------- */
+/* ---- 2. depth sort and gather ------------------------------------------------ */
 
 static void radix_sort(uint32_t *key, int32_t *val, uint32_t *ktmp, int32_t *vtmp, size_t n)
 {
@@ -306,7 +333,63 @@ static void radix_sort(uint32_t *key, int32_t *val, uint32_t *ktmp, int32_t *vtm
     }
 }
 
-/* ---- 4. compositing -------------------------------------------------------- */
+struct order_job {
+    splat_renderer *r;
+    size_t          n;
+};
+
+static void gather_task(void *arg, int task, int thread)
+{
+    (void)thread;
+    const struct order_job *j = arg;
+    splat_renderer *r = j->r;
+    size_t lo = (size_t)task * PREP_CHUNK, hi = lo + PREP_CHUNK;
+    if (hi > j->n)
+        hi = j->n;
+    for (size_t v = lo; v < hi; v++) {
+        r->sorted[v] = r->proj[r->idx[v]];
+        memcpy(r->rect + 4 * v, r->sorted[v].rect, 4 * sizeof(int16_t));
+    }
+}
+
+/* ---- 3. binning: counting sort by tile, per chunk of the depth order ---------- */
+
+static void bin_count_task(void *arg, int task, int thread)
+{
+    (void)thread;
+    const struct order_job *j = arg;
+    splat_renderer *r = j->r;
+    uint32_t *h = r->hist + (size_t)task * (size_t)r->n_tiles;
+    memset(h, 0, (size_t)r->n_tiles * sizeof *h);
+    size_t lo = (size_t)task * BIN_CHUNK, hi = lo + BIN_CHUNK;
+    if (hi > j->n)
+        hi = j->n;
+    for (size_t v = lo; v < hi; v++) {
+        const int16_t *q = r->rect + 4 * v;
+        for (int ty = q[1]; ty < q[3]; ty++)
+            for (int tx = q[0]; tx < q[2]; tx++)
+                h[ty * r->tiles_x + tx]++;
+    }
+}
+
+static void bin_scatter_task(void *arg, int task, int thread)
+{
+    (void)thread;
+    const struct order_job *j = arg;
+    splat_renderer *r = j->r;
+    uint32_t *h = r->hist + (size_t)task * (size_t)r->n_tiles;
+    size_t lo = (size_t)task * BIN_CHUNK, hi = lo + BIN_CHUNK;
+    if (hi > j->n)
+        hi = j->n;
+    for (size_t v = lo; v < hi; v++) {
+        const int16_t *q = r->rect + 4 * v;
+        for (int ty = q[1]; ty < q[3]; ty++)
+            for (int tx = q[0]; tx < q[2]; tx++)
+                r->pairs[h[ty * r->tiles_x + tx]++] = (int32_t)v;
+    }
+}
+
+/* ---- 4. compositing ---------------------------------------------------------- */
 
 struct raster_job {
     splat_renderer *r;
@@ -329,29 +412,47 @@ static void raster_tile(void *arg, int tile, int thread)
     float T[N], C0[N], C1[N], C2[N], D[N], best[N];
     int32_t top[N];
     unsigned char done[N];
+    int row_left[SPLAT_TILE];
     for (int p = 0; p < N; p++) {
         T[p] = 1.0f;
         C0[p] = C1[p] = C2[p] = D[p] = best[p] = 0.0f;
         top[p] = -1;
         done[p] = 0;
     }
+    for (int y = 0; y < SPLAT_TILE; y++)
+        row_left[y] = y < th ? tw : 0;
     int remaining = tw * th;
     const uint32_t s = r->tile_start[tile], e = r->tile_start[tile + 1];
     for (uint32_t k = s; k < e && remaining > 0; k++) {
-        const int32_t g = r->pairs[k];
-        const float mx = r->mean[2 * g], my = r->mean[2 * g + 1];
-        const float A = r->conic[3 * g], B = r->conic[3 * g + 1], Cc = r->conic[3 * g + 2];
-        const float o = r->opac[g], cut = r->cut[g], z = r->depth[g];
-        const float cr = r->color[3 * g], cg = r->color[3 * g + 1], cb = r->color[3 * g + 2];
-        const float ex = r->ext[2 * g], ey = r->ext[2 * g + 1];
-        /* pixel box of the tile where alpha may reach 1/255 */
-        float fx0 = ceilf(mx - ex), fx1 = floorf(mx + ex), fy0 = ceilf(my - ey), fy1 = floorf(my + ey);
-        int x0 = fx0 > (float)tx0 ? (int)fx0 : tx0;
-        int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
+        /* records of one tile are scattered over the depth-sorted array:
+         * fetch a few ahead so the miss overlaps the pixels of this one */
+        if (k + PREFETCH_AHEAD < e)
+            splat_prefetch(r->sorted + r->pairs[k + PREFETCH_AHEAD]);
+        const struct projected *P = r->sorted + r->pairs[k];
+        const float mx = P->mx, my = P->my, A = P->A, B = P->B, Cc = P->C;
+        const float o = P->o, k2 = P->k2, z = P->z, inv_a = P->inv_a;
+        const float cut = -0.5f * k2 - 0.001f; /* power below: alpha < 1/255 for sure */
+        const float cr = P->col[0], cg = P->col[1], cb = P->col[2];
+        /* rows of the tile where the ellipse d' conic d <= k2 (alpha >= 1/255) lies */
+        float fy0 = ceilf(my - P->ey), fy1 = floorf(my + P->ey);
         int y0 = fy0 > (float)ty0 ? (int)fy0 : ty0;
         int y1 = fy1 < (float)(ty0 + th - 1) ? (int)fy1 : ty0 + th - 1;
         for (int y = y0; y <= y1; y++) {
+            if (row_left[y - ty0] == 0)
+                continue;
             const float dy = my - (float)y;
+            /* the ellipse's span on this row: A dx^2 + 2 B dy dx + C dy^2 <= k2,
+             * widened by a relative and absolute margin for float rounding */
+            const float disc = B * B * dy * dy - A * (Cc * dy * dy - k2);
+            if (disc < 0.0f)
+                continue;
+            const float sq = sqrtf(disc) * 1.0001f;
+            const float dlo = (-B * dy - sq) * inv_a, dhi = (-B * dy + sq) * inv_a;
+            /* dx = mx - x, so x runs over [mx - dhi, mx - dlo] */
+            const float fx0 = ceilf(mx - dhi - 0.001f - 1e-4f * fabsf(dhi));
+            const float fx1 = floorf(mx - dlo + 0.001f + 1e-4f * fabsf(dlo));
+            const int x0 = fx0 > (float)tx0 ? (int)fx0 : tx0;
+            const int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
             const int row = (y - ty0) * SPLAT_TILE - tx0;
             for (int x = x0; x <= x1; x++) {
                 const int p = row + x;
@@ -361,13 +462,15 @@ static void raster_tile(void *arg, int tile, int thread)
                 const float power = -0.5f * (A * dx * dx + Cc * dy * dy) - B * dx * dy;
                 if (power > 0.0f || power < cut)
                     continue;
-                const float alpha = fminf(SPLAT_ALPHA_MAX, o * expf(power));
+                float alpha = o * expf(power);
+                alpha = alpha < SPLAT_ALPHA_MAX ? alpha : SPLAT_ALPHA_MAX;
                 if (alpha < SPLAT_ALPHA_MIN)
                     continue;
                 const float Tp = T[p];
                 const float test_T = Tp * (1.0f - alpha);
                 if (test_T < SPLAT_T_MIN) {
                     done[p] = 1;
+                    row_left[y - ty0]--;
                     remaining--;
                     continue;
                 }
@@ -378,7 +481,7 @@ static void raster_tile(void *arg, int tile, int thread)
                 D[p] += z * alpha * Tp;
                 if (w > best[p]) {
                     best[p] = w;
-                    top[p] = g;
+                    top[p] = P->id;
                 }
                 T[p] = test_T;
             }
@@ -411,7 +514,7 @@ static void raster_tile(void *arg, int tile, int thread)
         }
 }
 
-/* ---- driver ---------------------------------------------------------------- */
+/* ---- driver ------------------------------------------------------------------- */
 
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                        const float *features, const float *bg, float *rgb, float *alpha, float *depth,
@@ -435,6 +538,7 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     if (rc < 0)
         return rc;
 
+    /* 1. preprocess, each chunk compacting its visible Gaussians */
     const size_t n = f->count;
     struct prep_job pj = { .r = r, .cam = cam, .f = f, .features = features };
     float tanx = 0.5f * (float)r->width / cam->fx, tany = 0.5f * (float)r->height / cam->fy;
@@ -443,49 +547,40 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     pj.lim_y_pos = ((float)r->height - cam->cy) / cam->fy + 0.3f * tany;
     pj.lim_y_neg = cam->cy / cam->fy + 0.3f * tany;
     int chunks = (int)((n + PREP_CHUNK - 1) / PREP_CHUNK);
-    fk_parallel_for(r->ctx, chunks, 200.0 * (double)n, prep_task, &pj);
-
-    /* visible list in index order, keyed by depth bits */
-    size_t nv = 0, npairs = 0;
-    for (size_t i = 0; i < n; i++) {
-        const int32_t *rc4 = r->rect + 4 * i;
-        if (rc4[2] == rc4[0])
-            continue;
-        uint32_t bits;
-        memcpy(&bits, &r->depth[i], sizeof bits);
-        r->key[nv] = bits;
-        r->idx[nv] = (int32_t)i;
-        nv++;
-        npairs += (size_t)(rc4[2] - rc4[0]) * (size_t)(rc4[3] - rc4[1]);
+    fk_parallel_for(r->ctx, chunks, 300.0 * (double)n, prep_task, &pj);
+    size_t nv = 0;
+    for (int c = 0; c < chunks; c++) {
+        size_t m = r->chunk_visible[c], from = (size_t)c * PREP_CHUNK;
+        if (from != nv) {
+            memmove(r->key + nv, r->key + from, m * sizeof *r->key);
+            memmove(r->idx + nv, r->idx + from, m * sizeof *r->idx);
+        }
+        nv += m;
     }
+
+    /* 2. depth order */
     radix_sort(r->key, r->idx, r->key_tmp, r->idx_tmp, nv);
+    struct order_job oj = { .r = r, .n = nv };
+    fk_parallel_for(r->ctx, (int)((nv + PREP_CHUNK - 1) / PREP_CHUNK), 30.0 * (double)nv, gather_task, &oj);
 
-    rc = splat_renderer_reserve(r, 0, npairs + npairs / 4);
-    if (rc < 0)
-        return rc;
-    /* binning */
-    memset(r->tile_fill, 0, (size_t)r->n_tiles * sizeof *r->tile_fill);
-    for (size_t v = 0; v < nv; v++) {
-        const int32_t *q = r->rect + 4 * r->idx[v];
-        for (int ty = q[1]; ty < q[3]; ty++)
-            for (int tx = q[0]; tx < q[2]; tx++)
-                r->tile_fill[ty * r->tiles_x + tx]++;
-    }
-    uint32_t sum = 0;
+    /* 3. binning */
+    int bchunks = (int)((nv + BIN_CHUNK - 1) / BIN_CHUNK);
+    fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_count_task, &oj);
+    size_t npairs = 0;
     for (int t = 0; t < r->n_tiles; t++) {
-        r->tile_start[t] = sum;
-        sum += r->tile_fill[t];
-        r->tile_fill[t] = r->tile_start[t];
+        r->tile_start[t] = (uint32_t)npairs;
+        for (int c = 0; c < bchunks; c++) {
+            uint32_t *h = r->hist + (size_t)c * (size_t)r->n_tiles + t, cnt = *h;
+            *h = (uint32_t)npairs;
+            npairs += cnt;
+        }
     }
-    r->tile_start[r->n_tiles] = sum;
-    for (size_t v = 0; v < nv; v++) {
-        const int32_t g = r->idx[v];
-        const int32_t *q = r->rect + 4 * g;
-        for (int ty = q[1]; ty < q[3]; ty++)
-            for (int tx = q[0]; tx < q[2]; tx++)
-                r->pairs[r->tile_fill[ty * r->tiles_x + tx]++] = g;
-    }
+    r->tile_start[r->n_tiles] = (uint32_t)npairs;
+    if (npairs > r->cap_pairs && (rc = splat_renderer_reserve(r, 0, npairs + npairs / 4)) < 0)
+        return rc;
+    fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_scatter_task, &oj);
 
+    /* 4. compositing */
     struct raster_job rj = { .r = r, .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top,
                              .normalize = normalize };
     fk_parallel_for(r->ctx, r->n_tiles, 1e9, raster_tile, &rj);
