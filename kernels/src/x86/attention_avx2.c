@@ -17,6 +17,7 @@
 #include "../attention.h"
 #include "../fk_internal.h"
 #include "vecmath_avx2.h"
+#include "x86.h"
 
 #define MR 6
 #define NR 16
@@ -159,31 +160,7 @@ static void prep_task(void *arg, int task, int thread)
 
 /* -------------------------------------------------------------- the tiles */
 
-/* The tiles stay out of line: inlined into the task loop GCC spills. */
-
-/* s[6][ld] (16 columns) = q[d][6] . k[d][16] */
-__attribute__((noinline)) static void qk_tile(int d, const float *q, const float *k, float *s, int ld)
-{
-    __m256 c00 = _mm256_setzero_ps(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
-    __m256 c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
-    for (int c = 0; c < d; c++) {
-        __m256 b0 = _mm256_load_ps(k), b1 = _mm256_load_ps(k + 8), t;
-        t = _mm256_broadcast_ss(q + 0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
-        t = _mm256_broadcast_ss(q + 1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
-        t = _mm256_broadcast_ss(q + 2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
-        t = _mm256_broadcast_ss(q + 3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
-        t = _mm256_broadcast_ss(q + 4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
-        t = _mm256_broadcast_ss(q + 5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
-        q += MR;
-        k += NR;
-    }
-    _mm256_store_ps(s + 0 * ld, c00); _mm256_store_ps(s + 0 * ld + 8, c01);
-    _mm256_store_ps(s + 1 * ld, c10); _mm256_store_ps(s + 1 * ld + 8, c11);
-    _mm256_store_ps(s + 2 * ld, c20); _mm256_store_ps(s + 2 * ld + 8, c21);
-    _mm256_store_ps(s + 3 * ld, c30); _mm256_store_ps(s + 3 * ld + 8, c31);
-    _mm256_store_ps(s + 4 * ld, c40); _mm256_store_ps(s + 4 * ld + 8, c41);
-    _mm256_store_ps(s + 5 * ld, c50); _mm256_store_ps(s + 5 * ld + 8, c51);
-}
+/* The tile stays out of line: inlined into the task loop GCC spills. */
 
 /* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
 __attribute__((noinline)) static void pv_tile(int d, const float *p, const float *v, float *o, const float *alpha)
@@ -293,7 +270,7 @@ static void attn_task(void *arg, int task, int thread)
         for (int i = 0; i < panels; i++) {
             const float *qi = qp + (size_t)(q0 / MR + i) * (size_t)d * MR;
             for (int p = 0; p < BK / NR; p++)
-                qk_tile(d, qi, kp + (size_t)(kb * (BK / NR) + p) * (size_t)d * NR, s + p * NR, BK);
+                fk__ukr_f32_6x16(d, qi, kp + (size_t)(kb * (BK / NR) + p) * (size_t)d * NR, s + p * NR, BK, 0);
             softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha);
             pv_tile(d, s, vp + (size_t)kb * BK * (size_t)d, o + (size_t)i * MR * (size_t)d, alpha);
         }

@@ -25,18 +25,20 @@
 
 /* ----------------------------------------------------------- micro-kernels */
 
-/* c[6][16] (+)= a[kc][6] * b[kc][16]. Kept out of line: inlined into the
+/* c[6][ldc] (16 columns) (+)= a[kc][6] * b[kc][16]: the fp32 register tile
+ * of the GEMM and of attention's Q K^T. Kept out of line: inlined into a
  * driver, GCC runs out of general registers and spills the A pointer. */
-__attribute__((noinline)) static void ukr_f32(int kc, const float *a, const float *b, float *c, int accumulate)
+__attribute__((noinline)) void fk__ukr_f32_6x16(int kc, const float *a, const float *b, float *c,
+                                                 int ldc, int accumulate)
 {
     __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
     if (accumulate) {
-        c00 = _mm256_load_ps(c + 0);  c01 = _mm256_load_ps(c + 8);
-        c10 = _mm256_load_ps(c + 16); c11 = _mm256_load_ps(c + 24);
-        c20 = _mm256_load_ps(c + 32); c21 = _mm256_load_ps(c + 40);
-        c30 = _mm256_load_ps(c + 48); c31 = _mm256_load_ps(c + 56);
-        c40 = _mm256_load_ps(c + 64); c41 = _mm256_load_ps(c + 72);
-        c50 = _mm256_load_ps(c + 80); c51 = _mm256_load_ps(c + 88);
+        c00 = _mm256_load_ps(c + 0 * ldc); c01 = _mm256_load_ps(c + 0 * ldc + 8);
+        c10 = _mm256_load_ps(c + 1 * ldc); c11 = _mm256_load_ps(c + 1 * ldc + 8);
+        c20 = _mm256_load_ps(c + 2 * ldc); c21 = _mm256_load_ps(c + 2 * ldc + 8);
+        c30 = _mm256_load_ps(c + 3 * ldc); c31 = _mm256_load_ps(c + 3 * ldc + 8);
+        c40 = _mm256_load_ps(c + 4 * ldc); c41 = _mm256_load_ps(c + 4 * ldc + 8);
+        c50 = _mm256_load_ps(c + 5 * ldc); c51 = _mm256_load_ps(c + 5 * ldc + 8);
     } else {
         c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
         c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
@@ -53,12 +55,12 @@ __attribute__((noinline)) static void ukr_f32(int kc, const float *a, const floa
         a += 6;
         b += 16;
     }
-    _mm256_store_ps(c + 0, c00);  _mm256_store_ps(c + 8, c01);
-    _mm256_store_ps(c + 16, c10); _mm256_store_ps(c + 24, c11);
-    _mm256_store_ps(c + 32, c20); _mm256_store_ps(c + 40, c21);
-    _mm256_store_ps(c + 48, c30); _mm256_store_ps(c + 56, c31);
-    _mm256_store_ps(c + 64, c40); _mm256_store_ps(c + 72, c41);
-    _mm256_store_ps(c + 80, c50); _mm256_store_ps(c + 88, c51);
+    _mm256_store_ps(c + 0 * ldc, c00); _mm256_store_ps(c + 0 * ldc + 8, c01);
+    _mm256_store_ps(c + 1 * ldc, c10); _mm256_store_ps(c + 1 * ldc + 8, c11);
+    _mm256_store_ps(c + 2 * ldc, c20); _mm256_store_ps(c + 2 * ldc + 8, c21);
+    _mm256_store_ps(c + 3 * ldc, c30); _mm256_store_ps(c + 3 * ldc + 8, c31);
+    _mm256_store_ps(c + 4 * ldc, c40); _mm256_store_ps(c + 4 * ldc + 8, c41);
+    _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
 }
 
 static inline long long load_i64(const int16_t *p)
@@ -361,8 +363,8 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
             for (int i = 0; i < mp; i++) {
                 for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < next_lines; l++)
                     _mm_prefetch(next + l * 64, _MM_HINT_T0);
-                ukr_f32(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp,
-                        ct + (size_t)i * MR * NR, k0 > 0);
+                fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp,
+                                 ct + (size_t)i * MR * NR, NR, k0 > 0);
             }
         }
         int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;

@@ -14,6 +14,10 @@
 void fk__f32_to_f16_avx2(const float *src, uint16_t *dst, size_t n);
 void fk__f16_to_f32_avx2(const uint16_t *src, float *dst, size_t n);
 
+/* gemm_avx2.c: the 6x16 fp32 register tile, c[6][ldc] (+)= a[kc][6] b[kc][16],
+ * shared by the GEMM and attention (c 32-byte aligned, ldc a multiple of 8). */
+void fk__ukr_f32_6x16(int kc, const float *a, const float *b, float *c, int ldc, int accumulate);
+
 /* ops_avx2.c: element-wise and row-wise ops (fk_ops.h). Rows are [rows][ld]. */
 void fk__gelu_array_avx2     (const float *x, float *y, size_t n);
 void fk__silu_array_avx2     (const float *x, float *y, size_t n);
