@@ -211,8 +211,9 @@ FK_AVX2_FN __m256 fk__sigmoid_avx2(__m256 x)
 
 /* x sigmoid(x): x / (1 + e) for x >= 0 and x e / (1 + e) below, with x e
  * scaled by 2^n in one step (|x| p <= 241 < 2^8, hence kmin = -133: what is
- * flushed is below FLT_MIN, what is kept is rounded once). x is clamped below at -170
- * first, where the result is -0 anyway, so silu(-Inf) is -0, not -Inf * 0. */
+ * flushed is below FLT_MIN, what is kept is rounded once). x is clamped below
+ * at -170 first, where the result is -0 anyway, so silu(-Inf) is -0, not
+ * -Inf * 0. */
 FK_AVX2_FN __m256 fk__silu_avx2(__m256 x)
 {
     x = _mm256_max_ps(_mm256_set1_ps(-170.0f), x);
@@ -241,7 +242,8 @@ FK_AVX2_FN float fk__hmax_avx2(__m256 v)
     return _mm_cvtss_f32(m);
 }
 
-/* Loads / stores the first n < 8 floats (the tail of a row); other lanes 0. */
+/* Lane mask of the first n lanes (0 <= n <= 8), for _mm256_maskload_ps /
+ * _mm256_maskstore_ps of the tail of a row. */
 FK_AVX2_FN __m256i fk__tail_mask_avx2(int n)
 {
     const __m256i idx = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
