@@ -22,6 +22,7 @@
 #define MR FK_GEMM_MR
 #define NR FK_GEMM_NR
 #define KC FK_GEMM_KC
+#define PG 4 /* fp32 weight panels per output tile */
 
 /* ----------------------------------------------------------- micro-kernels */
 
@@ -333,47 +334,55 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
     int k = L->k, mp = (rows + MR - 1) / MR;
     float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
     pack_a_f32(j->a, m0, rows, k, ap, (float *)(s + j->off_tmp), (const float *)(s + j->off_zero));
-    for (int jp = jp0; jp < jp1; jp++) {
-        for (int k0 = 0; k0 < k; k0 += KC) {
-            int kc = k - k0 < KC ? k - k0 : KC;
-            const float *bp;
-            if (L->type == FK_W_F32) {
-                bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
-            } else {
-                const uint16_t *h = (const uint16_t *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
-                for (int e = 0; e < kc * NR; e += 8)
-                    _mm256_store_ps(bconv + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
-                bp = bconv;
-            }
-            /* Pull the next weight slice towards L1 while this one is in use,
-             * a few lines per micro-panel (fp32 reads the packed weights in place). */
-            const char *next = NULL;
-            size_t next_lines = 0;
-            if (L->type == FK_W_F32) {
-                size_t off = (size_t)jp * (size_t)k + (size_t)k0 + (size_t)kc;
-                if (k0 + kc >= k)
-                    off = (size_t)(jp + 1) * (size_t)k;
-                if (jp + 1 < jp1 || k0 + kc < k) {
-                    next = (const char *)((const float *)L->data + off * NR);
-                    size_t kn = (size_t)(k - (int)(off % (size_t)k));
-                    next_lines = (kn < KC ? kn : KC) * NR * 4 / 64;
+    /* Panels in groups of PG: the tile holds PG x 16 columns per row, so the
+     * epilogue writes 256 contiguous bytes per output row, not 64 bytes
+     * 4 KB apart (which thrashed L1 sets). */
+    int ldc = NR * PG;
+    for (int jg = jp0; jg < jp1; jg += PG) {
+        int jge = jg + PG < jp1 ? jg + PG : jp1;
+        for (int jp = jg; jp < jge; jp++)
+            for (int k0 = 0; k0 < k; k0 += KC) {
+                int kc = k - k0 < KC ? k - k0 : KC;
+                const float *bp;
+                if (L->type == FK_W_F32) {
+                    bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
+                } else {
+                    const uint16_t *h = (const uint16_t *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
+                    for (int e = 0; e < kc * NR; e += 8)
+                        _mm256_store_ps(bconv + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
+                    bp = bconv;
+                }
+                /* Pull the next weight slice towards L1 while this one is in use,
+                 * a few lines per micro-panel (fp32 reads the packed weights in place). */
+                const char *next = NULL;
+                size_t next_lines = 0;
+                if (L->type == FK_W_F32) {
+                    size_t off = (size_t)jp * (size_t)k + (size_t)k0 + (size_t)kc;
+                    if (k0 + kc >= k)
+                        off = (size_t)(jp + 1) * (size_t)k;
+                    if (jp + 1 < jp1 || k0 + kc < k) {
+                        next = (const char *)((const float *)L->data + off * NR);
+                        size_t kn = (size_t)(k - (int)(off % (size_t)k));
+                        next_lines = (kn < KC ? kn : KC) * NR * 4 / 64;
+                    }
+                }
+                size_t per = next ? (next_lines + (size_t)mp - 1) / (size_t)mp : 0;
+                for (int i = 0; i < mp; i++) {
+                    for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < next_lines; l++)
+                        _mm_prefetch(next + l * 64, _MM_HINT_T0);
+                    fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp,
+                                     ct + (size_t)i * MR * (size_t)ldc + (size_t)(jp - jg) * NR, ldc,
+                                     k0 > 0);
                 }
             }
-            size_t per = next ? (next_lines + (size_t)mp - 1) / (size_t)mp : 0;
-            for (int i = 0; i < mp; i++) {
-                for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < next_lines; l++)
-                    _mm_prefetch(next + l * 64, _MM_HINT_T0);
-                fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp,
-                                 ct + (size_t)i * MR * NR, NR, k0 > 0);
+        for (int r = 0; r < rows; r++)
+            for (int jp = jg; jp < jge; jp++) {
+                int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+                const float *cr = ct + (size_t)r * (size_t)ldc + (size_t)(jp - jg) * NR;
+                __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), _mm256_load_ps(L->bias + n0)));
+                __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), _mm256_load_ps(L->bias + n0 + 8)));
+                store_row(j->c, j->ep, m0 + r, n0, nn, t0, t1);
             }
-        }
-        int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-        __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
-        for (int r = 0; r < rows; r++) {
-            __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(ct + r * NR), b0));
-            __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(ct + r * NR + 8), b1));
-            store_row(j->c, j->ep, m0 + r, n0, nn, t0, t1);
-        }
     }
 }
 
@@ -473,7 +482,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     size_t mcp = fk__round_up((size_t)mc, MR);
     size_t bytes_a = fk__round_up(mcp * a_row + 8 * sizeof(float), FK_ALIGN); /* + transpose spill */
     j.off_c = bytes_a;
-    j.off_b = j.off_c + fk__round_up(mcp * NR * 4, FK_ALIGN);
+    j.off_b = j.off_c + fk__round_up(mcp * NR * (q8 ? 1 : PG) * 4, FK_ALIGN);
     j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : (size_t)KC * NR * 4);
     size_t tmp = a->conv ? (size_t)(q8 ? 1 : MR) * (size_t)k * 4 : 0;
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
