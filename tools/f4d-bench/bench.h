@@ -6,6 +6,7 @@
 #define F4D_BENCH_H
 
 int bench_kernels(int argc, char **argv);
+int bench_model(int argc, char **argv);
 
 /* Seconds on CLOCK_MONOTONIC. */
 double bench_now(void);

@@ -13,6 +13,7 @@ struct subcommand {
 
 static const struct subcommand table[] = {
     { "kernels", bench_kernels, "GEMM f32/f16/int8 and attention vs OpenBLAS and the FMA peak" },
+    { "model",   bench_model,   "VGGT forward per stage (tiny) and full size extrapolated, f32/f16/int8" },
 };
 
 double bench_now(void)

@@ -1,0 +1,380 @@
+/* bench_model.c - f4d-bench model: the VGGT forward, per stage, per precision.
+ *
+ *   f4d-bench model [--json FILE] [--threads N] [--views S] [--size HxW]
+ *                   [--reps R] [--skip-full] [--tmp DIR]
+ *
+ * tiny: a small random-weight config (embed 128, depth 4) end to end, best of
+ *       R runs: ms and GFLOP/s per stage.
+ * full: the VGGT-1B dimensions on random weights, built with ONE DINO block,
+ *       ONE frame and ONE global block and ONE DPT head, run on S views of
+ *       HxW (default 4 x 518x518); the full forward is extrapolated as
+ *       patch + 24 (dino + frame + global) + 2 DPT heads + camera head, the
+ *       camera head (6.9 GFLOP, 0.04 %) counted at the measured frame-block
+ *       rate. Per precision (f32, f16, int8 weights in every linear and
+ *       convolution layer but the patchify), the error against the f32 run of
+ *       the same weights: max |x - x_f32| / max |x_f32| over the aggregator
+ *       output and the depth map. Also the arena of the full 4 x 518^2 plan.
+ * JSON: {"tiny": [{"stage","ms","gflops"}], "full": [{"precision","seconds",
+ *        "max_rel_err", ...}], ...}.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "bench.h"
+#include "fk_ctx.h"
+#include "gguf.h"
+#include "model.h"
+#include "peak.h"
+
+struct rng {
+    uint64_t s;
+};
+
+static double rnd_normal(struct rng *r)
+{
+    /* xorshift64* -> two uniforms -> Box-Muller */
+    double u[2];
+    for (int i = 0; i < 2; i++) {
+        r->s ^= r->s >> 12;
+        r->s ^= r->s << 25;
+        r->s ^= r->s >> 27;
+        u[i] = ((r->s * UINT64_C(2685821657736338717)) >> 11) * (1.0 / 9007199254740992.0);
+    }
+    return sqrt(-2.0 * log(u[0] + 1e-300)) * cos(6.283185307179586 * u[1]);
+}
+
+struct gen {
+    gguf_writer *w;
+    struct rng   rng;
+    int          pass;
+    float       *buf;
+    size_t       cap;
+};
+
+/* Random weights with activations in a realistic range: LayerScale 0.1,
+ * Linear/conv N(0, 1/fan_in), norms near 1, small biases. */
+static int gen_tensor(void *user, const struct model_tensor_info *t)
+{
+    struct gen *g = user;
+    if (t->tclass == MODEL_T_UNUSED)
+        return 0;
+    if (g->pass == 0)
+        return gguf_writer_add_tensor(g->w, t->name, GGUF_T_F32, t->n_dims, t->shape);
+    size_t n = 1;
+    for (int i = 0; i < t->n_dims; i++)
+        n *= (size_t)t->shape[i];
+    if (n > g->cap) {
+        free(g->buf);
+        g->buf = malloc(n * sizeof *g->buf);
+        g->cap = g->buf ? n : 0;
+        if (!g->buf)
+            return -1;
+    }
+    const char *nm = t->name;
+    size_t len = strlen(nm);
+    int is_gamma = len > 6 && !strcmp(nm + len - 6, ".gamma");
+    int is_bias = len > 5 && !strcmp(nm + len - 5, ".bias");
+    int is_norm = strstr(nm, "norm") && len > 7 && !strcmp(nm + len - 7, ".weight");
+    double fan_in = (double)n / (double)t->shape[t->qaxis];
+    for (size_t i = 0; i < n; i++) {
+        double v;
+        if (is_gamma)
+            v = 0.1;
+        else if (is_bias)
+            v = 0.02 * rnd_normal(&g->rng);
+        else if (is_norm)
+            v = 1.0 + 0.05 * rnd_normal(&g->rng);
+        else if (t->tclass == MODEL_T_QUANT || strstr(nm, "proj.weight"))
+            v = rnd_normal(&g->rng) / sqrt(fan_in);
+        else
+            v = 0.5 * rnd_normal(&g->rng);
+        g->buf[i] = (float)v;
+    }
+    return gguf_writer_write(g->w, g->buf, n * sizeof *g->buf);
+}
+
+static int write_random(const char *path, const struct model_config *c, unsigned groups)
+{
+    struct gen g = { gguf_writer_new(), { UINT64_C(0x9e3779b97f4a7c15) }, 0, NULL, 0 };
+    int rc = -1;
+    if (!g.w || model_config_write(c, g.w) < 0 ||
+        gguf_writer_add_str(g.w, "forge4d.file_type", "f32") < 0)
+        goto out;
+    if (model_schema_foreach(c, groups, gen_tensor, &g) < 0 || gguf_writer_begin(g.w, path) < 0)
+        goto out;
+    g.pass = 1;
+    if (model_schema_foreach(c, groups, gen_tensor, &g) < 0 || gguf_writer_finish(g.w) < 0)
+        goto out;
+    rc = 0;
+out:
+    if (rc < 0)
+        fprintf(stderr, "f4d-bench model: cannot write '%s': %s\n", path,
+                g.w ? gguf_writer_error(g.w) : "out of memory");
+    gguf_writer_free(g.w);
+    free(g.buf);
+    return rc;
+}
+
+static void random_images(float *img, size_t n, uint64_t seed)
+{
+    struct rng r = { seed };
+    for (size_t i = 0; i < n; i++)
+        img[i] = (float)(0.5 + 0.25 * rnd_normal(&r));
+}
+
+struct result {
+    struct model_stage st[16];
+    int    n_st;
+    double total;
+    float *layer, *depth;   /* copies for the error columns */
+    size_t n_layer, n_depth;
+    size_t arena, weights;
+};
+
+/* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run. */
+static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int H, int W,
+                     int reps, int layer, struct result *r)
+{
+    char err[512];
+    struct model *m;
+    memset(r, 0, sizeof *r);
+    if (model_init(ctx, path, wt, &m, err, sizeof err) < 0) {
+        fprintf(stderr, "f4d-bench model: %s\n", err);
+        return -1;
+    }
+    float *img = malloc((size_t)S * 3 * H * W * sizeof *img);
+    int rc = img ? model_prepare(m, S, H, W) : -1;
+    if (rc < 0) {
+        fprintf(stderr, "f4d-bench model: %s\n", img ? model_error(m) : "out of memory");
+        free(img);
+        model_free(m);
+        return -1;
+    }
+    random_images(img, (size_t)S * 3 * H * W, 42);
+    r->total = INFINITY;
+    for (int i = 0; i < reps; i++) {
+        struct model_outputs o;
+        double t0 = bench_now();
+        if (model_eval(m, img, S, H, W, &o) < 0) {
+            fprintf(stderr, "f4d-bench model: %s\n", model_error(m));
+            rc = -1;
+            break;
+        }
+        double t = bench_now() - t0;
+        if (t < r->total) {
+            r->total = t;
+            r->n_st = model_stages(m, r->st, 16);
+        }
+        if (i == 0) {
+            const struct model_config *c = model_get_config(m);
+            const int p = c->patch_size;
+            r->n_layer = (size_t)S * (1 + c->num_register_tokens + (H / p) * (W / p)) * 2 * c->embed_dim;
+            r->n_depth = o.depth ? (size_t)S * H * W : 0;
+            r->layer = malloc(r->n_layer * sizeof(float));
+            r->depth = malloc((r->n_depth ? r->n_depth : 1) * sizeof(float));
+            if (r->layer && model_layer(m, layer))
+                memcpy(r->layer, model_layer(m, layer), r->n_layer * sizeof(float));
+            if (r->depth && o.depth)
+                memcpy(r->depth, o.depth, r->n_depth * sizeof(float));
+        }
+    }
+    r->arena = model_arena_bytes(m);
+    r->weights = model_weight_bytes(m);
+    free(img);
+    model_free(m);
+    return rc;
+}
+
+static double rel_err(const float *x, const float *ref, size_t n)
+{
+    double md = 0, mr = 0;
+    for (size_t i = 0; i < n; i++) {
+        double d = fabs((double)x[i] - ref[i]);
+        md = isnan(d) ? INFINITY : fmax(md, d);
+        mr = fmax(mr, fabs((double)ref[i]));
+    }
+    return mr > 0 ? md / mr : md;
+}
+
+static double stage_sec(const struct result *r, const char *name, double *flops)
+{
+    for (int i = 0; i < r->n_st; i++)
+        if (!strcmp(r->st[i].name, name)) {
+            if (flops)
+                *flops = r->st[i].flops;
+            return r->st[i].seconds;
+        }
+    if (flops)
+        *flops = 0;
+    return 0;
+}
+
+int bench_model(int argc, char **argv)
+{
+    const char *json = NULL, *tmpdir = "/tmp";
+    int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--json") && i + 1 < argc)
+            json = argv[++i];
+        else if (!strcmp(argv[i], "--threads") && i + 1 < argc)
+            threads = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--views") && i + 1 < argc)
+            S = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--size") && i + 1 < argc && sscanf(argv[i + 1], "%dx%d", &H, &W) == 2)
+            i++;
+        else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
+            reps = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--skip-full"))
+            skip_full = 1;
+        else if (!strcmp(argv[i], "--tmp") && i + 1 < argc)
+            tmpdir = argv[++i];
+        else {
+            fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
+                            "[--size HxW] [--reps R] [--skip-full] [--tmp DIR]\n");
+            return 2;
+        }
+    }
+    if (S < 1 || S > MODEL_VIEWS_MAX || H % 14 || W % 14 || H < 14 || W < 14 || reps < 1) {
+        fprintf(stderr, "f4d-bench model: bad --views/--size/--reps\n");
+        return 2;
+    }
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
+    if (fk_ctx_new(&cc, &ctx) != FK_OK) {
+        fprintf(stderr, "f4d-bench model: cannot create the kernel context\n");
+        return 1;
+    }
+    int nthr = fk_ctx_threads(ctx);
+    double peak = bench_fma_peak_gflops(nthr, 3);
+    char path[1024];
+    snprintf(path, sizeof path, "%s/f4d-bench-model-%d.gguf", tmpdir, (int)getpid());
+    FILE *jf = NULL;
+    int rc = 1;
+
+    /* ---- tiny: end to end, per stage ---- */
+    struct model_config tiny;
+    model_config_default(&tiny);
+    tiny.img_size = 126; tiny.embed_dim = 128; tiny.depth = 4; tiny.num_heads = 4;
+    tiny.num_register_tokens = 4; tiny.dino_depth = 2; tiny.dino_num_heads = 4;
+    tiny.camera_trunk_depth = 1; tiny.camera_num_heads = 4; tiny.camera_iters = 4;
+    tiny.dpt_features = 32;
+    tiny.dpt_out_channels[0] = 32; tiny.dpt_out_channels[1] = 64;
+    tiny.dpt_out_channels[2] = 128; tiny.dpt_out_channels[3] = 128;
+    tiny.dpt_layer_idx[0] = 0; tiny.dpt_layer_idx[1] = 1;
+    tiny.dpt_layer_idx[2] = 2; tiny.dpt_layer_idx[3] = 3;
+    const int tS = 4, tH = 126, tW = 168;
+    struct result tr;
+    if (write_random(path, &tiny, MODEL_G_ALL) < 0 ||
+        run_model(ctx, path, FK_W_F32, tS, tH, tW, 5 * reps, tiny.depth - 1, &tr) < 0)
+        goto done;
+    remove(path);
+    printf("model tiny (embed %d, depth %d, dino %d; %d views %dx%d), f32, %d threads, "
+           "FMA peak %.1f GFLOP/s, best of %d: %.2f ms, arena %zu bytes\n", tiny.embed_dim,
+           tiny.depth, tiny.dino_depth, tS, tW, tH, nthr, peak, 5 * reps, 1e3 * tr.total, tr.arena);
+    for (int i = 0; i < tr.n_st; i++)
+        printf("  %-14s %9.3f ms %8.2f GFLOP/s\n", tr.st[i].name, 1e3 * tr.st[i].seconds,
+               tr.st[i].seconds > 0 ? 1e-9 * tr.st[i].flops / tr.st[i].seconds : 0.0);
+
+    if (json) {
+        jf = fopen(json, "w");
+        if (!jf) {
+            fprintf(stderr, "f4d-bench model: cannot write '%s'\n", json);
+            goto done;
+        }
+        fprintf(jf, "{\n  \"threads\": %d,\n  \"fma_peak_gflops\": %.1f,\n", nthr, peak);
+        fprintf(jf, "  \"tiny_config\": {\"embed_dim\": %d, \"depth\": %d, \"dino_depth\": %d, "
+                "\"views\": %d, \"height\": %d, \"width\": %d, \"total_ms\": %.3f},\n",
+                tiny.embed_dim, tiny.depth, tiny.dino_depth, tS, tH, tW, 1e3 * tr.total);
+        fprintf(jf, "  \"tiny\": [");
+        for (int i = 0; i < tr.n_st; i++)
+            fprintf(jf, "%s\n    {\"stage\": \"%s\", \"ms\": %.4f, \"gflops\": %.3f}", i ? "," : "",
+                    tr.st[i].name, 1e3 * tr.st[i].seconds,
+                    tr.st[i].seconds > 0 ? 1e-9 * tr.st[i].flops / tr.st[i].seconds : 0.0);
+        fprintf(jf, "\n  ]");
+    }
+    free(tr.layer);
+    free(tr.depth);
+
+    /* ---- full-size plan (no weights needed) ---- */
+    struct model_config full;
+    model_config_default(&full);
+    size_t plan = model_plan_bytes(&full, MODEL_G_ALL, 4, 518, 518);
+    printf("full VGGT-1B plan, 4 views 518x518, camera+depth+point heads: arena %zu bytes "
+           "(%.2f GiB)\n", plan, plan / 1073741824.0);
+    if (jf)
+        fprintf(jf, ",\n  \"full_plan_arena_bytes_4x518x518\": %zu", plan);
+
+    if (!skip_full) {
+        /* ---- full dims, one block of each kind, one DPT head ---- */
+        struct model_config one = full;
+        one.depth = 1;
+        one.dino_depth = 1;
+        for (int i = 0; i < 4; i++)
+            one.dpt_layer_idx[i] = 0;
+        if (write_random(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
+            goto done;
+        static const enum fk_wtype wts[3] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
+        static const char *wn[3] = { "f32", "f16", "int8" };
+        struct result fr[3];
+        int ok = 1;
+        for (int p = 0; p < 3 && ok; p++) {
+            ok = run_model(ctx, path, wts[p], S, H, W, 1, 0, &fr[p]) == 0;
+            if (ok) {
+                printf("full dims, one block each, %d views %dx%d, %s weights (%zu bytes "
+                       "packed, arena %zu bytes):\n", S, W, H, wn[p], fr[p].weights, fr[p].arena);
+                for (int i = 0; i < fr[p].n_st; i++)
+                    printf("  %-14s %9.3f s %8.2f GFLOP/s\n", fr[p].st[i].name, fr[p].st[i].seconds,
+                           fr[p].st[i].seconds > 0 ? 1e-9 * fr[p].st[i].flops / fr[p].st[i].seconds : 0.0);
+            }
+        }
+        remove(path);
+        if (!ok)
+            goto done;
+        if (jf)
+            fprintf(jf, ",\n  \"full\": [");
+        for (int p = 0; p < 3; p++) {
+            double fpatch, fdino, fframe, fglobal, fdpt;
+            double tpatch = stage_sec(&fr[p], "patch_embed", &fpatch);
+            double tdino = stage_sec(&fr[p], "dino_blocks", &fdino);
+            double tframe = stage_sec(&fr[p], "frame_blocks", &fframe);
+            double tglobal = stage_sec(&fr[p], "global_blocks", &fglobal);
+            double tdpt = stage_sec(&fr[p], "depth_head", &fdpt);
+            const double cam_flops = 6.9e9 * S / 4.0;
+            double tcam = fframe > 0 ? cam_flops / (fframe / tframe) : 0;
+            double total = tpatch + 24 * (tdino + tframe + tglobal) + 2 * tdpt + tcam;
+            double flops = fpatch + 24 * (fdino + fframe + fglobal) + 2 * fdpt + cam_flops;
+            double el = p ? rel_err(fr[p].layer, fr[0].layer, fr[0].n_layer) : 0;
+            double ed = p ? rel_err(fr[p].depth, fr[0].depth, fr[0].n_depth) : 0;
+            double e = fmax(el, ed);
+            printf("full forward %s (extrapolated): %.1f s, %.0f GFLOP, %.1f GFLOP/s "
+                   "(%.0f %% of FMA peak); error vs f32: layer %.3e, depth %.3e\n", wn[p], total,
+                   1e-9 * flops, 1e-9 * flops / total, 100.0 * 1e-9 * flops / total / peak, el, ed);
+            if (jf)
+                fprintf(jf, "%s\n    {\"precision\": \"%s\", \"seconds\": %.2f, \"max_rel_err\": %.3e, "
+                        "\"layer_rel_err\": %.3e, \"depth_rel_err\": %.3e, \"gflop\": %.1f, "
+                        "\"dino_block_s\": %.4f, \"frame_block_s\": %.4f, \"global_block_s\": %.4f, "
+                        "\"dpt_head_s\": %.4f, \"patch_embed_s\": %.4f, \"camera_head_s_est\": %.4f, "
+                        "\"weights_bytes_one_block_each\": %zu}", p ? "," : "", wn[p], total, e,
+                        el, ed, 1e-9 * flops, tdino, tframe, tglobal, tdpt, tpatch, tcam,
+                        fr[p].weights);
+        }
+        if (jf)
+            fprintf(jf, "\n  ],\n  \"full_views\": %d, \"full_height\": %d, \"full_width\": %d", S, H, W);
+        for (int p = 0; p < 3; p++) {
+            free(fr[p].layer);
+            free(fr[p].depth);
+        }
+    }
+    if (jf)
+        fprintf(jf, "\n}\n");
+    rc = 0;
+done:
+    if (jf && fclose(jf) != 0)
+        rc = 1;
+    remove(path);
+    fk_ctx_free(ctx);
+    return rc;
+}
