@@ -203,15 +203,31 @@ int fk_relu(fk_ctx *ctx, const float *x, size_t n, float *y)
 
 /* ---- row-wise ops ----------------------------------------------------- */
 
+enum row_op { ROW_LAYERNORM, ROW_SOFTMAX, ROW_RESIDUAL };
+
+/* Rows of x (read) and y (written). For the residual add, x is r, y is the
+ * updated matrix and w is gamma. */
 struct row_job {
+    enum row_op  op;
     int          avx2, per;
     int          rows, cols, ldx, ldy;
-    const float *x, *w, *b;   /* w = gamma for the residual add */
+    const float *x, *w, *b;
     float       *y;
     float        eps;
 };
 
-static void layernorm_task(void *arg, int task, int thread)
+static void residual_row_ref(float *x, const float *r, const float *gamma, int n)
+{
+    if (gamma) {
+        for (int c = 0; c < n; c++)
+            x[c] += gamma[c] * r[c];
+    } else {
+        for (int c = 0; c < n; c++)
+            x[c] += r[c];
+    }
+}
+
+static void row_task(void *arg, int task, int thread)
 {
     (void)thread;
     const struct row_job *j = arg;
@@ -220,11 +236,39 @@ static void layernorm_task(void *arg, int task, int thread)
     const float *x = j->x + (size_t)r0 * j->ldx;
     float *y = j->y + (size_t)r0 * j->ldy;
     if (j->avx2) {
-        fk__layernorm_rows_avx2(x, nr, j->cols, j->ldx, j->w, j->b, j->eps, y, j->ldy);
+        switch (j->op) {
+        case ROW_LAYERNORM:
+            fk__layernorm_rows_avx2(x, nr, j->cols, j->ldx, j->w, j->b, j->eps, y, j->ldy);
+            break;
+        case ROW_SOFTMAX:
+            fk__softmax_rows_avx2(x, nr, j->cols, j->ldx, y, j->ldy);
+            break;
+        case ROW_RESIDUAL:
+            fk__residual_rows_avx2(y, j->ldy, x, j->ldx, j->w, nr, j->cols);
+            break;
+        }
         return;
     }
-    for (int r = 0; r < nr; r++)
-        layernorm_row_ref(x + (size_t)r * j->ldx, j->cols, j->w, j->b, j->eps, y + (size_t)r * j->ldy);
+    for (int i = 0; i < nr; i++) {
+        const float *xi = x + (size_t)i * j->ldx;
+        float *yi = y + (size_t)i * j->ldy;
+        switch (j->op) {
+        case ROW_LAYERNORM: layernorm_row_ref(xi, j->cols, j->w, j->b, j->eps, yi); break;
+        case ROW_SOFTMAX:   softmax_row_ref(xi, j->cols, yi); break;
+        case ROW_RESIDUAL:  residual_row_ref(yi, xi, j->w, j->cols); break;
+        }
+    }
+}
+
+/* Runs a checked, non-empty job over row chunks; cost is the work per element
+ * in scalar operations, for the threading threshold. */
+static int run_rows(fk_ctx *ctx, struct row_job *j, double cost)
+{
+    j->avx2 = use_avx2(ctx);
+    j->per = rows_per_task(ctx, j->rows);
+    fk_parallel_for(ctx, (j->rows + j->per - 1) / j->per, cost * j->rows * (double)j->cols,
+                    row_task, j);
+    return FK_OK;
 }
 
 int fk_layernorm(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, const float *w,
@@ -238,26 +282,9 @@ int fk_layernorm(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, const
         return FK_FAIL(ctx, FK_EINVAL, "eps=%g must be finite and >= 0", (double)eps);
     if (rows == 0)
         return FK_OK;
-    struct row_job j = { use_avx2(ctx), rows_per_task(ctx, rows), rows, cols, ldx, ldy,
-                         x, w, b, y, eps };
-    fk_parallel_for(ctx, (rows + j.per - 1) / j.per, 12.0 * rows * (double)cols, layernorm_task, &j);
-    return FK_OK;
-}
-
-static void softmax_task(void *arg, int task, int thread)
-{
-    (void)thread;
-    const struct row_job *j = arg;
-    int r0 = task * j->per;
-    int nr = j->rows - r0 < j->per ? j->rows - r0 : j->per;
-    const float *x = j->x + (size_t)r0 * j->ldx;
-    float *y = j->y + (size_t)r0 * j->ldy;
-    if (j->avx2) {
-        fk__softmax_rows_avx2(x, nr, j->cols, j->ldx, y, j->ldy);
-        return;
-    }
-    for (int r = 0; r < nr; r++)
-        softmax_row_ref(x + (size_t)r * j->ldx, j->cols, y + (size_t)r * j->ldy);
+    struct row_job j = { .op = ROW_LAYERNORM, .rows = rows, .cols = cols, .ldx = ldx, .ldy = ldy,
+                         .x = x, .w = w, .b = b, .y = y, .eps = eps };
+    return run_rows(ctx, &j, 12.0);
 }
 
 int fk_softmax(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, float *y, int ldy)
@@ -266,35 +293,9 @@ int fk_softmax(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, float *
     int st = check_rows(ctx, __func__, x, ldx, y, ldy, rows, cols, "x", "y");
     if (st != FK_OK || rows == 0)
         return st;
-    struct row_job j = { use_avx2(ctx), rows_per_task(ctx, rows), rows, cols, ldx, ldy,
-                         x, NULL, NULL, y, 0 };
-    fk_parallel_for(ctx, (rows + j.per - 1) / j.per, 30.0 * rows * (double)cols, softmax_task, &j);
-    return FK_OK;
-}
-
-static void residual_task(void *arg, int task, int thread)
-{
-    (void)thread;
-    const struct row_job *j = arg;
-    int r0 = task * j->per;
-    int nr = j->rows - r0 < j->per ? j->rows - r0 : j->per;
-    const float *r = j->x + (size_t)r0 * j->ldx;
-    float *x = j->y + (size_t)r0 * j->ldy;
-    if (j->avx2) {
-        fk__residual_rows_avx2(x, j->ldy, r, j->ldx, j->w, nr, j->cols);
-        return;
-    }
-    for (int i = 0; i < nr; i++) {
-        float *xi = x + (size_t)i * j->ldy;
-        const float *ri = r + (size_t)i * j->ldx;
-        if (j->w) {
-            for (int c = 0; c < j->cols; c++)
-                xi[c] += j->w[c] * ri[c];
-        } else {
-            for (int c = 0; c < j->cols; c++)
-                xi[c] += ri[c];
-        }
-    }
+    struct row_job j = { .op = ROW_SOFTMAX, .rows = rows, .cols = cols, .ldx = ldx, .ldy = ldy,
+                         .x = x, .y = y };
+    return run_rows(ctx, &j, 30.0);
 }
 
 int fk_residual_add(fk_ctx *ctx, float *x, int ldx, const float *r, int ldr, const float *gamma,
@@ -304,9 +305,7 @@ int fk_residual_add(fk_ctx *ctx, float *x, int ldx, const float *r, int ldr, con
     int st = check_rows(ctx, __func__, r, ldr, x, ldx, rows, cols, "r", "x");
     if (st != FK_OK || rows == 0)
         return st;
-    /* the job's x is the read-only operand (r) and y the updated one (x) */
-    struct row_job j = { use_avx2(ctx), rows_per_task(ctx, rows), rows, cols, ldr, ldx,
-                         r, gamma, NULL, x, 0 };
-    fk_parallel_for(ctx, (rows + j.per - 1) / j.per, 2.0 * rows * (double)cols, residual_task, &j);
-    return FK_OK;
+    struct row_job j = { .op = ROW_RESIDUAL, .rows = rows, .cols = cols, .ldx = ldr, .ldy = ldx,
+                         .x = r, .w = gamma, .y = x };
+    return run_rows(ctx, &j, 2.0);
 }

@@ -176,74 +176,96 @@ static void test_elementwise_special(void **state)
     }
 }
 
+/* ---- row-wise harness --------------------------------------------------- */
+
+struct row_case { int rows, cols, ldx, ldy, inplace; };
+
+typedef int (*row_op_fn)(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, float *y,
+                         int ldy, const void *arg);
+
+/* Runs op on x ([rows][ldx]) with the reference and with every configuration:
+ * within budget of the reference, two threads giving the same bits as one,
+ * and the padding between output rows untouched. Returns the reference
+ * output ([rows][ldy], ldy = ldx in place) for further checks. */
+static float *check_rows_vs_ref(const char *name, row_op_fn op, const void *arg,
+                                const struct row_case *rc, const float *x, double atol, double rtol)
+{
+    int ldy = rc->inplace ? rc->ldx : rc->ldy;
+    size_t n = (size_t)(rc->rows > 0 ? rc->rows : 1) * ldy;
+    float *want = xmalloc(n * sizeof *want), *got = xmalloc(n * sizeof *got);
+    float *one = xmalloc(n * sizeof *one);
+    struct cfg cfgs[11];
+    cfgs[0] = (struct cfg){ FK_ISA_REF, 1 };
+    int nc = 1 + test_cfgs(cfgs + 1);
+    for (int k = 0; k < nc; k++) {
+        fk_ctx *ctx = test_ctx(cfgs[k].isa, cfgs[k].threads);
+        float *out = k == 0 ? want : got;
+        for (size_t i = 0; i < n; i++)
+            out[i] = rc->inplace ? x[i] : SENTINEL;
+        assert_int_equal(op(ctx, rc->inplace ? out : x, rc->rows, rc->cols, rc->ldx, out, ldy, arg),
+                         FK_OK);
+        fk_ctx_free(ctx);
+        if (k == 0) {
+            for (int i = 0; i < rc->rows; i++)
+                for (int j = rc->cols; j < ldy; j++)
+                    assert_true(want[(size_t)i * ldy + j] ==
+                                (rc->inplace ? x[(size_t)i * ldy + j] : SENTINEL));
+            continue;
+        }
+        check_budget(name, cfgs[k], got, want, n, atol, rtol);
+        if (cfgs[k].threads == 1)
+            memcpy(one, got, n * sizeof *got);
+        else if (cfgs[k].isa != FK_ISA_REF)
+            check_same_bits(name, got, one, n);
+    }
+    free(got);
+    free(one);
+    return want;
+}
+
 /* ---- layernorm ---------------------------------------------------------- */
 
-struct ln_case { int rows, cols, ldx, ldy, inplace, affine; float eps; };
+struct ln_arg { const float *w, *b; float eps; };
 
-/* affine: 0 none, 1 w and b, 2 w only, 3 b only */
-static void run_layernorm_case(const struct ln_case *lc, uint64_t seed)
+static int layernorm_op(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, float *y,
+                        int ldy, const void *arg)
 {
-    size_t nx = (size_t)(lc->rows > 0 ? lc->rows : 1) * lc->ldx;
-    size_t ny = (size_t)(lc->rows > 0 ? lc->rows : 1) * lc->ldy;
-    float *x = xmalloc(nx * sizeof *x), *want = xmalloc(ny * sizeof *want);
-    float *got = xmalloc(ny * sizeof *got), *one = xmalloc(ny * sizeof *one);
-    float *w = xmalloc(lc->cols * sizeof *w), *b = xmalloc(lc->cols * sizeof *b);
-    struct rng r;
-    rng_seed(&r, seed);
-    for (size_t i = 0; i < nx; i++)
-        x[i] = 2.0f * rng_normal(&r) + 0.5f;
-    rng_fill_normal(&r, w, lc->cols, 1.0f);
-    rng_fill_normal(&r, b, lc->cols, 1.0f);
-    const float *pw = (lc->affine == 1 || lc->affine == 2) ? w : NULL;
-    const float *pb = (lc->affine == 1 || lc->affine == 3) ? b : NULL;
-    int ldy = lc->inplace ? lc->ldx : lc->ldy;
-    size_t n = lc->inplace ? nx : ny;
-
-    fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
-    for (size_t i = 0; i < n; i++)
-        want[i] = lc->inplace ? x[i] : SENTINEL;
-    assert_int_equal(fk_layernorm(ref, lc->inplace ? want : x, lc->rows, lc->cols, lc->ldx, pw,
-                                  pb, lc->eps, want, ldy), FK_OK);
-    fk_ctx_free(ref);
-    /* padding between rows is left alone */
-    for (int i = 0; i < lc->rows; i++)
-        for (int j = lc->cols; j < ldy; j++)
-            assert_true(want[(size_t)i * ldy + j] == (lc->inplace ? x[(size_t)i * ldy + j] : SENTINEL));
-
-    struct cfg cfgs[10];
-    int nc = test_cfgs(cfgs);
-    for (int ci = 0; ci < nc; ci++) {
-        fk_ctx *ctx = test_ctx(cfgs[ci].isa, cfgs[ci].threads);
-        for (size_t i = 0; i < n; i++)
-            got[i] = lc->inplace ? x[i] : SENTINEL;
-        assert_int_equal(fk_layernorm(ctx, lc->inplace ? got : x, lc->rows, lc->cols, lc->ldx,
-                                      pw, pb, lc->eps, got, ldy), FK_OK);
-        check_budget("layernorm", cfgs[ci], got, want, n, 1e-6, 1e-5);
-        if (cfgs[ci].threads == 1)
-            memcpy(one, got, n * sizeof *got);
-        else if (cfgs[ci].isa != FK_ISA_REF)
-            check_same_bits("layernorm 2 threads vs 1", got, one, n);
-        fk_ctx_free(ctx);
-    }
-    free(x); free(want); free(got); free(one); free(w); free(b);
+    const struct ln_arg *a = arg;
+    return fk_layernorm(ctx, x, rows, cols, ldx, a->w, a->b, a->eps, y, ldy);
 }
 
 static void test_layernorm_vs_ref(void **state)
 {
     (void)state;
-    static const struct ln_case cases[] = {
-        { 1, 1, 1, 1, 0, 1, 1e-5f },
-        { 1, 7, 7, 7, 0, 1, 1e-5f },
-        { 13, 13, 13, 13, 0, 0, 1e-6f },
-        { 7, 1031, 1031, 1031, 0, 2, 1e-5f },
-        { 5, 64, 80, 72, 0, 3, 1e-5f },        /* strides > cols        */
-        { 3, 1024, 1030, 1030, 1, 1, 1e-6f },  /* in place, padded rows */
-        { 2, 9, 9, 9, 1, 0, 1e-5f },
-        { 301, 1024, 1024, 1024, 0, 1, 1e-6f },/* big: runs on 2 threads */
-        { 0, 16, 16, 16, 0, 1, 1e-5f },        /* no rows: nothing to do */
+    static const struct { struct row_case rc; int affine; float eps; } cases[] = {
+        /* affine: 0 none, 1 w and b, 2 w only, 3 b only */
+        { { 1, 1, 1, 1, 0 }, 1, 1e-5f },
+        { { 1, 7, 7, 7, 0 }, 1, 1e-5f },
+        { { 13, 13, 13, 13, 0 }, 0, 1e-6f },
+        { { 7, 1031, 1031, 1031, 0 }, 2, 1e-5f },
+        { { 5, 64, 80, 72, 0 }, 3, 1e-5f },          /* strides > cols         */
+        { { 3, 1024, 1030, 1030, 1 }, 1, 1e-6f },    /* in place, padded rows  */
+        { { 2, 9, 9, 9, 1 }, 0, 1e-5f },
+        { { 301, 1024, 1024, 1024, 0 }, 1, 1e-6f },  /* big: runs on 2 threads */
+        { { 0, 16, 16, 16, 0 }, 1, 1e-5f },          /* no rows: nothing to do */
     };
-    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
-        run_layernorm_case(&cases[i], 7 + i);
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        const struct row_case *rc = &cases[c].rc;
+        size_t nx = (size_t)(rc->rows > 0 ? rc->rows : 1) * rc->ldx;
+        float *x = xmalloc(nx * sizeof *x), *w = xmalloc(rc->cols * sizeof *w);
+        float *b = xmalloc(rc->cols * sizeof *b);
+        struct rng r;
+        rng_seed(&r, 7 + c);
+        for (size_t i = 0; i < nx; i++)
+            x[i] = 2.0f * rng_normal(&r) + 0.5f;
+        rng_fill_normal(&r, w, rc->cols, 1.0f);
+        rng_fill_normal(&r, b, rc->cols, 1.0f);
+        int affine = cases[c].affine;
+        struct ln_arg arg = { affine == 1 || affine == 2 ? w : NULL,
+                              affine == 1 || affine == 3 ? b : NULL, cases[c].eps };
+        free(check_rows_vs_ref("layernorm", layernorm_op, &arg, rc, x, 1e-6, 1e-5));
+        free(x); free(w); free(b);
+    }
 }
 
 static void run_layernorm(fk_ctx *ctx, const float *x, int rows, int cols, const float *w,
@@ -337,60 +359,42 @@ static void test_layernorm_hard(void **state)
 
 /* ---- softmax ------------------------------------------------------------ */
 
-struct sm_case { int rows, cols, ldx, ldy, inplace; float scale; };
+static int softmax_op(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, float *y,
+                      int ldy, const void *arg)
+{
+    (void)arg;
+    return fk_softmax(ctx, x, rows, cols, ldx, y, ldy);
+}
 
 static void test_softmax_vs_ref(void **state)
 {
     (void)state;
-    static const struct sm_case cases[] = {
-        { 1, 1, 1, 1, 0, 1.0f },
-        { 1, 7, 7, 7, 0, 3.0f },
-        { 13, 13, 16, 13, 0, 1.0f },
-        { 7, 1031, 1031, 1040, 0, 10.0f },
-        { 3, 100, 100, 100, 1, 30.0f },
-        { 64, 1374, 1374, 1374, 0, 4.0f },    /* an attention row length, 2 threads */
-        { 0, 5, 5, 5, 0, 1.0f },
+    static const struct { struct row_case rc; float scale; } cases[] = {
+        { { 1, 1, 1, 1, 0 }, 1.0f },
+        { { 1, 7, 7, 7, 0 }, 3.0f },
+        { { 13, 13, 16, 13, 0 }, 1.0f },
+        { { 7, 1031, 1031, 1040, 0 }, 10.0f },
+        { { 3, 100, 100, 100, 1 }, 30.0f },
+        { { 64, 1374, 1374, 1374, 0 }, 4.0f },   /* an attention row length, 2 threads */
+        { { 0, 5, 5, 5, 0 }, 1.0f },
     };
-    for (size_t ci = 0; ci < sizeof cases / sizeof cases[0]; ci++) {
-        const struct sm_case *sc = &cases[ci];
-        int rows = sc->rows > 0 ? sc->rows : 1;
-        int ldy = sc->inplace ? sc->ldx : sc->ldy;
-        size_t nx = (size_t)rows * sc->ldx, ny = (size_t)rows * ldy;
-        float *x = xmalloc(nx * sizeof *x), *want = xmalloc(ny * sizeof *want);
-        float *got = xmalloc(ny * sizeof *got), *one = xmalloc(ny * sizeof *one);
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        const struct row_case *rc = &cases[c].rc;
+        size_t nx = (size_t)(rc->rows > 0 ? rc->rows : 1) * rc->ldx;
+        float *x = xmalloc(nx * sizeof *x);
         struct rng r;
-        rng_seed(&r, 40 + ci);
-        rng_fill_normal(&r, x, nx, sc->scale);
-        fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
-        for (size_t i = 0; i < ny; i++)
-            want[i] = sc->inplace ? x[i] : SENTINEL;
-        assert_int_equal(fk_softmax(ref, sc->inplace ? want : x, sc->rows, sc->cols, sc->ldx,
-                                    want, ldy), FK_OK);
-        fk_ctx_free(ref);
-        for (int i = 0; i < sc->rows; i++) {
-            double s = 0;
-            for (int j = 0; j < sc->cols; j++)
-                s += want[(size_t)i * ldy + j];
-            assert_true(fabs(s - 1) < 1e-6);
-            for (int j = sc->cols; j < ldy && !sc->inplace; j++)
-                assert_true(want[(size_t)i * ldy + j] == SENTINEL);
+        rng_seed(&r, 40 + c);
+        rng_fill_normal(&r, x, nx, cases[c].scale);
+        float *want = check_rows_vs_ref("softmax", softmax_op, NULL, rc, x, 1e-37, 1e-5);
+        int ldy = rc->inplace ? rc->ldx : rc->ldy;
+        for (int i = 0; i < rc->rows; i++) {   /* the reference's rows sum to 1 */
+            double sum = 0;
+            for (int j = 0; j < rc->cols; j++)
+                sum += want[(size_t)i * ldy + j];
+            assert_true(fabs(sum - 1) < 1e-6);
         }
-        struct cfg cfgs[10];
-        int nc = test_cfgs(cfgs);
-        for (int k = 0; k < nc; k++) {
-            fk_ctx *ctx = test_ctx(cfgs[k].isa, cfgs[k].threads);
-            for (size_t i = 0; i < ny; i++)
-                got[i] = sc->inplace ? x[i] : SENTINEL;
-            assert_int_equal(fk_softmax(ctx, sc->inplace ? got : x, sc->rows, sc->cols, sc->ldx,
-                                        got, ldy), FK_OK);
-            check_budget("softmax", cfgs[k], got, want, ny, 1e-37, 1e-5);
-            if (cfgs[k].threads == 1)
-                memcpy(one, got, ny * sizeof *got);
-            else if (cfgs[k].isa != FK_ISA_REF)
-                check_same_bits("softmax 2 threads vs 1", got, one, ny);
-            fk_ctx_free(ctx);
-        }
-        free(x); free(want); free(got); free(one);
+        free(want);
+        free(x);
     }
 }
 
