@@ -16,8 +16,19 @@ void fk__attn_prep_ref(const struct fk_attention_desc *a, int which, const float
 int  fk__attention_ref (fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,
                         int nq, const float *k, int ldk, const float *v, int ldv, int nk,
                         float *out, int ldo);
+#if defined(__x86_64__)
 int  fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,
                         int nq, const float *k, int ldk, const float *v, int ldv, int nk,
                         float *out, int ldo);
+#else /* never called: fk__isa_avx2() is 0 off x86-64 */
+static inline int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q,
+                                     int ldq, int nq, const float *k, int ldk, const float *v,
+                                     int ldv, int nk, float *out, int ldo)
+{
+    (void)ctx; (void)a; (void)q; (void)ldq; (void)nq; (void)k; (void)ldk; (void)v; (void)ldv;
+    (void)nk; (void)out; (void)ldo;
+    return FK_ENOTSUP;
+}
+#endif
 
 #endif

@@ -148,7 +148,7 @@ int fk_attention(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q,
     if (ranges_overlap(out, nq, ldo, C, q, nq, ldq, C) || ranges_overlap(out, nq, ldo, C, k, nk, ldk, C) ||
         ranges_overlap(out, nq, ldo, C, v, nk, ldv, C))
         return FK_FAIL(ctx, FK_EINVAL, "output overlaps q, k or v");
-    if (ctx->isa == FK_ISA_AVX2 || ctx->isa == FK_ISA_AVX2_VNNI)
+    if (fk__isa_avx2(ctx->isa))
         return fk__attention_avx2(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
     return fk__attention_ref(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
 }

@@ -73,7 +73,7 @@ int fk_f32_to_f16(fk_ctx *ctx, const float *src, fk_f16 *dst, size_t n)
         return FK_OK;
     if (!src || !dst)
         return FK_FAIL(ctx, FK_EINVAL, "NULL buffer for %zu values", n);
-    if (ctx->isa == FK_ISA_AVX2 || ctx->isa == FK_ISA_AVX2_VNNI) {
+    if (fk__isa_avx2(ctx->isa)) {
         fk__f32_to_f16_avx2(src, dst, n);
         return FK_OK;
     }
@@ -89,7 +89,7 @@ int fk_f16_to_f32(fk_ctx *ctx, const fk_f16 *src, float *dst, size_t n)
         return FK_OK;
     if (!src || !dst)
         return FK_FAIL(ctx, FK_EINVAL, "NULL buffer for %zu values", n);
-    if (ctx->isa == FK_ISA_AVX2 || ctx->isa == FK_ISA_AVX2_VNNI) {
+    if (fk__isa_avx2(ctx->isa)) {
         fk__f16_to_f32_avx2(src, dst, n);
         return FK_OK;
     }

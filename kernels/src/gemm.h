@@ -39,8 +39,17 @@ struct fk__cdst {
  * the image for conv). */
 void fk__asrc_row(const struct fk__asrc *a, int m, int k0, int kn, float *dst);
 
+#if defined(__x86_64__)
 int  fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
                    int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
+#else /* never called: fk__isa_avx2() is 0 off x86-64 */
+static inline int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
+                                int m, const struct fk__cdst *c, const struct fk_epilogue *ep)
+{
+    (void)ctx; (void)L; (void)a; (void)m; (void)c; (void)ep;
+    return FK_ENOTSUP;
+}
+#endif
 /* Validates the epilogue and the packing ISA, then runs the ISA's driver. */
 int  fk__gemm_run (fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
                    int m, const struct fk__cdst *c, const struct fk_epilogue *ep);

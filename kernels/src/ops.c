@@ -13,11 +13,6 @@
 #include "fk_internal.h"
 #include "x86/x86.h"
 
-static int use_avx2(const fk_ctx *ctx)
-{
-    return FK_HAVE_X86 && (ctx->isa == FK_ISA_AVX2 || ctx->isa == FK_ISA_AVX2_VNNI);
-}
-
 /* ---- scalar references ------------------------------------------------ */
 
 /* x Phi(x) = 0.5 x (1 + erf(x / sqrt 2)), written as 0.5 x erfc(-x / sqrt 2)
@@ -179,7 +174,7 @@ static int elementwise(fk_ctx *ctx, const char *func, enum elt_op op, const floa
     int st = check_array(ctx, func, x, n, y);
     if (st != FK_OK || n == 0)
         return st;
-    struct elt_job j = { op, use_avx2(ctx), x, y, n, 16384 };
+    struct elt_job j = { op, fk__isa_avx2(ctx->isa), x, y, n, 16384 };
     while ((n + j.chunk - 1) / j.chunk > INT32_MAX)
         j.chunk *= 2;
     fk_parallel_for(ctx, (int)((n + j.chunk - 1) / j.chunk), elt_cost[op] * (double)n, elt_task, &j);
@@ -264,7 +259,7 @@ static void row_task(void *arg, int task, int thread)
  * in scalar operations, for the threading threshold. */
 static int run_rows(fk_ctx *ctx, struct row_job *j, double cost)
 {
-    j->avx2 = use_avx2(ctx);
+    j->avx2 = fk__isa_avx2(ctx->isa);
     j->per = rows_per_task(ctx, j->rows);
     fk_parallel_for(ctx, (j->rows + j->per - 1) / j->per, cost * j->rows * (double)j->cols,
                     row_task, j);

@@ -13,11 +13,6 @@
 #include "fk_internal.h"
 #include "x86/x86.h"
 
-static int use_avx2(const fk_ctx *ctx)
-{
-    return FK_HAVE_X86 && (ctx->isa == FK_ISA_AVX2 || ctx->isa == FK_ISA_AVX2_VNNI);
-}
-
 static int check_resize(fk_ctx *ctx, const char *func, const float *x, int h, int w, int c,
                         const float *y, int ho, int wo)
 {
@@ -132,7 +127,7 @@ int fk_resize_bilinear(fk_ctx *ctx, const float *x, int h, int w, int c, float *
     float *yw = (float *)(s + tab), *xw = yw + 2 * (size_t)ho;
     bilinear_axis(h, ho, align_corners, yi, yw);
     bilinear_axis(w, wo, align_corners, xi, xw);
-    struct bilinear_job j = { use_avx2(ctx), rows_per_task(ctx, ho), ho, w, c, wo, x, y,
+    struct bilinear_job j = { fk__isa_avx2(ctx->isa), rows_per_task(ctx, ho), ho, w, c, wo, x, y,
                               yi, xi, yw, xw };
     fk_parallel_for(ctx, (ho + j.per - 1) / j.per, 8.0 * ho * (double)wo * c, bilinear_task, &j);
     return FK_OK;
@@ -278,7 +273,7 @@ int fk_resize_bicubic_aa(fk_ctx *ctx, const float *x, int h, int w, int c, float
     if (st != FK_OK)
         return st;
     char *s = fk__scratch_shared(ctx);
-    int avx2 = use_avx2(ctx);
+    int avx2 = fk__isa_avx2(ctx->isa);
 
     const float *mid = x;                 /* [h][wo][c] after the horizontal pass */
     if (do_h) {
