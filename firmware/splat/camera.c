@@ -14,6 +14,44 @@ void splat_camera_to_cam(const struct splat_camera *cam, const float p[3], float
         q[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
 }
 
+int splat_camera_project(const struct splat_camera *cam, const float pos[3], const float scale[3],
+                         const float rot[4], float mean[2], float cov[3])
+{
+    float t[3];
+    splat_camera_to_cam(cam, pos, t);
+    if (!(t[2] > SPLAT_NEAR) || !isfinite(t[0]) || !isfinite(t[1]) || !isfinite(t[2]))
+        return 0;
+    float R[9], M[9];
+    splat__quat_to_mat(rot, R);
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++)
+            M[3 * a + b] = R[3 * a + b] * scale[b];
+    float tanx = 0.5f * (float)cam->width / cam->fx, tany = 0.5f * (float)cam->height / cam->fy;
+    float lxp = ((float)cam->width - cam->cx) / cam->fx + 0.3f * tanx, lxn = cam->cx / cam->fx + 0.3f * tanx;
+    float lyp = ((float)cam->height - cam->cy) / cam->fy + 0.3f * tany, lyn = cam->cy / cam->fy + 0.3f * tany;
+    float x = t[0] / t[2], y = t[1] / t[2];
+    x = x < -lxn ? -lxn : (x > lxp ? lxp : x);
+    y = y < -lyn ? -lyn : (y > lyp ? lyp : y);
+    /* J W M: rows of the 2x3 Jacobian times the view rotation, times M */
+    const float *V = cam->w2c;
+    float J0[3], J1[3];
+    for (int k = 0; k < 3; k++) {
+        J0[k] = cam->fx / t[2] * V[k] - cam->fx * x / t[2] * V[8 + k];
+        J1[k] = cam->fy / t[2] * V[4 + k] - cam->fy * y / t[2] * V[8 + k];
+    }
+    float A0[3], A1[3];
+    for (int k = 0; k < 3; k++) {
+        A0[k] = J0[0] * M[k] + J0[1] * M[3 + k] + J0[2] * M[6 + k];
+        A1[k] = J1[0] * M[k] + J1[1] * M[3 + k] + J1[2] * M[6 + k];
+    }
+    cov[0] = A0[0] * A0[0] + A0[1] * A0[1] + A0[2] * A0[2];
+    cov[1] = A0[0] * A1[0] + A0[1] * A1[1] + A0[2] * A1[2];
+    cov[2] = A1[0] * A1[0] + A1[1] * A1[1] + A1[2] * A1[2];
+    mean[0] = cam->fx * t[0] / t[2] + cam->cx;
+    mean[1] = cam->fy * t[1] / t[2] + cam->cy;
+    return isfinite(cov[0]) && isfinite(cov[1]) && isfinite(cov[2]) && isfinite(mean[0]) && isfinite(mean[1]);
+}
+
 void splat_camera_center(const struct splat_camera *cam, float c[3])
 {
     const float *m = cam->w2c; /* c = -R^T t */

@@ -129,6 +129,12 @@ void splat_camera_look_at(struct splat_camera *cam, const float eye[3],
 void splat_camera_center (const struct splat_camera *cam, float c[3]);
 /* World point to camera coordinates. */
 void splat_camera_to_cam (const struct splat_camera *cam, const float p[3], float q[3]);
+/* Projects one Gaussian as the rasterizer does (EWA, clamped Jacobian) but
+ * without the 0.3 px² dilation: mean[2] in image coordinates (u = fx x/z + cx)
+ * and cov[3] = (xx, xy, yy) in px². Returns 0 when culled (z <= 0.2 or not
+ * finite), 1 otherwise. */
+int  splat_camera_project(const struct splat_camera *cam, const float pos[3], const float scale[3],
+                          const float rot[4], float mean[2], float cov[3]);
 
 /* ------------------------------------------------------------------------ */
 /* Rasterizer: the reference 3DGS forward pass (gaussians.md §1, R):

@@ -1,0 +1,442 @@
+/* interp.c - constant-velocity interpolation with dual consistency and
+ * pluggable fusion, and the scene budget. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "interp.h"
+
+struct interp {
+    fk_ctx          *ctx;
+    struct splat_rig rig;
+    int              W, H;
+    splat_renderer  *r;
+    float           *depth;   /* [H * W] scratch */
+    long            *pix;     /* [count] scratch */
+    size_t           cap_depth, cap_pix;
+};
+
+static int fail(struct splat_error *err, int code, const char *msg)
+{
+    if (err)
+        snprintf(err->msg, sizeof err->msg, "%s", msg);
+    return code;
+}
+
+struct interp_config interp_config_default(void)
+{
+    struct interp_config c = { .mode = INTERP_FUSED, .tau = 0.05f, .fuse = interp_fuse_average, .fuse_user = NULL };
+    return c;
+}
+
+int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct splat_error *err)
+{
+    if (!out || !rig || !ctx)
+        return fail(err, SPLAT_EINVAL, "interp_new: NULL argument");
+    *out = NULL;
+    if (rig->count < 1 || rig->count > SPLAT_RIG_MAX)
+        return fail(err, SPLAT_EINVAL, "interp_new: the rig has no cameras");
+    for (int i = 0; i < rig->count; i++) {
+        int rc = splat_camera_validate(&rig->cams[i], err);
+        if (rc < 0)
+            return rc;
+        if (rig->cams[i].width != rig->cams[0].width || rig->cams[i].height != rig->cams[0].height)
+            return fail(err, SPLAT_EINVAL, "interp_new: all cameras of the rig must have the same size");
+    }
+    interp *ip = calloc(1, sizeof *ip);
+    if (!ip)
+        return fail(err, SPLAT_ENOMEM, "interp_new: out of memory");
+    ip->ctx = ctx;
+    ip->rig = *rig;
+    ip->W = rig->cams[0].width;
+    ip->H = rig->cams[0].height;
+    int rc = splat_renderer_new(ctx, ip->W, ip->H, &ip->r, err);
+    if (rc < 0) {
+        free(ip);
+        return rc;
+    }
+    *out = ip;
+    return SPLAT_OK;
+}
+
+void interp_free(interp *ip)
+{
+    if (!ip)
+        return;
+    splat_renderer_free(ip->r);
+    free(ip->depth);
+    free(ip->pix);
+    free(ip);
+}
+
+void interp_key_free(struct interp_key *k)
+{
+    if (!k)
+        return;
+    free(k->cell_start);
+    free(k->cell_items);
+    free(k->origin);
+    memset(k, 0, sizeof *k);
+}
+
+/* Pixel index of a world point in camera cam (-1 outside the image or behind),
+ * and its camera depth. */
+static long pixel_of(const struct splat_camera *cam, const float p[3], float *z)
+{
+    float q[3];
+    splat_camera_to_cam(cam, p, q);
+    *z = q[2];
+    if (!(q[2] > SPLAT_NEAR))
+        return -1;
+    float u = cam->fx * q[0] / q[2] + cam->cx, v = cam->fy * q[1] / q[2] + cam->cy;
+    if (!(u >= 0.0f && v >= 0.0f && u < (float)cam->width && v < (float)cam->height))
+        return -1;
+    return (long)v * cam->width + (long)u;
+}
+
+static int grow_i32(int32_t **p, size_t *cap, size_t need)
+{
+    if (need <= *cap)
+        return 0;
+    int32_t *q = realloc(*p, need * sizeof *q);
+    if (!q)
+        return -1;
+    *p = q;
+    *cap = need;
+    return 0;
+}
+
+int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct splat_error *err)
+{
+    if (!ip || !f || !k)
+        return fail(err, SPLAT_EINVAL, "interp_key_build: NULL argument");
+    const int V = ip->rig.count;
+    const size_t np = (size_t)ip->W * (size_t)ip->H, n = f->count;
+    if (grow_i32(&k->cell_start, &k->cap_cells, (size_t)V * (np + 1)) < 0 ||
+        grow_i32(&k->cell_items, &k->cap_items, (size_t)V * n + 1) < 0 ||
+        grow_i32(&k->origin, &k->cap_origin, n + 1) < 0)
+        return fail(err, SPLAT_ENOMEM, "interp_key_build: out of memory for the pixel lists");
+    if (np > ip->cap_depth) {
+        float *d = realloc(ip->depth, np * sizeof *d);
+        if (!d)
+            return fail(err, SPLAT_ENOMEM, "interp_key_build: out of memory");
+        ip->depth = d;
+        ip->cap_depth = np;
+    }
+    if (n + 1 > ip->cap_pix) {
+        long *px = realloc(ip->pix, (n + 1) * sizeof *px);
+        if (!px)
+            return fail(err, SPLAT_ENOMEM, "interp_key_build: out of memory");
+        ip->pix = px;
+        ip->cap_pix = n + 1;
+    }
+    k->f = f;
+    for (size_t g = 0; g < n; g++)
+        k->origin[g] = -1;
+    for (int v = 0; v < V; v++) {
+        const struct splat_camera *cam = &ip->rig.cams[v];
+        struct splat_render_out o = { .depth = ip->depth };
+        if (splat_render(ip->r, cam, f, NULL, &o) < 0)
+            return fail(err, SPLAT_EINVAL, splat_renderer_error(ip->r));
+        int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
+        memset(start, 0, (np + 1) * sizeof *start);
+        for (size_t g = 0; g < n; g++) {
+            float z;
+            long p = pixel_of(cam, f->pos + 3 * g, &z);
+            if (p >= 0 && !(fabsf(z - ip->depth[p]) <= INTERP_VISIBLE_TOL))
+                p = -1; /* hidden behind the surface this pixel shows */
+            ip->pix[g] = p;
+            if (p >= 0)
+                start[p + 1]++;
+        }
+        for (size_t p = 0; p < np; p++)
+            start[p + 1] += start[p];
+        for (size_t g = 0; g < n; g++) {
+            long p = ip->pix[g];
+            if (p < 0)
+                continue;
+            items[start[p]++] = (int32_t)g;
+            if (k->origin[g] < 0)
+                k->origin[g] = (int32_t)((size_t)v * np + (size_t)p);
+        }
+        for (size_t p = np; p > 0; p--) /* the scatter advanced every start by its count */
+            start[p] = start[p - 1];
+        start[0] = 0;
+    }
+    return SPLAT_OK;
+}
+
+/* ---- attributes and fusion ----------------------------------------------------- */
+
+static float logitf_(float o)
+{
+    o = o < 1e-6f ? 1e-6f : (o > 1.0f - 1e-6f ? 1.0f - 1e-6f : o);
+    return logf(o / (1.0f - o));
+}
+
+static void to_attrs(const struct splat_frame *f, size_t i, const float *motion, float k, float a[INTERP_ATTRS])
+{
+    for (int c = 0; c < 3; c++) {
+        a[c] = f->pos[3 * i + c] + (motion ? k * motion[3 * i + c] : 0.0f);
+        a[3 + c] = f->rgb[3 * i + c];
+        float s = f->scale[3 * i + c];
+        a[7 + c] = logf(s > 1e-12f ? s : 1e-12f);
+    }
+    a[6] = logitf_(f->opacity[i]);
+    for (int c = 0; c < 4; c++)
+        a[10 + c] = f->rot[4 * i + c];
+}
+
+static void from_attrs(const float a[INTERP_ATTRS], struct splat_frame *f, size_t i)
+{
+    for (int c = 0; c < 3; c++) {
+        f->pos[3 * i + c] = a[c];
+        f->rgb[3 * i + c] = a[3 + c];
+        f->scale[3 * i + c] = expf(a[7 + c]);
+    }
+    f->opacity[i] = 1.0f / (1.0f + expf(-a[6]));
+    float n = sqrtf(a[10] * a[10] + a[11] * a[11] + a[12] * a[12] + a[13] * a[13]);
+    for (int c = 0; c < 4; c++)
+        f->rot[4 * i + c] = n > 1e-12f ? a[10 + c] / n : (c == 0 ? 1.0f : 0.0f);
+}
+
+void interp_fuse_average(void *user, const float a_t[INTERP_ATTRS], const float a_tm1[INTERP_ATTRS], float a,
+                         float D, float out[INTERP_ATTRS])
+{
+    (void)user; (void)a; (void)D;
+    for (int c = 0; c < 10; c++)
+        out[c] = 0.5f * (a_t[c] + a_tm1[c]);
+    float dot = 0.0f;
+    for (int c = 10; c < 14; c++)
+        dot += a_t[c] * a_tm1[c];
+    float sg = dot < 0.0f ? -1.0f : 1.0f; /* q and -q are the same rotation */
+    for (int c = 10; c < 14; c++)
+        out[c] = a_t[c] + sg * a_tm1[c];
+}
+
+static void copy_deformed(const struct splat_frame *f, size_t i, const float *motion, float k,
+                          struct splat_frame *out, size_t o)
+{
+    for (int c = 0; c < 3; c++) {
+        out->pos[3 * o + c] = f->pos[3 * i + c] + (motion ? k * motion[3 * i + c] : 0.0f);
+        out->scale[3 * o + c] = f->scale[3 * i + c];
+        out->rgb[3 * o + c] = f->rgb[3 * i + c];
+    }
+    for (int c = 0; c < 4; c++)
+        out->rot[4 * o + c] = f->rot[4 * i + c];
+    out->opacity[o] = f->opacity[i];
+}
+
+/* Partner of Gaussian g of `self` in `other`, following `motion` (the full
+ * key-to-key motion) through its origin view: among the Gaussians listed at
+ * the pixel it lands on, the nearest to the moved point. D in metres. */
+static int32_t partner(const interp *ip, const struct interp_key *self, const struct interp_key *other,
+                       const float *motion, size_t g, float *D)
+{
+    int32_t o = self->origin[g];
+    if (o < 0)
+        return -1;
+    const size_t np = (size_t)ip->W * (size_t)ip->H, n = other->f->count;
+    int v = (int)((size_t)o / np);
+    const float *mu = self->f->pos + 3 * g;
+    float X[3] = { mu[0] + motion[3 * g], mu[1] + motion[3 * g + 1], mu[2] + motion[3 * g + 2] }, z;
+    long p = pixel_of(&ip->rig.cams[v], X, &z);
+    if (p < 0)
+        return -1;
+    const int32_t *start = other->cell_start + (size_t)v * (np + 1), *items = other->cell_items + (size_t)v * n;
+    int32_t best = -1;
+    float bd = 0.0f;
+    for (int32_t k = start[p]; k < start[p + 1]; k++) {
+        const float *m = other->f->pos + 3 * (size_t)items[k];
+        float dx = X[0] - m[0], dy = X[1] - m[1], dz = X[2] - m[2], d2 = dx * dx + dy * dy + dz * dz;
+        if (best < 0 || d2 < bd) {
+            best = items[k];
+            bd = d2;
+        }
+    }
+    *D = sqrtf(bd);
+    return best;
+}
+
+int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key *next, float a,
+              const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
+              struct splat_error *err)
+{
+    if (!ip || !prev || !next || !prev->f || !next->f || !cfg || !out)
+        return fail(err, SPLAT_EINVAL, "interp_at: NULL argument (keys must be built)");
+    if (!(a >= 0.0f && a <= 1.0f))
+        return fail(err, SPLAT_EINVAL, "interp_at: a must be in [0, 1]");
+    const struct splat_frame *F0 = prev->f, *F1 = next->f;
+    struct interp_stats st = { 0 };
+    if (cfg->mode == INTERP_NEAREST) {
+        int rc = splat_frame_copy(out, a < 0.5f ? F0 : F1, err);
+        if (rc < 0)
+            return rc;
+        if (stats)
+            *stats = st;
+        return SPLAT_OK;
+    }
+    if (!F0->motion_fwd || !F1->motion_bwd)
+        return fail(err, SPLAT_EINVAL, "interp_at: key t-1 needs forward motion and key t backward motion");
+    if (cfg->mode == INTERP_FUSED && (!cfg->fuse || !(cfg->tau >= 0.0f)))
+        return fail(err, SPLAT_EINVAL, "interp_at: fusion needs a fuse function and tau >= 0");
+    int rc = splat_frame_reserve(out, F0->count + F1->count, 0, err);
+    if (rc < 0)
+        return rc;
+    const float kb = 1.0f - a, kf = a;
+    size_t o = 0;
+    if (cfg->mode == INTERP_KEEP_BOTH) {
+        for (size_t g = 0; g < F1->count; g++)
+            copy_deformed(F1, g, F1->motion_bwd, kb, out, o++);
+        for (size_t h = 0; h < F0->count; h++)
+            copy_deformed(F0, h, F0->motion_fwd, kf, out, o++);
+        st.kept_t = F1->count;
+        st.kept_tm1 = F0->count;
+    } else {
+        float at[INTERP_ATTRS], am[INTERP_ATTRS], af[INTERP_ATTRS];
+        for (size_t g = 0; g < F1->count; g++) {
+            float D = 0.0f;
+            int32_t h = partner(ip, next, prev, F1->motion_bwd, g, &D);
+            if (next->origin[g] < 0)
+                st.no_origin_t++;
+            if (h < 0 || D > cfg->tau) {
+                copy_deformed(F1, g, F1->motion_bwd, kb, out, o++);
+                st.kept_t++;
+            } else {
+                to_attrs(F1, g, F1->motion_bwd, kb, at);
+                to_attrs(F0, (size_t)h, F0->motion_fwd, kf, am);
+                cfg->fuse(cfg->fuse_user, at, am, a, D, af);
+                from_attrs(af, out, o++);
+                st.fused++;
+            }
+        }
+        for (size_t h = 0; h < F0->count; h++) {
+            float D = 0.0f;
+            int32_t g = partner(ip, prev, next, F0->motion_fwd, h, &D);
+            if (prev->origin[h] < 0)
+                st.no_origin_tm1++;
+            if (g < 0 || D > cfg->tau) {
+                copy_deformed(F0, h, F0->motion_fwd, kf, out, o++);
+                st.kept_tm1++;
+            } else {
+                st.dropped_tm1++;
+            }
+        }
+    }
+    out->count = o;
+    if (stats)
+        *stats = st;
+    return SPLAT_OK;
+}
+
+/* ---- budget ---------------------------------------------------------------------- */
+
+struct budget_config budget_config_default(void)
+{
+    struct budget_config c = { .min_opacity = 0.02f, .min_footprint = 1.0f, .voxel = 0.004f };
+    return c;
+}
+
+struct vox { uint64_t key; uint32_t i; };
+
+static int cmp_vox(const void *pa, const void *pb)
+{
+    const struct vox *x = pa, *y = pb;
+    if (x->key != y->key)
+        return x->key < y->key ? -1 : 1;
+    return x->i < y->i ? -1 : (x->i > y->i);
+}
+
+int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
+                 struct splat_frame *out, struct budget_stats *stats, struct splat_error *err)
+{
+    if (!in || !rig || !cfg || !out || in == out)
+        return fail(err, SPLAT_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");
+    if (!(cfg->voxel >= 0.0f) || !(cfg->min_footprint >= 0.0f) || !(cfg->min_opacity >= 0.0f))
+        return fail(err, SPLAT_EINVAL, "budget_prune: thresholds must be >= 0");
+    struct budget_stats st = { .total = in->count };
+    struct vox *vx = malloc((in->count + 1) * sizeof *vx);
+    if (!vx)
+        return fail(err, SPLAT_ENOMEM, "budget_prune: out of memory");
+    size_t nv = 0;
+    for (size_t i = 0; i < in->count; i++) {
+        if (in->opacity[i] < cfg->min_opacity) {
+            st.pruned_opacity++;
+            continue;
+        }
+        int needed = 0;
+        for (int c = 0; c < rig->count && !needed; c++) {
+            float m[2], cv[3];
+            if (!splat_camera_project(&rig->cams[c], in->pos + 3 * i, in->scale + 3 * i, in->rot + 4 * i, m, cv))
+                continue;
+            float mid = 0.5f * (cv[0] + cv[2]), det = cv[0] * cv[2] - cv[1] * cv[1];
+            float lam = mid + sqrtf(fmaxf(0.0f, mid * mid - det));
+            float rad = 3.0f * sqrtf(lam) + 1.0f;
+            if (m[0] < -rad || m[1] < -rad || m[0] > (float)rig->cams[c].width + rad ||
+                m[1] > (float)rig->cams[c].height + rad)
+                continue; /* outside this view */
+            needed = 2.0f * sqrtf(lam) >= cfg->min_footprint;
+        }
+        if (!needed) {
+            st.pruned_footprint++;
+            continue;
+        }
+        uint64_t key = (uint64_t)i; /* unique: no merge */
+        if (cfg->voxel > 0.0f) {
+            int64_t q[3];
+            for (int c = 0; c < 3; c++)
+                q[c] = (int64_t)floorf(in->pos[3 * i + c] / cfg->voxel) & 0x1FFFFF;
+            key = ((uint64_t)q[0] << 42) | ((uint64_t)q[1] << 21) | (uint64_t)q[2];
+        }
+        vx[nv].key = key;
+        vx[nv].i = (uint32_t)i;
+        nv++;
+    }
+    qsort(vx, nv, sizeof *vx, cmp_vox);
+    int rc = splat_frame_resize(out, nv, 0, err);
+    if (rc < 0) {
+        free(vx);
+        return rc;
+    }
+    size_t o = 0;
+    for (size_t s = 0; s < nv;) {
+        size_t e = s + 1;
+        while (e < nv && vx[e].key == vx[s].key)
+            e++;
+        double w = 0, p[3] = { 0, 0, 0 }, c3[3] = { 0, 0, 0 }, sc[3] = { 0, 0, 0 };
+        float omax = -1.0f;
+        uint32_t best = vx[s].i;
+        for (size_t k = s; k < e; k++) {
+            uint32_t i = vx[k].i;
+            double wi = in->opacity[i] + 1e-6;
+            w += wi;
+            for (int c = 0; c < 3; c++) {
+                p[c] += wi * in->pos[3 * i + c];
+                c3[c] += wi * in->rgb[3 * i + c];
+                sc[c] += in->scale[3 * i + c];
+            }
+            if (in->opacity[i] > omax) {
+                omax = in->opacity[i];
+                best = i;
+            }
+        }
+        double n = (double)(e - s);
+        for (int c = 0; c < 3; c++) {
+            out->pos[3 * o + c] = (float)(p[c] / w);
+            out->rgb[3 * o + c] = (float)(c3[c] / w);
+            out->scale[3 * o + c] = (float)(sc[c] / n);
+        }
+        memcpy(out->rot + 4 * o, in->rot + 4 * best, 4 * sizeof(float));
+        out->opacity[o] = omax;
+        st.merged += e - s - 1;
+        o++;
+        s = e;
+    }
+    out->count = o;
+    st.kept = o;
+    free(vx);
+    if (stats)
+        *stats = st;
+    return SPLAT_OK;
+}

@@ -1,0 +1,127 @@
+/* interp.h - 4D interpolation between two key frames (the non-learned part of
+ * Forge4D, forge4d-arch.md §6) and the scene budget (pruning). Library
+ * f4d_interp, depends on f4d_splat.
+ *
+ *     interp *ip;
+ *     interp_new(ctx, &rig, &ip, &err);
+ *     struct interp_key k0 = {0}, k1 = {0};
+ *     interp_key_build(ip, &frame_tm1, &k0);   // t-1, needs motion_fwd (M2[t-1])
+ *     interp_key_build(ip, &frame_t,   &k1);   // t,   needs motion_bwd (M1[t])
+ *     struct interp_config cfg = interp_config_default();
+ *     interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &stats);   // t' = t - 1 + 0.5
+ *
+ * Time a is in key intervals: t' = t - 1 + a, a in [0, 1]. Deformation with
+ * constant velocity: mu_b = mu[t] + (1 - a) M1[t], mu_f = mu[t-1] + a M2[t-1];
+ * other attributes are kept.
+ *
+ * Dual consistency: a Gaussian of t seen in view i at pixel u (its "origin")
+ * is moved by M1[t] to X' and projected into view i; the Gaussian of t-1 at
+ * that pixel is its partner and D = |X' - mu[t-1][partner]| (metres). The
+ * symmetric test runs for t-1 with M2. D > tau (0.05 m) or no partner: the
+ * Gaussian is occluded in the other frame and kept (deformed). Gaussians of t
+ * with D <= tau are fused with their partner by the fusion function;
+ * Gaussians of t-1 with D <= tau are dropped.
+ *
+ * Pixel lookup: Forge4D's Gaussians are pixel-aligned, one per input pixel.
+ * For any frame, interp_key_build renders the depth of every view and lists,
+ * per pixel, the Gaussians whose centre falls in that pixel and is visible
+ * there (centre depth within INTERP_VISIBLE_TOL of the rendered depth). A
+ * Gaussian's origin is the first view where it is listed. The lookup reads
+ * the list of the pixel the moved Gaussian lands on: a pixel-aligned frame has
+ * exactly one Gaussian there, as in the paper; a denser frame (the synthetic
+ * ground truth) may have several and the one nearest to X' is taken.
+ * Gaussians that are visible nowhere have no origin and no partner: kept.
+ */
+#define INTERP_VISIBLE_TOL 0.10f /* metres */
+#ifndef F4D_INTERP_H
+#define F4D_INTERP_H
+
+#include "splat.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Attribute vector of one Gaussian as the fusion function sees it:
+ * mu (3), colour (3), logit(opacity) (1), log(scale) (3), quaternion (4). */
+#define INTERP_ATTRS 14
+
+/* Merges a matched pair (a_t from key t, a_tm1 from key t-1, both already
+ * deformed to t') into out. a: the time fraction, D: the consistency distance. */
+typedef void (*interp_fuse_fn)(void *user, const float a_t[INTERP_ATTRS], const float a_tm1[INTERP_ATTRS],
+                               float a, float D, float out[INTERP_ATTRS]);
+
+/* Averaging: the mean of both vectors, the quaternion as the normalised,
+ * sign-aligned sum. What an untrained fusion MLP computes. */
+void interp_fuse_average(void *user, const float a_t[INTERP_ATTRS], const float a_tm1[INTERP_ATTRS],
+                         float a, float D, float out[INTERP_ATTRS]);
+
+enum interp_mode {
+    INTERP_FUSED     = 0, /* Forge4D: occluded kept, matched pairs fused     */
+    INTERP_KEEP_BOTH = 1, /* no fusion: every Gaussian of both keys, deformed */
+    INTERP_NEAREST   = 2, /* baseline: the nearest key frame, not deformed    */
+};
+
+struct interp_config {
+    enum interp_mode mode;
+    float            tau;       /* metres, 0.05 */
+    interp_fuse_fn   fuse;      /* interp_fuse_average by default */
+    void            *fuse_user;
+};
+struct interp_config interp_config_default(void);
+
+struct interp_stats {
+    size_t fused, kept_t, kept_tm1, dropped_tm1, no_origin_t, no_origin_tm1;
+};
+
+typedef struct interp interp;
+
+/* A workspace for the rig's cameras; ctx (borrowed) gives the threads. */
+int  interp_new (fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct splat_error *err);
+void interp_free(interp *ip);
+
+/* One key frame with its pixel lookup: per-view maps of the pixel's Gaussian
+ * and each Gaussian's origin. Zero-initialise, build, reuse, free. The frame
+ * is borrowed and must outlive the key. */
+struct interp_key {
+    const struct splat_frame *f;
+    int32_t *cell_start;   /* [views * (H * W + 1)] start of each pixel's list */
+    int32_t *cell_items;   /* [views * count] Gaussian indices, by pixel        */
+    int32_t *origin;       /* [count] view * H * W + pixel, -1 none            */
+    size_t   cap_cells, cap_items, cap_origin;
+};
+int  interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct splat_error *err);
+void interp_key_free (struct interp_key *k);
+
+/* The Gaussians at t' = t - 1 + a into out (resized, no motion). prev needs
+ * motion_fwd, next needs motion_bwd (except for INTERP_NEAREST). stats may be
+ * NULL. */
+int  interp_at(interp *ip, const struct interp_key *prev, const struct interp_key *next, float a,
+               const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
+               struct splat_error *err);
+
+/* ---- scene budget ---------------------------------------------------------- */
+
+struct budget_config {
+    float min_opacity;     /* prune below (0.02)                                   */
+    float min_footprint;   /* prune when the 2-sigma diameter is below this many
+                              pixels in every camera (1.0)                         */
+    float voxel;           /* metres; Gaussians sharing a voxel are merged (0.004);
+                              0 disables the merge                                 */
+};
+struct budget_config budget_config_default(void);
+
+struct budget_stats {
+    size_t total, pruned_opacity, pruned_footprint, merged, kept;
+};
+
+/* Prunes and merges `in` into `out` (in and out must differ). Merging keeps
+ * per voxel the opacity-weighted mean position and colour, the largest
+ * opacity, the mean scale and the most opaque member's rotation. */
+int  budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
+                  struct splat_frame *out, struct budget_stats *stats, struct splat_error *err);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* F4D_INTERP_H */

@@ -1,0 +1,252 @@
+/* test_interp.c - 4D interpolation and the scene budget: fusion arithmetic,
+ * exact constant-velocity motion, dual consistency on a hand-made pair, GT
+ * interpolation beating the nearest key frame on every preset, budget
+ * pruning, bad input. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "interp.h"
+#include "scene.h"
+
+static fk_ctx *make_ctx(void)
+{
+    fk_ctx *ctx = NULL;
+    struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    return ctx;
+}
+
+static void test_fuse_average(void **state)
+{
+    (void)state;
+    float a[INTERP_ATTRS] = { 1, 2, 3, 0.2f, 0.4f, 0.6f, 1.0f, -3, -4, -5, 1, 0, 0, 0 };
+    float b[INTERP_ATTRS] = { 3, 2, 1, 0.4f, 0.4f, 0.2f, 3.0f, -5, -4, -3, -1, 0, 0, 0 }; /* -q: same rotation */
+    float o[INTERP_ATTRS];
+    interp_fuse_average(NULL, a, b, 0.5f, 0.01f, o);
+    for (int c = 0; c < 10; c++)
+        assert_float_equal(o[c], 0.5f * (a[c] + b[c]), 1e-6);
+    /* sign-aligned sum: 2 * identity, not zero */
+    assert_float_equal(o[10], 2.0f, 1e-6);
+    assert_float_equal(o[11] + o[12] + o[13], 0.0f, 1e-6);
+}
+
+/* A small rig of 2 cameras 64x64 looking at the origin from +y. */
+static void small_rig(struct splat_rig *rig)
+{
+    memset(rig, 0, sizeof *rig);
+    rig->count = 2;
+    for (int k = 0; k < 2; k++) {
+        struct splat_camera *c = &rig->cams[k];
+        snprintf(c->name, sizeof c->name, "c%d", k);
+        c->width = c->height = 64;
+        c->fx = c->fy = 64;
+        c->cx = c->cy = 32;
+        float eye[3] = { k ? 0.5f : -0.5f, 3, 0 }, at[3] = { 0, 0, 0 }, up[3] = { 0, 0, 1 };
+        splat_camera_look_at(c, eye, at, up);
+    }
+}
+
+/* Two well-separated opaque Gaussians moving 4 cm per key; a third one in key
+ * t only (appears): it has no partner and must be kept. */
+static void test_dual_consistency_pairs(void **state)
+{
+    (void)state;
+    fk_ctx *ctx = make_ctx();
+    struct splat_rig rig;
+    small_rig(&rig);
+    interp *ip;
+    struct splat_error err;
+    assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
+    struct splat_frame f0 = { 0 }, f1 = { 0 }, out = { 0 };
+    assert_int_equal(splat_frame_resize(&f0, 2, 1, NULL), 0);
+    assert_int_equal(splat_frame_resize(&f1, 3, 1, NULL), 0);
+    const float x0[2][3] = { { -0.4f, 0, 0 }, { 0.4f, 0, 0.2f } }, d[3] = { 0.04f, 0, 0 };
+    for (int i = 0; i < 3; i++) {
+        struct splat_frame *fs[2] = { &f0, &f1 };
+        for (int s = 0; s < 2; s++) {
+            struct splat_frame *f = fs[s];
+            if ((size_t)i >= f->count)
+                continue;
+            for (int c = 0; c < 3; c++) {
+                f->pos[3 * i + c] = (i < 2 ? x0[i][c] : (c == 2 ? -0.3f : 0.0f)) + (float)s * d[c];
+                f->scale[3 * i + c] = 0.05f;
+                f->rgb[3 * i + c] = 0.5f;
+                f->motion_fwd[3 * i + c] = d[c];
+                f->motion_bwd[3 * i + c] = -d[c];
+            }
+            f->opacity[i] = 0.9f;
+        }
+    }
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    assert_int_equal(interp_key_build(ip, &f0, &k0, &err), 0);
+    assert_int_equal(interp_key_build(ip, &f1, &k1, &err), 0);
+    for (int i = 0; i < 3; i++)
+        assert_true(k1.origin[i] >= 0);
+    struct interp_config cfg = interp_config_default();
+    struct interp_stats st;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.25f, &cfg, &out, &st, &err), 0);
+    /* the two moving ones are fused pairs (t-1 copies dropped), the new one kept */
+    assert_int_equal(st.fused, 2);
+    assert_int_equal(st.dropped_tm1, 2);
+    assert_int_equal(st.kept_t, 1);
+    assert_int_equal(out.count, 3);
+    assert_float_equal(out.pos[0], -0.4f + 0.25f * 0.04f, 1e-6);
+    assert_float_equal(out.pos[3], 0.4f + 0.25f * 0.04f, 1e-6);
+    assert_float_equal(out.opacity[0], 0.9f, 1e-5);
+    assert_float_equal(out.scale[0], 0.05f, 1e-6);
+    /* keep-both doubles, nearest copies */
+    cfg.mode = INTERP_KEEP_BOTH;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.25f, &cfg, &out, &st, &err), 0);
+    assert_int_equal(out.count, 5);
+    cfg.mode = INTERP_NEAREST;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.75f, &cfg, &out, &st, &err), 0);
+    assert_int_equal(out.count, 3);
+    /* tau 0: nothing is consistent enough, everything kept */
+    cfg = interp_config_default();
+    cfg.tau = 0.0f;
+    f0.pos[0] += 0.001f;
+    f0.pos[3] += 0.001f;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &st, &err), 0);
+    assert_int_equal(st.fused, 0);
+    assert_int_equal(out.count, 5);
+    /* bad input */
+    assert_int_equal(interp_at(ip, &k0, &k1, 1.5f, &cfg, &out, &st, &err), SPLAT_EINVAL);
+    assert_non_null(strstr(err.msg, "[0, 1]"));
+    free(f1.motion_bwd);
+    f1.motion_bwd = NULL;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &st, &err), SPLAT_EINVAL);
+    assert_non_null(strstr(err.msg, "backward motion"));
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    splat_frame_free(&out);
+    interp_free(ip);
+    fk_ctx_free(ctx);
+}
+
+static double mean_psnr(splat_renderer *r, const struct splat_rig *rig, const struct splat_frame *a,
+                        const struct splat_frame *b, float *ia, float *ib)
+{
+    double s = 0;
+    for (int c = 0; c < rig->count; c++) {
+        struct splat_render_out oa = { .rgb = ia }, ob = { .rgb = ib };
+        assert_int_equal(splat_render(r, &rig->cams[c], a, scene_background(), &oa), 0);
+        assert_int_equal(splat_render(r, &rig->cams[c], b, scene_background(), &ob), 0);
+        s += splat_psnr(ia, ib, rig->cams[c].width, rig->cams[c].height, 3);
+    }
+    return s / rig->count;
+}
+
+/* Interpolation with the exact GT motion against the nearest key frame, at the
+ * mid time of two keys, for every preset, on small images. */
+static void test_gt_interpolation_beats_nearest_on_every_preset(void **state)
+{
+    (void)state;
+    fk_ctx *ctx = make_ctx();
+    const int W = 128, H = 128;
+    float *ia = malloc(3 * W * H * sizeof(float)), *ib = malloc(3 * W * H * sizeof(float));
+    splat_renderer *r;
+    assert_int_equal(splat_renderer_new(ctx, W, H, &r, NULL), 0);
+    const double dt = 1.0 / SCENE_FPS;
+    for (int p = 0; p < SCENE_PRESET_COUNT; p++) {
+        scene *s;
+        assert_int_equal(scene_new((enum scene_preset)p, 11, 0, &s, NULL), 0);
+        struct splat_rig rig;
+        scene_default_rig(s, 4, W, H, &rig);
+        interp *ip;
+        struct splat_error err;
+        assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
+        struct splat_frame f0 = { 0 }, f1 = { 0 }, gt = { 0 }, out = { 0 };
+        struct interp_key k0 = { 0 }, k1 = { 0 };
+        /* three phases per preset (exit: while the ball is low, just thrown) */
+        const double phases[3] = { 0.3, 0.7, 1.1 }, base = p == SCENE_EXIT ? 2.0 : 0.0;
+        double fused = 0, nearest = 0;
+        for (int q = 0; q < 3; q++) {
+            const double t1 = base + phases[q];
+            assert_int_equal(scene_eval(s, t1 - dt, dt, &f0, NULL), 0);
+            assert_int_equal(scene_eval(s, t1, dt, &f1, NULL), 0);
+            assert_int_equal(scene_eval(s, t1 - 0.5 * dt, 0.0, &gt, NULL), 0);
+            assert_int_equal(interp_key_build(ip, &f0, &k0, &err), 0);
+            assert_int_equal(interp_key_build(ip, &f1, &k1, &err), 0);
+            struct interp_config cfg = interp_config_default();
+            assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, NULL, &err), 0);
+            fused += mean_psnr(r, &rig, &gt, &out, ia, ib) / 3;
+            cfg.mode = INTERP_NEAREST;
+            assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, NULL, &err), 0);
+            nearest += mean_psnr(r, &rig, &gt, &out, ia, ib) / 3;
+        }
+        print_message("%-6s mid-time PSNR with GT motion %.2f dB, nearest key frame %.2f dB\n",
+                      scene_preset_name((enum scene_preset)p), fused, nearest);
+        assert_true(fused > nearest + 0.5);
+        interp_key_free(&k0);
+        interp_key_free(&k1);
+        splat_frame_free(&f0); splat_frame_free(&f1); splat_frame_free(&gt); splat_frame_free(&out);
+        interp_free(ip);
+        scene_free(s);
+    }
+    splat_renderer_free(r);
+    free(ia);
+    free(ib);
+    fk_ctx_free(ctx);
+}
+
+static void test_budget(void **state)
+{
+    (void)state;
+    struct splat_rig rig;
+    small_rig(&rig);
+    struct splat_frame f = { 0 }, out = { 0 };
+    assert_int_equal(splat_frame_resize(&f, 5, 0, NULL), 0);
+    for (int i = 0; i < 5; i++) {
+        for (int c = 0; c < 3; c++) {
+            f.pos[3 * i + c] = 0.0f;
+            f.scale[3 * i + c] = 0.05f;
+            f.rgb[3 * i + c] = 0.2f * (float)i;
+        }
+        f.opacity[i] = 0.8f;
+    }
+    f.opacity[1] = 0.01f;                              /* too transparent */
+    f.scale[6] = f.scale[7] = f.scale[8] = 1e-4f;      /* 2: a fraction of a pixel everywhere */
+    f.pos[9] = 0.001f;                                 /* 3: duplicate of 0 (same voxel) */
+    f.pos[12] = 0.5f;                                  /* 4: its own voxel */
+    f.opacity[3] = 0.4f;
+    struct budget_config cfg = budget_config_default();
+    struct budget_stats st;
+    struct splat_error err;
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
+    assert_int_equal(st.total, 5);
+    assert_int_equal(st.pruned_opacity, 1);
+    assert_int_equal(st.pruned_footprint, 1);
+    assert_int_equal(st.merged, 1);
+    assert_int_equal(st.kept, 2);
+    assert_int_equal(out.count, 2);
+    /* merged: opacity-weighted colour, largest opacity */
+    assert_float_equal(out.rgb[0], (0.8f * 0.0f + 0.4f * 0.6f) / 1.2f, 1e-5);
+    assert_float_equal(out.opacity[0], 0.8f, 0);
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &f, &st, &err), SPLAT_EINVAL);
+    cfg.voxel = -1.0f;
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), SPLAT_EINVAL);
+    assert_non_null(strstr(err.msg, ">= 0"));
+    splat_frame_free(&f);
+    splat_frame_free(&out);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_fuse_average),
+        cmocka_unit_test(test_dual_consistency_pairs),
+        cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
+        cmocka_unit_test(test_budget),
+    };
+    return cmocka_run_group_tests_name("interp", tests, NULL, NULL);
+}
