@@ -14,6 +14,8 @@ struct subcommand {
 static const struct subcommand table[] = {
     { "kernels", bench_kernels, "GEMM f32/f16/int8 and attention vs OpenBLAS and the FMA peak" },
     { "model",   bench_model,   "VGGT forward per stage (tiny) and full size extrapolated, f32/f16/int8" },
+    { "render",  bench_render,  "CPU Gaussian rasterizer vs Mesa llvmpipe (EGL) on 100k/300k/1M Gaussians" },
+    { "interp",  bench_interp,  "4D interpolation quality/speed vs nearest key frame, and the scene budget" },
 };
 
 double bench_now(void)
