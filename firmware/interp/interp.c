@@ -348,6 +348,70 @@ static int cmp_vox(const void *pa, const void *pb)
     return x->i < y->i ? -1 : (x->i > y->i);
 }
 
+/* Eigen-decomposition of a symmetric 3x3 matrix (cyclic Jacobi): a = V diag(w) V'. */
+static void sym3_eigen(double a[3][3], double w[3], double V[3][3])
+{
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            V[i][j] = i == j;
+    for (int sweep = 0; sweep < 20; sweep++) {
+        double off = fabs(a[0][1]) + fabs(a[0][2]) + fabs(a[1][2]);
+        if (off < 1e-30)
+            break;
+        for (int p = 0; p < 2; p++)
+            for (int q = p + 1; q < 3; q++) {
+                if (fabs(a[p][q]) < 1e-300)
+                    continue;
+                double th = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+                double t = (th >= 0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
+                double c = 1.0 / sqrt(t * t + 1.0), sn = t * c;
+                for (int k = 0; k < 3; k++) { /* a = J' a J */
+                    double akp = a[k][p], akq = a[k][q];
+                    a[k][p] = c * akp - sn * akq;
+                    a[k][q] = sn * akp + c * akq;
+                }
+                for (int k = 0; k < 3; k++) {
+                    double apk = a[p][k], aqk = a[q][k];
+                    a[p][k] = c * apk - sn * aqk;
+                    a[q][k] = sn * apk + c * aqk;
+                }
+                for (int k = 0; k < 3; k++) {
+                    double vkp = V[k][p], vkq = V[k][q];
+                    V[k][p] = c * vkp - sn * vkq;
+                    V[k][q] = sn * vkp + c * vkq;
+                }
+            }
+    }
+    for (int i = 0; i < 3; i++)
+        w[i] = a[i][i];
+}
+
+/* Unit quaternion (w,x,y,z) of a rotation matrix whose columns are the axes. */
+static void mat_to_quat(double R[3][3], float q[4])
+{
+    double det = R[0][0] * (R[1][1] * R[2][2] - R[1][2] * R[2][1]) - R[0][1] * (R[1][0] * R[2][2] - R[1][2] * R[2][0]) +
+                 R[0][2] * (R[1][0] * R[2][1] - R[1][1] * R[2][0]);
+    if (det < 0)
+        for (int k = 0; k < 3; k++)
+            R[k][2] = -R[k][2]; /* a proper rotation: flip one axis */
+    double tr = R[0][0] + R[1][1] + R[2][2], w, x, y, z;
+    if (tr > 0) {
+        double S = sqrt(tr + 1.0) * 2;
+        w = 0.25 * S; x = (R[2][1] - R[1][2]) / S; y = (R[0][2] - R[2][0]) / S; z = (R[1][0] - R[0][1]) / S;
+    } else if (R[0][0] > R[1][1] && R[0][0] > R[2][2]) {
+        double S = sqrt(1.0 + R[0][0] - R[1][1] - R[2][2]) * 2;
+        w = (R[2][1] - R[1][2]) / S; x = 0.25 * S; y = (R[0][1] + R[1][0]) / S; z = (R[0][2] + R[2][0]) / S;
+    } else if (R[1][1] > R[2][2]) {
+        double S = sqrt(1.0 + R[1][1] - R[0][0] - R[2][2]) * 2;
+        w = (R[0][2] - R[2][0]) / S; x = (R[0][1] + R[1][0]) / S; y = 0.25 * S; z = (R[1][2] + R[2][1]) / S;
+    } else {
+        double S = sqrt(1.0 + R[2][2] - R[0][0] - R[1][1]) * 2;
+        w = (R[1][0] - R[0][1]) / S; x = (R[0][2] + R[2][0]) / S; y = (R[1][2] + R[2][1]) / S; z = 0.25 * S;
+    }
+    double n = sqrt(w * w + x * x + y * y + z * z);
+    q[0] = (float)(w / n); q[1] = (float)(x / n); q[2] = (float)(y / n); q[3] = (float)(z / n);
+}
+
 int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                  struct splat_frame *out, struct budget_stats *stats, struct splat_error *err)
 {
@@ -359,42 +423,59 @@ int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, cons
     struct vox *vx = malloc((in->count + 1) * sizeof *vx);
     if (!vx)
         return fail(err, SPLAT_ENOMEM, "budget_prune: out of memory");
+    const float base = cfg->voxel > 0.0f ? cfg->voxel : 1e-4f;
     size_t nv = 0;
     for (size_t i = 0; i < in->count; i++) {
         if (in->opacity[i] < cfg->min_opacity) {
             st.pruned_opacity++;
             continue;
         }
-        int needed = 0;
-        for (int c = 0; c < rig->count && !needed; c++) {
+        int seen = 0;
+        float diam = 0.0f, pix_m = 1e30f; /* largest footprint (px), smallest pixel size (m) */
+        for (int c = 0; c < rig->count; c++) {
+            const struct splat_camera *cam = &rig->cams[c];
             float m[2], cv[3];
-            if (!splat_camera_project(&rig->cams[c], in->pos + 3 * i, in->scale + 3 * i, in->rot + 4 * i, m, cv))
+            if (!splat_camera_project(cam, in->pos + 3 * i, in->scale + 3 * i, in->rot + 4 * i, m, cv))
                 continue;
             float mid = 0.5f * (cv[0] + cv[2]), det = cv[0] * cv[2] - cv[1] * cv[1];
             float lam = mid + sqrtf(fmaxf(0.0f, mid * mid - det));
             float rad = 3.0f * sqrtf(lam) + 1.0f;
-            if (m[0] < -rad || m[1] < -rad || m[0] > (float)rig->cams[c].width + rad ||
-                m[1] > (float)rig->cams[c].height + rad)
+            if (m[0] < -rad || m[1] < -rad || m[0] > (float)cam->width + rad || m[1] > (float)cam->height + rad)
                 continue; /* outside this view */
-            needed = 2.0f * sqrtf(lam) >= cfg->min_footprint;
+            seen = 1;
+            diam = fmaxf(diam, 2.0f * sqrtf(lam));
+            float q[3];
+            splat_camera_to_cam(cam, in->pos + 3 * i, q);
+            pix_m = fminf(pix_m, q[2] / (0.5f * (cam->fx + cam->fy)));
         }
-        if (!needed) {
-            st.pruned_footprint++;
+        if (!seen) {
+            st.pruned_outside++;
             continue;
         }
-        uint64_t key = (uint64_t)i; /* unique: no merge */
-        if (cfg->voxel > 0.0f) {
+        float cell = cfg->voxel;
+        if (diam < cfg->min_footprint) {
+            st.subpixel++;
+            cell = fmaxf(cell, pix_m);
+        }
+        uint64_t key = (uint64_t)i | (63ull << 58); /* no cell: unique key, never merged */
+        if (cell > 0.0f) {
+            int level = (int)ceilf(log2f(cell / base));
+            level = level < 0 ? 0 : (level > 30 ? 30 : level);
+            float size = base * (float)(1u << level);
             int64_t q[3];
             for (int c = 0; c < 3; c++)
-                q[c] = (int64_t)floorf(in->pos[3 * i + c] / cfg->voxel) & 0x1FFFFF;
-            key = ((uint64_t)q[0] << 42) | ((uint64_t)q[1] << 21) | (uint64_t)q[2];
+                q[c] = (int64_t)floorf(in->pos[3 * i + c] / size) & 0x7FFFF;
+            key = ((uint64_t)level << 58) | ((uint64_t)q[0] << 38) | ((uint64_t)q[1] << 19) | (uint64_t)q[2];
         }
         vx[nv].key = key;
         vx[nv].i = (uint32_t)i;
         nv++;
     }
     qsort(vx, nv, sizeof *vx, cmp_vox);
-    int rc = splat_frame_resize(out, nv, 0, err);
+    size_t groups = 0;
+    for (size_t s = 0; s < nv; s++)
+        groups += s == 0 || vx[s].key != vx[s - 1].key || (vx[s].key >> 58) == 63;
+    int rc = splat_frame_resize(out, groups, 0, err);
     if (rc < 0) {
         free(vx);
         return rc;
@@ -402,32 +483,63 @@ int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, cons
     size_t o = 0;
     for (size_t s = 0; s < nv;) {
         size_t e = s + 1;
-        while (e < nv && vx[e].key == vx[s].key)
-            e++;
-        double w = 0, p[3] = { 0, 0, 0 }, c3[3] = { 0, 0, 0 }, sc[3] = { 0, 0, 0 };
+        if ((vx[s].key >> 58) != 63)
+            while (e < nv && vx[e].key == vx[s].key)
+                e++;
+        /* moment matching: the merged covariance is the weighted mean of the
+         * members' covariances plus the spread of their centres */
+        double w = 0, p[3] = { 0, 0, 0 }, c3[3] = { 0, 0, 0 }, S[3][3] = { { 0 } }, P2[3][3] = { { 0 } };
         float omax = -1.0f;
         uint32_t best = vx[s].i;
         for (size_t k = s; k < e; k++) {
             uint32_t i = vx[k].i;
             double wi = in->opacity[i] + 1e-6;
             w += wi;
-            for (int c = 0; c < 3; c++) {
-                p[c] += wi * in->pos[3 * i + c];
-                c3[c] += wi * in->rgb[3 * i + c];
-                sc[c] += in->scale[3 * i + c];
+            float qs[4], R[9];
+            memcpy(qs, in->rot + 4 * i, sizeof qs);
+            float qn = sqrtf(qs[0] * qs[0] + qs[1] * qs[1] + qs[2] * qs[2] + qs[3] * qs[3]);
+            if (!(qn > 1e-12f)) { qs[0] = 1; qs[1] = qs[2] = qs[3] = 0; qn = 1; }
+            float qw = qs[0] / qn, qx = qs[1] / qn, qy = qs[2] / qn, qz = qs[3] / qn;
+            R[0] = 1 - 2 * (qy * qy + qz * qz); R[1] = 2 * (qx * qy - qw * qz); R[2] = 2 * (qx * qz + qw * qy);
+            R[3] = 2 * (qx * qy + qw * qz); R[4] = 1 - 2 * (qx * qx + qz * qz); R[5] = 2 * (qy * qz - qw * qx);
+            R[6] = 2 * (qx * qz - qw * qy); R[7] = 2 * (qy * qz + qw * qx); R[8] = 1 - 2 * (qx * qx + qy * qy);
+            for (int r = 0; r < 3; r++) {
+                double x = in->pos[3 * i + r];
+                p[r] += wi * x;
+                c3[r] += wi * in->rgb[3 * i + r];
+                for (int c = 0; c < 3; c++) {
+                    double acc = 0;
+                    for (int m = 0; m < 3; m++) {
+                        double sm = in->scale[3 * i + m];
+                        acc += (double)R[3 * r + m] * sm * sm * (double)R[3 * c + m];
+                    }
+                    S[r][c] += wi * acc;
+                    P2[r][c] += wi * x * in->pos[3 * i + c];
+                }
             }
             if (in->opacity[i] > omax) {
                 omax = in->opacity[i];
                 best = i;
             }
         }
-        double n = (double)(e - s);
-        for (int c = 0; c < 3; c++) {
-            out->pos[3 * o + c] = (float)(p[c] / w);
-            out->rgb[3 * o + c] = (float)(c3[c] / w);
-            out->scale[3 * o + c] = (float)(sc[c] / n);
+        if (e - s == 1) {
+            memcpy(out->pos + 3 * o, in->pos + 3 * best, 3 * sizeof(float));
+            memcpy(out->rgb + 3 * o, in->rgb + 3 * best, 3 * sizeof(float));
+            memcpy(out->scale + 3 * o, in->scale + 3 * best, 3 * sizeof(float));
+            memcpy(out->rot + 4 * o, in->rot + 4 * best, 4 * sizeof(float));
+        } else {
+            double cov[3][3], ev[3], V[3][3];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    cov[r][c] = S[r][c] / w + P2[r][c] / w - (p[r] / w) * (p[c] / w);
+            sym3_eigen(cov, ev, V);
+            mat_to_quat(V, out->rot + 4 * o);
+            for (int c = 0; c < 3; c++) {
+                out->pos[3 * o + c] = (float)(p[c] / w);
+                out->rgb[3 * o + c] = (float)(c3[c] / w);
+                out->scale[3 * o + c] = (float)sqrt(ev[c] > 0 ? ev[c] : 0);
+            }
         }
-        memcpy(out->rot + 4 * o, in->rot + 4 * best, 4 * sizeof(float));
         out->opacity[o] = omax;
         st.merged += e - s - 1;
         o++;

@@ -103,21 +103,28 @@ int  interp_at(interp *ip, const struct interp_key *prev, const struct interp_ke
 /* ---- scene budget ---------------------------------------------------------- */
 
 struct budget_config {
-    float min_opacity;     /* prune below (0.02)                                   */
-    float min_footprint;   /* prune when the 2-sigma diameter is below this many
-                              pixels in every camera (1.0)                         */
-    float voxel;           /* metres; Gaussians sharing a voxel are merged (0.004);
-                              0 disables the merge                                 */
+    float min_opacity;     /* prune below (0.02)                                    */
+    float min_footprint;   /* pixels (1.0): a Gaussian whose 2-sigma diameter is
+                              below this in every camera is merged with its
+                              neighbours in a cell of one pixel's size at its
+                              depth (it is not dropped: a dense surface of
+                              sub-pixel Gaussians would get holes)                 */
+    float voxel;           /* metres (0.004): Gaussians sharing a cell of this
+                              size are merged (duplicates across views); 0: off  */
 };
 struct budget_config budget_config_default(void);
 
 struct budget_stats {
-    size_t total, pruned_opacity, pruned_footprint, merged, kept;
+    size_t total, pruned_opacity, pruned_outside, subpixel, merged, kept;
 };
 
-/* Prunes and merges `in` into `out` (in and out must differ). Merging keeps
- * per voxel the opacity-weighted mean position and colour, the largest
- * opacity, the mean scale and the most opaque member's rotation. */
+/* Prunes and merges `in` into `out` (in and out must differ): drops Gaussians
+ * below min_opacity and those outside every camera's view, then merges per
+ * cell (cells are powers of two times `voxel`, at least one pixel's footprint
+ * for sub-pixel Gaussians). A merged Gaussian has the opacity-weighted mean
+ * position and colour, the largest opacity, the most opaque member's rotation
+ * and per-axis scale sqrt(mean scale² + spread²) so that it covers its
+ * members. */
 int  budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                   struct splat_frame *out, struct budget_stats *stats, struct splat_error *err);
 

@@ -20,6 +20,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "render_internal.h"
 #include "splat_internal.h"
 
 #define PREP_CHUNK     4096   /* Gaussians per preprocessing task      */
@@ -31,21 +32,6 @@
 #else
 #define splat_prefetch(p) ((void)(p))
 #endif
-
-/* One projected Gaussian: one cache line, read once per tile it touches. */
-struct projected {
-    float   mx, my;       /* mean in pixels, R convention (integer centres) */
-    float   A, B, C;      /* conic: inverse of the dilated 2D covariance */
-    float   o;            /* opacity */
-    float   k2;           /* alpha >= 1/255 needs d' conic d <= k2 */
-    float   ey;           /* half height (px) of that ellipse, with margin */
-    float   inv_a;        /* 1 / A */
-    float   z;            /* camera depth */
-    float   col[3];       /* colour (or feature) */
-    int32_t id;           /* index in the frame */
-    int16_t rect[4];      /* tiles x0, y0, x1, y1 (exclusive) */
-};
-_Static_assert(sizeof(struct projected) == 64, "one projected Gaussian per cache line");
 
 struct splat_renderer {
     fk_ctx *ctx;
@@ -391,19 +377,9 @@ static void bin_scatter_task(void *arg, int task, int thread)
 
 /* ---- 4. compositing ---------------------------------------------------------- */
 
-struct raster_job {
-    splat_renderer *r;
-    const float    *bg;
-    float          *rgb, *alpha, *depth;
-    int32_t        *top;
-    int             normalize; /* features: divide by accumulated alpha */
-};
-
-static void raster_tile(void *arg, int tile, int thread)
+void splat__raster_tile_ref(const struct raster_job *j, int tile)
 {
-    (void)thread;
-    const struct raster_job *j = arg;
-    const splat_renderer *r = j->r;
+    const struct raster_ctx *r = &j->rc;
     const int W = r->width, H = r->height;
     const int tx0 = (tile % r->tiles_x) * SPLAT_TILE, ty0 = (tile / r->tiles_x) * SPLAT_TILE;
     const int tw = (W - tx0 < SPLAT_TILE) ? W - tx0 : SPLAT_TILE;
@@ -514,6 +490,22 @@ static void raster_tile(void *arg, int tile, int thread)
         }
 }
 
+static void raster_task_ref(void *arg, int tile, int thread)
+{
+    (void)thread;
+    splat__raster_tile_ref(arg, tile);
+}
+
+static void raster_task_simd(void *arg, int tile, int thread)
+{
+    (void)thread;
+#ifdef F4D_SPLAT_HAVE_AVX2
+    splat__raster_tile_avx2(arg, tile);
+#else
+    splat__raster_tile_ref(arg, tile);
+#endif
+}
+
 /* ---- driver ------------------------------------------------------------------- */
 
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
@@ -581,9 +573,17 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_scatter_task, &oj);
 
     /* 4. compositing */
-    struct raster_job rj = { .r = r, .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top,
+    struct raster_job rj = { .rc = { .sorted = r->sorted, .pairs = r->pairs, .tile_start = r->tile_start,
+                                     .width = r->width, .height = r->height, .tiles_x = r->tiles_x },
+                             .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top,
                              .normalize = normalize };
-    fk_parallel_for(r->ctx, r->n_tiles, 1e9, raster_tile, &rj);
+    enum fk_isa isa = fk_ctx_isa(r->ctx);
+    int simd = 0;
+#ifdef F4D_SPLAT_HAVE_AVX2
+    simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI;
+#endif
+    (void)isa;
+    fk_parallel_for(r->ctx, r->n_tiles, 1e9, simd ? raster_task_simd : raster_task_ref, &rj);
     if (visible_out)
         *visible_out = nv;
     if (pairs_out)

@@ -225,13 +225,25 @@ static void test_budget(void **state)
     assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
     assert_int_equal(st.total, 5);
     assert_int_equal(st.pruned_opacity, 1);
-    assert_int_equal(st.pruned_footprint, 1);
+    assert_int_equal(st.subpixel, 1);  /* merged into a pixel-sized cell with its neighbours */
+    assert_int_equal(st.pruned_outside, 0);
+    /* 0 and 3 share a 4 mm voxel; 2 sits alone in its pixel-sized cell; 4 alone */
     assert_int_equal(st.merged, 1);
-    assert_int_equal(st.kept, 2);
-    assert_int_equal(out.count, 2);
-    /* merged: opacity-weighted colour, largest opacity */
-    assert_float_equal(out.rgb[0], (0.8f * 0.0f + 0.4f * 0.6f) / 1.2f, 1e-5);
-    assert_float_equal(out.opacity[0], 0.8f, 0);
+    assert_int_equal(st.kept, 3);
+    assert_int_equal(out.count, 3);
+    size_t m0 = out.count;
+    for (size_t i = 0; i < out.count; i++)
+        if (out.scale[3 * i] > 0.01f && out.pos[3 * i] < 0.25f)
+            m0 = i;
+    assert_true(m0 < out.count);
+    /* merged: opacity-weighted colour, largest opacity, covariance moment-matched */
+    assert_float_equal(out.rgb[3 * m0], (0.8f * 0.0f + 0.4f * 0.6f) / 1.2f, 1e-4);
+    assert_float_equal(out.opacity[m0], 0.8f, 0);
+    assert_float_equal(out.scale[3 * m0 + 1], 0.05f, 1e-4); /* spread only along x */
+    /* a Gaussian outside every view is pruned */
+    f.pos[12] = 100.0f;
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
+    assert_int_equal(st.pruned_outside, 1);
     assert_int_equal(budget_prune(&f, &rig, &cfg, &f, &st, &err), SPLAT_EINVAL);
     cfg.voxel = -1.0f;
     assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), SPLAT_EINVAL);

@@ -404,6 +404,37 @@ static void test_threads_give_identical_images(void **state)
     fk_ctx_free(c2);
 }
 
+/* The SIMD compositing (when this CPU has it) against the scalar reference. */
+static void test_simd_matches_scalar(void **state)
+{
+    (void)state;
+    if (!fk_isa_supported(FK_ISA_AVX2)) {
+        skip();
+        return;
+    }
+    fk_ctx *ref = NULL, *simd = NULL;
+    struct fk_ctx_config c1 = { .isa = FK_ISA_REF, .threads = 2 }, c2 = { .isa = FK_ISA_AVX2, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&c1, &ref), FK_OK);
+    assert_int_equal(fk_ctx_new(&c2, &simd), FK_OK);
+    struct splat_camera cam = axis_camera(100, 60, 60.0f);
+    struct splat_frame f = { 0 };
+    random_frame(&f, 4000, 0.3f, 5.0f, 2.0f);
+    struct img a = render(ref, &cam, &f, NULL), b = render(simd, &cam, &f, NULL);
+    double maxd = 0;
+    for (size_t i = 0; i < 3 * 100 * 60; i++)
+        maxd = fmax(maxd, fabs((double)a.rgb[i] - b.rgb[i]));
+    assert_true(maxd < 1e-4); /* exp within 2 ulp; a T-threshold flip could differ more, none here */
+    size_t same_top = 0;
+    for (size_t i = 0; i < 100 * 60; i++)
+        same_top += a.top[i] == b.top[i];
+    assert_true(same_top > 100 * 60 * 99 / 100);
+    img_free(&a);
+    img_free(&b);
+    splat_frame_free(&f);
+    fk_ctx_free(ref);
+    fk_ctx_free(simd);
+}
+
 /* ---- hard cases ------------------------------------------------------------- */
 
 static void test_hard_cases_stay_finite(void **state)
@@ -792,6 +823,7 @@ int main(void)
         cmocka_unit_test(test_near_plane_cull_02),
         cmocka_unit_test(test_matches_bruteforce_reference),
         cmocka_unit_test(test_threads_give_identical_images),
+        cmocka_unit_test(test_simd_matches_scalar),
         cmocka_unit_test(test_hard_cases_stay_finite),
         cmocka_unit_test(test_bad_render_input_rejected),
         cmocka_unit_test(test_ply_round_trip),

@@ -60,14 +60,21 @@ struct brow { const char *preset; size_t kept, total; double psnr; };
 int bench_interp(int argc, char **argv)
 {
     const char *json = NULL;
-    int pairs = 3;
+    int pairs = 3, only = -1;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
+        else if (!strcmp(argv[i], "--preset") && i + 1 < argc) {
+            struct splat_error e;
+            if ((only = scene_preset_from_name(argv[++i], &e)) < 0) {
+                fprintf(stderr, "f4d-bench interp: %s\n", e.msg);
+                return 2;
+            }
+        }
         else if (!strcmp(argv[i], "--pairs") && i + 1 < argc)
             pairs = atoi(argv[++i]);
         else {
-            fprintf(stderr, "usage: f4d-bench interp [--pairs N] [--json FILE]\n");
+            fprintf(stderr, "usage: f4d-bench interp [--pairs N] [--preset NAME] [--json FILE]\n");
             return 2;
         }
     }
@@ -97,7 +104,10 @@ int bench_interp(int argc, char **argv)
     struct irow irows[SCENE_PRESET_COUNT];
     struct brow brows[SCENE_PRESET_COUNT];
     const double dt = 1.0 / SCENE_FPS;
+    int nrows = 0;
     for (int p = 0; p < SCENE_PRESET_COUNT; p++) {
+        if (only >= 0 && p != only)
+            continue;
         scene *s;
         if (scene_new((enum scene_preset)p, 1, 0, &s, &err) < 0)
             return 1;
@@ -109,7 +119,7 @@ int bench_interp(int argc, char **argv)
         struct splat_frame f0 = { 0 }, f1 = { 0 }, gt = { 0 }, out = { 0 };
         struct interp_key k0 = { 0 }, k1 = { 0 };
         const double t0 = p == SCENE_EXIT ? 2.3 : 0.3;
-        struct irow *row = &irows[p];
+        struct irow *row = &irows[nrows];
         memset(row, 0, sizeof *row);
         row->preset = scene_preset_name((enum scene_preset)p);
         double steps = 0, keys = 0;
@@ -181,7 +191,7 @@ int bench_interp(int argc, char **argv)
         scene_free(s);
 
         /* budget on a dense (300k) version of the same preset */
-        struct brow *br = &brows[p];
+        struct brow *br = &brows[nrows++];
         br->preset = row->preset;
         struct splat_frame full = { 0 }, kept = { 0 };
         if (scene_new((enum scene_preset)p, 1, 300000, &s, &err) < 0 || scene_eval(s, t0, 0.0, &full, &err) < 0)
@@ -195,9 +205,10 @@ int bench_interp(int argc, char **argv)
         br->kept = bs.kept;
         br->total = bs.total;
         br->psnr = rig_psnr(r, &rig, &full, &kept, a, b);
-        printf("budget %-6s kept %zu of %zu (%.1f%%: opacity -%zu, footprint -%zu, voxel merge -%zu)  "
-               "render PSNR %.2f dB\n", br->preset, br->kept, br->total, 100.0 * (double)br->kept / (double)br->total,
-               bs.pruned_opacity, bs.pruned_footprint, bs.merged, br->psnr);
+        printf("budget %-6s kept %zu of %zu (%.1f%%: opacity -%zu, outside every view -%zu, merged -%zu of which "
+               "%zu sub-pixel)  render PSNR %.2f dB\n", br->preset, br->kept, br->total,
+               100.0 * (double)br->kept / (double)br->total, bs.pruned_opacity, bs.pruned_outside, bs.merged,
+               bs.subpixel, br->psnr);
         fflush(stdout);
         splat_frame_free(&full);
         splat_frame_free(&kept);
@@ -210,12 +221,12 @@ int bench_interp(int argc, char **argv)
             return 1;
         }
         fprintf(fp, "{\"interp\": [");
-        for (int p = 0; p < SCENE_PRESET_COUNT; p++)
+        for (int p = 0; p < nrows; p++)
             fprintf(fp, "%s\n  {\"preset\": \"%s\", \"psnr_mid\": %.3f, \"psnr_nearest\": %.3f, \"tlstd_fused\": %.6f, "
                         "\"tlstd_unfused\": %.6f, \"ms_per_step\": %.3f}", p ? "," : "", irows[p].preset,
                     irows[p].psnr_mid, irows[p].psnr_nearest, irows[p].tl_fused, irows[p].tl_unfused, irows[p].ms_step);
         fprintf(fp, "\n], \"budget\": [");
-        for (int p = 0; p < SCENE_PRESET_COUNT; p++)
+        for (int p = 0; p < nrows; p++)
             fprintf(fp, "%s\n  {\"preset\": \"%s\", \"kept\": %zu, \"total\": %zu, \"psnr\": %.3f}", p ? "," : "",
                     brows[p].preset, brows[p].kept, brows[p].total, brows[p].psnr);
         fprintf(fp, "\n]}\n");

@@ -1,0 +1,46 @@
+/* render_internal.h - what the scalar and the SIMD compositing share. */
+#ifndef F4D_SPLAT_RENDER_INTERNAL_H
+#define F4D_SPLAT_RENDER_INTERNAL_H
+
+#include <stdint.h>
+
+#include "splat.h"
+
+/* One projected Gaussian: one cache line, read once per tile it touches. */
+struct projected {
+    float   mx, my;       /* mean in pixels, R convention (integer centres) */
+    float   A, B, C;      /* conic: inverse of the dilated 2D covariance */
+    float   o;            /* opacity */
+    float   k2;           /* alpha >= 1/255 needs d' conic d <= k2 */
+    float   ey;           /* half height (px) of that ellipse, with margin */
+    float   inv_a;        /* 1 / A */
+    float   z;            /* camera depth */
+    float   col[3];       /* colour (or feature) */
+    int32_t id;           /* index in the frame */
+    int16_t rect[4];      /* tiles x0, y0, x1, y1 (exclusive) */
+};
+_Static_assert(sizeof(struct projected) == 64, "one projected Gaussian per cache line");
+
+/* What one compositing pass needs, for any tile. */
+struct raster_ctx {
+    const struct projected *sorted;
+    const int32_t          *pairs;
+    const uint32_t         *tile_start;
+    int                     width, height, tiles_x;
+};
+
+struct raster_job {
+    struct raster_ctx rc;
+    const float    *bg;
+    float          *rgb, *alpha, *depth;
+    int32_t        *top;
+    int             normalize; /* features: divide by accumulated alpha */
+};
+
+/* Composites one 16x16 tile (index `tile`) of job j. raster_tile_ref is the
+ * scalar specification; raster_tile_avx2 evaluates 8 pixels of a row at once
+ * with a vector exp accurate to 2 ulp (libm's expf in the scalar path). */
+void splat__raster_tile_ref (const struct raster_job *j, int tile);
+void splat__raster_tile_avx2(const struct raster_job *j, int tile);
+
+#endif
