@@ -17,6 +17,7 @@
  *      tile would skip it in R as well, so the per-pixel sequence of
  *      operations is R's. */
 #include <math.h>
+#include <time.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -285,37 +286,86 @@ static void prep_task(void *arg, int task, int thread)
 
 /* ---- 2. depth sort and gather ------------------------------------------------ */
 
-static void radix_sort(uint32_t *key, int32_t *val, uint32_t *ktmp, int32_t *vtmp, size_t n)
+/* Stable LSD radix sort of (key, index) pairs, 8 bits per pass, in parallel:
+ * each of SORT_TASKS contiguous chunks counts its digits, a prefix over
+ * (digit, chunk) gives every chunk its output cursors, the chunks scatter.
+ * A pass where every key has the same digit is skipped. */
+#define SORT_TASKS 8
+
+struct sort_job {
+    const uint32_t *ks;
+    const int32_t  *vs;
+    uint32_t       *kd;
+    int32_t        *vd;
+    size_t          n;
+    int             shift;
+    uint32_t        count[SORT_TASKS][256];
+};
+
+static void sort_range(const struct sort_job *j, int task, size_t *lo, size_t *hi)
 {
-    uint32_t *ks = key, *kd = ktmp;
-    int32_t *vs = val, *vd = vtmp;
-    for (int shift = 0; shift < 32; shift += 8) {
-        size_t count[256] = {0};
-        for (size_t i = 0; i < n; i++)
-            count[(ks[i] >> shift) & 255]++;
-        int single = 0;
-        for (int b = 0; b < 256; b++)
-            if (count[b] == n)
-                single = 1;
-        if (single)
-            continue; /* every key shares this byte: the pass would not move anything */
-        size_t sum = 0;
-        for (int b = 0; b < 256; b++) {
-            size_t c = count[b];
-            count[b] = sum;
-            sum += c;
-        }
-        for (size_t i = 0; i < n; i++) {
-            size_t d = count[(ks[i] >> shift) & 255]++;
-            kd[d] = ks[i];
-            vd[d] = vs[i];
-        }
-        uint32_t *kt = ks; ks = kd; kd = kt;
-        int32_t *vt = vs; vs = vd; vd = vt;
+    size_t per = (j->n + SORT_TASKS - 1) / SORT_TASKS;
+    *lo = (size_t)task * per;
+    *hi = *lo + per < j->n ? *lo + per : j->n;
+    if (*lo > j->n)
+        *lo = j->n;
+}
+
+static void sort_count_task(void *arg, int task, int thread)
+{
+    (void)thread;
+    struct sort_job *j = arg;
+    size_t lo, hi;
+    sort_range(j, task, &lo, &hi);
+    uint32_t *c = j->count[task];
+    memset(c, 0, 256 * sizeof *c);
+    for (size_t i = lo; i < hi; i++)
+        c[(j->ks[i] >> j->shift) & 255]++;
+}
+
+static void sort_scatter_task(void *arg, int task, int thread)
+{
+    (void)thread;
+    struct sort_job *j = arg;
+    size_t lo, hi;
+    sort_range(j, task, &lo, &hi);
+    uint32_t *c = j->count[task];
+    for (size_t i = lo; i < hi; i++) {
+        uint32_t d = c[(j->ks[i] >> j->shift) & 255]++;
+        j->kd[d] = j->ks[i];
+        j->vd[d] = j->vs[i];
     }
-    if (ks != key) {
-        memcpy(key, ks, n * sizeof *key);
-        memcpy(val, vs, n * sizeof *val);
+}
+
+static void radix_sort(fk_ctx *ctx, uint32_t *key, int32_t *val, uint32_t *ktmp, int32_t *vtmp, size_t n)
+{
+    struct sort_job j = { .ks = key, .vs = val, .kd = ktmp, .vd = vtmp, .n = n };
+    for (int shift = 0; shift < 32; shift += 8) {
+        j.shift = shift;
+        fk_parallel_for(ctx, SORT_TASKS, 4.0 * (double)n, sort_count_task, &j);
+        uint32_t sum = 0;
+        int single = 0;
+        for (int b = 0; b < 256 && !single; b++) {
+            uint32_t tot = 0;
+            for (int t = 0; t < SORT_TASKS; t++)
+                tot += j.count[t][b];
+            single = tot == n;
+        }
+        if (single)
+            continue; /* every key shares this digit: the pass would not move anything */
+        for (int b = 0; b < 256; b++)
+            for (int t = 0; t < SORT_TASKS; t++) {
+                uint32_t c = j.count[t][b];
+                j.count[t][b] = sum;
+                sum += c;
+            }
+        fk_parallel_for(ctx, SORT_TASKS, 8.0 * (double)n, sort_scatter_task, &j);
+        const uint32_t *kt = j.ks; j.ks = j.kd; j.kd = (uint32_t *)kt;
+        const int32_t *vt = j.vs; j.vs = j.vd; j.vd = (int32_t *)vt;
+    }
+    if (j.ks != key) {
+        memcpy(key, j.ks, n * sizeof *key);
+        memcpy(val, j.vs, n * sizeof *val);
     }
 }
 
@@ -508,10 +558,18 @@ static void raster_task_simd(void *arg, int tile, int thread)
 
 /* ---- driver ------------------------------------------------------------------- */
 
+static double now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return 1e3 * (double)ts.tv_sec + 1e-6 * (double)ts.tv_nsec;
+}
+
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                        const float *features, const float *bg, float *rgb, float *alpha, float *depth,
-                       int32_t *top, int normalize, size_t *visible_out, size_t *pairs_out)
+                       int32_t *top, int normalize, size_t *visible_out, size_t *pairs_out, double *ms)
 {
+    double t0 = now_ms(), t1, t2, t3;
     if (!r)
         return SPLAT_EINVAL;
     r->err.msg[0] = '\0';
@@ -550,11 +608,13 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
         nv += m;
     }
 
+    t1 = now_ms();
     /* 2. depth order */
-    radix_sort(r->key, r->idx, r->key_tmp, r->idx_tmp, nv);
+    radix_sort(r->ctx, r->key, r->idx, r->key_tmp, r->idx_tmp, nv);
     struct order_job oj = { .r = r, .n = nv };
     fk_parallel_for(r->ctx, (int)((nv + PREP_CHUNK - 1) / PREP_CHUNK), 30.0 * (double)nv, gather_task, &oj);
 
+    t2 = now_ms();
     /* 3. binning */
     int bchunks = (int)((nv + BIN_CHUNK - 1) / BIN_CHUNK);
     fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_count_task, &oj);
@@ -572,6 +632,7 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
         return rc;
     fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_scatter_task, &oj);
 
+    t3 = now_ms();
     /* 4. compositing */
     struct raster_job rj = { .rc = { .sorted = r->sorted, .pairs = r->pairs, .tile_start = r->tile_start,
                                      .width = r->width, .height = r->height, .tiles_x = r->tiles_x },
@@ -584,6 +645,12 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
 #endif
     (void)isa;
     fk_parallel_for(r->ctx, r->n_tiles, 1e9, simd ? raster_task_simd : raster_task_ref, &rj);
+    if (ms) {
+        ms[0] = t1 - t0;
+        ms[1] = t2 - t1;
+        ms[2] = t3 - t2;
+        ms[3] = now_ms() - t3;
+    }
     if (visible_out)
         *visible_out = nv;
     if (pairs_out)
@@ -597,7 +664,7 @@ int splat_render(splat_renderer *r, const struct splat_camera *cam, const struct
     if (!out)
         return r ? fail(r, SPLAT_EINVAL, "render: out is NULL", NULL) : SPLAT_EINVAL;
     return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, 0,
-                       &out->visible, &out->pairs);
+                       &out->visible, &out->pairs, out->ms_stage);
 }
 
 int splat_render_features(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
@@ -605,5 +672,5 @@ int splat_render_features(splat_renderer *r, const struct splat_camera *cam, con
 {
     if (!features || !out)
         return r ? fail(r, SPLAT_EINVAL, "render_features: features or out is NULL", NULL) : SPLAT_EINVAL;
-    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, 1, NULL, NULL);
+    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, 1, NULL, NULL, NULL);
 }

@@ -162,6 +162,7 @@ struct splat_render_out {
     /* Statistics of the last render (written, never read). */
     size_t visible;   /* Gaussians that passed culling                        */
     size_t pairs;     /* Gaussian-tile overlaps                               */
+    double ms_stage[4]; /* wall time of preprocess, sort, binning, compositing */
 };
 
 /* A renderer for W x H images. ctx (borrowed, must outlive the renderer)
