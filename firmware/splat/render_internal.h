@@ -13,7 +13,7 @@ struct projected {
     float   o;            /* opacity */
     float   k2;           /* alpha >= 1/255 needs d' conic d <= k2 */
     float   ey;           /* half height (px) of that ellipse, with margin */
-    float   inv_a;        /* 1 / A */
+    float   ex;           /* half width (px) of that ellipse, with margin */
     float   z;            /* camera depth */
     float   col[3];       /* colour (or feature) */
     int32_t id;           /* index in the frame */

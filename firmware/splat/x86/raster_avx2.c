@@ -61,7 +61,7 @@ void splat__raster_tile_avx2(const struct raster_job *j, int tile)
             _mm_prefetch((const char *)(r->sorted + r->pairs[k + 6]), _MM_HINT_T0);
         const struct projected *P = r->sorted + r->pairs[k];
         const float mx = P->mx, my = P->my, A = P->A, B = P->B, Cc = P->C;
-        const float k2 = P->k2, inv_a = P->inv_a;
+        const float k2 = P->k2;
         float fy0 = ceilf(my - P->ey), fy1 = floorf(my + P->ey);
         int y0 = fy0 > (float)ty0 ? (int)fy0 : ty0;
         int y1 = fy1 < (float)(ty0 + th - 1) ? (int)fy1 : ty0 + th - 1;
@@ -72,19 +72,17 @@ void splat__raster_tile_avx2(const struct raster_job *j, int tile)
         const __m256 vz = _mm256_set1_ps(P->z), vmx = _mm256_set1_ps(mx);
         const __m256 cr = _mm256_set1_ps(P->col[0]), cg = _mm256_set1_ps(P->col[1]), cb = _mm256_set1_ps(P->col[2]);
         const __m256i vid = _mm256_set1_epi32(P->id);
+        /* columns of the ellipse's box; lanes outside the ellipse fail the
+         * power >= cut test exactly as the scalar per-row span excludes them */
+        const float fx0 = ceilf(mx - P->ex), fx1 = floorf(mx + P->ex);
+        const int x0 = fx0 > (float)tx0 ? (int)fx0 : tx0;
+        const int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
+        if (x0 > x1)
+            continue;
         for (int y = y0; y <= y1; y++) {
             if (row_left[y - ty0] == 0)
                 continue;
             const float dy = my - (float)y;
-            const float disc = B * B * dy * dy - A * (Cc * dy * dy - k2);
-            if (disc < 0.0f)
-                continue;
-            const float sq = sqrtf(disc) * 1.0001f;
-            const float dlo = (-B * dy - sq) * inv_a, dhi = (-B * dy + sq) * inv_a;
-            const float fx0 = ceilf(mx - dhi - 0.001f - 1e-4f * fabsf(dhi));
-            const float fx1 = floorf(mx - dlo + 0.001f + 1e-4f * fabsf(dlo));
-            const int x0 = fx0 > (float)tx0 ? (int)fx0 : tx0;
-            const int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
             const __m256 vdy = _mm256_set1_ps(dy);
             const __m256 cdy = _mm256_mul_ps(_mm256_mul_ps(vC, vdy), vdy); /* Cc * dy * dy */
             const int row = (y - ty0) * SPLAT_TILE - tx0;
