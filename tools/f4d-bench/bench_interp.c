@@ -4,8 +4,8 @@
  *     render, for the fused interpolation and for the nearest key frame;
  *   - TL-STD (flicker) of a playback sequence key, 1/3, 2/3, key, ... with
  *     fusion and with both sets kept (no fusion), and of the GT;
- *   - ms per interpolation step (interp_at; the per-key pixel lists are
- *     timed separately);
+ *   - ms per interpolation step (interp_at, best of the steps, 2 threads
+ *     available; the per-key pixel lists are timed separately);
  * and the scene budget: Gaussians kept against render PSNR, per preset at
  * 300k Gaussians. All renders 518x518 from the 4 default cameras, PSNR on
  * 8-bit images as 3DGS evaluates. */
@@ -122,7 +122,9 @@ int bench_interp(int argc, char **argv)
         struct irow *row = &irows[nrows];
         memset(row, 0, sizeof *row);
         row->preset = scene_preset_name((enum scene_preset)p);
-        double steps = 0, keys = 0;
+        row->ms_step = 1e30;
+        double keys = 0;
+        int steps = 0;
         const struct splat_camera *cam = &rig.cams[1];
         scene_eval(s, t0, dt, &f1, NULL);
         interp_key_build(ip, &f1, &k1, &err);
@@ -151,8 +153,9 @@ int bench_interp(int argc, char **argv)
             scene_eval(s, tk1 - 0.5 * dt, 0.0, &gt, NULL);
             double q1 = bench_now();
             interp_at(ip, &k0, &k1, 0.5f, &fc, &out, NULL, &err);
-            row->ms_step += 1e3 * (bench_now() - q1);
-            steps++;
+            double dq = 1e3 * (bench_now() - q1);
+            if (steps++ > 0 && dq < row->ms_step) /* best of the steps; the first sizes `out` */
+                row->ms_step = dq;
             row->psnr_mid += rig_psnr(r, &rig, &gt, &out, a, b) / pairs;
             interp_at(ip, &k0, &k1, 0.5f, &nc, &out, NULL, &err);
             row->psnr_nearest += rig_psnr(r, &rig, &gt, &out, a, b) / pairs;
@@ -162,7 +165,9 @@ int bench_interp(int argc, char **argv)
                 int at = 3 * (k - 1) + j;
                 double q2 = bench_now();
                 interp_at(ip, &k0, &k1, fa, &fc, &out, NULL, &err);
-                row->ms_step += 1e3 * (bench_now() - q2);
+                double dq2 = 1e3 * (bench_now() - q2);
+                if (dq2 < row->ms_step)
+                    row->ms_step = dq2;
                 steps++;
                 render8(r, cam, &out, seq_f[at]);
                 interp_at(ip, &k0, &k1, fa, &uc, &out, NULL, &err);
@@ -174,7 +179,6 @@ int bench_interp(int argc, char **argv)
             memcpy(seq_u[3 * k], seq_f[3 * k], 3 * NP * sizeof(float));
             memcpy(seq_g[3 * k], seq_f[3 * k], 3 * NP * sizeof(float));
         }
-        row->ms_step /= steps;
         row->ms_key /= keys;
         row->tl_fused = splat_tlstd((const float *const *)seq_f, nseq, W, H);
         row->tl_unfused = splat_tlstd((const float *const *)seq_u, nseq, W, H);
