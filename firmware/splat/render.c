@@ -160,6 +160,8 @@ struct prep_job {
     const struct splat_frame  *f;
     const float               *features; /* NULL: clamped rgb */
     float lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg;
+    struct prep_view           pv;       /* the same, for the SIMD path */
+    int                        simd;
 };
 
 static float clampf(float v, float lo, float hi)
@@ -276,8 +278,20 @@ static void prep_task(void *arg, int task, int thread)
     size_t lo = (size_t)task * PREP_CHUNK, hi = lo + PREP_CHUNK, out = lo;
     if (hi > j->f->count)
         hi = j->f->count;
-    for (size_t i = lo; i < hi; i++)
-        if (prep_one(j, i)) { /* compacted at the chunk's start, in index order */
+    size_t i = lo;
+#ifdef F4D_SPLAT_HAVE_AVX2
+    if (j->simd)
+        for (; i + 8 <= hi; i += 8) {
+            unsigned m = splat__prep8_avx2(&j->pv, i);
+            for (int l = 0; l < 8; l++)
+                if (m >> l & 1) { /* compacted at the chunk's start, in index order */
+                    memcpy(&r->key[out], &r->proj[i + (size_t)l].z, sizeof(uint32_t));
+                    r->idx[out++] = (int32_t)(i + (size_t)l);
+                }
+        }
+#endif
+    for (; i < hi; i++)
+        if (prep_one(j, i)) {
             memcpy(&r->key[out], &r->proj[i].z, sizeof(uint32_t));
             r->idx[out++] = (int32_t)i;
         }
@@ -610,6 +624,13 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     pj.lim_x_neg = cam->cx / cam->fx + 0.3f * tanx;
     pj.lim_y_pos = ((float)r->height - cam->cy) / cam->fy + 0.3f * tany;
     pj.lim_y_neg = cam->cy / cam->fy + 0.3f * tany;
+    enum fk_isa isa = fk_ctx_isa(r->ctx);
+    pj.simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI;
+    pj.pv = (struct prep_view){ .f = f, .features = features, .proj = r->proj, .V = cam->w2c,
+                                .fx = cam->fx, .fy = cam->fy, .cx = cam->cx, .cy = cam->cy,
+                                .lim_x_pos = pj.lim_x_pos, .lim_x_neg = pj.lim_x_neg,
+                                .lim_y_pos = pj.lim_y_pos, .lim_y_neg = pj.lim_y_neg,
+                                .tiles_x = r->tiles_x, .tiles_y = r->tiles_y };
     int chunks = (int)((n + PREP_CHUNK - 1) / PREP_CHUNK);
     fk_parallel_for(r->ctx, chunks, 300.0 * (double)n, prep_task, &pj);
     size_t nv = 0;
@@ -652,13 +673,7 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
                                      .width = r->width, .height = r->height, .tiles_x = r->tiles_x },
                              .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top,
                              .normalize = normalize };
-    enum fk_isa isa = fk_ctx_isa(r->ctx);
-    int simd = 0;
-#ifdef F4D_SPLAT_HAVE_AVX2
-    simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI;
-#endif
-    (void)isa;
-    fk_parallel_for(r->ctx, r->n_tiles, 1e9, simd ? raster_task_simd : raster_task_ref, &rj);
+    fk_parallel_for(r->ctx, r->n_tiles, 1e9, pj.simd ? raster_task_simd : raster_task_ref, &rj);
     if (ms) {
         ms[0] = t1 - t0;
         ms[1] = t2 - t1;

@@ -21,6 +21,22 @@ struct projected {
 };
 _Static_assert(sizeof(struct projected) == 64, "one projected Gaussian per cache line");
 
+/* What preprocessing needs, for any Gaussian. */
+struct prep_view {
+    const struct splat_frame *f;
+    const float              *features;  /* NULL: rgb clamped to >= 0 */
+    struct projected         *proj;      /* output, frame order */
+    const float              *V;         /* world_to_camera, row-major */
+    float fx, fy, cx, cy;
+    float lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg;
+    int   tiles_x, tiles_y;
+};
+
+/* Preprocesses Gaussians i0 .. i0 + 7 like render.c's scalar prep_one, bit
+ * for bit (same operations in the same order, no fused multiply-adds, libm's
+ * logf per lane); returns the visibility mask, bit l for Gaussian i0 + l. */
+unsigned splat__prep8_avx2(const struct prep_view *pv, size_t i0);
+
 /* What one compositing pass needs, for any tile. */
 struct raster_ctx {
     const struct projected *sorted;
