@@ -27,6 +27,9 @@
 #define PREP_CHUNK     4096   /* Gaussians per preprocessing task      */
 #define BIN_CHUNK      16384  /* visible Gaussians per binning task    */
 #define PREFETCH_AHEAD 6
+#define SORT_TASKS     8      /* chunks of the parallel radix sort     */
+#define SORT_BITS      12     /* 2 passes for the usual 24-bit key range */
+#define SORT_RADIX     (1 << SORT_BITS)
 
 #if defined(__GNUC__) || defined(__clang__)
 #define splat_prefetch(p) __builtin_prefetch((p), 0, 3)
@@ -46,6 +49,7 @@ struct splat_renderer {
     int32_t  *idx, *idx_tmp;
     uint32_t *chunk_visible;  /* per preprocessing chunk */
     uint32_t *hist;           /* [bin chunks * n_tiles] counts, then cursors */
+    uint32_t *sort_count;     /* radix histograms */
     /* per tile */
     uint32_t *tile_start;     /* [n_tiles + 1] */
     int32_t  *pairs;          /* [cap_pairs] indices into sorted, tile-major, ascending */
@@ -129,7 +133,8 @@ int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out,
     r->tiles_y = (height + SPLAT_TILE - 1) / SPLAT_TILE;
     r->n_tiles = r->tiles_x * r->tiles_y;
     r->tile_start = calloc((size_t)r->n_tiles + 1, sizeof *r->tile_start);
-    if (!r->tile_start || splat_renderer_reserve(r, 1024, 4096) < 0) {
+    r->sort_count = malloc((size_t)SORT_TASKS * SORT_RADIX * sizeof *r->sort_count);
+    if (!r->tile_start || !r->sort_count || splat_renderer_reserve(r, 1024, 4096) < 0) {
         splat_renderer_free(r);
         return splat__fail(err, SPLAT_ENOMEM, "splat_renderer_new: out of memory");
     }
@@ -143,6 +148,7 @@ void splat_renderer_free(splat_renderer *r)
         return;
     free_gaussian_buffers(r);
     free(r->tile_start);
+    free(r->sort_count);
     free(r->pairs);
     free(r);
 }
@@ -304,7 +310,6 @@ static void prep_task(void *arg, int task, int thread)
  * each of SORT_TASKS contiguous chunks counts its digits, a prefix over
  * (digit, chunk) gives every chunk its output cursors, the chunks scatter.
  * A pass where every key has the same digit is skipped. */
-#define SORT_TASKS 8
 
 struct sort_job {
     const uint32_t *ks;
@@ -313,7 +318,7 @@ struct sort_job {
     int32_t        *vd;
     size_t          n;
     int             shift;
-    uint32_t        count[SORT_TASKS][256];
+    uint32_t       *count;             /* [SORT_TASKS * SORT_RADIX] */
 };
 
 static void sort_range(const struct sort_job *j, int task, size_t *lo, size_t *hi)
@@ -331,10 +336,10 @@ static void sort_count_task(void *arg, int task, int thread)
     struct sort_job *j = arg;
     size_t lo, hi;
     sort_range(j, task, &lo, &hi);
-    uint32_t *c = j->count[task];
-    memset(c, 0, 256 * sizeof *c);
+    uint32_t *c = j->count + (size_t)task * SORT_RADIX;
+    memset(c, 0, SORT_RADIX * sizeof *c);
     for (size_t i = lo; i < hi; i++)
-        c[(j->ks[i] >> j->shift) & 255]++;
+        c[(j->ks[i] >> j->shift) & (SORT_RADIX - 1)]++;
 }
 
 static void sort_scatter_task(void *arg, int task, int thread)
@@ -343,15 +348,16 @@ static void sort_scatter_task(void *arg, int task, int thread)
     struct sort_job *j = arg;
     size_t lo, hi;
     sort_range(j, task, &lo, &hi);
-    uint32_t *c = j->count[task];
+    uint32_t *c = j->count + (size_t)task * SORT_RADIX;
     for (size_t i = lo; i < hi; i++) {
-        uint32_t d = c[(j->ks[i] >> j->shift) & 255]++;
+        uint32_t d = c[(j->ks[i] >> j->shift) & (SORT_RADIX - 1)]++;
         j->kd[d] = j->ks[i];
         j->vd[d] = j->vs[i];
     }
 }
 
-static void radix_sort(fk_ctx *ctx, uint32_t *key, int32_t *val, uint32_t *ktmp, int32_t *vtmp, size_t n)
+static void radix_sort(fk_ctx *ctx, uint32_t *count, uint32_t *key, int32_t *val, uint32_t *ktmp, int32_t *vtmp,
+                       size_t n)
 {
     /* keys relative to the smallest: depths within a scene span a few
      * binades, so 3 passes instead of 4 (order is unchanged) */
@@ -365,25 +371,25 @@ static void radix_sort(fk_ctx *ctx, uint32_t *key, int32_t *val, uint32_t *ktmp,
     int bits = 0;
     while (bits < 32 && n && ((hi - lo) >> bits) != 0)
         bits++;
-    struct sort_job j = { .ks = key, .vs = val, .kd = ktmp, .vd = vtmp, .n = n };
-    for (int shift = 0; shift < bits; shift += 8) {
+    struct sort_job j = { .ks = key, .vs = val, .kd = ktmp, .vd = vtmp, .n = n, .count = count };
+    for (int shift = 0; shift < bits; shift += SORT_BITS) {
         j.shift = shift;
         fk_parallel_for(ctx, SORT_TASKS, 4.0 * (double)n, sort_count_task, &j);
         uint32_t sum = 0;
         int single = 0;
-        for (int b = 0; b < 256 && !single; b++) {
+        for (int b = 0; b < SORT_RADIX && !single; b++) {
             uint32_t tot = 0;
             for (int t = 0; t < SORT_TASKS; t++)
-                tot += j.count[t][b];
+                tot += count[(size_t)t * SORT_RADIX + (size_t)b];
             single = tot == n;
         }
         if (single)
             continue; /* every key shares this digit: the pass would not move anything */
-        for (int b = 0; b < 256; b++)
+        for (int b = 0; b < SORT_RADIX; b++)
             for (int t = 0; t < SORT_TASKS; t++) {
-                uint32_t c = j.count[t][b];
-                j.count[t][b] = sum;
-                sum += c;
+                uint32_t *c = &count[(size_t)t * SORT_RADIX + (size_t)b], v = *c;
+                *c = sum;
+                sum += v;
             }
         fk_parallel_for(ctx, SORT_TASKS, 8.0 * (double)n, sort_scatter_task, &j);
         const uint32_t *kt = j.ks; j.ks = j.kd; j.kd = (uint32_t *)kt;
@@ -409,8 +415,8 @@ static void gather_task(void *arg, int task, int thread)
     if (hi > j->n)
         hi = j->n;
     for (size_t v = lo; v < hi; v++) {
-        if (v + 8 < j->n) /* random reads: start the next misses early */
-            splat_prefetch(r->proj + r->idx[v + 8]);
+        if (v + 16 < j->n) /* random reads: start the next misses early */
+            splat_prefetch(r->proj + r->idx[v + 16]);
         r->sorted[v] = r->proj[r->idx[v]];
         memcpy(r->rect + 4 * v, r->sorted[v].rect, 4 * sizeof(int16_t));
     }
@@ -645,7 +651,7 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
 
     t1 = now_ms();
     /* 2. depth order */
-    radix_sort(r->ctx, r->key, r->idx, r->key_tmp, r->idx_tmp, nv);
+    radix_sort(r->ctx, r->sort_count, r->key, r->idx, r->key_tmp, r->idx_tmp, nv);
     struct order_job oj = { .r = r, .n = nv };
     fk_parallel_for(r->ctx, (int)((nv + PREP_CHUNK - 1) / PREP_CHUNK), 30.0 * (double)nv, gather_task, &oj);
 
