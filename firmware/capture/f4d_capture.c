@@ -45,7 +45,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     r->on_set = on_set;
     r->user = user;
     struct f4d_sync_config sc = {rig->n_cams, board->sync.window_us, board->sync.max_latency_us,
-                                 board->sync.incomplete, board->sync.pending_max};
+                                 board->sync.incomplete, board->sync.pending_max, 0};
     int rc = f4d_sync_init(&r->sync, &sc, on_sync_set, on_release, r);
     if (rc < 0) {
         free(r);

@@ -25,6 +25,8 @@ int f4d_sync_init(struct f4d_sync *s, const struct f4d_sync_config *cfg, f4d_syn
         return HAL_EINVAL;
     memset(s, 0, sizeof *s);
     s->cfg = *cfg;
+    if (s->cfg.learn_frames == 0)
+        s->cfg.learn_frames = F4D_SYNC_LEARN_FRAMES;
     s->on_set = on_set;
     s->on_release = on_release;
     s->user = user;
@@ -159,6 +161,12 @@ void f4d_sync_frame(struct f4d_sync *s, struct hal_buffer *b)
         if (!ck->clock_known) {
             ck->clock_known = true;
             ck->offset_ns = off;
+            ck->learned = 1;
+        } else if (ck->learned < s->cfg.learn_frames) {
+            /* transport delays only add: the smallest offset is the truest */
+            if (off < ck->offset_ns)
+                ck->offset_ns = off;
+            ck->learned++;
         } else {
             int64_t r = off - ck->offset_ns;
             if (r > window || r < -window) {

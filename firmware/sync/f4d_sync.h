@@ -26,7 +26,10 @@
  *    those that turned out late.
  *
  * Device clocks: each camera's offset to the trigger clock is learned from its
- * frames (first frame, then a slow average that follows drift); a frame flagged
+ * first F4D_SYNC_LEARN_FRAMES frames (the smallest device-minus-edge time: a
+ * late first frame must not bias it), then followed by a slow average that
+ * tracks drift; only after learning is the window enforced, so the first
+ * frames of a camera are grouped by sequence number alone. A frame flagged
  * HAL_FRAME_FLAG_CLOCK_RESET starts the camera over. Sets without a trigger
  * edge (no edge input on the board) are opened by their first frame and
  * checked against that frame's mapped time instead.
@@ -44,6 +47,7 @@
 #define F4D_SYNC_CAMS_MAX HAL_RIG_CAMERAS_MAX
 #define F4D_SYNC_PENDING_MAX 64
 #define F4D_SYNC_HISTORY 256 /* closed sets remembered to tell late from duplicate */
+#define F4D_SYNC_LEARN_FRAMES 8 /* frames per camera used to learn its clock offset */
 
 struct f4d_sync_config {
     uint32_t n_cams;
@@ -51,6 +55,7 @@ struct f4d_sync_config {
     uint32_t max_latency_us;
     enum hal_incomplete_policy policy;
     uint32_t pending_max;
+    uint32_t learn_frames;    /* clock-offset learning per camera; 0 = F4D_SYNC_LEARN_FRAMES */
 };
 
 struct f4d_sync_set {
@@ -91,6 +96,7 @@ struct f4d_sync_slot {
 
 struct f4d_sync_cam {
     bool clock_known;
+    uint32_t learned;         /* frames seen while learning the offset */
     int64_t offset_ns;        /* device_ts - trigger_ts, learned */
 };
 

@@ -159,6 +159,17 @@ static uint64_t world_next_event(struct rp_world *w)
     return n;
 }
 
+/* Next time anything can change for camera c (NULL: edges only). */
+static uint64_t world_next_for(struct rp_world *w, const struct rp_cam *c)
+{
+    uint64_t n = UINT64_MAX;
+    if (w->armed && w->next_set < w->n_sets)
+        n = w->next_set_ns;
+    if (c && c->n_ev && c->ev[0].arrival_ns < n)
+        n = c->ev[0].arrival_ns;
+    return n;
+}
+
 static uint64_t clk_now(void *ctx) { return world_now(ctx); }
 static void clk_sleep(void *ctx, uint64_t t) { world_sleep_until(ctx, t); }
 static uint64_t clk_next(void *ctx)
@@ -300,7 +311,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             return HAL_EEOF;
         if (now >= deadline)
             return HAL_ETIMEDOUT;
-        uint64_t next = world_next_event(w);
+        uint64_t next = world_next_for(w, c);
         world_sleep_until(w, next < deadline ? next : deadline);
         now = w->now;
     }
@@ -348,7 +359,7 @@ static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t
     struct rp_world *w = ctx;
     uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
     while (w->e_count == 0 && w->now < deadline) {
-        uint64_t next = world_next_event(w);
+        uint64_t next = world_next_for(w, NULL);
         world_sleep_until(w, next < deadline ? next : deadline);
     }
     uint32_t n = 0;

@@ -248,6 +248,22 @@ static uint64_t world_next_event(struct sim_world *w)
     return n;
 }
 
+/* Next time anything can change for camera c (c = NULL: the trigger line only).
+ * Other cameras' ready frames do not count: waiting on them would not advance. */
+static uint64_t world_next_for(struct sim_world *w, const struct sim_cam *c)
+{
+    uint64_t n = UINT64_MAX;
+    if (w->armed && (w->scheduled_limit == 0 || w->inj.pulses_scheduled < w->scheduled_limit))
+        n = w->next_pulse_ns;
+    if (w->extra_at && w->extra_at < n)
+        n = w->extra_at;
+    if (c && c->n_ev && c->ev[0].arrival_ns < n)
+        n = c->ev[0].arrival_ns;
+    if (c && c->disconnected_until > w->now && c->disconnected_until < n)
+        n = c->disconnected_until;
+    return n;
+}
+
 /* ---- clock ops ---- */
 static uint64_t clk_now(void *ctx) { return world_now(ctx); }
 static void clk_sleep(void *ctx, uint64_t t) { world_sleep_until(ctx, t); }
@@ -436,7 +452,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             return cam_fail(c, HAL_ENODEV, "disconnected");
         if (now >= deadline)
             return HAL_ETIMEDOUT;
-        uint64_t next = world_next_event(w);
+        uint64_t next = world_next_for(w, c);
         world_sleep_until(w, next < deadline ? next : deadline);
         now = w->now;
     }
@@ -500,7 +516,7 @@ static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t
     struct sim_world *w = ctx;
     uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
     while (w->e_count == 0 && w->now < deadline) {
-        uint64_t next = world_next_event(w);
+        uint64_t next = world_next_for(w, NULL);
         world_sleep_until(w, next < deadline ? next : deadline);
     }
     uint32_t n = 0;

@@ -51,7 +51,7 @@ static void sync_by_hand(void **state)
     (void)state;
     struct sink k = {0};
     struct f4d_sync s;
-    struct f4d_sync_config cfg = {2, 1000, 20000, HAL_INCOMPLETE_MARK, 4};
+    struct f4d_sync_config cfg = {2, 1000, 20000, HAL_INCOMPLETE_MARK, 4, 1};
     assert_int_equal(f4d_sync_init(&s, &cfg, sink_set, sink_release, &k), 0);
     struct f4d_sync_config bad = cfg;
     bad.n_cams = 0;

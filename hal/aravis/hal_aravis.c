@@ -1,0 +1,583 @@
+/* hal_aravis.c: Aravis cameras and the software trigger (see hal_aravis.h). */
+#include "hal_aravis.h"
+
+#include <arv.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define AV_BUFFERS_MAX 64
+#define AV_CAMS_MAX HAL_RIG_CAMERAS_MAX
+#define AV_EDGES_MAX 256
+#define AV_EDGE_LOG 64
+
+struct av_session;
+
+enum av_slot_state { AV_IDLE, AV_PENDING, AV_IN_STREAM };
+struct av_slot {
+    struct hal_buffer *hb;
+    ArvBuffer *ab; /* our own reference; the stream holds another while queued */
+    enum av_slot_state state;
+};
+
+struct av_cam {
+    struct av_session *s;
+    uint32_t index;
+    const struct hal_camera_config *cfg;
+    ArvCamera *cam;
+    ArvStream *stream;
+    struct hal_format fmt;
+    bool configured, started, gige;
+    struct av_slot slots[AV_BUFFERS_MAX];
+    uint32_t n_slots;
+    struct hal_buffer *aborted[AV_BUFFERS_MAX];
+    uint32_t n_aborted;
+    /* frame counter unwrapping and trigger anchoring */
+    bool have_first;
+    uint64_t last_raw, unwrapped, seq_base;
+    char err[256];
+};
+
+struct av_session {
+    const struct hal_board *board;
+    struct av_cam *cams[AV_CAMS_MAX];
+    bool software_trigger;
+    /* software trigger */
+    bool trig_open, armed;
+    uint64_t period_ns, next_pulse_ns, sent, limit, seq;
+    struct hal_edge edges[AV_EDGES_MAX];
+    uint32_t e_head, e_count;
+    struct hal_edge log[AV_EDGE_LOG]; /* recent edges, for anchoring first frames */
+    uint32_t log_n;
+    char err[256];
+};
+
+static uint64_t clock_ns(clockid_t id)
+{
+    struct timespec ts;
+    clock_gettime(id, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static int cam_fail(struct av_cam *c, int rc, const char *what, GError *e)
+{
+    snprintf(c->err, sizeof c->err, "aravis camera %.40s (%.40s): %.60s%s%.100s", c->cfg->id, c->cfg->address, what,
+             e ? ": " : "", e ? e->message : "");
+    if (e)
+        g_error_free(e);
+    return rc;
+}
+
+static const struct {
+    enum hal_pixfmt hal;
+    ArvPixelFormat arv;
+} pixfmts[] = {
+    {HAL_PIXFMT_MONO8, ARV_PIXEL_FORMAT_MONO_8},
+    {HAL_PIXFMT_RGB8, ARV_PIXEL_FORMAT_RGB_8_PACKED},
+    {HAL_PIXFMT_BAYER_RG8, ARV_PIXEL_FORMAT_BAYER_RG_8},
+    {HAL_PIXFMT_MONO16, ARV_PIXEL_FORMAT_MONO_16},
+    {HAL_PIXFMT_YUYV, ARV_PIXEL_FORMAT_YUV_422_YUYV_PACKED},
+};
+
+static ArvPixelFormat to_arv(enum hal_pixfmt f)
+{
+    for (size_t i = 0; i < sizeof pixfmts / sizeof pixfmts[0]; i++)
+        if (pixfmts[i].hal == f)
+            return pixfmts[i].arv;
+    return 0;
+}
+
+static uint32_t clamp_step(uint32_t v, gint lo, gint hi, gint inc)
+{
+    if (inc < 1)
+        inc = 1;
+    if ((gint)v < lo)
+        v = (uint32_t)lo;
+    if ((gint)v > hi)
+        v = (uint32_t)hi;
+    return v - (v - (uint32_t)lo) % (uint32_t)inc;
+}
+
+/* ---- camera ---- */
+static int cam_validate(void *ctx, struct hal_format *f)
+{
+    struct av_cam *c = ctx;
+    struct hal_format in = *f;
+    GError *e = NULL;
+    gint wmin, wmax, hmin, hmax;
+    arv_camera_get_width_bounds(c->cam, &wmin, &wmax, &e);
+    if (!e)
+        arv_camera_get_height_bounds(c->cam, &hmin, &hmax, &e);
+    if (e)
+        return cam_fail(c, HAL_EIO, "reading the image size bounds", e);
+    gint winc = arv_camera_get_width_increment(c->cam, NULL);
+    gint hinc = arv_camera_get_height_increment(c->cam, NULL);
+    f->width = clamp_step(f->width, wmin, wmax, winc);
+    f->height = clamp_step(f->height, hmin, hmax, hinc);
+    /* pixel format: the wish if the camera has it, else the first one we know */
+    guint n = 0;
+    gint64 *avail = arv_camera_dup_available_pixel_formats(c->cam, &n, &e);
+    if (e)
+        return cam_fail(c, HAL_EIO, "reading the pixel formats", e);
+    bool have = false;
+    enum hal_pixfmt first = HAL_PIXFMT_INVALID;
+    for (guint i = 0; i < n; i++) {
+        for (size_t k = 0; k < sizeof pixfmts / sizeof pixfmts[0]; k++) {
+            if ((ArvPixelFormat)avail[i] != pixfmts[k].arv)
+                continue;
+            if (first == HAL_PIXFMT_INVALID)
+                first = pixfmts[k].hal;
+            have |= pixfmts[k].hal == f->pixfmt;
+        }
+    }
+    g_free(avail);
+    if (!have) {
+        if (first == HAL_PIXFMT_INVALID)
+            return cam_fail(c, HAL_ENOTSUP, "no supported pixel format", NULL);
+        f->pixfmt = first;
+    }
+    double rmin = 0, rmax = 0;
+    arv_camera_get_frame_rate_bounds(c->cam, &rmin, &rmax, &e);
+    if (e) {
+        g_error_free(e); /* some cameras have no frame rate control: keep the wish */
+        e = NULL;
+    } else if (f->rate_mhz) {
+        double hz = f->rate_mhz / 1000.0;
+        if (hz < rmin)
+            f->rate_mhz = (uint32_t)(rmin * 1000.0 + 0.5);
+        if (hz > rmax)
+            f->rate_mhz = (uint32_t)(rmax * 1000.0);
+    }
+    if (arv_camera_is_exposure_time_available(c->cam, NULL)) {
+        double emin = 0, emax = 0;
+        arv_camera_get_exposure_time_bounds(c->cam, &emin, &emax, &e);
+        if (e) {
+            g_error_free(e);
+            e = NULL;
+        } else {
+            if (f->exposure_us < emin)
+                f->exposure_us = (uint32_t)(emin + 0.999);
+            if (f->exposure_us > emax)
+                f->exposure_us = (uint32_t)emax;
+        }
+    }
+    /* the rig's trigger decides: a software trigger drives the cameras by command */
+    if (f->trigger == HAL_TRIGGER_HARDWARE && c->s->software_trigger)
+        f->trigger = HAL_TRIGGER_SOFTWARE;
+    if (f->trigger == HAL_TRIGGER_HARDWARE && c->cfg->trigger_line < 0)
+        f->trigger = HAL_TRIGGER_FREE_RUN;
+    f->stride = f->width * hal_pixfmt_bytes_per_pixel(f->pixfmt);
+    if (hal_format_finish(f) < 0)
+        return cam_fail(c, HAL_EINVAL, "format cannot be represented", NULL);
+    return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
+}
+
+static int cam_configure(void *ctx, const struct hal_format *f)
+{
+    struct av_cam *c = ctx;
+    if (c->started)
+        return cam_fail(c, HAL_ESTATE, "configure while started", NULL);
+    struct hal_format v = *f;
+    int rc = cam_validate(c, &v);
+    if (rc != HAL_FORMAT_VALID)
+        return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged", NULL);
+    GError *e = NULL;
+    arv_camera_set_region(c->cam, 0, 0, (gint)f->width, (gint)f->height, &e);
+    if (e)
+        return cam_fail(c, HAL_EIO, "setting the region", e);
+    arv_camera_set_pixel_format(c->cam, to_arv(f->pixfmt), &e);
+    if (e)
+        return cam_fail(c, HAL_EIO, "setting the pixel format", e);
+    if (f->trigger == HAL_TRIGGER_SOFTWARE) {
+        arv_camera_set_trigger(c->cam, "Software", &e);
+    } else if (f->trigger == HAL_TRIGGER_HARDWARE) {
+        char line[16];
+        snprintf(line, sizeof line, "Line%d", (int)c->cfg->trigger_line);
+        arv_camera_set_trigger(c->cam, line, &e);
+    } else {
+        arv_camera_clear_triggers(c->cam, &e);
+        if (!e && f->rate_mhz)
+            arv_camera_set_frame_rate(c->cam, f->rate_mhz / 1000.0, &e);
+    }
+    if (e)
+        return cam_fail(c, HAL_EIO, "setting the trigger", e);
+    if (arv_camera_is_exposure_time_available(c->cam, NULL)) {
+        arv_camera_set_exposure_time(c->cam, (double)f->exposure_us, &e);
+        if (e)
+            return cam_fail(c, HAL_EIO, "setting the exposure time", e);
+    }
+    if (c->gige && c->cfg->packet_size) {
+        arv_camera_gv_set_packet_size(c->cam, (gint)c->cfg->packet_size, &e);
+        if (e)
+            return cam_fail(c, HAL_EIO, "setting the packet size", e);
+    }
+    c->fmt = v;
+    c->configured = true;
+    return HAL_OK;
+}
+
+static int push_slot(struct av_cam *c, struct av_slot *sl)
+{
+    g_object_ref(sl->ab); /* the stream's reference */
+    arv_stream_push_buffer(c->stream, sl->ab);
+    sl->state = AV_IN_STREAM;
+    return HAL_OK;
+}
+
+static int cam_start(void *ctx)
+{
+    struct av_cam *c = ctx;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "start before configure", NULL);
+    if (c->started)
+        return HAL_OK;
+    GError *e = NULL;
+    c->stream = arv_camera_create_stream(c->cam, NULL, NULL, &e);
+    if (e || !c->stream)
+        return cam_fail(c, HAL_EIO, "creating the stream", e);
+    if (c->gige && ARV_IS_GV_STREAM(c->stream) && c->cfg->socket_buffer)
+        g_object_set(c->stream, "socket-buffer", ARV_GV_STREAM_SOCKET_BUFFER_FIXED,
+                     "socket-buffer-size", (gint)c->cfg->socket_buffer, NULL);
+    for (uint32_t i = 0; i < c->n_slots; i++)
+        if (c->slots[i].state == AV_PENDING)
+            push_slot(c, &c->slots[i]);
+    c->have_first = false;
+    arv_camera_start_acquisition(c->cam, &e);
+    if (e) {
+        g_clear_object(&c->stream);
+        for (uint32_t i = 0; i < c->n_slots; i++)
+            if (c->slots[i].state == AV_IN_STREAM)
+                c->slots[i].state = AV_PENDING;
+        return cam_fail(c, HAL_EIO, "starting the acquisition", e);
+    }
+    c->started = true;
+    return HAL_OK;
+}
+
+static int cam_stop(void *ctx)
+{
+    struct av_cam *c = ctx;
+    if (c->started) {
+        GError *e = NULL;
+        arv_camera_stop_acquisition(c->cam, &e);
+        if (e)
+            g_error_free(e); /* the camera may be gone: still release everything */
+        g_clear_object(&c->stream); /* drops the stream's references */
+        c->started = false;
+    }
+    for (uint32_t i = 0; i < c->n_slots; i++) {
+        struct av_slot *sl = &c->slots[i];
+        if (sl->state == AV_IDLE)
+            continue;
+        sl->state = AV_IDLE;
+        sl->hb->status = HAL_FRAME_ABORTED;
+        sl->hb->bytes_used = 0;
+        c->aborted[c->n_aborted++] = sl->hb;
+    }
+    return HAL_OK;
+}
+
+static int cam_enqueue(void *ctx, struct hal_buffer *b)
+{
+    struct av_cam *c = ctx;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "enqueue before configure", NULL);
+    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
+        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image", NULL);
+    struct av_slot *sl = NULL;
+    for (uint32_t i = 0; i < c->n_slots && !sl; i++)
+        if (c->slots[i].hb == b)
+            sl = &c->slots[i];
+    if (sl && sl->state != AV_IDLE)
+        return cam_fail(c, HAL_EBUSY, "buffer is already queued", NULL);
+    if (!sl) {
+        if (c->n_slots == AV_BUFFERS_MAX)
+            return cam_fail(c, HAL_EBUSY, "too many distinct buffers", NULL);
+        sl = &c->slots[c->n_slots++];
+        sl->hb = b;
+        sl->ab = arv_buffer_new_full(b->capacity, b->data, b, NULL);
+    }
+    if (c->started)
+        return push_slot(c, sl);
+    sl->state = AV_PENDING;
+    return HAL_OK;
+}
+
+static enum hal_frame_status map_status(ArvBufferStatus s)
+{
+    switch (s) {
+    case ARV_BUFFER_STATUS_SUCCESS: return HAL_FRAME_OK;
+    case ARV_BUFFER_STATUS_TIMEOUT: return HAL_FRAME_TIMEOUT;
+    case ARV_BUFFER_STATUS_SIZE_MISMATCH: return HAL_FRAME_SIZE_MISMATCH;
+    case ARV_BUFFER_STATUS_ABORTED: return HAL_FRAME_ABORTED;
+    default: return HAL_FRAME_MISSING_PACKETS;
+    }
+}
+
+/* GigE Vision 1.x block ids are 16-bit and skip 0. */
+static uint64_t unwrap(struct av_cam *c, uint64_t raw)
+{
+    if (!c->have_first) {
+        c->last_raw = raw;
+        c->unwrapped = raw;
+        return raw;
+    }
+    uint64_t d;
+    if (c->gige && raw <= 0xFFFF && c->last_raw <= 0xFFFF)
+        d = raw >= c->last_raw ? raw - c->last_raw : raw + 0xFFFF - c->last_raw;
+    else
+        d = raw - c->last_raw;
+    c->last_raw = raw;
+    c->unwrapped += d;
+    return c->unwrapped;
+}
+
+static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
+{
+    struct av_cam *c = ctx;
+    *out = NULL;
+    if (c->n_aborted) {
+        *out = c->aborted[--c->n_aborted];
+        return HAL_OK;
+    }
+    if (!c->started)
+        return cam_fail(c, HAL_ESTATE, "dequeue while stopped", NULL);
+    ArvBuffer *ab = timeout_us ? arv_stream_timeout_pop_buffer(c->stream, timeout_us)
+                               : arv_stream_try_pop_buffer(c->stream);
+    if (!ab)
+        return HAL_ETIMEDOUT;
+    struct hal_buffer *b = (struct hal_buffer *)arv_buffer_get_user_data(ab);
+    struct av_slot *sl = NULL;
+    for (uint32_t i = 0; i < c->n_slots && !sl; i++)
+        if (c->slots[i].ab == ab)
+            sl = &c->slots[i];
+    g_object_unref(ab); /* the stream's reference */
+    if (!sl || !b)
+        return cam_fail(c, HAL_EIO, "stream returned a foreign buffer", NULL);
+    sl->state = AV_IDLE;
+    uint64_t mono = clock_ns(CLOCK_MONOTONIC), real = clock_ns(CLOCK_REALTIME);
+    uint64_t sys = arv_buffer_get_system_timestamp(ab);
+    b->status = map_status(arv_buffer_get_status(ab));
+    size_t size = 0;
+    if (b->status == HAL_FRAME_OK)
+        arv_buffer_get_image_data(ab, &size);
+    else
+        arv_buffer_get_data(ab, &size);
+    b->bytes_used = size <= b->capacity ? size : b->capacity;
+    if (b->status == HAL_FRAME_OK && b->bytes_used < c->fmt.image_bytes)
+        b->status = HAL_FRAME_SIZE_MISMATCH;
+    b->flags = 0;
+    b->camera_index = c->index;
+    b->format = c->fmt;
+    b->device_ts_ns = arv_buffer_get_timestamp(ab);
+    b->host_ts_ns = sys && sys <= real && real - sys < mono ? mono - (real - sys) : mono;
+    uint64_t fid = unwrap(c, arv_buffer_get_frame_id(ab));
+    if (!c->have_first) {
+        c->have_first = true;
+        /* anchor: the latest software edge sent before the frame arrived */
+        uint64_t best = 0;
+        for (uint32_t i = 0; i < c->s->log_n && i < AV_EDGE_LOG; i++) {
+            const struct hal_edge *e = &c->s->log[i];
+            if (e->ts_ns <= b->host_ts_ns && e->seq > best)
+                best = e->seq;
+        }
+        c->seq_base = (best ? best : 1) - fid;
+    }
+    b->frame_id = fid;
+    b->trigger_seq = fid + c->seq_base;
+    *out = b;
+    return HAL_OK;
+}
+
+static void cam_close(void *ctx)
+{
+    struct av_cam *c = ctx;
+    cam_stop(c);
+    for (uint32_t i = 0; i < c->n_slots; i++)
+        g_clear_object(&c->slots[i].ab);
+    g_clear_object(&c->cam);
+    c->s->cams[c->index] = NULL;
+    free(c);
+}
+
+static const char *cam_last_error(void *ctx) { return ((struct av_cam *)ctx)->err; }
+
+static const struct hal_camera_ops av_camera_ops = {
+    .api_version = HAL_API_VERSION,
+    .validate = cam_validate,
+    .configure = cam_configure,
+    .start = cam_start,
+    .stop = cam_stop,
+    .enqueue = cam_enqueue,
+    .dequeue = cam_dequeue,
+    .close = cam_close,
+    .last_error = cam_last_error,
+};
+
+/* ---- software trigger ---- */
+static void fire_due(struct av_session *s, uint64_t now)
+{
+    while (s->armed && now >= s->next_pulse_ns && (s->limit == 0 || s->sent < s->limit)) {
+        for (uint32_t i = 0; i < AV_CAMS_MAX; i++) {
+            struct av_cam *c = s->cams[i];
+            if (c && c->started) {
+                GError *e = NULL;
+                arv_camera_software_trigger(c->cam, &e);
+                if (e) {
+                    snprintf(s->err, sizeof s->err, "camera %.40s: TriggerSoftware: %.160s", c->cfg->id, e->message);
+                    g_error_free(e);
+                }
+            }
+        }
+        struct hal_edge ed = {++s->seq, now, 0, true};
+        s->sent++;
+        /* late polls fire once, not in a burst: the next pulse keeps the grid */
+        while (s->next_pulse_ns <= now)
+            s->next_pulse_ns += s->period_ns;
+        if (s->e_count < AV_EDGES_MAX)
+            s->edges[(s->e_head + s->e_count++) % AV_EDGES_MAX] = ed;
+        s->log[s->log_n++ % AV_EDGE_LOG] = ed;
+    }
+}
+
+static int trig_arm(void *ctx, const struct hal_pulse_train *p)
+{
+    struct av_session *s = ctx;
+    if (p->rate_mhz == 0 || p->rate_mhz > 1000000u) {
+        snprintf(s->err, sizeof s->err, "aravis trigger: rate %u mHz out of range", (unsigned)p->rate_mhz);
+        return HAL_EINVAL;
+    }
+    s->period_ns = 1000000000000ull / p->rate_mhz;
+    s->next_pulse_ns = clock_ns(CLOCK_MONOTONIC) + s->period_ns;
+    s->limit = p->count ? s->sent + p->count : 0;
+    s->armed = true;
+    return HAL_OK;
+}
+
+static int trig_disarm(void *ctx)
+{
+    ((struct av_session *)ctx)->armed = false;
+    return HAL_OK;
+}
+
+static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
+{
+    struct av_session *s = ctx;
+    uint64_t now = clock_ns(CLOCK_MONOTONIC);
+    uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
+    fire_due(s, now);
+    while (s->e_count == 0 && now < deadline && s->armed) {
+        uint64_t t = s->next_pulse_ns < deadline ? s->next_pulse_ns : deadline;
+        struct timespec ts = {(time_t)(t / 1000000000u), (long)(t % 1000000000u)};
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+        now = clock_ns(CLOCK_MONOTONIC);
+        fire_due(s, now);
+    }
+    uint32_t n = 0;
+    while (n < max && s->e_count) {
+        e[n++] = s->edges[s->e_head];
+        s->e_head = (s->e_head + 1) % AV_EDGES_MAX;
+        s->e_count--;
+    }
+    return (int)n;
+}
+
+static bool trig_done(void *ctx)
+{
+    struct av_session *s = ctx;
+    return s->limit != 0 && s->sent >= s->limit;
+}
+
+static void trig_close(void *ctx)
+{
+    struct av_session *s = ctx;
+    s->armed = false;
+    s->trig_open = false;
+}
+
+static const char *trig_last_error(void *ctx) { return ((struct av_session *)ctx)->err; }
+
+static const struct hal_trigger_ops av_trigger_ops = {
+    .api_version = HAL_API_VERSION,
+    .arm = trig_arm,
+    .disarm = trig_disarm,
+    .read_edges = trig_read_edges,
+    .close = trig_close,
+    .done = trig_done,
+    .last_error = trig_last_error,
+};
+
+/* ---- backend ---- */
+static int av_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+{
+    struct av_session *s = calloc(1, sizeof *s);
+    if (!s)
+        return hal_fail(err, n, HAL_ENOMEM, "aravis: out of memory");
+    s->board = board;
+    s->software_trigger = strcmp(board->trigger.backend, "aravis") == 0;
+    *session = s;
+    return HAL_OK;
+}
+
+static void av_session_close(void *session) { free(session); }
+
+static int av_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
+                          struct hal_camera *out, char *err, size_t n)
+{
+    struct av_session *s = session;
+    if (!cfg->address[0])
+        return hal_fail(err, n, HAL_EINVAL,
+                        "aravis camera %s: no address (an IP or device id); discovery is never used",
+                        cfg->id);
+    if (index >= AV_CAMS_MAX || s->cams[index])
+        return hal_fail(err, n, HAL_EBUSY, "aravis camera %s: index in use", cfg->id);
+    GError *e = NULL;
+    ArvCamera *cam = arv_camera_new(cfg->address, &e);
+    if (!cam) {
+        int rc = hal_fail(err, n, HAL_ENODEV, "aravis camera %s: cannot open %s: %s", cfg->id,
+                          cfg->address, e ? e->message : "unknown error");
+        if (e)
+            g_error_free(e);
+        return rc;
+    }
+    struct av_cam *c = calloc(1, sizeof *c);
+    if (!c) {
+        g_object_unref(cam);
+        return hal_fail(err, n, HAL_ENOMEM, "aravis: out of memory");
+    }
+    c->s = s;
+    c->index = index;
+    c->cfg = cfg;
+    c->cam = cam;
+    c->gige = arv_camera_is_gv_device(cam);
+    if (c->gige)
+        arv_camera_gv_set_stream_options(cam, ARV_GV_STREAM_OPTION_PACKET_SOCKET_DISABLED);
+    s->cams[index] = c;
+    out->ops = av_camera_ops;
+    out->ctx = c;
+    out->index = index;
+    return HAL_OK;
+}
+
+static int av_trigger_open(void *session, const struct hal_trigger_config *cfg,
+                           struct hal_trigger *out, char *err, size_t n)
+{
+    (void)cfg;
+    struct av_session *s = session;
+    if (s->trig_open)
+        return hal_fail(err, n, HAL_EBUSY, "aravis trigger already open");
+    s->trig_open = true;
+    out->ops = av_trigger_ops;
+    out->ctx = s;
+    return HAL_OK;
+}
+
+const struct hal_backend hal_aravis_backend = {
+    .api_version = HAL_API_VERSION,
+    .name = "aravis",
+    .session_open = av_session_open,
+    .session_close = av_session_close,
+    .camera_open = av_camera_open,
+    .trigger_open = av_trigger_open,
+};
