@@ -64,6 +64,44 @@ __attribute__((noinline)) void fk__ukr_f32_6x16(int kc, const float *a, const fl
     _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
 }
 
+/* The same tile with A read in place through six row pointers (each row's k
+ * contiguous): stride-1 convolutions on HWC images need no im2col gather and
+ * no packing, a tap's six pixels are adjacent in memory. */
+__attribute__((noinline)) static void ukr_f32_rows(int kc, const float *const a[MR], const float *b,
+                                                   float *c, int ldc, int accumulate)
+{
+    const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
+    __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
+    if (accumulate) {
+        c00 = _mm256_load_ps(c + 0 * ldc); c01 = _mm256_load_ps(c + 0 * ldc + 8);
+        c10 = _mm256_load_ps(c + 1 * ldc); c11 = _mm256_load_ps(c + 1 * ldc + 8);
+        c20 = _mm256_load_ps(c + 2 * ldc); c21 = _mm256_load_ps(c + 2 * ldc + 8);
+        c30 = _mm256_load_ps(c + 3 * ldc); c31 = _mm256_load_ps(c + 3 * ldc + 8);
+        c40 = _mm256_load_ps(c + 4 * ldc); c41 = _mm256_load_ps(c + 4 * ldc + 8);
+        c50 = _mm256_load_ps(c + 5 * ldc); c51 = _mm256_load_ps(c + 5 * ldc + 8);
+    } else {
+        c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
+        c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
+    }
+#pragma GCC unroll 4
+    for (int k = 0; k < kc; k++) {
+        __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
+        t = _mm256_broadcast_ss(a0 + k); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
+        t = _mm256_broadcast_ss(a1 + k); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
+        t = _mm256_broadcast_ss(a2 + k); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
+        t = _mm256_broadcast_ss(a3 + k); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
+        t = _mm256_broadcast_ss(a4 + k); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
+        t = _mm256_broadcast_ss(a5 + k); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
+        b += 16;
+    }
+    _mm256_store_ps(c + 0 * ldc, c00); _mm256_store_ps(c + 0 * ldc + 8, c01);
+    _mm256_store_ps(c + 1 * ldc, c10); _mm256_store_ps(c + 1 * ldc + 8, c11);
+    _mm256_store_ps(c + 2 * ldc, c20); _mm256_store_ps(c + 2 * ldc + 8, c21);
+    _mm256_store_ps(c + 3 * ldc, c30); _mm256_store_ps(c + 3 * ldc + 8, c31);
+    _mm256_store_ps(c + 4 * ldc, c40); _mm256_store_ps(c + 4 * ldc + 8, c41);
+    _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
+}
+
 static inline long long load_i64(const int16_t *p)
 {
     long long v;
@@ -324,16 +362,36 @@ struct gemm_job {
     const struct fk__asrc    *a;
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
-    int    m, mc, n_chunks, panels, panels_per_chunk, k_pad, vnni;
+    int    m, mc, n_chunks, panels, panels_per_chunk, k_pad, vnni, direct;
     size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero;
 };
+
+/* Row pointers of micro-panel i for the k block starting at k0 of a stride-1
+ * convolution: output pixel (oy, ox), tap (ky, kx), channels from k0 % cin;
+ * padding and rows past the end read zeros. */
+static void direct_rows(const struct fk__asrc *a, int m0, int rows, int i, int k0,
+                        const float *zeros, const float *ar[MR])
+{
+    int tap = k0 / a->cin, c0 = k0 % a->cin, ky = tap / a->kw, kx = tap % a->kw;
+    for (int r = 0; r < MR; r++) {
+        int row = i * MR + r, m = m0 + row;
+        int iy = m / a->wo - a->pad + ky, ix = m % a->wo - a->pad + kx;
+        if (row >= rows || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w)
+            ar[r] = zeros;
+        else
+            ar[r] = a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin + (size_t)c0;
+    }
+}
 
 static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
 {
     const struct fk_linear *L = j->L;
     int k = L->k, mp = (rows + MR - 1) / MR;
     float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
-    pack_a_f32(j->a, m0, rows, k, ap, (float *)(s + j->off_tmp), (const float *)(s + j->off_zero));
+    const float *zeros = (const float *)(s + j->off_zero);
+    const struct fk__asrc *src = j->a;
+    if (!j->direct)
+        pack_a_f32(src, m0, rows, k, ap, (float *)(s + j->off_tmp), zeros);
     /* Panels in groups of PG: the tile holds PG x 16 columns per row, so the
      * epilogue writes 256 contiguous bytes per output row, not 64 bytes
      * 4 KB apart (which thrashed L1 sets). */
@@ -341,8 +399,10 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
     for (int jg = jp0; jg < jp1; jg += PG) {
         int jge = jg + PG < jp1 ? jg + PG : jp1;
         for (int jp = jg; jp < jge; jp++)
-            for (int k0 = 0; k0 < k; k0 += KC) {
-                int kc = k - k0 < KC ? k - k0 : KC;
+            for (int k0 = 0, kc; k0 < k; k0 += kc) {
+                /* direct convolution: k blocks never straddle two taps */
+                kc = j->direct ? src->cin - k0 % src->cin : k - k0;
+                kc = kc < KC ? kc : KC;
                 const float *bp;
                 if (L->type == FK_W_F32) {
                     bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
@@ -370,9 +430,15 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                 for (int i = 0; i < mp; i++) {
                     for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < next_lines; l++)
                         _mm_prefetch(next + l * 64, _MM_HINT_T0);
-                    fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp,
-                                     ct + (size_t)i * MR * (size_t)ldc + (size_t)(jp - jg) * NR, ldc,
-                                     k0 > 0);
+                    float *ci = ct + (size_t)i * MR * (size_t)ldc + (size_t)(jp - jg) * NR;
+                    if (j->direct) {
+                        const float *ar[MR];
+                        direct_rows(src, m0, rows, i, k0, zeros, ar);
+                        ukr_f32_rows(kc, ar, bp, ci, ldc, k0 > 0);
+                    } else {
+                        fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp, ci,
+                                         ldc, k0 > 0);
+                    }
                 }
             }
         for (int r = 0; r < rows; r++)
@@ -446,7 +512,7 @@ static void gemm_task(void *arg, int task, int thread)
 int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a, int m,
                   const struct fk__cdst *c, const struct fk_epilogue *ep)
 {
-    struct gemm_job j = { ctx, L, a, c, ep, m, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
+    struct gemm_job j = { ctx, L, a, c, ep, m, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
     int k = L->k, q8 = L->type == FK_W_Q8;
     j.vnni = q8 && ctx->isa == FK_ISA_AVX2_VNNI;
     j.k_pad = q8 ? (int)fk__round_up((size_t)k, 4) : k;
@@ -455,6 +521,8 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     /* The packed rows of A stay in L2 for the whole task: half of it. */
     long l2 = sysconf(_SC_LEVEL2_CACHE_SIZE);
     size_t budget = l2 >= 256 * 1024 && l2 <= 64l << 20 ? (size_t)l2 / 2 : 512 * 1024;
+    /* stride-1 convolutions (3x3 in the DPT heads) read A in place */
+    j.direct = !q8 && a->conv && a->stride == 1;
     size_t a_row = q8 ? (size_t)j.k_pad * (j.vnni ? 1 : 2) : (size_t)k * 4;
     int mc = (int)(budget / a_row) / MR * MR;
     if (mc > 144)
@@ -480,11 +548,11 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
 
     size_t mcp = fk__round_up((size_t)mc, MR);
-    size_t bytes_a = fk__round_up(mcp * a_row + 8 * sizeof(float), FK_ALIGN); /* + transpose spill */
+    size_t bytes_a = j.direct ? 0 : fk__round_up(mcp * a_row + 8 * sizeof(float), FK_ALIGN); /* + transpose spill */
     j.off_c = bytes_a;
     j.off_b = j.off_c + fk__round_up(mcp * NR * (q8 ? 1 : PG) * 4, FK_ALIGN);
     j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : (size_t)KC * NR * 4);
-    size_t tmp = a->conv ? (size_t)(q8 ? 1 : MR) * (size_t)k * 4 : 0;
+    size_t tmp = a->conv && !j.direct ? (size_t)(q8 ? 1 : MR) * (size_t)k * 4 : 0;
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
     /* a row of zeros stands in for the padding rows of the last micro-panel */
