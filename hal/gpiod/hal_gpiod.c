@@ -1,0 +1,247 @@
+/* hal_gpiod.c: GPIO trigger output and strobe input (see hal_gpiod.h). */
+#include "hal_gpiod.h"
+
+#include <errno.h>
+#include <gpiod.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define GP_EDGES_MAX 256
+#define GP_CONSUMER "forge4d"
+
+struct gp_trigger {
+    struct gpiod_chip *chip;
+    struct gpiod_line *out, *strobe;
+    uint32_t out_line;
+    bool armed;
+    uint64_t period_ns, width_ns, next_pulse_ns, sent, limit, seq;
+    struct hal_edge edges[GP_EDGES_MAX];
+    uint32_t e_head, e_count;
+    char err[256];
+};
+
+static uint64_t mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static void sleep_until(uint64_t t)
+{
+    struct timespec ts = {(time_t)(t / 1000000000u), (long)(t % 1000000000u)};
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
+    }
+}
+
+static void push_edge(struct gp_trigger *g, uint64_t ts)
+{
+    if (g->e_count == GP_EDGES_MAX) { /* nobody reads: the oldest is lost */
+        g->e_head = (g->e_head + 1) % GP_EDGES_MAX;
+        g->e_count--;
+    }
+    struct hal_edge *e = &g->edges[(g->e_head + g->e_count++) % GP_EDGES_MAX];
+    e->seq = ++g->seq;
+    e->ts_ns = ts;
+    e->line = g->out_line;
+    e->rising = true;
+}
+
+static int fire_due(struct gp_trigger *g)
+{
+    uint64_t now = mono_ns();
+    while (g->armed && now >= g->next_pulse_ns && (g->limit == 0 || g->sent < g->limit)) {
+        uint64_t t = mono_ns();
+        if (gpiod_line_set_value(g->out, 1) < 0) {
+            snprintf(g->err, sizeof g->err, "gpiod: line %u: set high: %s", (unsigned)g->out_line, strerror(errno));
+            return HAL_EIO;
+        }
+        sleep_until(t + g->width_ns);
+        if (gpiod_line_set_value(g->out, 0) < 0) {
+            snprintf(g->err, sizeof g->err, "gpiod: line %u: set low: %s", (unsigned)g->out_line, strerror(errno));
+            return HAL_EIO;
+        }
+        g->sent++;
+        if (!g->strobe)
+            push_edge(g, t);
+        while (g->next_pulse_ns <= now)
+            g->next_pulse_ns += g->period_ns;
+        now = mono_ns();
+    }
+    return HAL_OK;
+}
+
+static int read_strobes(struct gp_trigger *g, uint64_t timeout_ns)
+{
+    struct timespec to = {(time_t)(timeout_ns / 1000000000u), (long)(timeout_ns % 1000000000u)};
+    int rc = gpiod_line_event_wait(g->strobe, &to);
+    while (rc > 0) {
+        struct gpiod_line_event ev;
+        if (gpiod_line_event_read(g->strobe, &ev) < 0) {
+            snprintf(g->err, sizeof g->err, "gpiod: strobe line: read: %s", strerror(errno));
+            return HAL_EIO;
+        }
+        if (ev.event_type == GPIOD_LINE_EVENT_RISING_EDGE)
+            push_edge(g, (uint64_t)ev.ts.tv_sec * 1000000000u + (uint64_t)ev.ts.tv_nsec);
+        struct timespec zero = {0, 0};
+        rc = gpiod_line_event_wait(g->strobe, &zero);
+    }
+    if (rc < 0) {
+        snprintf(g->err, sizeof g->err, "gpiod: strobe line: wait: %s", strerror(errno));
+        return HAL_EIO;
+    }
+    return HAL_OK;
+}
+
+static int trig_arm(void *ctx, const struct hal_pulse_train *p)
+{
+    struct gp_trigger *g = ctx;
+    if (p->rate_mhz == 0 || p->rate_mhz > 10000000u) {
+        snprintf(g->err, sizeof g->err, "gpiod: rate %u mHz out of range", (unsigned)p->rate_mhz);
+        return HAL_EINVAL;
+    }
+    g->period_ns = 1000000000000ull / p->rate_mhz;
+    g->width_ns = (uint64_t)p->width_us * 1000u;
+    if (g->width_ns == 0 || g->width_ns >= g->period_ns) {
+        snprintf(g->err, sizeof g->err, "gpiod: pulse width %u us must be > 0 and < the period",
+                 (unsigned)p->width_us);
+        return HAL_EINVAL;
+    }
+    g->next_pulse_ns = mono_ns() + g->period_ns;
+    g->limit = p->count ? g->sent + p->count : 0;
+    g->armed = true;
+    return HAL_OK;
+}
+
+static int trig_disarm(void *ctx)
+{
+    struct gp_trigger *g = ctx;
+    g->armed = false;
+    return gpiod_line_set_value(g->out, 0) < 0 ? HAL_EIO : HAL_OK;
+}
+
+static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
+{
+    struct gp_trigger *g = ctx;
+    uint64_t deadline = mono_ns() + (uint64_t)timeout_us * 1000u;
+    for (;;) {
+        int rc = fire_due(g);
+        if (rc == HAL_OK && g->strobe)
+            rc = read_strobes(g, 0);
+        if (rc < 0)
+            return rc;
+        uint64_t now = mono_ns();
+        if (g->e_count || now >= deadline)
+            break;
+        uint64_t t = g->armed && g->next_pulse_ns < deadline ? g->next_pulse_ns : deadline;
+        if (g->strobe) {
+            if ((rc = read_strobes(g, t - now)) < 0)
+                return rc;
+        } else {
+            sleep_until(t);
+        }
+    }
+    uint32_t n = 0;
+    while (n < max && g->e_count) {
+        e[n++] = g->edges[g->e_head];
+        g->e_head = (g->e_head + 1) % GP_EDGES_MAX;
+        g->e_count--;
+    }
+    return (int)n;
+}
+
+static bool trig_done(void *ctx)
+{
+    struct gp_trigger *g = ctx;
+    return g->limit != 0 && g->sent >= g->limit;
+}
+
+static void trig_close(void *ctx)
+{
+    struct gp_trigger *g = ctx;
+    if (g->out)
+        gpiod_line_release(g->out);
+    if (g->strobe)
+        gpiod_line_release(g->strobe);
+    if (g->chip)
+        gpiod_chip_close(g->chip);
+    free(g);
+}
+
+static const char *trig_last_error(void *ctx) { return ((struct gp_trigger *)ctx)->err; }
+
+static const struct hal_trigger_ops gp_trigger_ops = {
+    .api_version = HAL_API_VERSION,
+    .arm = trig_arm,
+    .disarm = trig_disarm,
+    .read_edges = trig_read_edges,
+    .close = trig_close,
+    .done = trig_done,
+    .last_error = trig_last_error,
+};
+
+static int gp_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+{
+    (void)board;
+    (void)err;
+    (void)n;
+    *session = NULL; /* nothing shared: each trigger owns its chip */
+    return HAL_OK;
+}
+
+static int gp_trigger_open(void *session, const struct hal_trigger_config *cfg,
+                           struct hal_trigger *out, char *err, size_t n)
+{
+    (void)session;
+    if (!cfg->chip[0])
+        return hal_fail(err, n, HAL_EINVAL, "gpiod: the board names no GPIO chip (trigger.chip)");
+    if (cfg->line < 0)
+        return hal_fail(err, n, HAL_EINVAL, "gpiod: chip %s: trigger line %d is invalid", cfg->chip,
+                        (int)cfg->line);
+    struct gp_trigger *g = calloc(1, sizeof *g);
+    if (!g)
+        return hal_fail(err, n, HAL_ENOMEM, "gpiod: out of memory");
+    g->out_line = (uint32_t)cfg->line;
+    errno = 0;
+    g->chip = gpiod_chip_open_lookup(cfg->chip);
+    int rc;
+    if (!g->chip) {
+        int e = errno;
+        rc = hal_fail(err, n, e == ENOENT ? HAL_ENODEV : HAL_EIO, "gpiod: cannot open GPIO chip \"%s\": %s",
+                      cfg->chip, strerror(e ? e : ENODEV));
+        goto fail;
+    }
+    g->out = gpiod_chip_get_line(g->chip, (unsigned)cfg->line);
+    if (!g->out || gpiod_line_request_output(g->out, GP_CONSUMER, 0) < 0) {
+        int e = errno;
+        g->out = NULL;
+        rc = hal_fail(err, n, HAL_EIO, "gpiod: chip %s: cannot drive line %d: %s", cfg->chip,
+                      (int)cfg->line, strerror(e));
+        goto fail;
+    }
+    if (cfg->strobe_line >= 0) {
+        g->strobe = gpiod_chip_get_line(g->chip, (unsigned)cfg->strobe_line);
+        if (!g->strobe || gpiod_line_request_rising_edge_events(g->strobe, GP_CONSUMER) < 0) {
+            int e = errno;
+            g->strobe = NULL;
+            rc = hal_fail(err, n, HAL_EIO, "gpiod: chip %s: cannot watch strobe line %d: %s", cfg->chip,
+                          (int)cfg->strobe_line, strerror(e));
+            goto fail;
+        }
+    }
+    out->ops = gp_trigger_ops;
+    out->ctx = g;
+    return HAL_OK;
+fail:
+    trig_close(g);
+    return rc;
+}
+
+const struct hal_backend hal_gpiod_backend = {
+    .api_version = HAL_API_VERSION,
+    .name = "gpiod",
+    .session_open = gp_session_open,
+    .trigger_open = gp_trigger_open,
+};
