@@ -323,3 +323,26 @@ int splat_rig_find(const struct splat_rig *rig, const char *key, struct splat_er
     }
     return splat__fail(err, SPLAT_EINVAL, "no camera named '%s' in the rig (%d cameras)", key, rig->count);
 }
+
+void splat_flow_from_motion(const struct splat_camera *cam, const float *depth, const float *alpha,
+                            const float *motion3, float *flow)
+{
+    const float *m = cam->w2c;
+    const int W = cam->width, H = cam->height;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            size_t p = (size_t)y * (size_t)W + (size_t)x;
+            flow[2 * p] = flow[2 * p + 1] = 0.0f;
+            float z = depth[p];
+            if (!(z > 0.0f) || !(alpha[p] >= 0.5f))
+                continue;
+            float u = (float)x + 0.5f, v = (float)y + 0.5f;
+            float q[3] = { (u - cam->cx) / cam->fx * z, (v - cam->cy) / cam->fy * z, z };
+            for (int r = 0; r < 3; r++) /* camera-frame displacement R * motion */
+                q[r] += m[4 * r] * motion3[3 * p] + m[4 * r + 1] * motion3[3 * p + 1] + m[4 * r + 2] * motion3[3 * p + 2];
+            if (!(q[2] > 1e-3f))
+                continue;
+            flow[2 * p] = cam->fx * q[0] / q[2] + cam->cx - u;
+            flow[2 * p + 1] = cam->fy * q[1] / q[2] + cam->cy - v;
+        }
+}

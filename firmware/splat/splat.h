@@ -193,6 +193,15 @@ int  splat_render_features(splat_renderer *r, const struct splat_camera *cam,
                            const struct splat_frame *f, const float *features,
                            float *out);
 
+/* 2D flow of the visible surface of a static camera: each pixel's surface
+ * point (its expected depth, pixel centre u = i + 0.5) moved by the pixel's
+ * 3D world motion motion3 ([H * W * 3], e.g. from splat_render_features) and
+ * projected again; flow ([H * W * 2], pixels) is that point minus the pixel
+ * centre. Pixels with depth <= 0 or alpha < 0.5 (background, silhouettes)
+ * and points moved behind the camera get 0. */
+void splat_flow_from_motion(const struct splat_camera *cam, const float *depth, const float *alpha,
+                            const float *motion3, float *flow);
+
 /* ------------------------------------------------------------------------ */
 /* Files. */
 

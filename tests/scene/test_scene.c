@@ -238,6 +238,55 @@ static void test_sized_scene(void **state)
     scene_free(s);
 }
 
+/* The per-pixel GT (rendered motion, depth, flow) agrees with the motion of
+ * the Gaussian that dominates each pixel. */
+static void test_pixel_flow_matches_gaussian_motion(void **state)
+{
+    (void)state;
+    const int W = 160, H = 160;
+    scene *s = make(SCENE_FAST, 2);
+    struct splat_rig rig;
+    scene_default_rig(s, 4, W, H, &rig);
+    struct splat_frame f = { 0 };
+    assert_int_equal(scene_eval(s, 0.4, 1.0 / SCENE_FPS, &f, NULL), 0);
+    fk_ctx *ctx;
+    struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    splat_renderer *r;
+    assert_int_equal(splat_renderer_new(ctx, W, H, &r, NULL), 0);
+    size_t np = (size_t)W * H;
+    float *depth = malloc(np * sizeof(float)), *alpha = malloc(np * sizeof(float));
+    float *mf = malloc(3 * np * sizeof(float)), *flow = malloc(2 * np * sizeof(float));
+    int32_t *top = malloc(np * sizeof(int32_t));
+    const struct splat_camera *cam = &rig.cams[1];
+    struct splat_render_out o = { .depth = depth, .alpha = alpha, .top = top };
+    assert_int_equal(splat_render(r, cam, &f, NULL, &o), 0);
+    assert_int_equal(splat_render_features(r, cam, &f, f.motion_fwd, mf), 0);
+    splat_flow_from_motion(cam, depth, alpha, mf, flow);
+    size_t checked = 0, close = 0;
+    double maxflow = 0;
+    for (size_t p = 0; p < np; p++) {
+        if (alpha[p] < 0.99f || top[p] < 0 || f.pos[3 * (size_t)top[p] + 2] < 0.05f)
+            continue; /* opaque body pixels only */
+        const float *x = f.pos + 3 * (size_t)top[p], *m = f.motion_fwd + 3 * (size_t)top[p];
+        float a[3], b[3], x2[3] = { x[0] + m[0], x[1] + m[1], x[2] + m[2] };
+        splat_camera_to_cam(cam, x, a);
+        splat_camera_to_cam(cam, x2, b);
+        float gx = cam->fx * (b[0] / b[2] - a[0] / a[2]), gy = cam->fy * (b[1] / b[2] - a[1] / a[2]);
+        checked++;
+        close += fabsf(gx - flow[2 * p]) < 0.5f && fabsf(gy - flow[2 * p + 1]) < 0.5f;
+        maxflow = fmax(maxflow, fabs(gx) + fabs(gy));
+    }
+    assert_true(checked > 500);
+    assert_true(maxflow > 2.0);               /* `fast` really moves in the image */
+    assert_true(close > checked * 9 / 10);    /* edges of limbs may mix two motions */
+    free(depth); free(alpha); free(mf); free(flow); free(top);
+    splat_renderer_free(r);
+    fk_ctx_free(ctx);
+    splat_frame_free(&f);
+    scene_free(s);
+}
+
 static void test_bad_input_rejected(void **state)
 {
     (void)state;
@@ -269,6 +318,7 @@ int main(void)
         cmocka_unit_test(test_fast_moves_far_per_frame),
         cmocka_unit_test(test_deterministic_by_seed),
         cmocka_unit_test(test_sized_scene),
+        cmocka_unit_test(test_pixel_flow_matches_gaussian_motion),
         cmocka_unit_test(test_bad_input_rejected),
     };
     return cmocka_run_group_tests_name("scene", tests, NULL, NULL);

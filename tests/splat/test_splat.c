@@ -450,6 +450,31 @@ static void test_simd_matches_scalar(void **state)
     fk_ctx_free(simd);
 }
 
+/* Flow of a fronto-parallel surface moving sideways: fx * dx / z everywhere
+ * it is seen, 0 elsewhere. */
+static void test_flow_from_motion(void **state)
+{
+    (void)state;
+    struct splat_camera cam = axis_camera(8, 6, 50.0f);
+    cam.w2c[3] = 0.2f; /* camera translated: flow must not depend on it */
+    float depth[48], alpha[48], motion[144], flow[96];
+    for (int i = 0; i < 48; i++) {
+        depth[i] = 2.0f;
+        alpha[i] = i == 5 ? 0.2f : 1.0f;
+        motion[3 * i] = 0.04f;
+        motion[3 * i + 1] = -0.02f;
+        motion[3 * i + 2] = 0.0f;
+    }
+    depth[7] = 0.0f;
+    splat_flow_from_motion(&cam, depth, alpha, motion, flow);
+    for (int i = 0; i < 48; i++) {
+        float ex = (i == 5 || i == 7) ? 0.0f : 50.0f * 0.04f / 2.0f;
+        float ey = (i == 5 || i == 7) ? 0.0f : -50.0f * 0.02f / 2.0f;
+        assert_float_equal(flow[2 * i], ex, 1e-4);
+        assert_float_equal(flow[2 * i + 1], ey, 1e-4);
+    }
+}
+
 /* ---- hard cases ------------------------------------------------------------- */
 
 static void test_hard_cases_stay_finite(void **state)
@@ -839,6 +864,7 @@ int main(void)
         cmocka_unit_test(test_matches_bruteforce_reference),
         cmocka_unit_test(test_threads_give_identical_images),
         cmocka_unit_test(test_simd_matches_scalar),
+        cmocka_unit_test(test_flow_from_motion),
         cmocka_unit_test(test_hard_cases_stay_finite),
         cmocka_unit_test(test_bad_render_input_rejected),
         cmocka_unit_test(test_ply_round_trip),

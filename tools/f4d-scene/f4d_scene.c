@@ -176,27 +176,8 @@ int main(int argc, char **argv)
                 fprintf(stderr, "f4d-scene: %s\n", splat_renderer_error(r));
                 goto done;
             }
-            /* flow: the visible surface point of each pixel, moved by its forward
-             * motion and projected again (the cameras do not move) */
-            const float *m = cam->w2c;
-            for (long y = 0; y < H; y++)
-                for (long x = 0; x < W; x++) {
-                    size_t p = (size_t)y * (size_t)W + (size_t)x;
-                    flow[2 * p] = flow[2 * p + 1] = 0.0f;
-                    float z = depth[p];
-                    if (!(z > 0.0f) || alpha[p] < 0.5f)
-                        continue;
-                    float u = (float)x + 0.5f, v = (float)y + 0.5f;
-                    float pc[3] = { (u - cam->cx) / cam->fx * z, (v - cam->cy) / cam->fy * z, z };
-                    float d[3]; /* camera-frame displacement R * motion */
-                    for (int rr = 0; rr < 3; rr++)
-                        d[rr] = m[4 * rr] * mf[3 * p] + m[4 * rr + 1] * mf[3 * p + 1] + m[4 * rr + 2] * mf[3 * p + 2];
-                    float q[3] = { pc[0] + d[0], pc[1] + d[1], pc[2] + d[2] };
-                    if (!(q[2] > 1e-3f))
-                        continue;
-                    flow[2 * p] = cam->fx * q[0] / q[2] + cam->cx - u;
-                    flow[2 * p + 1] = cam->fy * q[1] / q[2] + cam->cy - v;
-                }
+            /* flow: each pixel's surface point moved by its forward motion */
+            splat_flow_from_motion(cam, depth, alpha, mf, flow);
             size_t s2[2] = { (size_t)H, (size_t)W }, s3[3] = { (size_t)H, (size_t)W, 3 },
                    sf[3] = { (size_t)H, (size_t)W, 2 };
             snprintf(path, sizeof path, "%s/%s.png", dir, cam->name);
