@@ -15,7 +15,7 @@
  *                      "trigger_line": 0, "exposure_us": 2000,
  *                      "packet_size": 8192, "socket_buffer": 4000000,
  *                      "intrinsics": { "fx": 400, "fy": 400, "cx": 259, "cy": 259 } } ],
- *       "trigger": { "backend": "sim", "chip": "gpiochip0", "line": 17, "strobe_line": -1,
+ *       "trigger": { "backend": "sim"|"gpiod"|"aravis"|"usb"|"replay", "chip": "gpiochip0", "line": 17, "strobe_line": -1,
  *                    "rate_hz": 30, "pulse_width_us": 1000 },
  *       "sync": { "window_us": 2000, "max_latency_ms": 25, "incomplete": "drop"|"mark",
  *                 "pending_max": 8 },

@@ -1,0 +1,498 @@
+/* hal_usb.c: UVC cameras over V4L2 with USERPTR streaming, and the host tick
+ * trigger (see hal_usb.h). */
+#include "hal_usb.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <linux/videodev2.h>
+#include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <time.h>
+#include <unistd.h>
+
+#define USB_BUFFERS_MAX 32
+#define USB_EDGES_MAX 256
+
+struct usb_session;
+
+struct usb_cam {
+    struct usb_session *s;
+    uint32_t index;
+    const struct hal_camera_config *cfg;
+    int fd;
+    struct hal_format fmt;
+    bool configured, started;
+    struct hal_buffer *slots[USB_BUFFERS_MAX]; /* V4L2 index -> caller buffer */
+    bool queued[USB_BUFFERS_MAX];
+    uint32_t n_slots;
+    struct hal_buffer *aborted[USB_BUFFERS_MAX];
+    uint32_t n_aborted;
+    uint64_t seq_hi, last_seq32; /* unwrapping the 32-bit V4L2 sequence */
+    bool have_seq;
+    char err[256];
+};
+
+struct usb_session {
+    const struct hal_board *board;
+    bool trig_open, armed;
+    uint64_t period_ns, first_tick_ns, next_tick_ns, sent, limit, seq;
+    struct hal_edge edges[USB_EDGES_MAX];
+    uint32_t e_head, e_count;
+};
+
+static uint64_t mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static int xioctl(int fd, unsigned long req, void *arg)
+{
+    int r;
+    do
+        r = ioctl(fd, req, arg);
+    while (r < 0 && errno == EINTR);
+    return r;
+}
+
+static int cam_fail(struct usb_cam *c, int rc, const char *what)
+{
+    snprintf(c->err, sizeof c->err, "usb camera %.40s (%.80s): %.80s%s%.60s", c->cfg->id, c->cfg->address,
+             what, errno ? ": " : "", errno ? strerror(errno) : "");
+    return rc;
+}
+
+static const struct {
+    enum hal_pixfmt hal;
+    uint32_t fourcc;
+} pixfmts[] = {
+    {HAL_PIXFMT_YUYV, V4L2_PIX_FMT_YUYV},    {HAL_PIXFMT_MONO8, V4L2_PIX_FMT_GREY},
+    {HAL_PIXFMT_RGB8, V4L2_PIX_FMT_RGB24},   {HAL_PIXFMT_MONO16, V4L2_PIX_FMT_Y16},
+    {HAL_PIXFMT_BAYER_RG8, V4L2_PIX_FMT_SRGGB8},
+};
+
+static uint32_t to_fourcc(enum hal_pixfmt f)
+{
+    for (size_t i = 0; i < sizeof pixfmts / sizeof pixfmts[0]; i++)
+        if (pixfmts[i].hal == f)
+            return pixfmts[i].fourcc;
+    return V4L2_PIX_FMT_YUYV;
+}
+
+static enum hal_pixfmt from_fourcc(uint32_t f)
+{
+    for (size_t i = 0; i < sizeof pixfmts / sizeof pixfmts[0]; i++)
+        if (pixfmts[i].fourcc == f)
+            return pixfmts[i].hal;
+    return HAL_PIXFMT_INVALID;
+}
+
+/* ---- camera ---- */
+static int cam_validate(void *ctx, struct hal_format *f)
+{
+    struct usb_cam *c = ctx;
+    struct hal_format in = *f;
+    struct v4l2_format vf;
+    memset(&vf, 0, sizeof vf);
+    vf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    vf.fmt.pix.width = f->width;
+    vf.fmt.pix.height = f->height;
+    vf.fmt.pix.pixelformat = to_fourcc(f->pixfmt);
+    vf.fmt.pix.field = V4L2_FIELD_NONE;
+    errno = 0;
+    if (xioctl(c->fd, VIDIOC_TRY_FMT, &vf) < 0)
+        return cam_fail(c, HAL_EIO, "VIDIOC_TRY_FMT");
+    enum hal_pixfmt p = from_fourcc(vf.fmt.pix.pixelformat);
+    errno = 0;
+    if (p == HAL_PIXFMT_INVALID)
+        return cam_fail(c, HAL_ENOTSUP, "the driver offers no pixel format this HAL knows");
+    f->pixfmt = p;
+    f->width = vf.fmt.pix.width;
+    f->height = vf.fmt.pix.height;
+    f->stride = vf.fmt.pix.bytesperline;
+    f->trigger = HAL_TRIGGER_FREE_RUN; /* UVC has no trigger input */
+    if (hal_format_finish(f) < 0)
+        return cam_fail(c, HAL_EINVAL, "the driver returned an unusable format");
+    if (vf.fmt.pix.sizeimage > f->image_bytes)
+        f->image_bytes = vf.fmt.pix.sizeimage;
+    return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
+}
+
+static int cam_configure(void *ctx, const struct hal_format *f)
+{
+    struct usb_cam *c = ctx;
+    errno = 0;
+    if (c->started)
+        return cam_fail(c, HAL_ESTATE, "configure while streaming");
+    struct hal_format v = *f;
+    int rc = cam_validate(c, &v);
+    if (rc != HAL_FORMAT_VALID) {
+        errno = 0;
+        return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged");
+    }
+    struct v4l2_format vf;
+    memset(&vf, 0, sizeof vf);
+    vf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    vf.fmt.pix.width = f->width;
+    vf.fmt.pix.height = f->height;
+    vf.fmt.pix.pixelformat = to_fourcc(f->pixfmt);
+    vf.fmt.pix.field = V4L2_FIELD_NONE;
+    if (xioctl(c->fd, VIDIOC_S_FMT, &vf) < 0)
+        return cam_fail(c, HAL_EIO, "VIDIOC_S_FMT");
+    if (f->rate_mhz) {
+        struct v4l2_streamparm sp;
+        memset(&sp, 0, sizeof sp);
+        sp.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        sp.parm.capture.timeperframe.numerator = 1000;
+        sp.parm.capture.timeperframe.denominator = f->rate_mhz;
+        if (xioctl(c->fd, VIDIOC_S_PARM, &sp) < 0 && errno != ENOTTY && errno != EINVAL)
+            return cam_fail(c, HAL_EIO, "VIDIOC_S_PARM (frame interval)");
+    }
+    c->fmt = v;
+    c->configured = true;
+    return HAL_OK;
+}
+
+static int qbuf(struct usb_cam *c, uint32_t i)
+{
+    struct v4l2_buffer vb;
+    memset(&vb, 0, sizeof vb);
+    vb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    vb.memory = V4L2_MEMORY_USERPTR;
+    vb.index = i;
+    vb.m.userptr = (unsigned long)c->slots[i]->data;
+    vb.length = (uint32_t)c->slots[i]->capacity;
+    errno = 0;
+    if (xioctl(c->fd, VIDIOC_QBUF, &vb) < 0)
+        return cam_fail(c, HAL_EIO, "VIDIOC_QBUF");
+    c->queued[i] = true;
+    return HAL_OK;
+}
+
+static int cam_start(void *ctx)
+{
+    struct usb_cam *c = ctx;
+    errno = 0;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "start before configure");
+    if (c->started)
+        return HAL_OK;
+    if (c->n_slots == 0)
+        return cam_fail(c, HAL_ESTATE, "start with no buffer queued");
+    struct v4l2_requestbuffers rb;
+    memset(&rb, 0, sizeof rb);
+    rb.count = c->n_slots;
+    rb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    rb.memory = V4L2_MEMORY_USERPTR;
+    if (xioctl(c->fd, VIDIOC_REQBUFS, &rb) < 0)
+        return cam_fail(c, HAL_ENOTSUP, "VIDIOC_REQBUFS (USERPTR streaming)");
+    if (rb.count < c->n_slots) {
+        errno = 0;
+        return cam_fail(c, HAL_ENOMEM, "the driver accepted fewer buffers than queued");
+    }
+    for (uint32_t i = 0; i < c->n_slots; i++) {
+        int rc = qbuf(c, i);
+        if (rc < 0)
+            return rc;
+    }
+    int type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    if (xioctl(c->fd, VIDIOC_STREAMON, &type) < 0)
+        return cam_fail(c, HAL_EIO, "VIDIOC_STREAMON");
+    c->have_seq = false;
+    c->started = true;
+    return HAL_OK;
+}
+
+static int cam_stop(void *ctx)
+{
+    struct usb_cam *c = ctx;
+    if (c->started) {
+        int type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        xioctl(c->fd, VIDIOC_STREAMOFF, &type); /* also dequeues everything in the driver */
+        struct v4l2_requestbuffers rb;
+        memset(&rb, 0, sizeof rb);
+        rb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        rb.memory = V4L2_MEMORY_USERPTR;
+        xioctl(c->fd, VIDIOC_REQBUFS, &rb);
+        c->started = false;
+    }
+    for (uint32_t i = 0; i < c->n_slots; i++) {
+        c->slots[i]->status = HAL_FRAME_ABORTED;
+        c->slots[i]->bytes_used = 0;
+        c->aborted[c->n_aborted++] = c->slots[i];
+        c->queued[i] = false;
+    }
+    c->n_slots = 0; /* the next start requests buffers again */
+    return HAL_OK;
+}
+
+static int cam_enqueue(void *ctx, struct hal_buffer *b)
+{
+    struct usb_cam *c = ctx;
+    errno = 0;
+    if (!c->configured)
+        return cam_fail(c, HAL_ESTATE, "enqueue before configure");
+    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
+        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image");
+    for (uint32_t i = 0; i < c->n_slots; i++) {
+        if (c->slots[i] != b)
+            continue;
+        if (c->queued[i])
+            return cam_fail(c, HAL_EBUSY, "buffer is already queued");
+        return c->started ? qbuf(c, i) : (c->queued[i] = true, HAL_OK);
+    }
+    if (c->started)
+        return cam_fail(c, HAL_ESTATE, "a new buffer while streaming (V4L2 fixes the set at start)");
+    if (c->n_slots == USB_BUFFERS_MAX)
+        return cam_fail(c, HAL_EBUSY, "too many buffers");
+    c->slots[c->n_slots] = b;
+    c->queued[c->n_slots++] = true;
+    return HAL_OK;
+}
+
+/* Sequence of the host tick nearest to t, 0 if before the first tick. */
+static uint64_t tick_seq(const struct usb_session *s, uint64_t t)
+{
+    if (!s->first_tick_ns || !s->period_ns || t + s->period_ns / 2 < s->first_tick_ns)
+        return 0;
+    return (t + s->period_ns / 2 - s->first_tick_ns) / s->period_ns + 1;
+}
+
+static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
+{
+    struct usb_cam *c = ctx;
+    *out = NULL;
+    errno = 0;
+    if (c->n_aborted) {
+        *out = c->aborted[--c->n_aborted];
+        return HAL_OK;
+    }
+    if (!c->started)
+        return cam_fail(c, HAL_ESTATE, "dequeue while stopped");
+    uint64_t deadline = mono_ns() + (uint64_t)timeout_us * 1000u;
+    for (;;) {
+        struct v4l2_buffer vb;
+        memset(&vb, 0, sizeof vb);
+        vb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+        vb.memory = V4L2_MEMORY_USERPTR;
+        if (xioctl(c->fd, VIDIOC_DQBUF, &vb) == 0) {
+            if (vb.index >= c->n_slots)
+                return cam_fail(c, HAL_EIO, "VIDIOC_DQBUF returned an unknown index");
+            struct hal_buffer *b = c->slots[vb.index];
+            c->queued[vb.index] = false;
+            uint64_t ts = (uint64_t)vb.timestamp.tv_sec * 1000000000u + (uint64_t)vb.timestamp.tv_usec * 1000u;
+            bool mono = (vb.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK) == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC;
+            uint64_t seq = tick_seq(c->s, mono ? ts : mono_ns());
+            const struct usb_session *s = c->s;
+            if (seq == 0 || (s->limit && seq > s->limit) || (!s->armed && seq > s->sent)) {
+                /* before the first tick or after the last: belongs to no trigger */
+                int rc = qbuf(c, vb.index);
+                if (rc < 0)
+                    return rc;
+                continue;
+            }
+            if (!c->have_seq) {
+                c->have_seq = true;
+                c->seq_hi = 0;
+            } else if (vb.sequence < c->last_seq32) {
+                c->seq_hi += 1ull << 32;
+            }
+            c->last_seq32 = vb.sequence;
+            b->status = (vb.flags & V4L2_BUF_FLAG_ERROR) ? HAL_FRAME_MISSING_PACKETS : HAL_FRAME_OK;
+            b->bytes_used = vb.bytesused <= b->capacity ? vb.bytesused : b->capacity;
+            if (b->status == HAL_FRAME_OK && b->bytes_used < c->fmt.stride * (size_t)c->fmt.height)
+                b->status = HAL_FRAME_MISSING_PACKETS;
+            b->flags = 0;
+            b->camera_index = c->index;
+            b->format = c->fmt;
+            b->device_ts_ns = ts;
+            b->host_ts_ns = mono ? ts : mono_ns();
+            b->frame_id = c->seq_hi + vb.sequence;
+            b->trigger_seq = seq;
+            *out = b;
+            return HAL_OK;
+        }
+        if (errno != EAGAIN)
+            return cam_fail(c, errno == ENODEV ? HAL_ENODEV : HAL_EIO, "VIDIOC_DQBUF");
+        uint64_t now = mono_ns();
+        if (now >= deadline)
+            return HAL_ETIMEDOUT;
+        struct pollfd p = {c->fd, POLLIN, 0};
+        int ms = (int)((deadline - now + 999999u) / 1000000u);
+        if (poll(&p, 1, ms) < 0 && errno != EINTR)
+            return cam_fail(c, HAL_EIO, "poll");
+        errno = 0;
+    }
+}
+
+static void cam_close(void *ctx)
+{
+    struct usb_cam *c = ctx;
+    cam_stop(c);
+    close(c->fd);
+    free(c);
+}
+
+static const char *cam_last_error(void *ctx) { return ((struct usb_cam *)ctx)->err; }
+
+static const struct hal_camera_ops usb_camera_ops = {
+    .api_version = HAL_API_VERSION,
+    .validate = cam_validate,
+    .configure = cam_configure,
+    .start = cam_start,
+    .stop = cam_stop,
+    .enqueue = cam_enqueue,
+    .dequeue = cam_dequeue,
+    .close = cam_close,
+    .last_error = cam_last_error,
+};
+
+/* ---- host tick trigger ---- */
+static void fire_due(struct usb_session *s, uint64_t now)
+{
+    while (s->armed && now >= s->next_tick_ns && (s->limit == 0 || s->sent < s->limit)) {
+        if (s->e_count < USB_EDGES_MAX) {
+            struct hal_edge *e = &s->edges[(s->e_head + s->e_count++) % USB_EDGES_MAX];
+            e->seq = tick_seq(s, s->next_tick_ns);
+            e->ts_ns = s->next_tick_ns;
+            e->line = 0;
+            e->rising = true;
+        }
+        s->sent++;
+        s->next_tick_ns += s->period_ns;
+    }
+}
+
+static int trig_arm(void *ctx, const struct hal_pulse_train *p)
+{
+    struct usb_session *s = ctx;
+    if (p->rate_mhz == 0 || p->rate_mhz > 1000000u)
+        return HAL_EINVAL;
+    s->period_ns = 1000000000000ull / p->rate_mhz;
+    s->first_tick_ns = s->next_tick_ns = mono_ns() + s->period_ns;
+    s->sent = 0;
+    s->limit = p->count;
+    s->armed = true;
+    return HAL_OK;
+}
+
+static int trig_disarm(void *ctx)
+{
+    ((struct usb_session *)ctx)->armed = false;
+    return HAL_OK;
+}
+
+static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
+{
+    struct usb_session *s = ctx;
+    uint64_t now = mono_ns(), deadline = now + (uint64_t)timeout_us * 1000u;
+    fire_due(s, now);
+    while (s->e_count == 0 && s->armed && now < deadline) {
+        uint64_t t = s->next_tick_ns < deadline ? s->next_tick_ns : deadline;
+        struct timespec ts = {(time_t)(t / 1000000000u), (long)(t % 1000000000u)};
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+        now = mono_ns();
+        fire_due(s, now);
+    }
+    uint32_t n = 0;
+    while (n < max && s->e_count) {
+        e[n++] = s->edges[s->e_head];
+        s->e_head = (s->e_head + 1) % USB_EDGES_MAX;
+        s->e_count--;
+    }
+    return (int)n;
+}
+
+static bool trig_done(void *ctx)
+{
+    struct usb_session *s = ctx;
+    return s->limit != 0 && s->sent >= s->limit;
+}
+
+static void trig_close(void *ctx) { ((struct usb_session *)ctx)->trig_open = false; }
+
+static const struct hal_trigger_ops usb_trigger_ops = {
+    .api_version = HAL_API_VERSION,
+    .arm = trig_arm,
+    .disarm = trig_disarm,
+    .read_edges = trig_read_edges,
+    .close = trig_close,
+    .done = trig_done,
+};
+
+/* ---- backend ---- */
+static int usb_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+{
+    struct usb_session *s = calloc(1, sizeof *s);
+    if (!s)
+        return hal_fail(err, n, HAL_ENOMEM, "usb: out of memory");
+    s->board = board;
+    *session = s;
+    return HAL_OK;
+}
+
+static void usb_session_close(void *s) { free(s); }
+
+static int usb_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
+                           struct hal_camera *out, char *err, size_t n)
+{
+    if (!cfg->address[0])
+        return hal_fail(err, n, HAL_EINVAL, "usb camera %s: no device node (address)", cfg->id);
+    int fd = open(cfg->address, O_RDWR | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
+        return hal_fail(err, n, errno == ENOENT ? HAL_ENODEV : HAL_EIO, "usb camera %s: cannot open %s: %s",
+                        cfg->id, cfg->address, strerror(errno));
+    struct v4l2_capability cap;
+    memset(&cap, 0, sizeof cap);
+    if (xioctl(fd, VIDIOC_QUERYCAP, &cap) < 0) {
+        int e = errno;
+        close(fd);
+        return hal_fail(err, n, HAL_ENODEV, "usb camera %s: %s is not a V4L2 device (VIDIOC_QUERYCAP: %s)",
+                        cfg->id, cfg->address, strerror(e));
+    }
+    uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
+    if (!(caps & V4L2_CAP_VIDEO_CAPTURE) || !(caps & V4L2_CAP_STREAMING)) {
+        close(fd);
+        return hal_fail(err, n, HAL_ENOTSUP, "usb camera %s: %s (%.32s) cannot stream video capture",
+                        cfg->id, cfg->address, (const char *)cap.card);
+    }
+    struct usb_cam *c = calloc(1, sizeof *c);
+    if (!c) {
+        close(fd);
+        return hal_fail(err, n, HAL_ENOMEM, "usb: out of memory");
+    }
+    c->s = session;
+    c->index = index;
+    c->cfg = cfg;
+    c->fd = fd;
+    out->ops = usb_camera_ops;
+    out->ctx = c;
+    out->index = index;
+    return HAL_OK;
+}
+
+static int usb_trigger_open(void *session, const struct hal_trigger_config *cfg,
+                            struct hal_trigger *out, char *err, size_t n)
+{
+    (void)cfg;
+    struct usb_session *s = session;
+    if (s->trig_open)
+        return hal_fail(err, n, HAL_EBUSY, "usb tick trigger already open");
+    s->trig_open = true;
+    out->ops = usb_trigger_ops;
+    out->ctx = s;
+    return HAL_OK;
+}
+
+const struct hal_backend hal_usb_backend = {
+    .api_version = HAL_API_VERSION,
+    .name = "usb",
+    .session_open = usb_session_open,
+    .session_close = usb_session_close,
+    .camera_open = usb_camera_open,
+    .trigger_open = usb_trigger_open,
+};
