@@ -120,7 +120,10 @@ static int weight_f32(struct model *m, const char *name, size_t count, int qaxis
     if (t->type == GGUF_T_F32) {
         memcpy(w, t->data, count * sizeof *w);
     } else if (t->type == GGUF_T_F16) {
-        fk_f16_to_f32(m->ctx, t->data, w, count);
+        if (fk_f16_to_f32(m->ctx, t->data, w, count) != FK_OK) {
+            free(w);
+            return model_kfail(m, "f16 widening");
+        }
     } else if (t->type == GGUF_T_I8) {
         char sn[MODEL_NAME_MAX + 8];
         snprintf(sn, sizeof sn, "%s.scale", name);

@@ -146,7 +146,8 @@ typedef void (*model_tap_fn)(void *user, const char *name, int frame,
 /* Extension points between layers (the hook for Forge4D state blocks). */
 struct model_hooks {
     /* After global block `layer`: x is the token stream [S*P', C] (row
-     * f*P' + t), which the hook may update in place. Return < 0 to abort. */
+     * f*P' + t), which the hook may update in place; a kept layer's global
+     * half is copied after the hook. Return < 0 to abort. */
     int  (*after_global)(void *user, int layer, float *x, int S, int tokens, int C);
     void  *user;
 };
