@@ -24,6 +24,7 @@
 
 #include "contact_sheet.h"
 #include "f4d_capture.h"
+#include "f4d_simscene.h"
 #include "f4d_take.h"
 #include "hal_board.h"
 #include "hal_replay.h"
@@ -183,6 +184,17 @@ static int run_capture(const struct hal_board *board, const char *dir, uint64_t 
     struct rec_ctx c = {board, dir, NULL, false, quiet, isatty(2) != 0, 0, wall_ns(), ""};
     void *world = hal_rig_session(&rig, "sim");
     c.sim = world != NULL;
+    struct f4d_simscene *scene = NULL;
+    if (world && strcmp(board->sim.scene, "pattern") != 0) {
+        /* the synthetic 4D scene at each trigger time, through the scene's rig */
+        if (f4d_simscene_new(&scene, board->sim.scene, board->sim.seed, board->n_cams, board->cams[0].width,
+                             board->cams[0].height, err, sizeof err) < 0) {
+            fprintf(stderr, "forge4d: %s\n", err);
+            hal_rig_close(&rig);
+            return 1;
+        }
+        hal_sim_set_renderer(world, f4d_simscene_render, scene);
+    }
     struct f4d_capture_config cfg = {0};
     cfg.triggers = frames;
     cfg.duration_ns = (uint64_t)(seconds * 1e9);
@@ -216,6 +228,7 @@ static int run_capture(const struct hal_board *board, const char *dir, uint64_t 
         status = 1;
     }
     hal_rig_close(&rig);
+    f4d_simscene_free(scene);
     return status;
 }
 
