@@ -4,6 +4,7 @@
  *
  *   test_gguf GGUF_DIR F4D_CONVERT FIXTURE_DIR
  */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -349,6 +350,44 @@ static void test_model_prepare_refuses_unknown_group(void **state)
     fk_ctx_free(ctx);
 }
 
+/* F16 / BF16 checkpoints give the F32 file's tensors within their rounding. */
+static void test_convert_half_inputs(void **state)
+{
+    (void)state;
+    static const char *dts[2] = { "f16", "bf16" };
+    static const double tol[2] = { 1.0 / 2048, 1.0 / 256 };
+    char path[1100], err[512];
+    gguf_file *ref, *f;
+    snprintf(path, sizeof path, "%s/tiny_conv_f32.gguf", gguf_dir);
+    assert_int_equal(gguf_open(path, &ref, err, sizeof err), 0);
+    for (int k = 0; k < 2; k++) {
+        snprintf(path, sizeof path, "%s/tiny_conv_from_%s.gguf", gguf_dir, dts[k]);
+        assert_int_equal(gguf_open(path, &f, err, sizeof err), 0);
+        assert_int_equal(gguf_tensor_count(f), gguf_tensor_count(ref));
+        double worst = 0;
+        for (size_t i = 0; i < gguf_tensor_count(ref); i++) {
+            const struct gguf_tensor *a = gguf_tensor_at(ref, i);
+            const struct gguf_tensor *b = gguf_find_tensor(f, a->name);
+            assert_non_null(b);
+            assert_int_equal(b->type, GGUF_T_F32);
+            assert_int_equal(b->n_elements, a->n_elements);
+            const float *x = a->data, *y = b->data;
+            int differs = 0;
+            for (uint64_t j = 0; j < a->n_elements; j++) {
+                double d = fabs((double)x[j] - y[j]);
+                assert_true(d <= tol[k] * fabs((double)x[j]) + 1e-7);
+                worst = fmax(worst, fabs(x[j]) > 1e-3 ? d / fabs(x[j]) : 0);
+                differs |= d > 0;
+            }
+            (void)differs;
+        }
+        printf("  %s checkpoint -> f32 file: worst relative rounding %.3e\n", dts[k], worst);
+        assert_true(worst > 0); /* the half-precision input really was rounded */
+        gguf_close(f);
+    }
+    gguf_close(ref);
+}
+
 /* ---- f4d-convert refuses bad checkpoints ------------------------------- */
 
 static int run_convert(const char *args, const char *expect)
@@ -427,6 +466,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_model_init_validates),
         cmocka_unit_test(test_model_prepare_refuses_unknown_group),
         cmocka_unit_test(test_convert_refuses),
+        cmocka_unit_test(test_convert_half_inputs),
     };
     int rc = cmocka_run_group_tests_name("/model/gguf", tests, NULL, NULL);
     remove(tmp_path);

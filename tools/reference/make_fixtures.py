@@ -70,12 +70,17 @@ def init_weights(model, gen):
     model.load_state_dict(sd)
 
 
-def write_safetensors(path, sd):
+def write_safetensors(path, sd, dtype="F32"):
     header, blobs, off = {}, [], 0
     for name in sorted(sd):
-        a = sd[name].detach().to(torch.float32).contiguous().numpy()
-        b = a.astype("<f4").tobytes()
-        header[name] = {"dtype": "F32", "shape": list(a.shape), "data_offsets": [off, off + len(b)]}
+        t = sd[name].detach().contiguous()
+        if dtype == "BF16":
+            b = t.to(torch.bfloat16).view(torch.int16).numpy().astype("<i2").tobytes()
+        elif dtype == "F16":
+            b = t.to(torch.float16).numpy().astype("<f2").tobytes()
+        else:
+            b = t.to(torch.float32).numpy().astype("<f4").tobytes()
+        header[name] = {"dtype": dtype, "shape": list(t.shape), "data_offsets": [off, off + len(b)]}
         blobs.append(b)
         off += len(b)
     header["__metadata__"] = {"format": "pt"}
@@ -174,6 +179,9 @@ def main():
         os.makedirs(d, exist_ok=True)
         sd = {k: v for k, v in model.state_dict().items()}
         write_safetensors(os.path.join(d, "weights.safetensors"), sd)
+        if cname == "tiny_conv":  # the converter's F16 / BF16 input paths
+            write_safetensors(os.path.join(d, "weights_f16.safetensors"), sd, "F16")
+            write_safetensors(os.path.join(d, "weights_bf16.safetensors"), sd, "BF16")
         with open(os.path.join(d, "config.json"), "w") as f:
             json.dump({k: getattr(cfg, k) for k in cfg.__dataclass_fields__}, f, indent=1)
             f.write("\n")
