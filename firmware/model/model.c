@@ -439,6 +439,8 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
     if (!m->arena)
         return model_fail(m, MODEL_ENOMEM, "model: cannot allocate the %zu-byte arena",
                           m->arena_bytes);
+    /* Touch every page now, so that Eval never takes a first-touch page fault. */
+    memset(m->arena, 0, m->arena_bytes);
     m->persist_bytes = persist;
     m->scratch_bytes = scratch;
     m->max_S = max_views;
