@@ -248,7 +248,7 @@ static int cmd_record(int argc, char **argv)
         else if (!strcmp(a, "--frames") && v) {
             char *end;
             frames = strtoull(v, &end, 10);
-            if (*end || frames == 0) {
+            if (*end || frames == 0 || v[0] < '0' || v[0] > '9') {
                 fprintf(stderr, "forge4d record: --frames wants a positive integer, got \"%s\"\n", v);
                 return 2;
             }
