@@ -171,9 +171,12 @@ struct splat_render_out {
 };
 
 /* A renderer for W x H images. ctx (borrowed, must outlive the renderer)
- * provides the threads. Buffers are sized for `reserve` Gaussians now and
- * grow only when a frame exceeds the high-water mark, so a steady stream of
- * frames allocates nothing. */
+ * provides the threads. Buffers grow only when a frame exceeds the
+ * high-water mark (or splat_renderer_reserve asks for more), so a steady
+ * stream of frames allocates nothing. One caller thread at a time per
+ * renderer (and per fk context); make one per concurrent camera thread.
+ * Measured (f4d-bench render, 2 threads of this 2-core box): 300k Gaussians
+ * at 518x518 in 24 ms, 1M in 66 ms. */
 int  splat_renderer_new    (fk_ctx *ctx, int width, int height,
                             splat_renderer **out, struct splat_error *err);
 int  splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs);
