@@ -8,6 +8,20 @@ static uint32_t all_mask(const struct f4d_sync *s)
     return s->cfg.n_cams >= 32 ? 0xFFFFFFFFu : (1u << s->cfg.n_cams) - 1u;
 }
 
+/* Median of n <= F4D_SYNC_LEARN_FRAMES values (lower middle for even n). */
+static int64_t median(const int64_t *v, uint32_t n)
+{
+    int64_t t[F4D_SYNC_LEARN_FRAMES];
+    memcpy(t, v, n * sizeof *t);
+    for (uint32_t i = 1; i < n; i++)
+        for (uint32_t j = i; j > 0 && t[j - 1] > t[j]; j--) {
+            int64_t x = t[j];
+            t[j] = t[j - 1];
+            t[j - 1] = x;
+        }
+    return t[(n - 1) / 2];
+}
+
 static uint32_t popcount32(uint32_t v)
 {
     uint32_t n = 0;
@@ -25,7 +39,7 @@ int f4d_sync_init(struct f4d_sync *s, const struct f4d_sync_config *cfg, f4d_syn
         return HAL_EINVAL;
     memset(s, 0, sizeof *s);
     s->cfg = *cfg;
-    if (s->cfg.learn_frames == 0)
+    if (s->cfg.learn_frames == 0 || s->cfg.learn_frames > F4D_SYNC_LEARN_FRAMES)
         s->cfg.learn_frames = F4D_SYNC_LEARN_FRAMES;
     s->on_set = on_set;
     s->on_release = on_release;
@@ -158,15 +172,12 @@ void f4d_sync_frame(struct f4d_sync *s, struct hal_buffer *b)
     const int64_t window = (int64_t)s->cfg.window_us * 1000;
     if (set->has_edge) {
         int64_t off = (int64_t)(b->device_ts_ns - set->trigger_ts_ns);
-        if (!ck->clock_known) {
+        if (!ck->clock_known || ck->learned < s->cfg.learn_frames) {
+            if (!ck->clock_known)
+                ck->learned = 0;
             ck->clock_known = true;
-            ck->offset_ns = off;
-            ck->learned = 1;
-        } else if (ck->learned < s->cfg.learn_frames) {
-            /* transport delays only add: the smallest offset is the truest */
-            if (off < ck->offset_ns)
-                ck->offset_ns = off;
-            ck->learned++;
+            ck->learn[ck->learned++] = off;
+            ck->offset_ns = median(ck->learn, ck->learned);
         } else {
             int64_t r = off - ck->offset_ns;
             if (r > window || r < -window) {

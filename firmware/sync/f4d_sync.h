@@ -26,9 +26,9 @@
  *    those that turned out late.
  *
  * Device clocks: each camera's offset to the trigger clock is learned from its
- * first F4D_SYNC_LEARN_FRAMES frames (the smallest device-minus-edge time: a
- * late first frame must not bias it), then followed by a slow average that
- * tracks drift; only after learning is the window enforced, so the first
+ * first F4D_SYNC_LEARN_FRAMES frames (the median device-minus-edge time: one
+ * stray early or late frame must not bias it), then followed by a slow average
+ * that tracks drift; only after learning is the window enforced, so the first
  * frames of a camera are grouped by sequence number alone. A frame flagged
  * HAL_FRAME_FLAG_CLOCK_RESET starts the camera over. Sets without a trigger
  * edge (no edge input on the board) are opened by their first frame and
@@ -55,7 +55,7 @@ struct f4d_sync_config {
     uint32_t max_latency_us;
     enum hal_incomplete_policy policy;
     uint32_t pending_max;
-    uint32_t learn_frames;    /* clock-offset learning per camera; 0 = F4D_SYNC_LEARN_FRAMES */
+    uint32_t learn_frames;    /* clock-offset learning per camera, 1..F4D_SYNC_LEARN_FRAMES; 0 = max */
 };
 
 struct f4d_sync_set {
@@ -97,6 +97,7 @@ struct f4d_sync_slot {
 struct f4d_sync_cam {
     bool clock_known;
     uint32_t learned;         /* frames seen while learning the offset */
+    int64_t learn[F4D_SYNC_LEARN_FRAMES]; /* their device-minus-edge times */
     int64_t offset_ns;        /* device_ts - trigger_ts, learned */
 };
 

@@ -36,6 +36,13 @@ struct av_cam {
     /* frame counter unwrapping and trigger anchoring */
     bool have_first;
     uint64_t last_raw, unwrapped, seq_base;
+    uint64_t start_ns;        /* acquisition start (host monotonic) */
+    bool cand_valid;          /* anchoring: numbering proposed by the previous frame */
+    uint64_t cand_base;
+    int64_t slip_delta;       /* software trigger: disagreement seen between counter and edges */
+    uint32_t slip_count;
+    uint64_t reanchors;
+    uint64_t last_seq_out;    /* sequence numbers handed out only grow */
     char err[256];
 };
 
@@ -243,6 +250,10 @@ static int cam_start(void *ctx)
         if (c->slots[i].state == AV_PENDING)
             push_slot(c, &c->slots[i]);
     c->have_first = false;
+    c->cand_valid = false;
+    c->last_seq_out = 0;
+    c->slip_count = 0;
+    c->start_ns = clock_ns(CLOCK_MONOTONIC);
     arv_camera_start_acquisition(c->cam, &e);
     if (e) {
         g_clear_object(&c->stream);
@@ -333,6 +344,60 @@ static uint64_t unwrap(struct av_cam *c, uint64_t raw)
     return c->unwrapped;
 }
 
+/* The latest software edge sent at or before t (seq 0 if none). */
+static void clear_edge(const struct av_session *s, uint64_t t, uint64_t *seq, uint64_t *ts)
+{
+    *seq = 0;
+    *ts = 0;
+    for (uint32_t i = 0; i < s->log_n && i < AV_EDGE_LOG; i++)
+        if (s->log[i].ts_ns <= t && s->log[i].seq > *seq) {
+            *seq = s->log[i].seq;
+            *ts = s->log[i].ts_ns;
+        }
+}
+
+/* Time of edge `seq` in the software-trigger log, or 0 if it fell out. */
+static uint64_t edge_time(const struct av_session *s, uint64_t seq)
+{
+    for (uint32_t i = 0; i < s->log_n && i < AV_EDGE_LOG; i++)
+        if (s->log[i].seq == seq)
+            return s->log[i].ts_ns;
+    return 0;
+}
+
+/* A camera that misses a trigger (busy, or the command merged with the next)
+ * does not advance its counter, so every later frame would be numbered one
+ * pulse early. With a software trigger the edges are known: when three
+ * frames in a row arrive clearly after a different edge than their number
+ * says (and clearly not after their own), the numbering moves to follow the
+ * edges. Until then the synchronizer's window rejects them: never mixed. */
+static void reanchor(struct av_cam *c, struct hal_buffer *b)
+{
+    const struct av_session *s = c->s;
+    if (!s->software_trigger || !s->log_n || !s->period_ns)
+        return;
+    uint64_t best = 0, best_ts = 0;
+    clear_edge(s, b->host_ts_ns, &best, &best_ts);
+    uint64_t own = edge_time(s, b->trigger_seq);
+    bool own_ok = own && b->host_ts_ns >= own && b->host_ts_ns - own < s->period_ns;
+    bool best_clear = best && b->host_ts_ns - best_ts < s->period_ns / 2;
+    if (own_ok || !best_clear || best == b->trigger_seq) {
+        c->slip_count = 0;
+        return;
+    }
+    int64_t delta = (int64_t)(best - b->trigger_seq);
+    if (delta != c->slip_delta) {
+        c->slip_delta = delta;
+        c->slip_count = 0;
+    }
+    if (++c->slip_count >= 3) {
+        c->seq_base += (uint64_t)delta;
+        b->trigger_seq = best;
+        c->slip_count = 0;
+        c->reanchors++;
+    }
+}
+
 static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
 {
     struct av_cam *c = ctx;
@@ -372,20 +437,44 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     b->format = c->fmt;
     b->device_ts_ns = arv_buffer_get_timestamp(ab);
     b->host_ts_ns = sys && sys <= real && real - sys < mono ? mono - (real - sys) : mono;
-    uint64_t fid = unwrap(c, arv_buffer_get_frame_id(ab));
-    if (!c->have_first) {
-        c->have_first = true;
-        /* anchor: the latest software edge sent before the frame arrived */
-        uint64_t best = 0;
-        for (uint32_t i = 0; i < c->s->log_n && i < AV_EDGE_LOG; i++) {
-            const struct hal_edge *e = &c->s->log[i];
-            if (e->ts_ns <= b->host_ts_ns && e->seq > best)
-                best = e->seq;
+    if (!c->have_first && c->s->software_trigger) {
+        /* anchor on the first frame that arrived clearly right after an edge
+         * of this run: the first frames of a stream are often late (the
+         * socket buffer is applied after the first packets) or left over
+         * from a trigger sent before a restart, and belong to no set */
+        uint64_t best = 0, best_ts = 0;
+        clear_edge(c->s, b->host_ts_ns, &best, &best_ts);
+        if (!best || best_ts < c->start_ns || b->host_ts_ns - best_ts >= c->s->period_ns / 4) {
+            push_slot(c, sl);
+            return HAL_ETIMEDOUT;
         }
-        c->seq_base = (best ? best : 1) - fid;
+        /* two frames in a row must agree (a stale frame often comes first,
+         * right before the frame of the same edge) */
+        uint64_t raw = arv_buffer_get_frame_id(ab);
+        uint64_t base = best - raw;
+        if (!c->cand_valid || base != c->cand_base) {
+            c->cand_valid = true;
+            c->cand_base = base;
+            push_slot(c, sl);
+            return HAL_ETIMEDOUT;
+        }
+        uint64_t fid = unwrap(c, raw);
+        c->have_first = true;
+        c->seq_base = best - fid;
+    }
+    uint64_t fid = unwrap(c, arv_buffer_get_frame_id(ab));
+    if (!c->have_first) { /* hardware trigger: the counter starts at pulse 1 */
+        c->have_first = true;
+        c->seq_base = 1 - fid;
     }
     b->frame_id = fid;
     b->trigger_seq = fid + c->seq_base;
+    reanchor(c, b);
+    if (b->trigger_seq <= c->last_seq_out) { /* renumbered onto a pulse already delivered: drop */
+        push_slot(c, sl);
+        return HAL_ETIMEDOUT;
+    }
+    c->last_seq_out = b->trigger_seq;
     *out = b;
     return HAL_OK;
 }

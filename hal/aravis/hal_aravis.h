@@ -21,10 +21,16 @@
  *
  * Trigger sequence numbers: a triggered camera exposes once per pulse, so the
  * frame counter (GVSP block id, 16-bit with GigE Vision 1.x: unwrapped here)
- * advances with the pulses. The first frame is anchored to the latest
- * software-trigger edge before it (or to pulse 1 with a hardware trigger);
- * later frames follow the counter. The synchronizer's timestamp window catches
- * any mis-anchoring, so frames of different triggers are never grouped.
+ * advances with the pulses. With the software trigger the counter is anchored
+ * once two frames in a row each arrived within a quarter period after an edge
+ * of this run and agree on the numbering; frames before that are dropped
+ * (stream start-up produces late frames and frames of triggers sent before a
+ * restart). With a hardware trigger the first frame is pulse 1. A camera that
+ * misses a software trigger is re-anchored once three frames in a row clearly
+ * follow other edges than their numbers say (frames renumbered onto a pulse
+ * already delivered are dropped). The synchronizer's timestamp window catches
+ * frames numbered wrongly meanwhile, so frames of different triggers are
+ * never grouped.
  *
  * Timestamps: device_ts = arv_buffer_get_timestamp (device clock; the fake
  * camera uses host real time), host_ts = the arrival time moved onto the host
