@@ -98,6 +98,28 @@ static int path_join(char *out, size_t cap, const char *dir, const char *name)
     return n < 0 || (size_t)n >= cap ? -1 : 0;
 }
 
+/* mkdir -p: creates the take directory and any missing parents. */
+static int mkdir_p(const char *dir)
+{
+    char p[HAL_PATH_MAX];
+    size_t n = strlen(dir);
+    if (n == 0 || n >= sizeof p) {
+        errno = ENAMETOOLONG;
+        return -1;
+    }
+    memcpy(p, dir, n + 1);
+    for (size_t i = 1; i <= n; i++) {
+        if (p[i] != '/' && p[i] != 0)
+            continue;
+        char c = p[i];
+        p[i] = 0;
+        if (mkdir(p, 0755) < 0 && errno != EEXIST)
+            return -1;
+        p[i] = c;
+    }
+    return 0;
+}
+
 static void fsync_dir(const char *dir)
 {
     int d = open(dir, O_RDONLY | O_DIRECTORY);
@@ -144,7 +166,7 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     *out = NULL;
     if (!info || info->n_cams == 0 || info->n_cams > HAL_RIG_CAMERAS_MAX || durability_ms == 0)
         return hal_fail(err, errlen, HAL_EINVAL, "take %s: bad take info", dir);
-    if (mkdir(dir, 0755) < 0 && errno != EEXIST)
+    if (mkdir_p(dir) < 0)
         return hal_fail(err, errlen, HAL_EIO, "take %s: cannot create directory: %s", dir, strerror(errno));
     char path[HAL_PATH_MAX + 32];
     if (path_join(path, sizeof path, dir, F4D_TAKE_FILE) < 0 || strlen(dir) >= HAL_PATH_MAX)

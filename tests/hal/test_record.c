@@ -130,7 +130,7 @@ static void round_trip(void **state)
 {
     (void)state;
     char dir[300];
-    snprintf(dir, sizeof dir, "%s/rt", tmp_root);
+    snprintf(dir, sizeof dir, "%s/rt/parents/made", tmp_root); /* mkdir -p */
     record(dir, 20);
     struct f4d_take_reader *r;
     char err[256];
