@@ -356,14 +356,14 @@ static void contract_aravis(void **state)
         c->exposure_us = 1000;
     }
     snprintf(fx.board.trigger.backend, sizeof fx.board.trigger.backend, "aravis");
-    fx.board.trigger.rate_mhz = 50000;
-    fx.board.sync.window_us = 10000;
+    fx.board.trigger.rate_mhz = 25000; /* 40 ms: room for scheduling delays on a loaded CI machine */
+    fx.board.sync.window_us = 15000;
     fx.board.sync.max_latency_us = 60000;
     fx.board.sync.incomplete = HAL_INCOMPLETE_MARK;
-    fx.triggers = 200;
+    fx.triggers = 160;
     fx.min_complete = 100;
     fx.dequeue_timeout_us = 2000;
-    fx.max_spread_ns = 10000000; /* half a period: frames of one trigger, not neighbours */
+    fx.max_spread_ns = 20000000; /* half a period: frames of one trigger, not neighbours */
     run_contract(&fx);
     for (int i = 0; i < NCAM; i++)
         g_object_unref(fake[i]);
