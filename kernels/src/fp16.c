@@ -66,34 +66,39 @@ float fk_f16_to_f32_ref(fk_f16 h)
     return f;
 }
 
+/* Argument checks shared by both directions: 1 when there is work to do. */
+static int bulk_args(fk_ctx *ctx, const void *src, void *dst, size_t n, int *st)
+{
+    *st = FK_OK;
+    if (!ctx)
+        *st = FK_EINVAL;
+    else if (n > 0 && (!src || !dst))
+        *st = FK_FAIL(ctx, FK_EINVAL, "NULL buffer for %zu values", n);
+    return *st == FK_OK && n > 0;
+}
+
 int fk_f32_to_f16(fk_ctx *ctx, const float *src, fk_f16 *dst, size_t n)
 {
-    FK_CHECK_CTX(ctx);
-    if (n == 0)
-        return FK_OK;
-    if (!src || !dst)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL buffer for %zu values", n);
-    if (fk__isa_avx2(ctx->isa)) {
+    int st;
+    if (!bulk_args(ctx, src, dst, n, &st))
+        return st;
+    if (fk__isa_avx2(ctx->isa))
         fk__f32_to_f16_avx2(src, dst, n);
-        return FK_OK;
-    }
-    for (size_t i = 0; i < n; i++)
-        dst[i] = fk_f32_to_f16_ref(src[i]);
+    else
+        for (size_t i = 0; i < n; i++)
+            dst[i] = fk_f32_to_f16_ref(src[i]);
     return FK_OK;
 }
 
 int fk_f16_to_f32(fk_ctx *ctx, const fk_f16 *src, float *dst, size_t n)
 {
-    FK_CHECK_CTX(ctx);
-    if (n == 0)
-        return FK_OK;
-    if (!src || !dst)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL buffer for %zu values", n);
-    if (fk__isa_avx2(ctx->isa)) {
+    int st;
+    if (!bulk_args(ctx, src, dst, n, &st))
+        return st;
+    if (fk__isa_avx2(ctx->isa))
         fk__f16_to_f32_avx2(src, dst, n);
-        return FK_OK;
-    }
-    for (size_t i = 0; i < n; i++)
-        dst[i] = fk_f16_to_f32_ref(src[i]);
+    else
+        for (size_t i = 0; i < n; i++)
+            dst[i] = fk_f16_to_f32_ref(src[i]);
     return FK_OK;
 }

@@ -26,49 +26,14 @@
 
 /* ----------------------------------------------------------- micro-kernels */
 
-/* c[6][ldc] (16 columns) (+)= a[kc][6] * b[kc][16]: the fp32 register tile
- * of the GEMM and of attention's Q K^T. Kept out of line: inlined into a
- * driver, GCC runs out of general registers and spills the A pointer. */
-__attribute__((noinline)) void fk__ukr_f32_6x16(int kc, const float *a, const float *b, float *c,
-                                                 int ldc, int accumulate)
-{
-    __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
-    if (accumulate) {
-        c00 = _mm256_load_ps(c + 0 * ldc); c01 = _mm256_load_ps(c + 0 * ldc + 8);
-        c10 = _mm256_load_ps(c + 1 * ldc); c11 = _mm256_load_ps(c + 1 * ldc + 8);
-        c20 = _mm256_load_ps(c + 2 * ldc); c21 = _mm256_load_ps(c + 2 * ldc + 8);
-        c30 = _mm256_load_ps(c + 3 * ldc); c31 = _mm256_load_ps(c + 3 * ldc + 8);
-        c40 = _mm256_load_ps(c + 4 * ldc); c41 = _mm256_load_ps(c + 4 * ldc + 8);
-        c50 = _mm256_load_ps(c + 5 * ldc); c51 = _mm256_load_ps(c + 5 * ldc + 8);
-    } else {
-        c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
-        c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
-    }
-#pragma GCC unroll 4
-    for (int k = 0; k < kc; k++) {
-        __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
-        t = _mm256_broadcast_ss(a + 0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
-        t = _mm256_broadcast_ss(a + 1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
-        t = _mm256_broadcast_ss(a + 2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
-        t = _mm256_broadcast_ss(a + 3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
-        t = _mm256_broadcast_ss(a + 4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
-        t = _mm256_broadcast_ss(a + 5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
-        a += 6;
-        b += 16;
-    }
-    _mm256_store_ps(c + 0 * ldc, c00); _mm256_store_ps(c + 0 * ldc + 8, c01);
-    _mm256_store_ps(c + 1 * ldc, c10); _mm256_store_ps(c + 1 * ldc + 8, c11);
-    _mm256_store_ps(c + 2 * ldc, c20); _mm256_store_ps(c + 2 * ldc + 8, c21);
-    _mm256_store_ps(c + 3 * ldc, c30); _mm256_store_ps(c + 3 * ldc + 8, c31);
-    _mm256_store_ps(c + 4 * ldc, c40); _mm256_store_ps(c + 4 * ldc + 8, c41);
-    _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
-}
-
-/* The same tile with A read in place through six row pointers (each row's k
- * contiguous): stride-1 convolutions on HWC images need no im2col gather and
- * no packing, a tap's six pixels are adjacent in memory. */
-__attribute__((noinline)) static void ukr_f32_rows(int kc, const float *const a[MR], const float *b,
-                                                   float *c, int ldc, int accumulate)
+/* c[6][ldc] (16 columns) (+)= A[6][kc] * b[kc][16]: the fp32 register tile of
+ * the GEMM, of the convolutions and of attention's Q K^T. Row r of A is read
+ * at a[r][k * step]: step 6 walks a packed micro-panel [kc][6], step 1 rows
+ * read in place (a stride-1 convolution's six pixels, adjacent in memory, so
+ * no im2col gather). Kept out of line: inlined into a driver, GCC runs out of
+ * general registers and spills the A pointers. */
+__attribute__((noinline)) static void ukr_f32(int kc, const float *const a[MR], int step,
+                                              const float *b, float *c, int ldc, int accumulate)
 {
     const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
     __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
@@ -86,12 +51,13 @@ __attribute__((noinline)) static void ukr_f32_rows(int kc, const float *const a[
 #pragma GCC unroll 4
     for (int k = 0; k < kc; k++) {
         __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
-        t = _mm256_broadcast_ss(a0 + k); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
-        t = _mm256_broadcast_ss(a1 + k); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
-        t = _mm256_broadcast_ss(a2 + k); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
-        t = _mm256_broadcast_ss(a3 + k); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
-        t = _mm256_broadcast_ss(a4 + k); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
-        t = _mm256_broadcast_ss(a5 + k); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
+        t = _mm256_broadcast_ss(a0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
+        t = _mm256_broadcast_ss(a1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
+        t = _mm256_broadcast_ss(a2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
+        t = _mm256_broadcast_ss(a3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
+        t = _mm256_broadcast_ss(a4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
+        t = _mm256_broadcast_ss(a5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
+        a0 += step; a1 += step; a2 += step; a3 += step; a4 += step; a5 += step;
         b += 16;
     }
     _mm256_store_ps(c + 0 * ldc, c00); _mm256_store_ps(c + 0 * ldc + 8, c01);
@@ -100,6 +66,12 @@ __attribute__((noinline)) static void ukr_f32_rows(int kc, const float *const a[
     _mm256_store_ps(c + 3 * ldc, c30); _mm256_store_ps(c + 3 * ldc + 8, c31);
     _mm256_store_ps(c + 4 * ldc, c40); _mm256_store_ps(c + 4 * ldc + 8, c41);
     _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
+}
+
+void fk__ukr_f32_6x16(int kc, const float *a, const float *b, float *c, int ldc, int accumulate)
+{
+    const float *rows[MR] = { a, a + 1, a + 2, a + 3, a + 4, a + 5 };
+    ukr_f32(kc, rows, MR, b, c, ldc, accumulate);
 }
 
 static inline long long load_i64(const int16_t *p)
@@ -434,7 +406,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (j->direct) {
                         const float *ar[MR];
                         direct_rows(src, m0, rows, i, k0, zeros, ar);
-                        ukr_f32_rows(kc, ar, bp, ci, ldc, k0 > 0);
+                        ukr_f32(kc, ar, 1, bp, ci, ldc, k0 > 0);
                     } else {
                         fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp, ci,
                                          ldc, k0 > 0);
