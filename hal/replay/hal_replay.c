@@ -1,6 +1,8 @@
 /* hal_replay.c: a take played back as cameras + trigger (see hal_replay.h). */
 #include "hal_replay.h"
 
+#include "hal_backend.h"
+
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -8,9 +10,8 @@
 
 #include "f4d_take.h"
 
-#define RP_QUEUE_MAX 64
 #define RP_EVENTS_MAX 64
-#define RP_EDGES_MAX 64
+#define RP_EDGES_MAX 64 /* full: later edges are not reported */
 
 struct rp_event {
     uint64_t arrival_ns;
@@ -21,15 +22,10 @@ struct rp_world;
 struct rp_cam {
     struct rp_world *w;
     uint32_t index;
-    struct hal_format fmt;
-    bool configured, started;
-    struct hal_buffer *queue[RP_QUEUE_MAX];
-    uint32_t q_head, q_count;
-    struct hal_buffer *aborted[RP_QUEUE_MAX];
-    uint32_t n_aborted;
+    struct hal_cam_state st; /* format, configure/start state, aborted buffers, error */
+    struct hal_bufq q;       /* caller buffers waiting for a frame */
     struct rp_event ev[RP_EVENTS_MAX];
     uint32_t n_ev;
-    char err[256];
 };
 
 struct rp_world {
@@ -43,19 +39,11 @@ struct rp_world {
     uint64_t next_set, n_sets;
     uint64_t next_set_ns; /* emission time of next_set */
     uint64_t corrupt;
-    struct hal_edge edges[RP_EDGES_MAX];
-    uint32_t e_head, e_count;
+    struct hal_edgeq edges; /* limit RP_EDGES_MAX */
     struct rp_cam *cams[HAL_RIG_CAMERAS_MAX];
     struct f4d_take_set cur;
     char err[256];
 };
-
-static uint64_t real_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 /* Rig time at which a set is "triggered": its edge, else its earliest frame. */
 static uint64_t set_time(const struct rp_world *w, const struct f4d_take_set *s)
@@ -107,16 +95,13 @@ static void world_advance(struct rp_world *w, uint64_t t)
         /* w->cur holds next_set (read by load_next_time) */
         const struct f4d_take_set *s = &w->cur;
         uint64_t at = w->next_set_ns;
-        if (s->has_edge && w->e_count < RP_EDGES_MAX) {
-            struct hal_edge *e = &w->edges[(w->e_head + w->e_count++) % RP_EDGES_MAX];
-            e->seq = s->seq;
-            e->ts_ns = at;
-            e->line = 0;
-            e->rising = true;
+        if (s->has_edge) {
+            struct hal_edge e = {s->seq, at, 0, true};
+            hal_edgeq_push(&w->edges, &e);
         }
         for (uint32_t c = 0; c < HAL_RIG_CAMERAS_MAX; c++) {
             struct rp_cam *cam = w->cams[c];
-            if (!cam || !cam->started || !s->frames[c].present)
+            if (!cam || !cam->st.started || !s->frames[c].present)
                 continue;
             uint64_t h = s->frames[c].meta.host_ts_ns;
             uint64_t arr = h > w->base_ns ? h - w->base_ns : 0;
@@ -130,7 +115,7 @@ static void world_advance(struct rp_world *w, uint64_t t)
 static uint64_t world_now(struct rp_world *w)
 {
     if (w->realtime)
-        w->now = real_now() - w->real_t0;
+        w->now = hal_mono_ns() - w->real_t0;
     world_advance(w, w->now);
     return w->now;
 }
@@ -138,10 +123,7 @@ static uint64_t world_now(struct rp_world *w)
 static void world_sleep_until(struct rp_world *w, uint64_t t)
 {
     if (w->realtime) {
-        uint64_t target = w->real_t0 + t;
-        struct timespec ts = {(time_t)(target / 1000000000u), (long)(target % 1000000000u)};
-        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
-        }
+        hal_sleep_until_mono_ns(w->real_t0 + t);
     } else if (t > w->now) {
         w->now = t;
     }
@@ -181,8 +163,7 @@ static uint64_t clk_next(void *ctx)
 /* ---- camera ---- */
 static int cam_fail(struct rp_cam *c, int rc, const char *what)
 {
-    snprintf(c->err, sizeof c->err, "replay camera %u: %s", (unsigned)c->index, what);
-    return rc;
+    return hal_cam_fail(&c->st, rc, "replay camera %u: %s", (unsigned)c->index, what);
 }
 
 static int cam_validate(void *ctx, struct hal_format *f)
@@ -205,51 +186,47 @@ static int cam_validate(void *ctx, struct hal_format *f)
 static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct rp_cam *c = ctx;
-    if (c->started)
-        return cam_fail(c, HAL_ESTATE, "configure while started");
+    const char *why;
+    int rc = hal_cam_can_configure(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
     struct hal_format v = *f;
     if (cam_validate(c, &v) != HAL_FORMAT_VALID)
         return cam_fail(c, HAL_EINVAL, "format differs from the recording");
-    c->fmt = v;
-    c->configured = true;
+    c->st.fmt = v;
+    c->st.configured = true;
     return HAL_OK;
 }
 
 static int cam_start(void *ctx)
 {
     struct rp_cam *c = ctx;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "start before configure");
-    c->started = true;
+    const char *why;
+    int rc = hal_cam_can_start(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
+    c->st.started = true;
     return HAL_OK;
 }
 
 static int cam_stop(void *ctx)
 {
     struct rp_cam *c = ctx;
-    c->started = false;
+    c->st.started = false;
     c->n_ev = 0;
-    while (c->q_count) {
-        struct hal_buffer *b = c->queue[c->q_head];
-        c->q_head = (c->q_head + 1) % RP_QUEUE_MAX;
-        c->q_count--;
-        b->status = HAL_FRAME_ABORTED;
-        b->bytes_used = 0;
-        c->aborted[c->n_aborted++] = b;
-    }
+    hal_cam_abort_all(&c->st, &c->q);
     return HAL_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct rp_cam *c = ctx;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "enqueue before configure");
-    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
-        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image");
-    if (c->q_count == RP_QUEUE_MAX)
+    const char *why;
+    int rc = hal_cam_can_enqueue(&c->st, b, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
+    if (!hal_bufq_push(&c->q, b))
         return cam_fail(c, HAL_EBUSY, "buffer queue full");
-    c->queue[(c->q_head + c->q_count++) % RP_QUEUE_MAX] = b;
     return HAL_OK;
 }
 
@@ -259,7 +236,7 @@ static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
     struct rp_event e = c->ev[0];
     memmove(&c->ev[0], &c->ev[1], (c->n_ev - 1) * sizeof c->ev[0]);
     c->n_ev--;
-    if (c->q_count == 0)
+    if (c->q.count == 0)
         return HAL_EBUSY;
     if (w->frames_index != e.set_index) {
         w->frames_index = UINT64_MAX;
@@ -270,9 +247,7 @@ static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
         w->frames_index = e.set_index;
     }
     const struct f4d_take_frame *f = &w->fset.frames[c->index];
-    struct hal_buffer *b = c->queue[c->q_head];
-    c->q_head = (c->q_head + 1) % RP_QUEUE_MAX;
-    c->q_count--;
+    struct hal_buffer *b = hal_bufq_pop(&c->q);
     uint8_t *data = b->data;
     size_t cap = b->capacity;
     void *user = b->user;
@@ -283,7 +258,7 @@ static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
     memcpy(b->data, f->data, f->bytes);
     b->bytes_used = f->bytes;
     b->camera_index = c->index;
-    b->format = c->fmt;
+    b->format = c->st.fmt;
     uint64_t h = f->meta.host_ts_ns;
     b->host_ts_ns = h > w->base_ns ? h - w->base_ns : 0;
     *out = b;
@@ -295,12 +270,12 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     struct rp_cam *c = ctx;
     struct rp_world *w = c->w;
     *out = NULL;
-    if (c->n_aborted) {
-        *out = c->aborted[--c->n_aborted];
+    if (hal_cam_take_aborted(&c->st, out))
         return HAL_OK;
-    }
-    if (!c->started)
-        return cam_fail(c, HAL_ESTATE, "dequeue while stopped");
+    const char *why;
+    int rc = hal_cam_can_dequeue(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
     uint64_t now = world_now(w);
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     for (;;) {
@@ -324,7 +299,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct rp_cam *)ctx)->err; }
+static const char *cam_last_error(void *ctx) { return ((struct rp_cam *)ctx)->st.err; }
 
 static const struct hal_camera_ops rp_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -344,7 +319,7 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
     (void)p; /* the take decides when pulses come */
     struct rp_world *w = ctx;
     if (w->realtime)
-        w->real_t0 = real_now() - w->now;
+        w->real_t0 = hal_mono_ns() - w->now;
     w->armed = true;
     world_now(w);
     return HAL_OK;
@@ -358,17 +333,11 @@ static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t
 {
     struct rp_world *w = ctx;
     uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
-    while (w->e_count == 0 && w->now < deadline) {
+    while (w->edges.count == 0 && w->now < deadline) {
         uint64_t next = world_next_for(w, NULL);
         world_sleep_until(w, next < deadline ? next : deadline);
     }
-    uint32_t n = 0;
-    while (n < max && w->e_count) {
-        e[n++] = w->edges[w->e_head];
-        w->e_head = (w->e_head + 1) % RP_EDGES_MAX;
-        w->e_count--;
-    }
-    return (int)n;
+    return (int)hal_edgeq_pop(&w->edges, e, max);
 }
 static bool trig_done(void *ctx)
 {
@@ -417,8 +386,9 @@ static int rp_session_open(const struct hal_board *board, void **session, char *
         return rc;
     }
     w->frames_index = UINT64_MAX;
+    w->edges.limit = RP_EDGES_MAX;
     w->realtime = board->sim.realtime;
-    w->real_t0 = real_now();
+    w->real_t0 = hal_mono_ns();
     w->n_sets = f4d_take_count(w->take);
     /* time base: the first readable set starts 1 ms after rig time 0 */
     w->base_ns = 0;

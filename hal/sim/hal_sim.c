@@ -1,14 +1,14 @@
 /* hal_sim.c: the simulated world (trigger generator, cameras, clock). */
 #include "hal_sim.h"
 
+#include "hal_backend.h"
+
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
-#define SIM_QUEUE_MAX 64   /* caller buffers queued per camera */
 #define SIM_EVENTS_MAX 64  /* frames in flight per camera */
-#define SIM_EDGES_MAX 256  /* edges not yet read by the host */
 #define SIM_TRANSFER_NS 1500000u
 #define SIM_DUP_DELAY_NS 1000000u
 #define SIM_DEVICE_EPOCH_NS 1000000000000ull /* device clocks started 1000 s before the rig */
@@ -31,12 +31,8 @@ struct sim_cam {
     struct sim_world *w;
     uint32_t index;
     const struct hal_camera_config *cfg;
-    struct hal_format fmt;
-    bool configured, started;
-    struct hal_buffer *queue[SIM_QUEUE_MAX];
-    uint32_t q_head, q_count;
-    struct hal_buffer *aborted[SIM_QUEUE_MAX];
-    uint32_t n_aborted;
+    struct hal_cam_state st; /* format, configure/start state, aborted buffers, error */
+    struct hal_bufq q;       /* caller buffers waiting for a frame */
     struct sim_event ev[SIM_EVENTS_MAX];
     uint32_t n_ev;
     int64_t offset_ns;
@@ -44,7 +40,6 @@ struct sim_cam {
     uint64_t frame_id;
     uint64_t disconnected_until;
     uint32_t clock_epoch, delivered_epoch;
-    char err[256];
 };
 
 struct sim_world {
@@ -59,8 +54,7 @@ struct sim_world {
     uint64_t next_pulse_ns, scheduled_limit;
     uint64_t extra_at; /* 0 = none pending */
     uint64_t seq;
-    struct hal_edge edges[SIM_EDGES_MAX];
-    uint32_t e_head, e_count;
+    struct hal_edgeq edges; /* full: the oldest is lost (edges_overrun) */
     uint64_t edges_overrun;
     struct sim_cam *cams[HAL_RIG_CAMERAS_MAX];
     uint32_t n_cams;
@@ -81,13 +75,6 @@ static uint64_t rng_next(uint64_t *s)
 static double rng_unit(uint64_t *s) { return (double)(rng_next(s) >> 11) * (1.0 / 9007199254740992.0); }
 /* uniform in [-a, a] */
 static double rng_sym(uint64_t *s, double a) { return (2.0 * rng_unit(s) - 1.0) * a; }
-
-static uint64_t real_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 static void cam_new_clock(struct sim_cam *c)
 {
@@ -118,20 +105,13 @@ static void world_emit_pulse(struct sim_world *w, uint64_t t)
     const struct hal_sim_faults *f = &w->cfg.faults;
     uint64_t seq = ++w->seq;
     w->inj.edges++;
-    if (w->e_count == SIM_EDGES_MAX) {
-        w->e_head = (w->e_head + 1) % SIM_EDGES_MAX;
-        w->e_count--;
+    struct hal_edge e = {seq, t, w->board->trigger.line >= 0 ? (uint32_t)w->board->trigger.line : 0, true};
+    if (hal_edgeq_push_overwrite(&w->edges, &e))
         w->edges_overrun++;
-    }
-    struct hal_edge *e = &w->edges[(w->e_head + w->e_count++) % SIM_EDGES_MAX];
-    e->seq = seq;
-    e->ts_ns = t;
-    e->line = w->board->trigger.line >= 0 ? (uint32_t)w->board->trigger.line : 0;
-    e->rising = true;
 
     for (uint32_t i = 0; i < w->n_cams; i++) {
         struct sim_cam *c = w->cams[i];
-        if (!c || !c->started)
+        if (!c || !c->st.started)
             continue;
         if (t < c->disconnected_until) {
             w->inj.frames_lost_disconnected++;
@@ -156,7 +136,7 @@ static void world_emit_pulse(struct sim_world *w, uint64_t t)
                      (double)c->offset_ns + rng_sym(&w->rng, (double)f->jitter_us * 1000.0);
         ev.device_ts_ns = (uint64_t)(dev > 0 ? dev : 0);
         ev.clock_epoch = c->clock_epoch;
-        ev.arrival_ns = t + (uint64_t)c->fmt.exposure_us * 1000u + SIM_TRANSFER_NS +
+        ev.arrival_ns = t + (uint64_t)c->st.fmt.exposure_us * 1000u + SIM_TRANSFER_NS +
                         (uint64_t)(rng_unit(&w->rng) * SIM_TRANSFER_NS);
         double u = rng_unit(&w->rng);
         double p = f->drop;
@@ -213,7 +193,7 @@ static void world_advance(struct sim_world *w, uint64_t t)
 static uint64_t world_now(struct sim_world *w)
 {
     if (w->cfg.realtime)
-        w->now = real_now() - w->real_t0;
+        w->now = hal_mono_ns() - w->real_t0;
     world_advance(w, w->now);
     return w->now;
 }
@@ -221,10 +201,7 @@ static uint64_t world_now(struct sim_world *w)
 static void world_sleep_until(struct sim_world *w, uint64_t t)
 {
     if (w->cfg.realtime) {
-        uint64_t target = w->real_t0 + t;
-        struct timespec ts = {(time_t)(target / 1000000000u), (long)(target % 1000000000u)};
-        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
-        }
+        hal_sleep_until_mono_ns(w->real_t0 + t);
     } else if (t > w->now) {
         w->now = t;
     }
@@ -277,8 +254,7 @@ static uint64_t clk_next(void *ctx)
 /* ---- camera ops ---- */
 static int cam_fail(struct sim_cam *c, int rc, const char *what)
 {
-    snprintf(c->err, sizeof c->err, "sim camera %s: %s", c->cfg->id, what);
-    return rc;
+    return hal_cam_fail(&c->st, rc, "sim camera %s: %s", c->cfg->id, what);
 }
 
 static int cam_validate(void *ctx, struct hal_format *f)
@@ -315,52 +291,48 @@ static int cam_validate(void *ctx, struct hal_format *f)
 static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct sim_cam *c = ctx;
-    if (c->started)
-        return cam_fail(c, HAL_ESTATE, "configure while started");
+    const char *why;
+    int rc = hal_cam_can_configure(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
     struct hal_format v = *f;
-    int rc = cam_validate(c, &v);
+    rc = cam_validate(c, &v);
     if (rc != HAL_FORMAT_VALID)
         return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged");
-    c->fmt = v;
-    c->configured = true;
+    c->st.fmt = v;
+    c->st.configured = true;
     return HAL_OK;
 }
 
 static int cam_start(void *ctx)
 {
     struct sim_cam *c = ctx;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "start before configure");
-    c->started = true;
+    const char *why;
+    int rc = hal_cam_can_start(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
+    c->st.started = true;
     return HAL_OK;
 }
 
 static int cam_stop(void *ctx)
 {
     struct sim_cam *c = ctx;
-    c->started = false;
+    c->st.started = false;
     c->n_ev = 0;
-    while (c->q_count) {
-        struct hal_buffer *b = c->queue[c->q_head];
-        c->q_head = (c->q_head + 1) % SIM_QUEUE_MAX;
-        c->q_count--;
-        b->status = HAL_FRAME_ABORTED;
-        b->bytes_used = 0;
-        c->aborted[c->n_aborted++] = b;
-    }
+    hal_cam_abort_all(&c->st, &c->q);
     return HAL_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct sim_cam *c = ctx;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "enqueue before configure");
-    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
-        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image");
-    if (c->q_count == SIM_QUEUE_MAX)
+    const char *why;
+    int rc = hal_cam_can_enqueue(&c->st, b, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
+    if (!hal_bufq_push(&c->q, b))
         return cam_fail(c, HAL_EBUSY, "buffer queue full");
-    c->queue[(c->q_head + c->q_count++) % SIM_QUEUE_MAX] = b;
     return HAL_OK;
 }
 
@@ -396,24 +368,22 @@ static int cam_deliver(struct sim_cam *c, struct hal_buffer **out)
     struct sim_event e = c->ev[0];
     memmove(&c->ev[0], &c->ev[1], (c->n_ev - 1) * sizeof c->ev[0]);
     c->n_ev--;
-    if (c->q_count == 0) {
+    struct hal_buffer *b = hal_bufq_pop(&c->q);
+    if (!b) {
         w->inj.underruns++;
         return HAL_EBUSY;
     }
-    struct hal_buffer *b = c->queue[c->q_head];
-    c->q_head = (c->q_head + 1) % SIM_QUEUE_MAX;
-    c->q_count--;
-    b->format = c->fmt;
-    int rc = w->render(w->render_user, c->index, e.pulse_ns, &c->fmt, b->data);
+    b->format = c->st.fmt;
+    int rc = w->render(w->render_user, c->index, e.pulse_ns, &c->st.fmt, b->data);
     if (rc < 0)
-        hal_sim_render_pattern(NULL, c->index, e.pulse_ns, &c->fmt, b->data);
-    stamp_write(b->data, c->fmt.image_bytes, e.seq, c->index);
-    b->bytes_used = c->fmt.image_bytes;
+        hal_sim_render_pattern(NULL, c->index, e.pulse_ns, &c->st.fmt, b->data);
+    stamp_write(b->data, c->st.fmt.image_bytes, e.seq, c->index);
+    b->bytes_used = c->st.fmt.image_bytes;
     b->status = HAL_FRAME_OK;
     if (e.kind == SIM_EV_INCOMPLETE) {
         /* the last quarter of the packets never arrived */
-        size_t keep = c->fmt.image_bytes - c->fmt.image_bytes / 4;
-        memset(b->data + keep, 0, c->fmt.image_bytes - keep);
+        size_t keep = c->st.fmt.image_bytes - c->st.fmt.image_bytes / 4;
+        memset(b->data + keep, 0, c->st.fmt.image_bytes - keep);
         b->bytes_used = keep;
         b->status = HAL_FRAME_MISSING_PACKETS;
     }
@@ -435,12 +405,12 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     struct sim_cam *c = ctx;
     struct sim_world *w = c->w;
     *out = NULL;
-    if (c->n_aborted) {
-        *out = c->aborted[--c->n_aborted];
+    if (hal_cam_take_aborted(&c->st, out))
         return HAL_OK;
-    }
-    if (!c->started)
-        return cam_fail(c, HAL_ESTATE, "dequeue while stopped");
+    const char *why;
+    int rc = hal_cam_can_dequeue(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
     uint64_t now = world_now(w);
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     for (;;) {
@@ -465,7 +435,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct sim_cam *)ctx)->err; }
+static const char *cam_last_error(void *ctx) { return ((struct sim_cam *)ctx)->st.err; }
 
 static const struct hal_camera_ops sim_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -483,17 +453,15 @@ static const struct hal_camera_ops sim_camera_ops = {
 static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct sim_world *w = ctx;
-    if (p->rate_mhz == 0 || p->rate_mhz > 10000000u) {
-        snprintf(w->err, sizeof w->err, "sim trigger: rate %u mHz out of range", (unsigned)p->rate_mhz);
-        return HAL_EINVAL;
-    }
+    if (p->rate_mhz == 0 || p->rate_mhz > 10000000u)
+        return hal_fail(w->err, sizeof w->err, HAL_EINVAL, "sim trigger: rate %u mHz out of range",
+                        (unsigned)p->rate_mhz);
     world_now(w);
     w->period_ns = 1000000000000ull / p->rate_mhz;
     w->width_ns = (uint64_t)p->width_us * 1000u;
-    if (w->width_ns >= w->period_ns) {
-        snprintf(w->err, sizeof w->err, "sim trigger: pulse width %u us >= period", (unsigned)p->width_us);
-        return HAL_EINVAL;
-    }
+    if (w->width_ns >= w->period_ns)
+        return hal_fail(w->err, sizeof w->err, HAL_EINVAL, "sim trigger: pulse width %u us >= period",
+                        (unsigned)p->width_us);
     w->next_pulse_ns = w->now + w->period_ns;
     w->scheduled_limit = w->inj.pulses_scheduled + p->count;
     if (p->count == 0)
@@ -515,17 +483,11 @@ static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t
 {
     struct sim_world *w = ctx;
     uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
-    while (w->e_count == 0 && w->now < deadline) {
+    while (w->edges.count == 0 && w->now < deadline) {
         uint64_t next = world_next_for(w, NULL);
         world_sleep_until(w, next < deadline ? next : deadline);
     }
-    uint32_t n = 0;
-    while (n < max && w->e_count) {
-        e[n++] = w->edges[w->e_head];
-        w->e_head = (w->e_head + 1) % SIM_EDGES_MAX;
-        w->e_count--;
-    }
-    return (int)n;
+    return (int)hal_edgeq_pop(&w->edges, e, max);
 }
 
 static bool trig_done(void *ctx)
@@ -571,7 +533,7 @@ static int sim_session_open(const struct hal_board *board, void **session, char 
     w->board = board;
     w->cfg = board->sim;
     w->rng = board->sim.seed ^ 0x5EEDF4D0ull;
-    w->real_t0 = real_now();
+    w->real_t0 = hal_mono_ns();
     w->render = hal_sim_render_pattern;
     *session = w;
     return HAL_OK;
@@ -593,12 +555,12 @@ static int sim_camera_open(void *session, const struct hal_camera_config *cfg, u
     c->cfg = cfg;
     cam_new_clock(c);
     /* the board's format is the starting point of negotiation */
-    c->fmt.pixfmt = cfg->pixfmt;
-    c->fmt.width = cfg->width;
-    c->fmt.height = cfg->height;
-    c->fmt.rate_mhz = w->board->trigger.rate_mhz;
-    c->fmt.exposure_us = cfg->exposure_us;
-    c->fmt.trigger = HAL_TRIGGER_HARDWARE;
+    c->st.fmt.pixfmt = cfg->pixfmt;
+    c->st.fmt.width = cfg->width;
+    c->st.fmt.height = cfg->height;
+    c->st.fmt.rate_mhz = w->board->trigger.rate_mhz;
+    c->st.fmt.exposure_us = cfg->exposure_us;
+    c->st.fmt.trigger = HAL_TRIGGER_HARDWARE;
     w->cams[index] = c;
     if (index + 1 > w->n_cams)
         w->n_cams = index + 1;

@@ -1,0 +1,150 @@
+/* hal_backend.c: the helpers every backend shares (see hal_backend.h). */
+#include "hal_backend.h"
+
+#include <stdarg.h>
+#include <stdio.h>
+#include <time.h>
+
+uint64_t hal_mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+void hal_sleep_until_mono_ns(uint64_t t_ns)
+{
+    struct timespec ts = {(time_t)(t_ns / 1000000000u), (long)(t_ns % 1000000000u)};
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
+    }
+}
+
+/* ---- buffers ---- */
+bool hal_bufq_push(struct hal_bufq *q, struct hal_buffer *b)
+{
+    if (q->count == HAL_BUFQ_MAX)
+        return false;
+    q->ring[(q->head + q->count++) % HAL_BUFQ_MAX] = b;
+    return true;
+}
+
+struct hal_buffer *hal_bufq_pop(struct hal_bufq *q)
+{
+    if (q->count == 0)
+        return NULL;
+    struct hal_buffer *b = q->ring[q->head];
+    q->head = (q->head + 1) % HAL_BUFQ_MAX;
+    q->count--;
+    return b;
+}
+
+int hal_cam_can_configure(const struct hal_cam_state *s, const char **why)
+{
+    if (s->started) {
+        *why = "configure while started";
+        return HAL_ESTATE;
+    }
+    return HAL_OK;
+}
+
+int hal_cam_can_start(const struct hal_cam_state *s, const char **why)
+{
+    if (!s->configured) {
+        *why = "start before configure";
+        return HAL_ESTATE;
+    }
+    return HAL_OK;
+}
+
+int hal_cam_can_dequeue(const struct hal_cam_state *s, const char **why)
+{
+    if (!s->started) {
+        *why = "dequeue while stopped";
+        return HAL_ESTATE;
+    }
+    return HAL_OK;
+}
+
+int hal_cam_can_enqueue(const struct hal_cam_state *s, const struct hal_buffer *b, const char **why)
+{
+    if (!s->configured) {
+        *why = "enqueue before configure";
+        return HAL_ESTATE;
+    }
+    if (!b || !b->data || b->capacity < s->fmt.image_bytes) {
+        *why = "buffer smaller than the image";
+        return HAL_EINVAL;
+    }
+    return HAL_OK;
+}
+
+void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b)
+{
+    b->status = HAL_FRAME_ABORTED;
+    b->bytes_used = 0;
+    /* a camera holds at most HAL_BUFQ_MAX buffers, so this only fills up when
+     * the caller stops again without collecting the aborted ones */
+    if (s->n_aborted < HAL_BUFQ_MAX)
+        s->aborted[s->n_aborted++] = b;
+}
+
+void hal_cam_abort_all(struct hal_cam_state *s, struct hal_bufq *q)
+{
+    struct hal_buffer *b;
+    while ((b = hal_bufq_pop(q)) != NULL)
+        hal_cam_abort(s, b);
+}
+
+bool hal_cam_take_aborted(struct hal_cam_state *s, struct hal_buffer **out)
+{
+    if (s->n_aborted == 0)
+        return false;
+    *out = s->aborted[--s->n_aborted];
+    return true;
+}
+
+int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(s->err, sizeof s->err, fmt, ap);
+    va_end(ap);
+    return rc;
+}
+
+/* ---- edges ---- */
+static uint32_t edgeq_cap(const struct hal_edgeq *q)
+{
+    return q->limit && q->limit < HAL_EDGEQ_MAX ? q->limit : HAL_EDGEQ_MAX;
+}
+
+bool hal_edgeq_push(struct hal_edgeq *q, const struct hal_edge *e)
+{
+    if (q->count >= edgeq_cap(q))
+        return false;
+    q->ring[(q->head + q->count++) % HAL_EDGEQ_MAX] = *e;
+    return true;
+}
+
+bool hal_edgeq_push_overwrite(struct hal_edgeq *q, const struct hal_edge *e)
+{
+    bool dropped = false;
+    if (q->count >= edgeq_cap(q)) {
+        q->head = (q->head + 1) % HAL_EDGEQ_MAX;
+        q->count--;
+        dropped = true;
+    }
+    q->ring[(q->head + q->count++) % HAL_EDGEQ_MAX] = *e;
+    return dropped;
+}
+
+uint32_t hal_edgeq_pop(struct hal_edgeq *q, struct hal_edge *out, uint32_t max)
+{
+    uint32_t n = 0;
+    while (n < max && q->count) {
+        out[n++] = q->ring[q->head];
+        q->head = (q->head + 1) % HAL_EDGEQ_MAX;
+        q->count--;
+    }
+    return n;
+}

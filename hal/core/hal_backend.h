@@ -1,0 +1,82 @@
+/* hal_backend.h: helpers for backend implementers (hal/sim, hal/replay,
+ * hal/aravis, hal/usb, hal/gpiod). Internal: users of the HAL include only
+ * hal.h; this header is for code that implements hal_camera_ops or
+ * hal_trigger_ops, so that every backend keeps the caller-owned buffer ring,
+ * the camera state rules, the edge queue and the error buffer the same way.
+ *
+ * Every piece is a plain struct embedded by value in a backend's context
+ * (zero-initialised by calloc is a valid empty state) plus small functions;
+ * none of them allocates, so they are safe in the per-frame path.
+ */
+#ifndef F4D_HAL_BACKEND_H
+#define F4D_HAL_BACKEND_H
+
+#include "hal.h"
+
+/* ---- time -------------------------------------------------------------- */
+/* CLOCK_MONOTONIC in ns. */
+uint64_t hal_mono_ns(void);
+/* Sleeps until CLOCK_MONOTONIC reaches t_ns (retries when a signal interrupts). */
+void hal_sleep_until_mono_ns(uint64_t t_ns);
+
+/* ---- caller-owned buffers --------------------------------------------- */
+#define HAL_BUFQ_MAX 64 /* most buffers one camera holds at once */
+
+/* FIFO of queued caller buffers (the order frames will fill them). */
+struct hal_bufq {
+    struct hal_buffer *ring[HAL_BUFQ_MAX];
+    uint32_t head, count;
+};
+/* false (and nothing queued) when the ring is full. */
+bool hal_bufq_push(struct hal_bufq *q, struct hal_buffer *b);
+/* The oldest queued buffer, or NULL when empty. */
+struct hal_buffer *hal_bufq_pop(struct hal_bufq *q);
+
+/* State every camera shares: the configured format, the configure/start
+ * rules, the buffers handed back unfilled by stop, and the last error. */
+struct hal_cam_state {
+    struct hal_format fmt;    /* valid once configured */
+    bool configured, started;
+    struct hal_buffer *aborted[HAL_BUFQ_MAX]; /* returned by dequeue before any frame */
+    uint32_t n_aborted;
+    char err[256];            /* last_error() */
+};
+
+/* The state rules of hal_camera_ops. Each returns HAL_OK, or HAL_ESTATE /
+ * HAL_EINVAL with *why set to a message for the backend's error helper. */
+int hal_cam_can_configure(const struct hal_cam_state *s, const char **why);
+int hal_cam_can_start(const struct hal_cam_state *s, const char **why);
+int hal_cam_can_dequeue(const struct hal_cam_state *s, const char **why);
+/* Configured, and `b` can hold a whole image. */
+int hal_cam_can_enqueue(const struct hal_cam_state *s, const struct hal_buffer *b, const char **why);
+
+/* Marks `b` ABORTED (no bytes) and keeps it for dequeue. */
+void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b);
+/* Aborts every buffer still in `q` (stop). */
+void hal_cam_abort_all(struct hal_cam_state *s, struct hal_bufq *q);
+/* Dequeue hands aborted buffers back first: true with *out set if one was left. */
+bool hal_cam_take_aborted(struct hal_cam_state *s, struct hal_buffer **out);
+
+/* printf into s->err and return rc: `return hal_cam_fail(&c->st, HAL_EIO, "...", ...)`. */
+int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+
+/* ---- trigger edges not yet read by the host ---------------------------- */
+#define HAL_EDGEQ_MAX 256
+
+struct hal_edgeq {
+    struct hal_edge ring[HAL_EDGEQ_MAX];
+    uint32_t head, count;
+    uint32_t limit;           /* capacity; 0 = HAL_EDGEQ_MAX */
+};
+/* Appends e; false (e dropped) when the queue is full. */
+bool hal_edgeq_push(struct hal_edgeq *q, const struct hal_edge *e);
+/* Appends e, dropping the oldest edge when full; true if one was dropped. */
+bool hal_edgeq_push_overwrite(struct hal_edgeq *q, const struct hal_edge *e);
+/* Moves up to max edges, oldest first, into out; returns how many. */
+uint32_t hal_edgeq_pop(struct hal_edgeq *q, struct hal_edge *out, uint32_t max);
+
+#endif /* F4D_HAL_BACKEND_H */
