@@ -3,10 +3,8 @@
 
 #include "hal_backend.h"
 
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #define SIM_EVENTS_MAX 64  /* frames in flight per camera */
 #define SIM_TRANSFER_NS 1500000u

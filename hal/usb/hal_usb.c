@@ -2,6 +2,8 @@
  * trigger (see hal_usb.h). */
 #include "hal_usb.h"
 
+#include "hal_backend.h"
+
 #include <errno.h>
 #include <fcntl.h>
 #include <linux/videodev2.h>
@@ -10,11 +12,9 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
-#include <time.h>
 #include <unistd.h>
 
 #define USB_BUFFERS_MAX 32
-#define USB_EDGES_MAX 256
 
 struct usb_session;
 
@@ -23,32 +23,22 @@ struct usb_cam {
     uint32_t index;
     const struct hal_camera_config *cfg;
     int fd;
-    struct hal_format fmt;
-    bool configured, started;
+    struct hal_cam_state st; /* format, configure/start state, aborted buffers, error */
+    /* V4L2 fixes the buffer set at start and re-queues by index, so the
+     * caller's buffers live in a slot table here, not in a struct hal_bufq */
     struct hal_buffer *slots[USB_BUFFERS_MAX]; /* V4L2 index -> caller buffer */
     bool queued[USB_BUFFERS_MAX];
     uint32_t n_slots;
-    struct hal_buffer *aborted[USB_BUFFERS_MAX];
-    uint32_t n_aborted;
     uint64_t seq_hi, last_seq32; /* unwrapping the 32-bit V4L2 sequence */
     bool have_seq;
-    char err[256];
 };
 
 struct usb_session {
     const struct hal_board *board;
     bool trig_open, armed;
     uint64_t period_ns, first_tick_ns, next_tick_ns, sent, limit, seq;
-    struct hal_edge edges[USB_EDGES_MAX];
-    uint32_t e_head, e_count;
+    struct hal_edgeq edges; /* full: later ticks are not reported */
 };
-
-static uint64_t mono_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 static int xioctl(int fd, unsigned long req, void *arg)
 {
@@ -61,9 +51,9 @@ static int xioctl(int fd, unsigned long req, void *arg)
 
 static int cam_fail(struct usb_cam *c, int rc, const char *what)
 {
-    snprintf(c->err, sizeof c->err, "usb camera %.40s (%.80s): %.80s%s%.60s", c->cfg->id, c->cfg->address,
-             what, errno ? ": " : "", errno ? strerror(errno) : "");
-    return rc;
+    int e = errno;
+    return hal_cam_fail(&c->st, rc, "usb camera %.40s (%.80s): %.80s%s%.60s", c->cfg->id, c->cfg->address,
+                        what, e ? ": " : "", e ? strerror(e) : "");
 }
 
 static const struct {
@@ -126,10 +116,12 @@ static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct usb_cam *c = ctx;
     errno = 0;
-    if (c->started)
-        return cam_fail(c, HAL_ESTATE, "configure while streaming");
+    const char *why;
+    int rc = hal_cam_can_configure(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
     struct hal_format v = *f;
-    int rc = cam_validate(c, &v);
+    rc = cam_validate(c, &v);
     if (rc != HAL_FORMAT_VALID) {
         errno = 0;
         return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged");
@@ -152,8 +144,8 @@ static int cam_configure(void *ctx, const struct hal_format *f)
         if (xioctl(c->fd, VIDIOC_S_PARM, &sp) < 0 && errno != ENOTTY && errno != EINVAL)
             return cam_fail(c, HAL_EIO, "VIDIOC_S_PARM (frame interval)");
     }
-    c->fmt = v;
-    c->configured = true;
+    c->st.fmt = v;
+    c->st.configured = true;
     return HAL_OK;
 }
 
@@ -177,9 +169,11 @@ static int cam_start(void *ctx)
 {
     struct usb_cam *c = ctx;
     errno = 0;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "start before configure");
-    if (c->started)
+    const char *why;
+    int rc = hal_cam_can_start(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
+    if (c->st.started)
         return HAL_OK;
     if (c->n_slots == 0)
         return cam_fail(c, HAL_ESTATE, "start with no buffer queued");
@@ -195,7 +189,7 @@ static int cam_start(void *ctx)
         return cam_fail(c, HAL_ENOMEM, "the driver accepted fewer buffers than queued");
     }
     for (uint32_t i = 0; i < c->n_slots; i++) {
-        int rc = qbuf(c, i);
+        rc = qbuf(c, i);
         if (rc < 0)
             return rc;
     }
@@ -203,14 +197,14 @@ static int cam_start(void *ctx)
     if (xioctl(c->fd, VIDIOC_STREAMON, &type) < 0)
         return cam_fail(c, HAL_EIO, "VIDIOC_STREAMON");
     c->have_seq = false;
-    c->started = true;
+    c->st.started = true;
     return HAL_OK;
 }
 
 static int cam_stop(void *ctx)
 {
     struct usb_cam *c = ctx;
-    if (c->started) {
+    if (c->st.started) {
         int type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
         xioctl(c->fd, VIDIOC_STREAMOFF, &type); /* also dequeues everything in the driver */
         struct v4l2_requestbuffers rb;
@@ -218,12 +212,10 @@ static int cam_stop(void *ctx)
         rb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
         rb.memory = V4L2_MEMORY_USERPTR;
         xioctl(c->fd, VIDIOC_REQBUFS, &rb);
-        c->started = false;
+        c->st.started = false;
     }
     for (uint32_t i = 0; i < c->n_slots; i++) {
-        c->slots[i]->status = HAL_FRAME_ABORTED;
-        c->slots[i]->bytes_used = 0;
-        c->aborted[c->n_aborted++] = c->slots[i];
+        hal_cam_abort(&c->st, c->slots[i]);
         c->queued[i] = false;
     }
     c->n_slots = 0; /* the next start requests buffers again */
@@ -234,18 +226,18 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct usb_cam *c = ctx;
     errno = 0;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "enqueue before configure");
-    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
-        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image");
+    const char *why;
+    int rc = hal_cam_can_enqueue(&c->st, b, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
     for (uint32_t i = 0; i < c->n_slots; i++) {
         if (c->slots[i] != b)
             continue;
         if (c->queued[i])
             return cam_fail(c, HAL_EBUSY, "buffer is already queued");
-        return c->started ? qbuf(c, i) : (c->queued[i] = true, HAL_OK);
+        return c->st.started ? qbuf(c, i) : (c->queued[i] = true, HAL_OK);
     }
-    if (c->started)
+    if (c->st.started)
         return cam_fail(c, HAL_ESTATE, "a new buffer while streaming (V4L2 fixes the set at start)");
     if (c->n_slots == USB_BUFFERS_MAX)
         return cam_fail(c, HAL_EBUSY, "too many buffers");
@@ -267,13 +259,13 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     struct usb_cam *c = ctx;
     *out = NULL;
     errno = 0;
-    if (c->n_aborted) {
-        *out = c->aborted[--c->n_aborted];
+    if (hal_cam_take_aborted(&c->st, out))
         return HAL_OK;
-    }
-    if (!c->started)
-        return cam_fail(c, HAL_ESTATE, "dequeue while stopped");
-    uint64_t deadline = mono_ns() + (uint64_t)timeout_us * 1000u;
+    const char *why;
+    int rc = hal_cam_can_dequeue(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why);
+    uint64_t deadline = hal_mono_ns() + (uint64_t)timeout_us * 1000u;
     for (;;) {
         struct v4l2_buffer vb;
         memset(&vb, 0, sizeof vb);
@@ -286,11 +278,11 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             c->queued[vb.index] = false;
             uint64_t ts = (uint64_t)vb.timestamp.tv_sec * 1000000000u + (uint64_t)vb.timestamp.tv_usec * 1000u;
             bool mono = (vb.flags & V4L2_BUF_FLAG_TIMESTAMP_MASK) == V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC;
-            uint64_t seq = tick_seq(c->s, mono ? ts : mono_ns());
+            uint64_t seq = tick_seq(c->s, mono ? ts : hal_mono_ns());
             const struct usb_session *s = c->s;
             if (seq == 0 || (s->limit && seq > s->limit) || (!s->armed && seq > s->sent)) {
                 /* before the first tick or after the last: belongs to no trigger */
-                int rc = qbuf(c, vb.index);
+                rc = qbuf(c, vb.index);
                 if (rc < 0)
                     return rc;
                 continue;
@@ -304,13 +296,13 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             c->last_seq32 = vb.sequence;
             b->status = (vb.flags & V4L2_BUF_FLAG_ERROR) ? HAL_FRAME_MISSING_PACKETS : HAL_FRAME_OK;
             b->bytes_used = vb.bytesused <= b->capacity ? vb.bytesused : b->capacity;
-            if (b->status == HAL_FRAME_OK && b->bytes_used < c->fmt.stride * (size_t)c->fmt.height)
+            if (b->status == HAL_FRAME_OK && b->bytes_used < c->st.fmt.stride * (size_t)c->st.fmt.height)
                 b->status = HAL_FRAME_MISSING_PACKETS;
             b->flags = 0;
             b->camera_index = c->index;
-            b->format = c->fmt;
+            b->format = c->st.fmt;
             b->device_ts_ns = ts;
-            b->host_ts_ns = mono ? ts : mono_ns();
+            b->host_ts_ns = mono ? ts : hal_mono_ns();
             b->frame_id = c->seq_hi + vb.sequence;
             b->trigger_seq = seq;
             *out = b;
@@ -318,7 +310,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
         }
         if (errno != EAGAIN)
             return cam_fail(c, errno == ENODEV ? HAL_ENODEV : HAL_EIO, "VIDIOC_DQBUF");
-        uint64_t now = mono_ns();
+        uint64_t now = hal_mono_ns();
         if (now >= deadline)
             return HAL_ETIMEDOUT;
         struct pollfd p = {c->fd, POLLIN, 0};
@@ -337,7 +329,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct usb_cam *)ctx)->err; }
+static const char *cam_last_error(void *ctx) { return ((struct usb_cam *)ctx)->st.err; }
 
 static const struct hal_camera_ops usb_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -355,13 +347,8 @@ static const struct hal_camera_ops usb_camera_ops = {
 static void fire_due(struct usb_session *s, uint64_t now)
 {
     while (s->armed && now >= s->next_tick_ns && (s->limit == 0 || s->sent < s->limit)) {
-        if (s->e_count < USB_EDGES_MAX) {
-            struct hal_edge *e = &s->edges[(s->e_head + s->e_count++) % USB_EDGES_MAX];
-            e->seq = tick_seq(s, s->next_tick_ns);
-            e->ts_ns = s->next_tick_ns;
-            e->line = 0;
-            e->rising = true;
-        }
+        struct hal_edge e = {tick_seq(s, s->next_tick_ns), s->next_tick_ns, 0, true};
+        hal_edgeq_push(&s->edges, &e);
         s->sent++;
         s->next_tick_ns += s->period_ns;
     }
@@ -373,7 +360,7 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
     if (p->rate_mhz == 0 || p->rate_mhz > 1000000u)
         return HAL_EINVAL;
     s->period_ns = 1000000000000ull / p->rate_mhz;
-    s->first_tick_ns = s->next_tick_ns = mono_ns() + s->period_ns;
+    s->first_tick_ns = s->next_tick_ns = hal_mono_ns() + s->period_ns;
     s->sent = 0;
     s->limit = p->count;
     s->armed = true;
@@ -389,22 +376,14 @@ static int trig_disarm(void *ctx)
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
 {
     struct usb_session *s = ctx;
-    uint64_t now = mono_ns(), deadline = now + (uint64_t)timeout_us * 1000u;
+    uint64_t now = hal_mono_ns(), deadline = now + (uint64_t)timeout_us * 1000u;
     fire_due(s, now);
-    while (s->e_count == 0 && s->armed && now < deadline) {
-        uint64_t t = s->next_tick_ns < deadline ? s->next_tick_ns : deadline;
-        struct timespec ts = {(time_t)(t / 1000000000u), (long)(t % 1000000000u)};
-        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
-        now = mono_ns();
+    while (s->edges.count == 0 && s->armed && now < deadline) {
+        hal_sleep_until_mono_ns(s->next_tick_ns < deadline ? s->next_tick_ns : deadline);
+        now = hal_mono_ns();
         fire_due(s, now);
     }
-    uint32_t n = 0;
-    while (n < max && s->e_count) {
-        e[n++] = s->edges[s->e_head];
-        s->e_head = (s->e_head + 1) % USB_EDGES_MAX;
-        s->e_count--;
-    }
-    return (int)n;
+    return (int)hal_edgeq_pop(&s->edges, e, max);
 }
 
 static bool trig_done(void *ctx)
