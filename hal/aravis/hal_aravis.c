@@ -1,6 +1,8 @@
 /* hal_aravis.c: Aravis cameras and the software trigger (see hal_aravis.h). */
 #include "hal_aravis.h"
 
+#include "hal_backend.h"
+
 #include <arv.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -9,7 +11,6 @@
 
 #define AV_BUFFERS_MAX 64
 #define AV_CAMS_MAX HAL_RIG_CAMERAS_MAX
-#define AV_EDGES_MAX 256
 #define AV_EDGE_LOG 64
 
 struct av_session;
@@ -27,12 +28,12 @@ struct av_cam {
     const struct hal_camera_config *cfg;
     ArvCamera *cam;
     ArvStream *stream;
-    struct hal_format fmt;
-    bool configured, started, gige;
+    bool gige;
+    struct hal_cam_state st; /* format, configure/start state, aborted buffers, error */
+    /* each caller buffer is wrapped once in an ArvBuffer and found again by
+     * it, so buffers live in a slot table here, not in a struct hal_bufq */
     struct av_slot slots[AV_BUFFERS_MAX];
     uint32_t n_slots;
-    struct hal_buffer *aborted[AV_BUFFERS_MAX];
-    uint32_t n_aborted;
     /* frame counter unwrapping and trigger anchoring */
     bool have_first;
     uint64_t last_raw, unwrapped, seq_base;
@@ -43,7 +44,6 @@ struct av_cam {
     uint32_t slip_count;
     uint64_t reanchors;
     uint64_t last_seq_out;    /* sequence numbers handed out only grow */
-    char err[256];
 };
 
 struct av_session {
@@ -53,24 +53,23 @@ struct av_session {
     /* software trigger */
     bool trig_open, armed;
     uint64_t period_ns, next_pulse_ns, sent, limit, seq;
-    struct hal_edge edges[AV_EDGES_MAX];
-    uint32_t e_head, e_count;
+    struct hal_edgeq edges; /* full: later edges are not reported */
     struct hal_edge log[AV_EDGE_LOG]; /* recent edges, for anchoring first frames */
     uint32_t log_n;
     char err[256];
 };
 
-static uint64_t clock_ns(clockid_t id)
+static uint64_t realtime_ns(void)
 {
     struct timespec ts;
-    clock_gettime(id, &ts);
+    clock_gettime(CLOCK_REALTIME, &ts);
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
 static int cam_fail(struct av_cam *c, int rc, const char *what, GError *e)
 {
-    snprintf(c->err, sizeof c->err, "aravis camera %.40s (%.40s): %.60s%s%.100s", c->cfg->id, c->cfg->address, what,
-             e ? ": " : "", e ? e->message : "");
+    hal_cam_fail(&c->st, rc, "aravis camera %.40s (%.40s): %.60s%s%.100s", c->cfg->id, c->cfg->address, what,
+                 e ? ": " : "", e ? e->message : "");
     if (e)
         g_error_free(e);
     return rc;
@@ -183,10 +182,12 @@ static int cam_validate(void *ctx, struct hal_format *f)
 static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct av_cam *c = ctx;
-    if (c->started)
-        return cam_fail(c, HAL_ESTATE, "configure while started", NULL);
+    const char *why;
+    int rc = hal_cam_can_configure(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why, NULL);
     struct hal_format v = *f;
-    int rc = cam_validate(c, &v);
+    rc = cam_validate(c, &v);
     if (rc != HAL_FORMAT_VALID)
         return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged", NULL);
     GError *e = NULL;
@@ -219,8 +220,8 @@ static int cam_configure(void *ctx, const struct hal_format *f)
         if (e)
             return cam_fail(c, HAL_EIO, "setting the packet size", e);
     }
-    c->fmt = v;
-    c->configured = true;
+    c->st.fmt = v;
+    c->st.configured = true;
     return HAL_OK;
 }
 
@@ -235,9 +236,11 @@ static int push_slot(struct av_cam *c, struct av_slot *sl)
 static int cam_start(void *ctx)
 {
     struct av_cam *c = ctx;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "start before configure", NULL);
-    if (c->started)
+    const char *why;
+    int rc = hal_cam_can_start(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why, NULL);
+    if (c->st.started)
         return HAL_OK;
     GError *e = NULL;
     c->stream = arv_camera_create_stream(c->cam, NULL, NULL, &e);
@@ -253,7 +256,7 @@ static int cam_start(void *ctx)
     c->cand_valid = false;
     c->last_seq_out = 0;
     c->slip_count = 0;
-    c->start_ns = clock_ns(CLOCK_MONOTONIC);
+    c->start_ns = hal_mono_ns();
     arv_camera_start_acquisition(c->cam, &e);
     if (e) {
         g_clear_object(&c->stream);
@@ -262,29 +265,27 @@ static int cam_start(void *ctx)
                 c->slots[i].state = AV_PENDING;
         return cam_fail(c, HAL_EIO, "starting the acquisition", e);
     }
-    c->started = true;
+    c->st.started = true;
     return HAL_OK;
 }
 
 static int cam_stop(void *ctx)
 {
     struct av_cam *c = ctx;
-    if (c->started) {
+    if (c->st.started) {
         GError *e = NULL;
         arv_camera_stop_acquisition(c->cam, &e);
         if (e)
             g_error_free(e); /* the camera may be gone: still release everything */
         g_clear_object(&c->stream); /* drops the stream's references */
-        c->started = false;
+        c->st.started = false;
     }
     for (uint32_t i = 0; i < c->n_slots; i++) {
         struct av_slot *sl = &c->slots[i];
         if (sl->state == AV_IDLE)
             continue;
         sl->state = AV_IDLE;
-        sl->hb->status = HAL_FRAME_ABORTED;
-        sl->hb->bytes_used = 0;
-        c->aborted[c->n_aborted++] = sl->hb;
+        hal_cam_abort(&c->st, sl->hb);
     }
     return HAL_OK;
 }
@@ -292,10 +293,10 @@ static int cam_stop(void *ctx)
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct av_cam *c = ctx;
-    if (!c->configured)
-        return cam_fail(c, HAL_ESTATE, "enqueue before configure", NULL);
-    if (!b || !b->data || b->capacity < c->fmt.image_bytes)
-        return cam_fail(c, HAL_EINVAL, "buffer smaller than the image", NULL);
+    const char *why;
+    int rc = hal_cam_can_enqueue(&c->st, b, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why, NULL);
     struct av_slot *sl = NULL;
     for (uint32_t i = 0; i < c->n_slots && !sl; i++)
         if (c->slots[i].hb == b)
@@ -309,7 +310,7 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
         sl->hb = b;
         sl->ab = arv_buffer_new_full(b->capacity, b->data, b, NULL);
     }
-    if (c->started)
+    if (c->st.started)
         return push_slot(c, sl);
     sl->state = AV_PENDING;
     return HAL_OK;
@@ -402,12 +403,12 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
 {
     struct av_cam *c = ctx;
     *out = NULL;
-    if (c->n_aborted) {
-        *out = c->aborted[--c->n_aborted];
+    if (hal_cam_take_aborted(&c->st, out))
         return HAL_OK;
-    }
-    if (!c->started)
-        return cam_fail(c, HAL_ESTATE, "dequeue while stopped", NULL);
+    const char *why;
+    int rc = hal_cam_can_dequeue(&c->st, &why);
+    if (rc < 0)
+        return cam_fail(c, rc, why, NULL);
     ArvBuffer *ab = timeout_us ? arv_stream_timeout_pop_buffer(c->stream, timeout_us)
                                : arv_stream_try_pop_buffer(c->stream);
     if (!ab)
@@ -421,7 +422,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     if (!sl || !b)
         return cam_fail(c, HAL_EIO, "stream returned a foreign buffer", NULL);
     sl->state = AV_IDLE;
-    uint64_t mono = clock_ns(CLOCK_MONOTONIC), real = clock_ns(CLOCK_REALTIME);
+    uint64_t mono = hal_mono_ns(), real = realtime_ns();
     uint64_t sys = arv_buffer_get_system_timestamp(ab);
     b->status = map_status(arv_buffer_get_status(ab));
     size_t size = 0;
@@ -430,11 +431,11 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     else
         arv_buffer_get_data(ab, &size);
     b->bytes_used = size <= b->capacity ? size : b->capacity;
-    if (b->status == HAL_FRAME_OK && b->bytes_used < c->fmt.image_bytes)
+    if (b->status == HAL_FRAME_OK && b->bytes_used < c->st.fmt.image_bytes)
         b->status = HAL_FRAME_SIZE_MISMATCH;
     b->flags = 0;
     b->camera_index = c->index;
-    b->format = c->fmt;
+    b->format = c->st.fmt;
     b->device_ts_ns = arv_buffer_get_timestamp(ab);
     b->host_ts_ns = sys && sys <= real && real - sys < mono ? mono - (real - sys) : mono;
     if (!c->have_first && c->s->software_trigger) {
@@ -490,7 +491,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct av_cam *)ctx)->err; }
+static const char *cam_last_error(void *ctx) { return ((struct av_cam *)ctx)->st.err; }
 
 static const struct hal_camera_ops av_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -510,7 +511,7 @@ static void fire_due(struct av_session *s, uint64_t now)
     while (s->armed && now >= s->next_pulse_ns && (s->limit == 0 || s->sent < s->limit)) {
         for (uint32_t i = 0; i < AV_CAMS_MAX; i++) {
             struct av_cam *c = s->cams[i];
-            if (c && c->started) {
+            if (c && c->st.started) {
                 GError *e = NULL;
                 arv_camera_software_trigger(c->cam, &e);
                 if (e) {
@@ -524,8 +525,7 @@ static void fire_due(struct av_session *s, uint64_t now)
         /* late polls fire once, not in a burst: the next pulse keeps the grid */
         while (s->next_pulse_ns <= now)
             s->next_pulse_ns += s->period_ns;
-        if (s->e_count < AV_EDGES_MAX)
-            s->edges[(s->e_head + s->e_count++) % AV_EDGES_MAX] = ed;
+        hal_edgeq_push(&s->edges, &ed);
         s->log[s->log_n++ % AV_EDGE_LOG] = ed;
     }
 }
@@ -533,12 +533,11 @@ static void fire_due(struct av_session *s, uint64_t now)
 static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct av_session *s = ctx;
-    if (p->rate_mhz == 0 || p->rate_mhz > 1000000u) {
-        snprintf(s->err, sizeof s->err, "aravis trigger: rate %u mHz out of range", (unsigned)p->rate_mhz);
-        return HAL_EINVAL;
-    }
+    if (p->rate_mhz == 0 || p->rate_mhz > 1000000u)
+        return hal_fail(s->err, sizeof s->err, HAL_EINVAL, "aravis trigger: rate %u mHz out of range",
+                        (unsigned)p->rate_mhz);
     s->period_ns = 1000000000000ull / p->rate_mhz;
-    s->next_pulse_ns = clock_ns(CLOCK_MONOTONIC) + s->period_ns;
+    s->next_pulse_ns = hal_mono_ns() + s->period_ns;
     s->limit = p->count ? s->sent + p->count : 0;
     s->armed = true;
     return HAL_OK;
@@ -553,23 +552,15 @@ static int trig_disarm(void *ctx)
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
 {
     struct av_session *s = ctx;
-    uint64_t now = clock_ns(CLOCK_MONOTONIC);
+    uint64_t now = hal_mono_ns();
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     fire_due(s, now);
-    while (s->e_count == 0 && now < deadline && s->armed) {
-        uint64_t t = s->next_pulse_ns < deadline ? s->next_pulse_ns : deadline;
-        struct timespec ts = {(time_t)(t / 1000000000u), (long)(t % 1000000000u)};
-        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
-        now = clock_ns(CLOCK_MONOTONIC);
+    while (s->edges.count == 0 && now < deadline && s->armed) {
+        hal_sleep_until_mono_ns(s->next_pulse_ns < deadline ? s->next_pulse_ns : deadline);
+        now = hal_mono_ns();
         fire_due(s, now);
     }
-    uint32_t n = 0;
-    while (n < max && s->e_count) {
-        e[n++] = s->edges[s->e_head];
-        s->e_head = (s->e_head + 1) % AV_EDGES_MAX;
-        s->e_count--;
-    }
-    return (int)n;
+    return (int)hal_edgeq_pop(&s->edges, e, max);
 }
 
 static bool trig_done(void *ctx)
