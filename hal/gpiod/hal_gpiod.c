@@ -1,14 +1,14 @@
 /* hal_gpiod.c: GPIO trigger output and strobe input (see hal_gpiod.h). */
 #include "hal_gpiod.h"
 
+#include "hal_backend.h"
+
 #include <errno.h>
 #include <gpiod.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
-#define GP_EDGES_MAX 256
 #define GP_CONSUMER "forge4d"
 
 struct gp_trigger {
@@ -17,58 +17,34 @@ struct gp_trigger {
     uint32_t out_line;
     bool armed;
     uint64_t period_ns, width_ns, next_pulse_ns, sent, limit, seq;
-    struct hal_edge edges[GP_EDGES_MAX];
-    uint32_t e_head, e_count;
+    struct hal_edgeq edges; /* full: the oldest is lost */
     char err[256];
 };
 
-static uint64_t mono_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
-static void sleep_until(uint64_t t)
-{
-    struct timespec ts = {(time_t)(t / 1000000000u), (long)(t % 1000000000u)};
-    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) != 0) {
-    }
-}
-
 static void push_edge(struct gp_trigger *g, uint64_t ts)
 {
-    if (g->e_count == GP_EDGES_MAX) { /* nobody reads: the oldest is lost */
-        g->e_head = (g->e_head + 1) % GP_EDGES_MAX;
-        g->e_count--;
-    }
-    struct hal_edge *e = &g->edges[(g->e_head + g->e_count++) % GP_EDGES_MAX];
-    e->seq = ++g->seq;
-    e->ts_ns = ts;
-    e->line = g->out_line;
-    e->rising = true;
+    struct hal_edge e = {++g->seq, ts, g->out_line, true};
+    hal_edgeq_push_overwrite(&g->edges, &e); /* nobody reads: the oldest is lost */
 }
 
 static int fire_due(struct gp_trigger *g)
 {
-    uint64_t now = mono_ns();
+    uint64_t now = hal_mono_ns();
     while (g->armed && now >= g->next_pulse_ns && (g->limit == 0 || g->sent < g->limit)) {
-        uint64_t t = mono_ns();
-        if (gpiod_line_set_value(g->out, 1) < 0) {
-            snprintf(g->err, sizeof g->err, "gpiod: line %u: set high: %s", (unsigned)g->out_line, strerror(errno));
-            return HAL_EIO;
-        }
-        sleep_until(t + g->width_ns);
-        if (gpiod_line_set_value(g->out, 0) < 0) {
-            snprintf(g->err, sizeof g->err, "gpiod: line %u: set low: %s", (unsigned)g->out_line, strerror(errno));
-            return HAL_EIO;
-        }
+        uint64_t t = hal_mono_ns();
+        if (gpiod_line_set_value(g->out, 1) < 0)
+            return hal_fail(g->err, sizeof g->err, HAL_EIO, "gpiod: line %u: set high: %s", (unsigned)g->out_line,
+                            strerror(errno));
+        hal_sleep_until_mono_ns(t + g->width_ns);
+        if (gpiod_line_set_value(g->out, 0) < 0)
+            return hal_fail(g->err, sizeof g->err, HAL_EIO, "gpiod: line %u: set low: %s", (unsigned)g->out_line,
+                            strerror(errno));
         g->sent++;
         if (!g->strobe)
             push_edge(g, t);
         while (g->next_pulse_ns <= now)
             g->next_pulse_ns += g->period_ns;
-        now = mono_ns();
+        now = hal_mono_ns();
     }
     return HAL_OK;
 }
@@ -79,37 +55,29 @@ static int read_strobes(struct gp_trigger *g, uint64_t timeout_ns)
     int rc = gpiod_line_event_wait(g->strobe, &to);
     while (rc > 0) {
         struct gpiod_line_event ev;
-        if (gpiod_line_event_read(g->strobe, &ev) < 0) {
-            snprintf(g->err, sizeof g->err, "gpiod: strobe line: read: %s", strerror(errno));
-            return HAL_EIO;
-        }
+        if (gpiod_line_event_read(g->strobe, &ev) < 0)
+            return hal_fail(g->err, sizeof g->err, HAL_EIO, "gpiod: strobe line: read: %s", strerror(errno));
         if (ev.event_type == GPIOD_LINE_EVENT_RISING_EDGE)
             push_edge(g, (uint64_t)ev.ts.tv_sec * 1000000000u + (uint64_t)ev.ts.tv_nsec);
         struct timespec zero = {0, 0};
         rc = gpiod_line_event_wait(g->strobe, &zero);
     }
-    if (rc < 0) {
-        snprintf(g->err, sizeof g->err, "gpiod: strobe line: wait: %s", strerror(errno));
-        return HAL_EIO;
-    }
+    if (rc < 0)
+        return hal_fail(g->err, sizeof g->err, HAL_EIO, "gpiod: strobe line: wait: %s", strerror(errno));
     return HAL_OK;
 }
 
 static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct gp_trigger *g = ctx;
-    if (p->rate_mhz == 0 || p->rate_mhz > 10000000u) {
-        snprintf(g->err, sizeof g->err, "gpiod: rate %u mHz out of range", (unsigned)p->rate_mhz);
-        return HAL_EINVAL;
-    }
+    if (p->rate_mhz == 0 || p->rate_mhz > 10000000u)
+        return hal_fail(g->err, sizeof g->err, HAL_EINVAL, "gpiod: rate %u mHz out of range", (unsigned)p->rate_mhz);
     g->period_ns = 1000000000000ull / p->rate_mhz;
     g->width_ns = (uint64_t)p->width_us * 1000u;
-    if (g->width_ns == 0 || g->width_ns >= g->period_ns) {
-        snprintf(g->err, sizeof g->err, "gpiod: pulse width %u us must be > 0 and < the period",
-                 (unsigned)p->width_us);
-        return HAL_EINVAL;
-    }
-    g->next_pulse_ns = mono_ns() + g->period_ns;
+    if (g->width_ns == 0 || g->width_ns >= g->period_ns)
+        return hal_fail(g->err, sizeof g->err, HAL_EINVAL, "gpiod: pulse width %u us must be > 0 and < the period",
+                        (unsigned)p->width_us);
+    g->next_pulse_ns = hal_mono_ns() + g->period_ns;
     g->limit = p->count ? g->sent + p->count : 0;
     g->armed = true;
     return HAL_OK;
@@ -125,31 +93,25 @@ static int trig_disarm(void *ctx)
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
 {
     struct gp_trigger *g = ctx;
-    uint64_t deadline = mono_ns() + (uint64_t)timeout_us * 1000u;
+    uint64_t deadline = hal_mono_ns() + (uint64_t)timeout_us * 1000u;
     for (;;) {
         int rc = fire_due(g);
         if (rc == HAL_OK && g->strobe)
             rc = read_strobes(g, 0);
         if (rc < 0)
             return rc;
-        uint64_t now = mono_ns();
-        if (g->e_count || now >= deadline)
+        uint64_t now = hal_mono_ns();
+        if (g->edges.count || now >= deadline)
             break;
         uint64_t t = g->armed && g->next_pulse_ns < deadline ? g->next_pulse_ns : deadline;
         if (g->strobe) {
             if ((rc = read_strobes(g, t - now)) < 0)
                 return rc;
         } else {
-            sleep_until(t);
+            hal_sleep_until_mono_ns(t);
         }
     }
-    uint32_t n = 0;
-    while (n < max && g->e_count) {
-        e[n++] = g->edges[g->e_head];
-        g->e_head = (g->e_head + 1) % GP_EDGES_MAX;
-        g->e_count--;
-    }
-    return (int)n;
+    return (int)hal_edgeq_pop(&g->edges, e, max);
 }
 
 static bool trig_done(void *ctx)
