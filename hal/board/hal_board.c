@@ -54,30 +54,35 @@ static int get_num(struct ctx *c, const cJSON *obj, const char *key, double lo, 
     return 0;
 }
 
+/* get_num for a whole number in lo..hi (both fit the caller's integer type). */
+static int get_int(struct ctx *c, const cJSON *obj, const char *key, double lo, double hi, double *d)
+{
+    int rc = get_num(c, obj, key, lo, hi, d);
+    if (rc < 0)
+        return rc;
+    if (*d != floor(*d))
+        return fail(c, key, "must be an integer");
+    return 0;
+}
+
 static int get_u32(struct ctx *c, const cJSON *obj, const char *key, uint32_t lo, uint32_t hi,
                    uint32_t *out)
 {
     double d = *out;
-    int rc = get_num(c, obj, key, lo, hi, &d);
-    if (rc < 0)
-        return rc;
-    if (d != floor(d))
-        return fail(c, key, "must be an integer");
-    *out = (uint32_t)d;
-    return 0;
+    int rc = get_int(c, obj, key, lo, hi, &d);
+    if (rc == 0) /* unchanged when the value is bad */
+        *out = (uint32_t)d;
+    return rc;
 }
 
 static int get_i32(struct ctx *c, const cJSON *obj, const char *key, int32_t lo, int32_t hi,
                    int32_t *out)
 {
     double d = *out;
-    int rc = get_num(c, obj, key, lo, hi, &d);
-    if (rc < 0)
-        return rc;
-    if (d != floor(d))
-        return fail(c, key, "must be an integer");
-    *out = (int32_t)d;
-    return 0;
+    int rc = get_int(c, obj, key, lo, hi, &d);
+    if (rc == 0)
+        *out = (int32_t)d;
+    return rc;
 }
 
 static int get_str(struct ctx *c, const cJSON *obj, const char *key, char *out, size_t cap)
@@ -197,18 +202,33 @@ static int parse_faults(struct ctx *c, const cJSON *o, struct hal_sim_faults *f)
                                        "disconnect_ms", "late_ms", "jitter_us",
                                        "clock_offset_ms", "clock_drift_ppm", NULL};
     TRY(check_keys(c, o, keys));
-    TRY(get_num(c, o, "drop", 0, 1, &f->drop));
-    TRY(get_num(c, o, "duplicate", 0, 1, &f->duplicate));
-    TRY(get_num(c, o, "late", 0, 1, &f->late));
-    TRY(get_num(c, o, "incomplete", 0, 1, &f->incomplete));
-    TRY(get_num(c, o, "trigger_missing", 0, 1, &f->trigger_missing));
-    TRY(get_num(c, o, "trigger_extra", 0, 1, &f->trigger_extra));
-    TRY(get_num(c, o, "disconnect", 0, 1, &f->disconnect));
-    TRY(get_u32(c, o, "disconnect_ms", 1, 600000, &f->disconnect_ms));
-    TRY(get_u32(c, o, "late_ms", 1, 60000, &f->late_ms));
-    TRY(get_u32(c, o, "jitter_us", 0, 1000000, &f->jitter_us));
-    TRY(get_u32(c, o, "clock_offset_ms", 0, 100000000, &f->clock_offset_ms));
-    TRY(get_u32(c, o, "clock_drift_ppm", 0, 100000, &f->clock_drift_ppm));
+    const struct {
+        const char *key;
+        double *out;
+    } probs[] = { /* each 0..1 */
+        {"drop", &f->drop},
+        {"duplicate", &f->duplicate},
+        {"late", &f->late},
+        {"incomplete", &f->incomplete},
+        {"trigger_missing", &f->trigger_missing},
+        {"trigger_extra", &f->trigger_extra},
+        {"disconnect", &f->disconnect},
+    };
+    for (size_t i = 0; i < sizeof probs / sizeof probs[0]; i++)
+        TRY(get_num(c, o, probs[i].key, 0, 1, probs[i].out));
+    const struct {
+        const char *key;
+        uint32_t lo, hi;
+        uint32_t *out;
+    } counts[] = {
+        {"disconnect_ms", 1, 600000, &f->disconnect_ms},
+        {"late_ms", 1, 60000, &f->late_ms},
+        {"jitter_us", 0, 1000000, &f->jitter_us},
+        {"clock_offset_ms", 0, 100000000, &f->clock_offset_ms},
+        {"clock_drift_ppm", 0, 100000, &f->clock_drift_ppm},
+    };
+    for (size_t i = 0; i < sizeof counts / sizeof counts[0]; i++)
+        TRY(get_u32(c, o, counts[i].key, counts[i].lo, counts[i].hi, counts[i].out));
     if (f->drop + f->duplicate + f->late + f->incomplete > 1.0)
         return fail(c, "drop", "drop + duplicate + late + incomplete must be <= 1");
     return 0;
