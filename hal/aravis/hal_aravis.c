@@ -66,10 +66,10 @@ static uint64_t realtime_ns(void)
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
+/* hal_cam_fail with the library's reason, if any; frees e. */
 static int cam_fail(struct av_cam *c, int rc, const char *what, GError *e)
 {
-    hal_cam_fail(&c->st, rc, "aravis camera %.40s (%.40s): %.60s%s%.100s", c->cfg->id, c->cfg->address, what,
-                 e ? ": " : "", e ? e->message : "");
+    hal_cam_fail(&c->st, rc, "%.60s%s%.100s", what, e ? ": " : "", e ? e->message : "");
     if (e)
         g_error_free(e);
     return rc;
@@ -182,14 +182,12 @@ static int cam_validate(void *ctx, struct hal_format *f)
 static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct av_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_configure(&c->st, &why);
+    int rc = hal_cam_check_configure(&c->st);
     if (rc < 0)
-        return cam_fail(c, rc, why, NULL);
+        return rc;
     struct hal_format v = *f;
-    rc = cam_validate(c, &v);
-    if (rc != HAL_FORMAT_VALID)
-        return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged", NULL);
+    if ((rc = hal_cam_check_validated(&c->st, cam_validate(c, &v))) < 0)
+        return rc;
     GError *e = NULL;
     arv_camera_set_region(c->cam, 0, 0, (gint)f->width, (gint)f->height, &e);
     if (e)
@@ -236,10 +234,9 @@ static int push_slot(struct av_cam *c, struct av_slot *sl)
 static int cam_start(void *ctx)
 {
     struct av_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_start(&c->st, &why);
+    int rc = hal_cam_check_start(&c->st);
     if (rc < 0)
-        return cam_fail(c, rc, why, NULL);
+        return rc;
     if (c->st.started)
         return HAL_OK;
     GError *e = NULL;
@@ -293,10 +290,9 @@ static int cam_stop(void *ctx)
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct av_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_enqueue(&c->st, b, &why);
+    int rc = hal_cam_check_enqueue(&c->st, b);
     if (rc < 0)
-        return cam_fail(c, rc, why, NULL);
+        return rc;
     struct av_slot *sl = NULL;
     for (uint32_t i = 0; i < c->n_slots && !sl; i++)
         if (c->slots[i].hb == b)
@@ -402,13 +398,9 @@ static void reanchor(struct av_cam *c, struct hal_buffer *b)
 static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
 {
     struct av_cam *c = ctx;
-    *out = NULL;
-    if (hal_cam_take_aborted(&c->st, out))
-        return HAL_OK;
-    const char *why;
-    int rc = hal_cam_can_dequeue(&c->st, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why, NULL);
+    int rc = hal_cam_dequeue_begin(&c->st, out);
+    if (rc < 0 || *out)
+        return rc;
     ArvBuffer *ab = timeout_us ? arv_stream_timeout_pop_buffer(c->stream, timeout_us)
                                : arv_stream_try_pop_buffer(c->stream);
     if (!ab)
@@ -630,6 +622,7 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
     c->index = index;
     c->cfg = cfg;
     c->cam = cam;
+    hal_cam_name(&c->st, "aravis camera %.40s (%.40s)", cfg->id, cfg->address);
     c->gige = arv_camera_is_gv_device(cam);
     if (c->gige)
         arv_camera_gv_set_stream_options(cam, ARV_GV_STREAM_OPTION_PACKET_SOCKET_DISABLED);

@@ -38,44 +38,63 @@ struct hal_buffer *hal_bufq_pop(struct hal_bufq *q)
     return b;
 }
 
-int hal_cam_can_configure(const struct hal_cam_state *s, const char **why)
+void hal_cam_name(struct hal_cam_state *s, const char *fmt, ...)
 {
-    if (s->started) {
-        *why = "configure while started";
-        return HAL_ESTATE;
-    }
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(s->name, sizeof s->name, fmt, ap);
+    va_end(ap);
+}
+
+int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
+{
+    /* name is shorter than err, so the prefix always fits */
+    int n = snprintf(s->err, sizeof s->err, "%s: ", s->name);
+    if (n < 0 || (size_t)n >= sizeof s->err)
+        return rc;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(s->err + n, sizeof s->err - (size_t)n, fmt, ap);
+    va_end(ap);
+    return rc;
+}
+
+int hal_cam_check_configure(struct hal_cam_state *s)
+{
+    return s->started ? hal_cam_fail(s, HAL_ESTATE, "configure while started") : HAL_OK;
+}
+
+int hal_cam_check_start(struct hal_cam_state *s)
+{
+    return s->configured ? HAL_OK : hal_cam_fail(s, HAL_ESTATE, "start before configure");
+}
+
+int hal_cam_check_enqueue(struct hal_cam_state *s, const struct hal_buffer *b)
+{
+    if (!s->configured)
+        return hal_cam_fail(s, HAL_ESTATE, "enqueue before configure");
+    if (!b || !b->data || b->capacity < s->fmt.image_bytes)
+        return hal_cam_fail(s, HAL_EINVAL, "buffer smaller than the image");
     return HAL_OK;
 }
 
-int hal_cam_can_start(const struct hal_cam_state *s, const char **why)
+int hal_cam_check_validated(struct hal_cam_state *s, int rc)
 {
-    if (!s->configured) {
-        *why = "start before configure";
-        return HAL_ESTATE;
-    }
+    if (rc < 0)
+        return rc; /* validate recorded why */
+    if (rc != HAL_FORMAT_VALID)
+        return hal_cam_fail(s, HAL_EINVAL, "format does not validate unchanged");
     return HAL_OK;
 }
 
-int hal_cam_can_dequeue(const struct hal_cam_state *s, const char **why)
+int hal_cam_dequeue_begin(struct hal_cam_state *s, struct hal_buffer **out)
 {
-    if (!s->started) {
-        *why = "dequeue while stopped";
-        return HAL_ESTATE;
+    *out = NULL;
+    if (s->n_aborted) {
+        *out = s->aborted[--s->n_aborted];
+        return HAL_OK;
     }
-    return HAL_OK;
-}
-
-int hal_cam_can_enqueue(const struct hal_cam_state *s, const struct hal_buffer *b, const char **why)
-{
-    if (!s->configured) {
-        *why = "enqueue before configure";
-        return HAL_ESTATE;
-    }
-    if (!b || !b->data || b->capacity < s->fmt.image_bytes) {
-        *why = "buffer smaller than the image";
-        return HAL_EINVAL;
-    }
-    return HAL_OK;
+    return s->started ? HAL_OK : hal_cam_fail(s, HAL_ESTATE, "dequeue while stopped");
 }
 
 void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b)
@@ -88,28 +107,30 @@ void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b)
         s->aborted[s->n_aborted++] = b;
 }
 
-void hal_cam_abort_all(struct hal_cam_state *s, struct hal_bufq *q)
+int hal_cam_fifo_start(struct hal_cam_state *s)
 {
+    int rc = hal_cam_check_start(s);
+    if (rc == HAL_OK)
+        s->started = true;
+    return rc;
+}
+
+void hal_cam_fifo_stop(struct hal_cam_state *s, struct hal_bufq *q)
+{
+    s->started = false;
     struct hal_buffer *b;
     while ((b = hal_bufq_pop(q)) != NULL)
         hal_cam_abort(s, b);
 }
 
-bool hal_cam_take_aborted(struct hal_cam_state *s, struct hal_buffer **out)
+int hal_cam_fifo_enqueue(struct hal_cam_state *s, struct hal_bufq *q, struct hal_buffer *b)
 {
-    if (s->n_aborted == 0)
-        return false;
-    *out = s->aborted[--s->n_aborted];
-    return true;
-}
-
-int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(s->err, sizeof s->err, fmt, ap);
-    va_end(ap);
-    return rc;
+    int rc = hal_cam_check_enqueue(s, b);
+    if (rc < 0)
+        return rc;
+    if (!hal_bufq_push(q, b))
+        return hal_cam_fail(s, HAL_EBUSY, "buffer queue full");
+    return HAL_OK;
 }
 
 /* ---- edges ---- */

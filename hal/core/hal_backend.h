@@ -39,30 +39,48 @@ struct hal_cam_state {
     bool configured, started;
     struct hal_buffer *aborted[HAL_BUFQ_MAX]; /* returned by dequeue before any frame */
     uint32_t n_aborted;
-    char err[256];            /* last_error() */
+    char name[160];           /* prefix of every message, e.g. "sim camera cam0" */
+    char err[256];            /* last_error(): "<name>: <what>" */
 };
 
-/* The state rules of hal_camera_ops. Each returns HAL_OK, or HAL_ESTATE /
- * HAL_EINVAL with *why set to a message for the backend's error helper. */
-int hal_cam_can_configure(const struct hal_cam_state *s, const char **why);
-int hal_cam_can_start(const struct hal_cam_state *s, const char **why);
-int hal_cam_can_dequeue(const struct hal_cam_state *s, const char **why);
-/* Configured, and `b` can hold a whole image. */
-int hal_cam_can_enqueue(const struct hal_cam_state *s, const struct hal_buffer *b, const char **why);
-
-/* Marks `b` ABORTED (no bytes) and keeps it for dequeue. */
-void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b);
-/* Aborts every buffer still in `q` (stop). */
-void hal_cam_abort_all(struct hal_cam_state *s, struct hal_bufq *q);
-/* Dequeue hands aborted buffers back first: true with *out set if one was left. */
-bool hal_cam_take_aborted(struct hal_cam_state *s, struct hal_buffer **out);
-
-/* printf into s->err and return rc: `return hal_cam_fail(&c->st, HAL_EIO, "...", ...)`. */
+/* Sets the message prefix (printf), once when the camera is opened. */
+void hal_cam_name(struct hal_cam_state *s, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+/* Records "<name>: <fmt...>" as the last error and returns rc:
+ * `return hal_cam_fail(&c->st, HAL_EIO, "VIDIOC_S_FMT")`. */
 int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
 #if defined(__GNUC__)
     __attribute__((format(printf, 3, 4)))
 #endif
     ;
+
+/* The state rules of hal_camera_ops: HAL_OK, or a negative code with the
+ * reason recorded by hal_cam_fail. */
+int hal_cam_check_configure(struct hal_cam_state *s);                 /* not started */
+int hal_cam_check_start(struct hal_cam_state *s);                     /* configured */
+/* Configured, and `b` can hold a whole image. */
+int hal_cam_check_enqueue(struct hal_cam_state *s, const struct hal_buffer *b);
+/* `rc` is what validate returned for the format given to configure: only an
+ * unchanged (VALID) format may be configured. */
+int hal_cam_check_validated(struct hal_cam_state *s, int rc);
+/* Start of every dequeue: sets *out to NULL, hands back an aborted buffer
+ * first (HAL_OK with *out set), else HAL_OK with *out NULL when started, or
+ * HAL_ESTATE when stopped. Use: `if (rc < 0 || *out) return rc;`. */
+int hal_cam_dequeue_begin(struct hal_cam_state *s, struct hal_buffer **out);
+
+/* Marks `b` ABORTED (no bytes) and keeps it for dequeue. */
+void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b);
+
+/* Cameras whose buffers simply wait in a struct hal_bufq (sim, replay): */
+/* start = check and mark started */
+int hal_cam_fifo_start(struct hal_cam_state *s);
+/* stop = mark stopped and abort every queued buffer */
+void hal_cam_fifo_stop(struct hal_cam_state *s, struct hal_bufq *q);
+/* enqueue = check and append, HAL_EBUSY when the ring is full */
+int hal_cam_fifo_enqueue(struct hal_cam_state *s, struct hal_bufq *q, struct hal_buffer *b);
 
 /* ---- trigger edges not yet read by the host ---------------------------- */
 #define HAL_EDGEQ_MAX 256

@@ -160,11 +160,6 @@ static uint64_t clk_next(void *ctx)
 }
 
 /* ---- camera ---- */
-static int cam_fail(struct rp_cam *c, int rc, const char *what)
-{
-    return hal_cam_fail(&c->st, rc, "replay camera %u: %s", (unsigned)c->index, what);
-}
-
 static int cam_validate(void *ctx, struct hal_format *f)
 {
     struct rp_cam *c = ctx;
@@ -185,48 +180,32 @@ static int cam_validate(void *ctx, struct hal_format *f)
 static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct rp_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_configure(&c->st, &why);
+    int rc = hal_cam_check_configure(&c->st);
     if (rc < 0)
-        return cam_fail(c, rc, why);
+        return rc;
     struct hal_format v = *f;
+    /* validate never fails here: it only adjusts towards the recording */
     if (cam_validate(c, &v) != HAL_FORMAT_VALID)
-        return cam_fail(c, HAL_EINVAL, "format differs from the recording");
+        return hal_cam_fail(&c->st, HAL_EINVAL, "format differs from the recording");
     c->st.fmt = v;
     c->st.configured = true;
     return HAL_OK;
 }
 
-static int cam_start(void *ctx)
-{
-    struct rp_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_start(&c->st, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
-    c->st.started = true;
-    return HAL_OK;
-}
+static int cam_start(void *ctx) { return hal_cam_fifo_start(&((struct rp_cam *)ctx)->st); }
 
 static int cam_stop(void *ctx)
 {
     struct rp_cam *c = ctx;
-    c->st.started = false;
-    c->n_ev = 0;
-    hal_cam_abort_all(&c->st, &c->q);
+    c->n_ev = 0; /* frames in flight are lost */
+    hal_cam_fifo_stop(&c->st, &c->q);
     return HAL_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct rp_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_enqueue(&c->st, b, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
-    if (!hal_bufq_push(&c->q, b))
-        return cam_fail(c, HAL_EBUSY, "buffer queue full");
-    return HAL_OK;
+    return hal_cam_fifo_enqueue(&c->st, &c->q, b);
 }
 
 static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
@@ -268,13 +247,9 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
 {
     struct rp_cam *c = ctx;
     struct rp_world *w = c->w;
-    *out = NULL;
-    if (hal_cam_take_aborted(&c->st, out))
-        return HAL_OK;
-    const char *why;
-    int rc = hal_cam_can_dequeue(&c->st, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
+    int rc = hal_cam_dequeue_begin(&c->st, out);
+    if (rc < 0 || *out)
+        return rc;
     uint64_t now = world_now(w);
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     for (;;) {
@@ -425,6 +400,7 @@ static int rp_camera_open(void *session, const struct hal_camera_config *cfg, ui
         return hal_fail(err, n, HAL_ENOMEM, "replay: out of memory");
     c->w = w;
     c->index = index;
+    hal_cam_name(&c->st, "replay camera %u", (unsigned)index);
     w->cams[index] = c;
     out->ops = rp_camera_ops;
     out->ctx = c;

@@ -250,11 +250,6 @@ static uint64_t clk_next(void *ctx)
 }
 
 /* ---- camera ops ---- */
-static int cam_fail(struct sim_cam *c, int rc, const char *what)
-{
-    return hal_cam_fail(&c->st, rc, "sim camera %s: %s", c->cfg->id, what);
-}
-
 static int cam_validate(void *ctx, struct hal_format *f)
 {
     struct sim_cam *c = ctx;
@@ -282,56 +277,38 @@ static int cam_validate(void *ctx, struct hal_format *f)
     if (f->stride < tight)
         f->stride = tight;
     if (hal_format_finish(f) < 0)
-        return cam_fail(c, HAL_EINVAL, "format cannot be represented");
+        return hal_cam_fail(&c->st, HAL_EINVAL, "format cannot be represented");
     return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
 }
 
 static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct sim_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_configure(&c->st, &why);
+    int rc = hal_cam_check_configure(&c->st);
     if (rc < 0)
-        return cam_fail(c, rc, why);
+        return rc;
     struct hal_format v = *f;
-    rc = cam_validate(c, &v);
-    if (rc != HAL_FORMAT_VALID)
-        return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged");
+    if ((rc = hal_cam_check_validated(&c->st, cam_validate(c, &v))) < 0)
+        return rc;
     c->st.fmt = v;
     c->st.configured = true;
     return HAL_OK;
 }
 
-static int cam_start(void *ctx)
-{
-    struct sim_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_start(&c->st, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
-    c->st.started = true;
-    return HAL_OK;
-}
+static int cam_start(void *ctx) { return hal_cam_fifo_start(&((struct sim_cam *)ctx)->st); }
 
 static int cam_stop(void *ctx)
 {
     struct sim_cam *c = ctx;
-    c->st.started = false;
-    c->n_ev = 0;
-    hal_cam_abort_all(&c->st, &c->q);
+    c->n_ev = 0; /* frames in flight are lost */
+    hal_cam_fifo_stop(&c->st, &c->q);
     return HAL_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct sim_cam *c = ctx;
-    const char *why;
-    int rc = hal_cam_can_enqueue(&c->st, b, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
-    if (!hal_bufq_push(&c->q, b))
-        return cam_fail(c, HAL_EBUSY, "buffer queue full");
-    return HAL_OK;
+    return hal_cam_fifo_enqueue(&c->st, &c->q, b);
 }
 
 static void stamp_write(uint8_t *d, size_t n, uint64_t seq, uint32_t cam)
@@ -402,13 +379,9 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
 {
     struct sim_cam *c = ctx;
     struct sim_world *w = c->w;
-    *out = NULL;
-    if (hal_cam_take_aborted(&c->st, out))
-        return HAL_OK;
-    const char *why;
-    int rc = hal_cam_can_dequeue(&c->st, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
+    int rc = hal_cam_dequeue_begin(&c->st, out);
+    if (rc < 0 || *out)
+        return rc;
     uint64_t now = world_now(w);
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     for (;;) {
@@ -417,7 +390,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
                 return HAL_OK;
         }
         if (now < c->disconnected_until)
-            return cam_fail(c, HAL_ENODEV, "disconnected");
+            return hal_cam_fail(&c->st, HAL_ENODEV, "disconnected");
         if (now >= deadline)
             return HAL_ETIMEDOUT;
         uint64_t next = world_next_for(w, c);
@@ -551,6 +524,7 @@ static int sim_camera_open(void *session, const struct hal_camera_config *cfg, u
     c->w = w;
     c->index = index;
     c->cfg = cfg;
+    hal_cam_name(&c->st, "sim camera %s", cfg->id);
     cam_new_clock(c);
     /* the board's format is the starting point of negotiation */
     c->st.fmt.pixfmt = cfg->pixfmt;

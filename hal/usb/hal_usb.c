@@ -49,11 +49,11 @@ static int xioctl(int fd, unsigned long req, void *arg)
     return r;
 }
 
+/* hal_cam_fail with the reason errno gives, if any. */
 static int cam_fail(struct usb_cam *c, int rc, const char *what)
 {
     int e = errno;
-    return hal_cam_fail(&c->st, rc, "usb camera %.40s (%.80s): %.80s%s%.60s", c->cfg->id, c->cfg->address,
-                        what, e ? ": " : "", e ? strerror(e) : "");
+    return hal_cam_fail(&c->st, rc, "%.80s%s%.60s", what, e ? ": " : "", e ? strerror(e) : "");
 }
 
 static const struct {
@@ -116,16 +116,12 @@ static int cam_configure(void *ctx, const struct hal_format *f)
 {
     struct usb_cam *c = ctx;
     errno = 0;
-    const char *why;
-    int rc = hal_cam_can_configure(&c->st, &why);
+    int rc = hal_cam_check_configure(&c->st);
     if (rc < 0)
-        return cam_fail(c, rc, why);
+        return rc;
     struct hal_format v = *f;
-    rc = cam_validate(c, &v);
-    if (rc != HAL_FORMAT_VALID) {
-        errno = 0;
-        return rc < 0 ? rc : cam_fail(c, HAL_EINVAL, "format does not validate unchanged");
-    }
+    if ((rc = hal_cam_check_validated(&c->st, cam_validate(c, &v))) < 0)
+        return rc;
     struct v4l2_format vf;
     memset(&vf, 0, sizeof vf);
     vf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -169,10 +165,9 @@ static int cam_start(void *ctx)
 {
     struct usb_cam *c = ctx;
     errno = 0;
-    const char *why;
-    int rc = hal_cam_can_start(&c->st, &why);
+    int rc = hal_cam_check_start(&c->st);
     if (rc < 0)
-        return cam_fail(c, rc, why);
+        return rc;
     if (c->st.started)
         return HAL_OK;
     if (c->n_slots == 0)
@@ -226,10 +221,9 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
 {
     struct usb_cam *c = ctx;
     errno = 0;
-    const char *why;
-    int rc = hal_cam_can_enqueue(&c->st, b, &why);
+    int rc = hal_cam_check_enqueue(&c->st, b);
     if (rc < 0)
-        return cam_fail(c, rc, why);
+        return rc;
     for (uint32_t i = 0; i < c->n_slots; i++) {
         if (c->slots[i] != b)
             continue;
@@ -257,14 +251,10 @@ static uint64_t tick_seq(const struct usb_session *s, uint64_t t)
 static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
 {
     struct usb_cam *c = ctx;
-    *out = NULL;
     errno = 0;
-    if (hal_cam_take_aborted(&c->st, out))
-        return HAL_OK;
-    const char *why;
-    int rc = hal_cam_can_dequeue(&c->st, &why);
-    if (rc < 0)
-        return cam_fail(c, rc, why);
+    int rc = hal_cam_dequeue_begin(&c->st, out);
+    if (rc < 0 || *out)
+        return rc;
     uint64_t deadline = hal_mono_ns() + (uint64_t)timeout_us * 1000u;
     for (;;) {
         struct v4l2_buffer vb;
@@ -448,6 +438,7 @@ static int usb_camera_open(void *session, const struct hal_camera_config *cfg, u
     c->index = index;
     c->cfg = cfg;
     c->fd = fd;
+    hal_cam_name(&c->st, "usb camera %.40s (%.80s)", cfg->id, cfg->address);
     out->ops = usb_camera_ops;
     out->ctx = c;
     out->index = index;
