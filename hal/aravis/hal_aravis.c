@@ -627,9 +627,7 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
     if (c->gige)
         arv_camera_gv_set_stream_options(cam, ARV_GV_STREAM_OPTION_PACKET_SOCKET_DISABLED);
     s->cams[index] = c;
-    out->ops = av_camera_ops;
-    out->ctx = c;
-    out->index = index;
+    hal_camera_bind(out, &av_camera_ops, c, index);
     return HAL_OK;
 }
 
@@ -638,12 +636,7 @@ static int av_trigger_open(void *session, const struct hal_trigger_config *cfg,
 {
     (void)cfg;
     struct av_session *s = session;
-    if (s->trig_open)
-        return hal_fail(err, n, HAL_EBUSY, "aravis trigger already open");
-    s->trig_open = true;
-    out->ops = av_trigger_ops;
-    out->ctx = s;
-    return HAL_OK;
+    return hal_trigger_claim(&s->trig_open, out, &av_trigger_ops, s, "aravis trigger", err, n);
 }
 
 const struct hal_backend hal_aravis_backend = {

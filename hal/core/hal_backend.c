@@ -19,6 +19,35 @@ void hal_sleep_until_mono_ns(uint64_t t_ns)
     }
 }
 
+/* ---- devices ---- */
+void hal_camera_bind(struct hal_camera *out, const struct hal_camera_ops *ops, void *ctx, uint32_t index)
+{
+    out->ops = *ops;
+    out->ctx = ctx;
+    out->index = index;
+}
+
+int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_trigger_ops *ops, void *ctx,
+                      const char *who, char *err, size_t errlen)
+{
+    if (*taken)
+        return hal_fail(err, errlen, HAL_EBUSY, "%s already open", who);
+    *taken = true;
+    out->ops = *ops;
+    out->ctx = ctx;
+    return HAL_OK;
+}
+
+void hal_clock_bind(struct hal_clock *out, uint64_t (*now_ns)(void *), void (*sleep_until_ns)(void *, uint64_t),
+                    uint64_t (*next_event_ns)(void *), void *ctx)
+{
+    out->ops.api_version = HAL_API_VERSION;
+    out->ops.now_ns = now_ns;
+    out->ops.sleep_until_ns = sleep_until_ns;
+    out->ops.next_event_ns = next_event_ns;
+    out->ctx = ctx;
+}
+
 /* ---- buffers ---- */
 bool hal_bufq_push(struct hal_bufq *q, struct hal_buffer *b)
 {

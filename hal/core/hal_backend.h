@@ -19,6 +19,17 @@ uint64_t hal_mono_ns(void);
 /* Sleeps until CLOCK_MONOTONIC reaches t_ns (retries when a signal interrupts). */
 void hal_sleep_until_mono_ns(uint64_t t_ns);
 
+/* ---- handing out devices (camera_open, trigger_open, clock_get) ------- */
+/* Fills a camera handle with the backend's ops and context. */
+void hal_camera_bind(struct hal_camera *out, const struct hal_camera_ops *ops, void *ctx, uint32_t index);
+/* A session's one trigger: HAL_EBUSY ("<who> already open" in err) when
+ * *taken, else marks it taken and fills `out`. */
+int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_trigger_ops *ops, void *ctx,
+                      const char *who, char *err, size_t errlen);
+/* A clock whose time lives in `ctx` (a simulated or replayed world). */
+void hal_clock_bind(struct hal_clock *out, uint64_t (*now_ns)(void *), void (*sleep_until_ns)(void *, uint64_t),
+                    uint64_t (*next_event_ns)(void *), void *ctx);
+
 /* ---- caller-owned buffers --------------------------------------------- */
 #define HAL_BUFQ_MAX 64 /* most buffers one camera holds at once */
 

@@ -402,9 +402,7 @@ static int rp_camera_open(void *session, const struct hal_camera_config *cfg, ui
     c->index = index;
     hal_cam_name(&c->st, "replay camera %u", (unsigned)index);
     w->cams[index] = c;
-    out->ops = rp_camera_ops;
-    out->ctx = c;
-    out->index = index;
+    hal_camera_bind(out, &rp_camera_ops, c, index);
     return HAL_OK;
 }
 
@@ -413,21 +411,12 @@ static int rp_trigger_open(void *session, const struct hal_trigger_config *cfg,
 {
     (void)cfg;
     struct rp_world *w = session;
-    if (w->trig_open)
-        return hal_fail(err, n, HAL_EBUSY, "replay trigger already open");
-    w->trig_open = true;
-    out->ops = rp_trigger_ops;
-    out->ctx = w;
-    return HAL_OK;
+    return hal_trigger_claim(&w->trig_open, out, &rp_trigger_ops, w, "replay trigger", err, n);
 }
 
 static int rp_clock_get(void *session, struct hal_clock *out)
 {
-    out->ops.api_version = HAL_API_VERSION;
-    out->ops.now_ns = clk_now;
-    out->ops.sleep_until_ns = clk_sleep;
-    out->ops.next_event_ns = clk_next;
-    out->ctx = session;
+    hal_clock_bind(out, clk_now, clk_sleep, clk_next, session);
     return HAL_OK;
 }
 

@@ -536,31 +536,21 @@ static int sim_camera_open(void *session, const struct hal_camera_config *cfg, u
     w->cams[index] = c;
     if (index + 1 > w->n_cams)
         w->n_cams = index + 1;
-    out->ops = sim_camera_ops;
-    out->ctx = c;
-    out->index = index;
+    hal_camera_bind(out, &sim_camera_ops, c, index);
     return HAL_OK;
 }
 
 static int sim_trigger_open(void *session, const struct hal_trigger_config *cfg,
                             struct hal_trigger *out, char *err, size_t n)
 {
+    (void)cfg;
     struct sim_world *w = session;
-    if (w->trig_open)
-        return hal_fail(err, n, HAL_EBUSY, "sim trigger already open");
-    w->trig_open = true;
-    out->ops = sim_trigger_ops;
-    out->ctx = w;
-    return HAL_OK;
+    return hal_trigger_claim(&w->trig_open, out, &sim_trigger_ops, w, "sim trigger", err, n);
 }
 
 static int sim_clock_get(void *session, struct hal_clock *out)
 {
-    out->ops.api_version = HAL_API_VERSION;
-    out->ops.now_ns = clk_now;
-    out->ops.sleep_until_ns = clk_sleep;
-    out->ops.next_event_ns = clk_next;
-    out->ctx = session;
+    hal_clock_bind(out, clk_now, clk_sleep, clk_next, session);
     return HAL_OK;
 }
 

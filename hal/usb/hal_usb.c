@@ -439,9 +439,7 @@ static int usb_camera_open(void *session, const struct hal_camera_config *cfg, u
     c->cfg = cfg;
     c->fd = fd;
     hal_cam_name(&c->st, "usb camera %.40s (%.80s)", cfg->id, cfg->address);
-    out->ops = usb_camera_ops;
-    out->ctx = c;
-    out->index = index;
+    hal_camera_bind(out, &usb_camera_ops, c, index);
     return HAL_OK;
 }
 
@@ -450,12 +448,7 @@ static int usb_trigger_open(void *session, const struct hal_trigger_config *cfg,
 {
     (void)cfg;
     struct usb_session *s = session;
-    if (s->trig_open)
-        return hal_fail(err, n, HAL_EBUSY, "usb tick trigger already open");
-    s->trig_open = true;
-    out->ops = usb_trigger_ops;
-    out->ctx = s;
-    return HAL_OK;
+    return hal_trigger_claim(&s->trig_open, out, &usb_trigger_ops, s, "usb tick trigger", err, n);
 }
 
 const struct hal_backend hal_usb_backend = {
