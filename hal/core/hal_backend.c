@@ -19,6 +19,22 @@ void hal_sleep_until_mono_ns(uint64_t t_ns)
     }
 }
 
+uint64_t hal_world_clock_read(struct hal_world_clock *c)
+{
+    if (c->realtime)
+        c->now = hal_mono_ns() - c->real_t0;
+    return c->now;
+}
+
+uint64_t hal_world_clock_wait(struct hal_world_clock *c, uint64_t t)
+{
+    if (c->realtime)
+        hal_sleep_until_mono_ns(c->real_t0 + t);
+    else if (t > c->now)
+        c->now = t;
+    return hal_world_clock_read(c);
+}
+
 /* ---- devices ---- */
 void hal_camera_bind(struct hal_camera *out, const struct hal_camera_ops *ops, void *ctx, uint32_t index)
 {

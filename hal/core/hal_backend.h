@@ -30,6 +30,19 @@ int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_tri
 void hal_clock_bind(struct hal_clock *out, uint64_t (*now_ns)(void *), void (*sleep_until_ns)(void *, uint64_t),
                     uint64_t (*next_event_ns)(void *), void *ctx);
 
+/* ---- the time of a simulated or replayed world ------------------------- */
+/* Realtime: CLOCK_MONOTONIC since real_t0. Otherwise a counter that jumps to
+ * whatever is waited for, so the world runs as fast as the host can. */
+struct hal_world_clock {
+    bool realtime;
+    uint64_t real_t0;         /* realtime: CLOCK_MONOTONIC at world time 0 */
+    uint64_t now;             /* world time (ns) as last read */
+};
+/* Reads the clock into c->now and returns it. */
+uint64_t hal_world_clock_read(struct hal_world_clock *c);
+/* Waits until world time t (realtime), or jumps there; then reads the clock. */
+uint64_t hal_world_clock_wait(struct hal_world_clock *c, uint64_t t);
+
 /* ---- caller-owned buffers --------------------------------------------- */
 #define HAL_BUFQ_MAX 64 /* most buffers one camera holds at once */
 

@@ -33,8 +33,9 @@ struct rp_world {
     uint64_t frames_index;          /* set held by `frames`, UINT64_MAX = none */
     struct f4d_take_set fset;
     char dir[HAL_PATH_MAX];
-    bool realtime, armed, trig_open;
-    uint64_t real_t0, now, base_ns;
+    bool armed, trig_open;
+    struct hal_world_clock clk;
+    uint64_t base_ns;
     uint64_t next_set, n_sets;
     uint64_t next_set_ns; /* emission time of next_set */
     uint64_t corrupt;
@@ -113,20 +114,13 @@ static void world_advance(struct rp_world *w, uint64_t t)
 
 static uint64_t world_now(struct rp_world *w)
 {
-    if (w->realtime)
-        w->now = hal_mono_ns() - w->real_t0;
-    world_advance(w, w->now);
-    return w->now;
+    world_advance(w, hal_world_clock_read(&w->clk));
+    return w->clk.now;
 }
 
 static void world_sleep_until(struct rp_world *w, uint64_t t)
 {
-    if (w->realtime) {
-        hal_sleep_until_mono_ns(w->real_t0 + t);
-    } else if (t > w->now) {
-        w->now = t;
-    }
-    world_now(w);
+    world_advance(w, hal_world_clock_wait(&w->clk, t));
 }
 
 static uint64_t world_next_event(struct rp_world *w)
@@ -262,7 +256,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             return HAL_ETIMEDOUT;
         uint64_t next = world_next_for(w, c);
         world_sleep_until(w, next < deadline ? next : deadline);
-        now = w->now;
+        now = w->clk.now;
     }
 }
 
@@ -292,8 +286,8 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     (void)p; /* the take decides when pulses come */
     struct rp_world *w = ctx;
-    if (w->realtime)
-        w->real_t0 = hal_mono_ns() - w->now;
+    if (w->clk.realtime) /* world time goes on from where it stood */
+        w->clk.real_t0 = hal_mono_ns() - w->clk.now;
     w->armed = true;
     world_now(w);
     return HAL_OK;
@@ -307,7 +301,7 @@ static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t
 {
     struct rp_world *w = ctx;
     uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
-    while (w->edges.count == 0 && w->now < deadline) {
+    while (w->edges.count == 0 && w->clk.now < deadline) {
         uint64_t next = world_next_for(w, NULL);
         world_sleep_until(w, next < deadline ? next : deadline);
     }
@@ -361,8 +355,8 @@ static int rp_session_open(const struct hal_board *board, void **session, char *
     }
     w->frames_index = UINT64_MAX;
     w->edges.limit = RP_EDGES_MAX;
-    w->realtime = board->sim.realtime;
-    w->real_t0 = hal_mono_ns();
+    w->clk.realtime = board->sim.realtime;
+    w->clk.real_t0 = hal_mono_ns();
     w->n_sets = f4d_take_count(w->take);
     /* time base: the first readable set starts 1 ms after rig time 0 */
     w->base_ns = 0;

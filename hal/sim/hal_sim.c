@@ -44,8 +44,7 @@ struct sim_world {
     const struct hal_board *board;
     struct hal_sim_config cfg;
     uint64_t rng;
-    uint64_t now;
-    uint64_t real_t0;
+    struct hal_world_clock clk;
     /* trigger */
     bool trig_open, armed;
     uint64_t period_ns, width_ns;
@@ -190,20 +189,13 @@ static void world_advance(struct sim_world *w, uint64_t t)
 
 static uint64_t world_now(struct sim_world *w)
 {
-    if (w->cfg.realtime)
-        w->now = hal_mono_ns() - w->real_t0;
-    world_advance(w, w->now);
-    return w->now;
+    world_advance(w, hal_world_clock_read(&w->clk));
+    return w->clk.now;
 }
 
 static void world_sleep_until(struct sim_world *w, uint64_t t)
 {
-    if (w->cfg.realtime) {
-        hal_sleep_until_mono_ns(w->real_t0 + t);
-    } else if (t > w->now) {
-        w->now = t;
-    }
-    world_now(w);
+    world_advance(w, hal_world_clock_wait(&w->clk, t));
 }
 
 static uint64_t world_next_event(struct sim_world *w)
@@ -217,7 +209,7 @@ static uint64_t world_next_event(struct sim_world *w)
         struct sim_cam *c = w->cams[i];
         if (c && c->n_ev && c->ev[0].arrival_ns < n)
             n = c->ev[0].arrival_ns;
-        if (c && c->disconnected_until > w->now && c->disconnected_until < n)
+        if (c && c->disconnected_until > w->clk.now && c->disconnected_until < n)
             n = c->disconnected_until;
     }
     return n;
@@ -234,7 +226,7 @@ static uint64_t world_next_for(struct sim_world *w, const struct sim_cam *c)
         n = w->extra_at;
     if (c && c->n_ev && c->ev[0].arrival_ns < n)
         n = c->ev[0].arrival_ns;
-    if (c && c->disconnected_until > w->now && c->disconnected_until < n)
+    if (c && c->disconnected_until > w->clk.now && c->disconnected_until < n)
         n = c->disconnected_until;
     return n;
 }
@@ -395,7 +387,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             return HAL_ETIMEDOUT;
         uint64_t next = world_next_for(w, c);
         world_sleep_until(w, next < deadline ? next : deadline);
-        now = w->now;
+        now = w->clk.now;
     }
 }
 
@@ -433,7 +425,7 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
     if (w->width_ns >= w->period_ns)
         return hal_fail(w->err, sizeof w->err, HAL_EINVAL, "sim trigger: pulse width %u us >= period",
                         (unsigned)p->width_us);
-    w->next_pulse_ns = w->now + w->period_ns;
+    w->next_pulse_ns = w->clk.now + w->period_ns;
     w->scheduled_limit = w->inj.pulses_scheduled + p->count;
     if (p->count == 0)
         w->scheduled_limit = 0;
@@ -454,7 +446,7 @@ static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t
 {
     struct sim_world *w = ctx;
     uint64_t deadline = world_now(w) + (uint64_t)timeout_us * 1000u;
-    while (w->edges.count == 0 && w->now < deadline) {
+    while (w->edges.count == 0 && w->clk.now < deadline) {
         uint64_t next = world_next_for(w, NULL);
         world_sleep_until(w, next < deadline ? next : deadline);
     }
@@ -504,7 +496,8 @@ static int sim_session_open(const struct hal_board *board, void **session, char 
     w->board = board;
     w->cfg = board->sim;
     w->rng = board->sim.seed ^ 0x5EEDF4D0ull;
-    w->real_t0 = hal_mono_ns();
+    w->clk.realtime = board->sim.realtime;
+    w->clk.real_t0 = hal_mono_ns();
     w->render = hal_sim_render_pattern;
     *session = w;
     return HAL_OK;
