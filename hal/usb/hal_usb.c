@@ -81,11 +81,9 @@ static enum hal_pixfmt from_fourcc(uint32_t f)
     return HAL_PIXFMT_INVALID;
 }
 
-/* ---- camera ---- */
-static int cam_validate(void *ctx, struct hal_format *f)
+/* The V4L2 request for f (TRY_FMT and S_FMT ask the same). */
+static struct v4l2_format capture_format(const struct hal_format *f)
 {
-    struct usb_cam *c = ctx;
-    struct hal_format in = *f;
     struct v4l2_format vf;
     memset(&vf, 0, sizeof vf);
     vf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -93,6 +91,15 @@ static int cam_validate(void *ctx, struct hal_format *f)
     vf.fmt.pix.height = f->height;
     vf.fmt.pix.pixelformat = to_fourcc(f->pixfmt);
     vf.fmt.pix.field = V4L2_FIELD_NONE;
+    return vf;
+}
+
+/* ---- camera ---- */
+static int cam_validate(void *ctx, struct hal_format *f)
+{
+    struct usb_cam *c = ctx;
+    struct hal_format in = *f;
+    struct v4l2_format vf = capture_format(f);
     errno = 0;
     if (xioctl(c->fd, VIDIOC_TRY_FMT, &vf) < 0)
         return cam_fail(c, HAL_EIO, "VIDIOC_TRY_FMT");
@@ -122,13 +129,7 @@ static int cam_configure(void *ctx, const struct hal_format *f)
     struct hal_format v = *f;
     if ((rc = hal_cam_check_validated(&c->st, cam_validate(c, &v))) < 0)
         return rc;
-    struct v4l2_format vf;
-    memset(&vf, 0, sizeof vf);
-    vf.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
-    vf.fmt.pix.width = f->width;
-    vf.fmt.pix.height = f->height;
-    vf.fmt.pix.pixelformat = to_fourcc(f->pixfmt);
-    vf.fmt.pix.field = V4L2_FIELD_NONE;
+    struct v4l2_format vf = capture_format(f);
     if (xioctl(c->fd, VIDIOC_S_FMT, &vf) < 0)
         return cam_fail(c, HAL_EIO, "VIDIOC_S_FMT");
     if (f->rate_mhz) {
