@@ -183,9 +183,15 @@ void f4d_sync_frame(struct f4d_sync *s, struct hal_buffer *b)
             if (r > window || r < -window) {
                 s->c.frames_out_of_window++;
                 sl->rejected_mask |= bit;
+                if (++ck->misses >= F4D_SYNC_RELEARN_MISSES) {
+                    ck->clock_known = false;
+                    ck->misses = 0;
+                    s->c.clock_resets++;
+                }
                 s->on_release(s->user, b);
                 return;
             }
+            ck->misses = 0;
             ck->offset_ns += r / 8; /* follows drift, smooths jitter */
         }
     } else if (ck->clock_known) {

@@ -30,7 +30,10 @@
  * stray early or late frame must not bias it), then followed by a slow average
  * that tracks drift; only after learning is the window enforced, so the first
  * frames of a camera are grouped by sequence number alone. A frame flagged
- * HAL_FRAME_FLAG_CLOCK_RESET starts the camera over. Sets without a trigger
+ * HAL_FRAME_FLAG_CLOCK_RESET starts the camera over, and so do
+ * F4D_SYNC_RELEARN_MISSES frames in a row outside the window (its first frames
+ * were unrepresentative, or its clock jumped; counted in clock_resets: without
+ * this, one bad start would reject every later frame). Sets without a trigger
  * edge (no edge input on the board) are opened by their first frame and
  * checked against that frame's mapped time instead.
  *
@@ -48,6 +51,7 @@
 #define F4D_SYNC_PENDING_MAX 64
 #define F4D_SYNC_HISTORY 256 /* closed sets remembered to tell late from duplicate */
 #define F4D_SYNC_LEARN_FRAMES 8 /* frames per camera used to learn its clock offset */
+#define F4D_SYNC_RELEARN_MISSES 8 /* out-of-window frames in a row that restart learning */
 
 struct f4d_sync_config {
     uint32_t n_cams;
@@ -99,6 +103,7 @@ struct f4d_sync_cam {
     uint32_t learned;         /* frames seen while learning the offset */
     int64_t learn[F4D_SYNC_LEARN_FRAMES]; /* their device-minus-edge times */
     int64_t offset_ns;        /* device_ts - trigger_ts, learned */
+    uint32_t misses;          /* out-of-window frames in a row */
 };
 
 struct f4d_sync_hist {

@@ -183,6 +183,7 @@ static void contract_stream(struct fixture *fx, struct hal_rig *rig)
 struct set_check {
     struct fixture *fx;
     uint64_t sets, complete, mixed, max_spread;
+    uint64_t wide; /* complete sets spread wider than fx->max_spread_ns */
 };
 
 static int check_set(void *u, const struct f4d_sync_set *set)
@@ -208,12 +209,14 @@ static int check_set(void *u, const struct f4d_sync_set *set)
     }
     if (set->complete && hi - lo > c->max_spread)
         c->max_spread = hi - lo;
+    if (set->complete && c->fx->max_spread_ns && hi - lo > c->fx->max_spread_ns)
+        c->wide++;
     return 0;
 }
 
 static void contract_sets(struct fixture *fx, struct hal_rig *rig)
 {
-    struct set_check chk = {fx, 0, 0, 0, 0};
+    struct set_check chk = {fx, 0, 0, 0, 0, 0};
     struct f4d_capture_config cfg = {.triggers = fx->triggers};
     struct f4d_capture_stats st;
     char err[256];
@@ -221,15 +224,22 @@ static void contract_sets(struct fixture *fx, struct hal_rig *rig)
     if (rc < 0)
         fail_msg("%s: capture: %s", fx->name, err);
     printf("[ %s ] %u cameras: %llu sets, %llu complete, %llu mixed; frames dropped %llu, "
-           "incomplete %llu, out of window %llu; max device-ts spread in a set %.2f ms\n",
+           "incomplete %llu, out of window %llu; max device-ts spread in a set %.2f ms (%llu wide)\n",
            fx->name, (unsigned)rig->n_cams, (unsigned long long)chk.sets,
            (unsigned long long)chk.complete, (unsigned long long)chk.mixed,
            (unsigned long long)st.sync.frames_dropped, (unsigned long long)st.sync.frames_incomplete,
-           (unsigned long long)st.sync.frames_out_of_window, (double)chk.max_spread * 1e-6);
+           (unsigned long long)st.sync.frames_out_of_window, (double)chk.max_spread * 1e-6,
+           (unsigned long long)chk.wide);
     assert_int_equal(chk.mixed, 0);
     assert_true(chk.complete >= fx->min_complete);
-    if (fx->max_spread_ns)
-        assert_true(chk.max_spread <= fx->max_spread_ns);
+    /* Frames paired with a neighbouring trigger would put nearly every set a
+     * whole period apart; a few sets wider than half a period are a fake
+     * camera's thread descheduled on a loaded machine (its device timestamp
+     * is taken when it fills the frame), so at most 5 % may be. */
+    if (fx->max_spread_ns && chk.wide * 20 > chk.complete)
+        fail_msg("%s: %llu of %llu complete sets spread over %.1f ms", fx->name,
+                 (unsigned long long)chk.wide, (unsigned long long)chk.complete,
+                 (double)fx->max_spread_ns * 1e-6);
 }
 
 static void run_contract(struct fixture *fx)

@@ -151,6 +151,34 @@ static int check_set(void *u, const struct f4d_sync_set *set)
     return 0;
 }
 
+/* A camera whose first frames mislead the offset estimate (e.g. a slow first
+ * GigE frame) is relearned after F4D_SYNC_RELEARN_MISSES misses instead of
+ * being rejected for ever. */
+static void sync_relearns_after_bad_start(void **state)
+{
+    (void)state;
+    struct sink k = {0};
+    struct f4d_sync s;
+    struct f4d_sync_config cfg = {1, 1000, 20000, HAL_INCOMPLETE_MARK, 4, 4};
+    assert_int_equal(f4d_sync_init(&s, &cfg, sink_set, sink_release, &k), 0);
+    const uint64_t ms = 1000000;
+    struct hal_buffer b[40];
+    for (uint64_t seq = 1; seq <= 40; seq++) {
+        uint64_t t = seq * 40 * ms;
+        struct hal_edge e = {seq, t, 0, true};
+        f4d_sync_edge(&s, &e);
+        uint64_t lag = seq <= 4 ? 30 * ms : 1 * ms; /* four slow frames, then normal */
+        b[seq - 1] = frame(0, seq, t + lag, t + lag);
+        f4d_sync_frame(&s, &b[seq - 1]);
+        f4d_sync_advance(&s, t + 30 * ms);
+    }
+    f4d_sync_flush(&s);
+    assert_int_equal(s.c.frames_out_of_window, F4D_SYNC_RELEARN_MISSES);
+    assert_int_equal(s.c.clock_resets, 1);
+    assert_int_equal(s.c.sets_complete, 40 - F4D_SYNC_RELEARN_MISSES);
+    assert_int_equal(k.released, 40);
+}
+
 static void sync_fault_injection_10k(void **state)
 {
     (void)state;
@@ -217,6 +245,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(sync_by_hand),
+        cmocka_unit_test(sync_relearns_after_bad_start),
         cmocka_unit_test(sync_fault_injection_10k),
     };
     return cmocka_run_group_tests_name("firmware/sync", tests, NULL, NULL);
