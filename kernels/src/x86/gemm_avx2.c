@@ -509,6 +509,15 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     }
     if (mc > m_pad)
         mc = m_pad;
+    /* Near-equal blocks, as many as a multiple of the threads: a short last
+     * block leaves a core idle at the end (1374 rows in blocks of 144 lost ~5 %). */
+    if (threads > 1) {
+        int nb = (m + mc - 1) / mc;
+        nb = (nb + threads - 1) / threads * threads;
+        int even = (int)fk__round_up((size_t)((m + nb - 1) / nb), MR);
+        if (even < mc)
+            mc = even;
+    }
     j.mc = mc;
     int m_blocks = (m + mc - 1) / mc;
     if (threads > 1 && m_blocks < 4 * threads) {
