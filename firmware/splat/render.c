@@ -461,6 +461,45 @@ static void bin_scatter_task(void *arg, int task, int thread)
 
 /* ---- 4. compositing ---------------------------------------------------------- */
 
+/* Writes a finished tile's accumulators (per tile pixel, row stride
+ * SPLAT_TILE) to the caller's images: colour over the background (or
+ * normalised by alpha), alpha, expected depth, dominant Gaussian. Shared by
+ * the scalar and AVX2 compositors. */
+void splat__tile_write(const struct raster_job *j, int tile, const float *T, const float *C0,
+                       const float *C1, const float *C2, const float *D, const int32_t *top)
+{
+    const struct raster_ctx *r = &j->rc;
+    const int W = r->width, H = r->height;
+    const int tx0 = (tile % r->tiles_x) * SPLAT_TILE, ty0 = (tile / r->tiles_x) * SPLAT_TILE;
+    const int tw = (W - tx0 < SPLAT_TILE) ? W - tx0 : SPLAT_TILE;
+    const int th = (H - ty0 < SPLAT_TILE) ? H - ty0 : SPLAT_TILE;
+    const float bg0 = j->bg ? j->bg[0] : 0.0f, bg1 = j->bg ? j->bg[1] : 0.0f, bg2 = j->bg ? j->bg[2] : 0.0f;
+    for (int y = 0; y < th; y++)
+        for (int x = 0; x < tw; x++) {
+            const int p = y * SPLAT_TILE + x;
+            const size_t o = (size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x);
+            const float acc = 1.0f - T[p];
+            if (j->rgb) {
+                if (j->normalize) {
+                    float inv = acc > 1e-6f ? 1.0f / acc : 0.0f;
+                    j->rgb[3 * o] = C0[p] * inv;
+                    j->rgb[3 * o + 1] = C1[p] * inv;
+                    j->rgb[3 * o + 2] = C2[p] * inv;
+                } else {
+                    j->rgb[3 * o] = C0[p] + T[p] * bg0;
+                    j->rgb[3 * o + 1] = C1[p] + T[p] * bg1;
+                    j->rgb[3 * o + 2] = C2[p] + T[p] * bg2;
+                }
+            }
+            if (j->alpha)
+                j->alpha[o] = acc;
+            if (j->depth)
+                j->depth[o] = acc > 1e-6f ? D[p] / acc : 0.0f;
+            if (j->top)
+                j->top[o] = top[p];
+        }
+}
+
 void splat__raster_tile_ref(const struct raster_job *j, int tile)
 {
     const struct raster_ctx *r = &j->rc;
@@ -547,31 +586,7 @@ void splat__raster_tile_ref(const struct raster_job *j, int tile)
             }
         }
     }
-    const float bg0 = j->bg ? j->bg[0] : 0.0f, bg1 = j->bg ? j->bg[1] : 0.0f, bg2 = j->bg ? j->bg[2] : 0.0f;
-    for (int y = 0; y < th; y++)
-        for (int x = 0; x < tw; x++) {
-            const int p = y * SPLAT_TILE + x;
-            const size_t o = (size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x);
-            const float acc = 1.0f - T[p];
-            if (j->rgb) {
-                if (j->normalize) {
-                    float inv = acc > 1e-6f ? 1.0f / acc : 0.0f;
-                    j->rgb[3 * o] = C0[p] * inv;
-                    j->rgb[3 * o + 1] = C1[p] * inv;
-                    j->rgb[3 * o + 2] = C2[p] * inv;
-                } else {
-                    j->rgb[3 * o] = C0[p] + T[p] * bg0;
-                    j->rgb[3 * o + 1] = C1[p] + T[p] * bg1;
-                    j->rgb[3 * o + 2] = C2[p] + T[p] * bg2;
-                }
-            }
-            if (j->alpha)
-                j->alpha[o] = acc;
-            if (j->depth)
-                j->depth[o] = acc > 1e-6f ? D[p] / acc : 0.0f;
-            if (j->top)
-                j->top[o] = top[p];
-        }
+    splat__tile_write(j, tile, T, C0, C1, C2, D, top);
 }
 
 static void raster_task_ref(void *arg, int tile, int thread)

@@ -57,6 +57,8 @@ struct raster_job {
  * scalar specification; raster_tile_avx2 evaluates 8 pixels of a row at once
  * with a vector exp accurate to 2 ulp (libm's expf in the scalar path). */
 void splat__raster_tile_ref (const struct raster_job *j, int tile);
+void splat__tile_write      (const struct raster_job *j, int tile, const float *T, const float *C0,
+                             const float *C1, const float *C2, const float *D, const int32_t *top);
 void splat__raster_tile_avx2(const struct raster_job *j, int tile);
 
 #endif

@@ -136,29 +136,5 @@ void splat__raster_tile_avx2(const struct raster_job *j, int tile)
             }
         }
     }
-    const float bg0 = j->bg ? j->bg[0] : 0.0f, bg1 = j->bg ? j->bg[1] : 0.0f, bg2 = j->bg ? j->bg[2] : 0.0f;
-    for (int y = 0; y < th; y++)
-        for (int x = 0; x < tw; x++) {
-            const int p = y * SPLAT_TILE + x;
-            const size_t o = (size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x);
-            const float acc = 1.0f - T[p];
-            if (j->rgb) {
-                if (j->normalize) {
-                    float inv = acc > 1e-6f ? 1.0f / acc : 0.0f;
-                    j->rgb[3 * o] = C0[p] * inv;
-                    j->rgb[3 * o + 1] = C1[p] * inv;
-                    j->rgb[3 * o + 2] = C2[p] * inv;
-                } else {
-                    j->rgb[3 * o] = C0[p] + T[p] * bg0;
-                    j->rgb[3 * o + 1] = C1[p] + T[p] * bg1;
-                    j->rgb[3 * o + 2] = C2[p] + T[p] * bg2;
-                }
-            }
-            if (j->alpha)
-                j->alpha[o] = acc;
-            if (j->depth)
-                j->depth[o] = acc > 1e-6f ? D[p] / acc : 0.0f;
-            if (j->top)
-                j->top[o] = top[p];
-        }
+    splat__tile_write(j, tile, T, C0, C1, C2, D, top);
 }
