@@ -56,6 +56,15 @@ static void qaxis(float ax, float ay, float az, float angle, float q[4])
     q[0] = cosf(h); q[1] = ax * sn; q[2] = ay * sn; q[3] = az * sn;
 }
 
+/* A limb joint: a sideways turn about y, then flexion about x (elbow, hip). */
+static void side_then_flex(float side, float flex, float q[4])
+{
+    float qa[4], qb[4];
+    qaxis(0, 1, 0, side, qa);
+    qaxis(1, 0, 0, flex, qb);
+    qmul(qa, qb, q);
+}
+
 static void qrot(const float q[4], const float v[3], float o[3])
 {
     float w = q[0], x = q[1], y = q[2], z = q[3];
@@ -227,18 +236,14 @@ static void forward_kinematics(const scene *S, const struct pose *P, struct xfor
         }
         case B_FARM_L:
         case B_FARM_R: {
-            int k = b == B_FARM_R, sg = k ? -1 : 1;
-            qaxis(0, 1, 0, (float)sg * P->elbow_side[k], qa);
-            qaxis(1, 0, 0, P->elbow[k], qb);
-            qmul(qa, qb, q);
+            int k = b == B_FARM_R;
+            side_then_flex(k ? -P->elbow_side[k] : P->elbow_side[k], P->elbow[k], q);
             break;
         }
         case B_THIGH_L:
         case B_THIGH_R: {
-            int k = b == B_THIGH_R, sg = k ? -1 : 1;
-            qaxis(0, 1, 0, (float)sg * P->hip_abd[k], qa);
-            qaxis(1, 0, 0, P->hip_flex[k], qb);
-            qmul(qa, qb, q);
+            int k = b == B_THIGH_R;
+            side_then_flex(k ? -P->hip_abd[k] : P->hip_abd[k], P->hip_flex[k], q);
             break;
         }
         case B_SHIN_L:
