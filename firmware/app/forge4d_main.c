@@ -27,6 +27,7 @@
 #include "f4d_simscene.h"
 #include "f4d_take.h"
 #include "hal_board.h"
+#include "hal_registry.h"
 #include "hal_replay.h"
 #include "hal_sim.h"
 
@@ -88,7 +89,7 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
 
 /* A set is mixed if any frame carries another trigger than the set, or (sim)
  * its ground-truth stamp names another pulse or camera. */
-static bool set_is_mixed(const struct rec_ctx *c, const struct f4d_sync_set *set)
+static bool set_is_mixed(const struct rec_ctx *c, const struct hal_set *set)
 {
     for (uint32_t i = 0; i < c->board->n_cams; i++) {
         const struct hal_buffer *b = set->frames[i];
@@ -105,7 +106,7 @@ static bool set_is_mixed(const struct rec_ctx *c, const struct f4d_sync_set *set
     return false;
 }
 
-static int rec_set(void *user, const struct f4d_sync_set *set)
+static int rec_set(void *user, const struct hal_set *set)
 {
     struct rec_ctx *c = user;
     c->mixed_sets += set_is_mixed(c, set);

@@ -242,6 +242,17 @@ struct hal_trigger_config {
     uint32_t pulse_width_us;
 };
 enum hal_incomplete_policy { HAL_INCOMPLETE_DROP = 0, HAL_INCOMPLETE_MARK = 1 };
+/* One synchronized multi-view set: what the synchronizer hands downstream and
+ * what a take stores. frames[c] is NULL where camera c has no frame. */
+struct hal_set {
+    uint64_t seq;
+    uint64_t trigger_ts_ns;   /* edge time (rig clock), or first frame's mapped time */
+    bool has_edge;
+    bool complete;
+    uint32_t ok_mask;         /* cameras with an OK frame */
+    uint32_t present_mask;    /* cameras with any frame (OK or incomplete) */
+    struct hal_buffer *frames[HAL_RIG_CAMERAS_MAX];
+};
 struct hal_sync_config {
     uint32_t window_us;           /* device timestamps must agree to this */
     uint32_t max_latency_us;      /* a set is closed this long after its trigger */
@@ -297,13 +308,7 @@ struct hal_backend {
     int (*clock_get)(void *session, struct hal_clock *out);
 };
 
-/* The static registry: NULL if `name` is not compiled in. */
-const struct hal_backend *hal_backend_find(const char *name);
-/* Number of compiled-in backends, and the i-th one (for listing/tests). */
-uint32_t hal_backend_count(void);
-const struct hal_backend *hal_backend_at(uint32_t i);
-
-/* All devices of a board, opened through the registry. */
+/* All devices of a board, (hal_rig_open in hal_registry.h fills it). */
 struct hal_rig {
     const struct hal_board *board;
     uint32_t n_cams;
@@ -314,10 +319,6 @@ struct hal_rig {
     const struct hal_backend *session_backend[4];
     void *session[4];
 };
-int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, size_t errlen);
-void hal_rig_close(struct hal_rig *rig);
-/* The session of the named backend inside an open rig, or NULL. */
-void *hal_rig_session(const struct hal_rig *rig, const char *backend);
 
 /* snprintf into err (if non-NULL) and return rc: `return hal_fail(err, n, HAL_EINVAL, "...")`. */
 int hal_fail(char *err, size_t errlen, int rc, const char *fmt, ...)

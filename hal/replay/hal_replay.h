@@ -1,4 +1,4 @@
-/* hal_replay.h: plays a recorded take (firmware/record) back as cameras and a
+/* hal_replay.h: plays a recorded take (hal/take) back as cameras and a
  * trigger, so every later stage runs on recordings exactly as on live rigs.
  *
  * Each camera of the board with backend "replay" plays camera `index` of the

@@ -26,6 +26,7 @@
 #include "f4d_capture.h"
 #include "f4d_take.h"
 #include "hal_board.h"
+#include "hal_registry.h"
 #include "hal_replay.h"
 #include "hal_sim.h"
 
@@ -186,7 +187,7 @@ struct set_check {
     uint64_t wide; /* complete sets spread wider than fx->max_spread_ns */
 };
 
-static int check_set(void *u, const struct f4d_sync_set *set)
+static int check_set(void *u, const struct hal_set *set)
 {
     struct set_check *c = u;
     c->sets++;
@@ -297,7 +298,7 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
     return f4d_take_create(&r->w, dir, &info, NULL, 100, err, sizeof err);
 }
 
-static int rec_set(void *user, const struct f4d_sync_set *set)
+static int rec_set(void *user, const struct hal_set *set)
 {
     return f4d_take_append(((struct recording *)user)->w, set);
 }

@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "hal_board.h"
+#include "hal_registry.h"
 
 static int open_trigger(const char *chip, int line, int strobe, char *err, size_t n)
 {

@@ -20,6 +20,7 @@
 #include "f4d_capture.h"
 #include "f4d_take.h"
 #include "hal_board.h"
+#include "hal_registry.h"
 #include "hal_sim.h"
 
 static char tmp_root[256];
@@ -74,7 +75,7 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
     return rc;
 }
 
-static int rec_set(void *user, const struct f4d_sync_set *set)
+static int rec_set(void *user, const struct hal_set *set)
 {
     struct rec *r = user;
     int rc = f4d_take_append(r->w, set);
@@ -356,5 +357,5 @@ int main(void)
         cmocka_unit_test(torn_tail_and_lost_index),
         cmocka_unit_test(killed_at_random_points),
     };
-    return cmocka_run_group_tests_name("firmware/record", tests, setup, teardown);
+    return cmocka_run_group_tests_name("hal/take", tests, setup, teardown);
 }

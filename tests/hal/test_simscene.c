@@ -1,4 +1,4 @@
-/* test_simscene.c: the sim cameras' synthetic-scene renderer (firmware/simscene). */
+/* test_simscene.c: the sim cameras' synthetic-scene renderer (firmware/synth/simscene). */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -49,5 +49,5 @@ static void renders_the_scene_over_time(void **state)
 int main(void)
 {
     const struct CMUnitTest tests[] = {cmocka_unit_test(renders_the_scene_over_time)};
-    return cmocka_run_group_tests_name("firmware/simscene", tests, NULL, NULL);
+    return cmocka_run_group_tests_name("firmware/synth/simscene", tests, NULL, NULL);
 }

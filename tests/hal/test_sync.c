@@ -13,6 +13,7 @@
 #include "f4d_capture.h"
 #include "f4d_sync.h"
 #include "hal_board.h"
+#include "hal_registry.h"
 #include "hal_sim.h"
 
 /* ---- hand-made frames ---- */
@@ -21,7 +22,7 @@ struct sink {
     uint64_t last_seq;
     uint32_t last_ok_mask;
 };
-static void sink_set(void *u, const struct f4d_sync_set *s)
+static void sink_set(void *u, const struct hal_set *s)
 {
     struct sink *k = u;
     k->sets++;
@@ -132,7 +133,7 @@ static void sync_by_hand(void **state)
 struct truth {
     uint64_t sets, mixed, frames;
 };
-static int check_set(void *u, const struct f4d_sync_set *set)
+static int check_set(void *u, const struct hal_set *set)
 {
     struct truth *t = u;
     t->sets++;
@@ -248,5 +249,5 @@ int main(void)
         cmocka_unit_test(sync_relearns_after_bad_start),
         cmocka_unit_test(sync_fault_injection_10k),
     };
-    return cmocka_run_group_tests_name("firmware/sync", tests, NULL, NULL);
+    return cmocka_run_group_tests_name("firmware/capture/sync", tests, NULL, NULL);
 }

@@ -21,6 +21,7 @@
 
 #include "f4d_capture.h"
 #include "hal_board.h"
+#include "hal_registry.h"
 
 /* ---- the fake UVC camera: 640x480 or 320x240, YUYV only ---- */
 struct fake_cam {
@@ -253,7 +254,7 @@ struct sets {
     uint64_t sets, complete, checked;
 };
 
-static int count_set(void *user, const struct f4d_sync_set *set)
+static int count_set(void *user, const struct hal_set *set)
 {
     struct sets *k = user;
     k->sets++;

@@ -18,8 +18,9 @@
 #include "f4d_capture.h"
 #include "f4d_take.h"
 #include "hal_board.h"
+#include "hal_registry.h"
 
-static void null_set(void *u, const struct f4d_sync_set *s)
+static void null_set(void *u, const struct hal_set *s)
 {
     (void)s;
     ++*(uint64_t *)u;
@@ -77,7 +78,7 @@ static int on_ready(void *u, const struct f4d_capture_stats *st)
     return f4d_take_create(&r->w, r->dir, &info, NULL, 250, err, sizeof err);
 }
 
-static int on_set(void *u, const struct f4d_sync_set *set)
+static int on_set(void *u, const struct hal_set *set)
 {
     struct rec_ctx *r = u;
     if (r->w)

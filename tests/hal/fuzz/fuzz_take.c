@@ -1,5 +1,5 @@
 /* fuzz_take.c: libFuzzer harness for the take reader and verify
- * (firmware/record). The input is a take.f4t; verify (with repair) and the
+ * (hal/take). The input is a take.f4t; verify (with repair) and the
  * reader must handle it without crashing, leaking or reading out of bounds. */
 #include <fcntl.h>
 #include <stddef.h>

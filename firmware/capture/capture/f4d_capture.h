@@ -43,7 +43,7 @@ struct f4d_capture_stats {
 };
 
 /* Returns <0 to stop the capture (e.g. the disk failed). */
-typedef int (*f4d_capture_set_fn)(void *user, const struct f4d_sync_set *set);
+typedef int (*f4d_capture_set_fn)(void *user, const struct hal_set *set);
 typedef void (*f4d_capture_progress_fn)(void *user, const struct f4d_capture_stats *st,
                                         uint64_t now_ns);
 

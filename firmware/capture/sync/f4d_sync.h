@@ -62,16 +62,6 @@ struct f4d_sync_config {
     uint32_t learn_frames;    /* clock-offset learning per camera, 1..F4D_SYNC_LEARN_FRAMES; 0 = max */
 };
 
-struct f4d_sync_set {
-    uint64_t seq;
-    uint64_t trigger_ts_ns;   /* edge time (rig clock), or first frame's mapped time */
-    bool has_edge;
-    bool complete;
-    uint32_t ok_mask;         /* cameras with an OK frame */
-    uint32_t present_mask;    /* cameras with any frame (OK or incomplete) */
-    struct hal_buffer *frames[F4D_SYNC_CAMS_MAX]; /* NULL where absent */
-};
-
 struct f4d_sync_counters {
     uint64_t triggers;          /* edges seen */
     uint64_t sets_complete;
@@ -89,11 +79,11 @@ struct f4d_sync_counters {
     uint64_t clock_resets;
 };
 
-typedef void (*f4d_sync_set_fn)(void *user, const struct f4d_sync_set *set);
+typedef void (*f4d_sync_set_fn)(void *user, const struct hal_set *set);
 typedef void (*f4d_sync_release_fn)(void *user, struct hal_buffer *buf);
 
 struct f4d_sync_slot {
-    struct f4d_sync_set set;
+    struct hal_set set;
     uint64_t deadline_ns;
     uint32_t rejected_mask;   /* cameras whose frame was rejected out of window */
 };

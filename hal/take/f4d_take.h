@@ -35,7 +35,6 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#include "f4d_sync.h"
 #include "hal.h"
 
 #define F4D_TAKE_FILE "take.f4t"
@@ -73,7 +72,7 @@ struct f4d_take_writer;
 int f4d_take_create(struct f4d_take_writer **w, const char *dir, const struct f4d_take_info *info,
                     const char *board_json, uint32_t durability_ms, char *err, size_t errlen);
 /* Appends one set (frames as the synchronizer holds them). */
-int f4d_take_append(struct f4d_take_writer *w, const struct f4d_sync_set *set);
+int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set);
 /* Sets known to be on stable storage (fdatasync returned after them). */
 uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w);
 uint64_t f4d_take_bytes_written(const struct f4d_take_writer *w);

@@ -21,7 +21,7 @@ static void on_release(void *user, struct hal_buffer *b)
         r->requeue_errors++;
 }
 
-static void on_sync_set(void *user, const struct f4d_sync_set *set)
+static void on_sync_set(void *user, const struct hal_set *set)
 {
     struct run *r = user;
     if (r->set_rc >= 0) {

@@ -55,7 +55,7 @@ static struct f4d_sync_slot *slot_at(struct f4d_sync *s, uint32_t i)
 static void close_oldest(struct f4d_sync *s)
 {
     struct f4d_sync_slot *sl = slot_at(s, 0);
-    struct f4d_sync_set *set = &sl->set;
+    struct hal_set *set = &sl->set;
     const uint32_t all = all_mask(s);
     set->complete = set->ok_mask == all;
     uint32_t missing = all & ~set->present_mask & ~sl->rejected_mask;
@@ -162,7 +162,7 @@ void f4d_sync_frame(struct f4d_sync *s, struct hal_buffer *b)
         s->on_release(s->user, b);
         return;
     }
-    struct f4d_sync_set *set = &sl->set;
+    struct hal_set *set = &sl->set;
     if ((set->present_mask | sl->rejected_mask) & bit) {
         s->c.frames_duplicate++;
         s->on_release(s->user, b);

@@ -248,7 +248,7 @@ fail:
     return rc;
 }
 
-int f4d_take_append(struct f4d_take_writer *w, const struct f4d_sync_set *set)
+int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
 {
     if (w->failed)
         return HAL_EIO;

@@ -1,7 +1,7 @@
 /* hal_registry.c: the one static table of backends, and rig open/close.
  * Optional backends are compiled in when CMake found their library
  * (HAL_HAS_<NAME>); sim and replay are always there. */
-#include "hal.h"
+#include "hal_registry.h"
 
 #include <stdio.h>
 #include <string.h>
