@@ -9,8 +9,8 @@
  *
  *     fk_ctx *ctx;
  *     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
- *     if (fk_ctx_new(&cfg, &ctx) != FK_OK) ...;
- *     if (fk_layernorm(ctx, x, rows, cols, cols, w, b, 1e-5f, y, cols) != FK_OK)
+ *     if (fk_ctx_new(&cfg, &ctx) != F4D_OK) ...;
+ *     if (fk_layernorm(ctx, x, rows, cols, cols, w, b, 1e-5f, y, cols) != F4D_OK)
  *         fprintf(stderr, "%s\n", fk_ctx_error(ctx));
  *     fk_ctx_free(ctx);
  *
@@ -27,17 +27,11 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "f4d_status.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
-
-enum fk_status {
-    FK_OK      =  0,
-    FK_EINVAL  = -1, /* bad argument: shape, stride, NULL pointer, unknown enum */
-    FK_ENOMEM  = -2, /* allocation failed, or scratch needed after fk_ctx_freeze */
-    FK_ENOTSUP = -3, /* valid request this build or ISA does not implement      */
-    FK_ERANGE  = -4, /* a size would overflow (e.g. int8 accumulation length)   */
-};
 
 /* Instruction sets. Values are stored in files and never renumbered. */
 enum fk_isa {
@@ -64,15 +58,16 @@ struct fk_ctx_config {
 
 typedef struct fk_ctx fk_ctx;
 
-/* Creates a context. An explicitly requested ISA the CPU lacks is FK_ENOTSUP. */
+/* Creates a context. An explicitly requested ISA the CPU lacks is F4D_ENOTSUP. */
 int          fk_ctx_new      (const struct fk_ctx_config *cfg, fk_ctx **out);
 void         fk_ctx_free     (fk_ctx *ctx);
 enum fk_isa  fk_ctx_isa      (const fk_ctx *ctx);
 int          fk_ctx_threads  (const fk_ctx *ctx);
 const char * fk_ctx_error    (const fk_ctx *ctx);   /* "" when no error yet     */
+int          fk_ctx_status   (const fk_ctx *ctx);   /* code of that error, 0 if none */
 
 /* Scratch. Kernels grow the arenas on demand until the context is frozen;
- * after fk_ctx_freeze a kernel that needs more scratch fails with FK_ENOMEM.
+ * after fk_ctx_freeze a kernel that needs more scratch fails with F4D_ENOMEM.
  * fk_ctx_reserve grows every per-thread arena to at least `per_thread` bytes
  * and the shared arena to at least `shared` bytes. */
 int          fk_ctx_reserve  (fk_ctx *ctx, size_t per_thread, size_t shared);

@@ -12,7 +12,7 @@
  *             (no int16 intermediate, so no saturation), and
  *             y = acc * (sx * sw[n]) + b[n]. The optimized paths are bit-exact
  *             with the reference before the activation. k <= 65536 keeps the
- *             int32 sum exact; longer rows are FK_ERANGE.
+ *             int32 sum exact; longer rows are F4D_ERANGE.
  * Non-finite values in a row of x make that output row non-finite (all
  * precisions), never a crash.
  *

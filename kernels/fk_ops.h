@@ -14,7 +14,7 @@
  *
  * Shapes: rows == 0 or n == 0 is a no-op; rows < 0, cols < 1, a stride below
  * cols, a NULL buffer, eps < 0 or non-finite, or an output that overlaps the
- * input without being it (same pointer and stride) is FK_EINVAL with a
+ * input without being it (same pointer and stride) is F4D_EINVAL with a
  * message naming the argument.
  *
  * Non-finite values: a NaN or Inf in a LayerNorm or softmax row makes that

@@ -13,8 +13,8 @@
  * or past the last pixel use that pixel with weight exactly 1. Every ISA gives
  * the same bits (same tables, same operations). A NaN or Inf input spoils only
  * the outputs whose taps reach it (an Inf may come out as NaN). Errors
- * (FK_EINVAL): h, w, c, ho or wo < 1, NULL x or y, x and y overlapping,
- * align_corners not 0 or 1; FK_ENOMEM when the table / intermediate scratch
+ * (F4D_EINVAL): h, w, c, ho or wo < 1, NULL x or y, x and y overlapping,
+ * align_corners not 0 or 1; F4D_ENOMEM when the table / intermediate scratch
  * does not fit a frozen context (bicubic: h * wo * c floats when both axes change).
  *
  *     fk_resize_bilinear(ctx, x, 37, 37, 256, y, 148, 148, 1);

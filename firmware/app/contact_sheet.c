@@ -44,14 +44,14 @@ int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, cha
     uint64_t n = f4d_take_count(r);
     if (index == UINT64_MAX) {
         for (index = 0; index < n; index++)
-            if (f4d_take_read(r, index, &s) == HAL_OK && s.complete)
+            if (f4d_take_read(r, index, &s) == F4D_OK && s.complete)
                 break;
         if (index == n)
             index = 0;
     }
     if (index >= n) {
         f4d_take_reader_close(r);
-        return hal_fail(err, errlen, HAL_EINVAL, "sheet: take %s has %llu sets, no set %llu", dir,
+        return hal_fail(err, errlen, F4D_EINVAL, "sheet: take %s has %llu sets, no set %llu", dir,
                         (unsigned long long)n, (unsigned long long)index);
     }
     if ((rc = f4d_take_read(r, index, &s)) < 0) {
@@ -71,7 +71,7 @@ int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, cha
     uint8_t *img = malloc((size_t)W * H * 3);
     if (!img) {
         f4d_take_reader_close(r);
-        return hal_fail(err, errlen, HAL_ENOMEM, "sheet: out of memory");
+        return hal_fail(err, errlen, F4D_ENOMEM, "sheet: out of memory");
     }
     memset(img, 24, (size_t)W * H * 3);
     for (uint32_t c = 0; c < info->n_cams; c++) {
@@ -93,6 +93,6 @@ int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, cha
     int ok = png_image_write_to_file(&pi, png_path, 0, img, (png_int_32)(W * 3), NULL);
     free(img);
     if (!ok)
-        return hal_fail(err, errlen, HAL_EIO, "sheet: cannot write %s: %s", png_path, pi.message);
-    return HAL_OK;
+        return hal_fail(err, errlen, F4D_EIO, "sheet: cannot write %s: %s", png_path, pi.message);
+    return F4D_OK;
 }

@@ -99,7 +99,7 @@ static bool set_is_mixed(const struct rec_ctx *c, const struct hal_set *set)
             return true;
         uint64_t seq;
         uint32_t cam;
-        if (c->sim && hal_sim_stamp_read(b->data, b->bytes_used, &seq, &cam) == HAL_OK &&
+        if (c->sim && hal_sim_stamp_read(b->data, b->bytes_used, &seq, &cam) == F4D_OK &&
             (seq != set->seq || cam != i))
             return true;
     }
@@ -214,7 +214,7 @@ static int run_capture(const struct hal_board *board, const char *dir, uint64_t 
         status = 1;
     }
     struct hal_sim_injected inj;
-    bool have_inj = world && hal_sim_injected_get(world, &inj) == HAL_OK;
+    bool have_inj = world && hal_sim_injected_get(world, &inj) == F4D_OK;
     if (rc >= 0 && !quiet) {
         double t = (double)(st.t_end_ns - st.t_start_ns) * 1e-9;
         uint64_t sets = st.sync.sets_complete + st.sync.sets_incomplete;

@@ -116,7 +116,7 @@ static int cam_validate(void *ctx, struct hal_format *f)
     if (!e)
         arv_camera_get_height_bounds(c->cam, &hmin, &hmax, &e);
     if (e)
-        return cam_fail(c, HAL_EIO, "reading the image size bounds", e);
+        return cam_fail(c, F4D_EIO, "reading the image size bounds", e);
     gint winc = arv_camera_get_width_increment(c->cam, NULL);
     gint hinc = arv_camera_get_height_increment(c->cam, NULL);
     f->width = clamp_step(f->width, wmin, wmax, winc);
@@ -125,7 +125,7 @@ static int cam_validate(void *ctx, struct hal_format *f)
     guint n = 0;
     gint64 *avail = arv_camera_dup_available_pixel_formats(c->cam, &n, &e);
     if (e)
-        return cam_fail(c, HAL_EIO, "reading the pixel formats", e);
+        return cam_fail(c, F4D_EIO, "reading the pixel formats", e);
     bool have = false;
     enum hal_pixfmt first = HAL_PIXFMT_INVALID;
     for (guint i = 0; i < n; i++) {
@@ -140,7 +140,7 @@ static int cam_validate(void *ctx, struct hal_format *f)
     g_free(avail);
     if (!have) {
         if (first == HAL_PIXFMT_INVALID)
-            return cam_fail(c, HAL_ENOTSUP, "no supported pixel format", NULL);
+            return cam_fail(c, F4D_ENOTSUP, "no supported pixel format", NULL);
         f->pixfmt = first;
     }
     double rmin = 0, rmax = 0;
@@ -175,7 +175,7 @@ static int cam_validate(void *ctx, struct hal_format *f)
         f->trigger = HAL_TRIGGER_FREE_RUN;
     f->stride = f->width * hal_pixfmt_bytes_per_pixel(f->pixfmt);
     if (hal_format_finish(f) < 0)
-        return cam_fail(c, HAL_EINVAL, "format cannot be represented", NULL);
+        return cam_fail(c, F4D_EINVAL, "format cannot be represented", NULL);
     return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
 }
 
@@ -191,10 +191,10 @@ static int cam_configure(void *ctx, const struct hal_format *f)
     GError *e = NULL;
     arv_camera_set_region(c->cam, 0, 0, (gint)f->width, (gint)f->height, &e);
     if (e)
-        return cam_fail(c, HAL_EIO, "setting the region", e);
+        return cam_fail(c, F4D_EIO, "setting the region", e);
     arv_camera_set_pixel_format(c->cam, to_arv(f->pixfmt), &e);
     if (e)
-        return cam_fail(c, HAL_EIO, "setting the pixel format", e);
+        return cam_fail(c, F4D_EIO, "setting the pixel format", e);
     if (f->trigger == HAL_TRIGGER_SOFTWARE) {
         arv_camera_set_trigger(c->cam, "Software", &e);
     } else if (f->trigger == HAL_TRIGGER_HARDWARE) {
@@ -207,20 +207,20 @@ static int cam_configure(void *ctx, const struct hal_format *f)
             arv_camera_set_frame_rate(c->cam, f->rate_mhz / 1000.0, &e);
     }
     if (e)
-        return cam_fail(c, HAL_EIO, "setting the trigger", e);
+        return cam_fail(c, F4D_EIO, "setting the trigger", e);
     if (arv_camera_is_exposure_time_available(c->cam, NULL)) {
         arv_camera_set_exposure_time(c->cam, (double)f->exposure_us, &e);
         if (e)
-            return cam_fail(c, HAL_EIO, "setting the exposure time", e);
+            return cam_fail(c, F4D_EIO, "setting the exposure time", e);
     }
     if (c->gige && c->cfg->packet_size) {
         arv_camera_gv_set_packet_size(c->cam, (gint)c->cfg->packet_size, &e);
         if (e)
-            return cam_fail(c, HAL_EIO, "setting the packet size", e);
+            return cam_fail(c, F4D_EIO, "setting the packet size", e);
     }
     c->st.fmt = v;
     c->st.configured = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int push_slot(struct av_cam *c, struct av_slot *sl)
@@ -228,7 +228,7 @@ static int push_slot(struct av_cam *c, struct av_slot *sl)
     g_object_ref(sl->ab); /* the stream's reference */
     arv_stream_push_buffer(c->stream, sl->ab);
     sl->state = AV_IN_STREAM;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_start(void *ctx)
@@ -238,11 +238,11 @@ static int cam_start(void *ctx)
     if (rc < 0)
         return rc;
     if (c->st.started)
-        return HAL_OK;
+        return F4D_OK;
     GError *e = NULL;
     c->stream = arv_camera_create_stream(c->cam, NULL, NULL, &e);
     if (e || !c->stream)
-        return cam_fail(c, HAL_EIO, "creating the stream", e);
+        return cam_fail(c, F4D_EIO, "creating the stream", e);
     if (c->gige && ARV_IS_GV_STREAM(c->stream) && c->cfg->socket_buffer)
         g_object_set(c->stream, "socket-buffer", ARV_GV_STREAM_SOCKET_BUFFER_FIXED,
                      "socket-buffer-size", (gint)c->cfg->socket_buffer, NULL);
@@ -260,10 +260,10 @@ static int cam_start(void *ctx)
         for (uint32_t i = 0; i < c->n_slots; i++)
             if (c->slots[i].state == AV_IN_STREAM)
                 c->slots[i].state = AV_PENDING;
-        return cam_fail(c, HAL_EIO, "starting the acquisition", e);
+        return cam_fail(c, F4D_EIO, "starting the acquisition", e);
     }
     c->st.started = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_stop(void *ctx)
@@ -284,7 +284,7 @@ static int cam_stop(void *ctx)
         sl->state = AV_IDLE;
         hal_cam_abort(&c->st, sl->hb);
     }
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
@@ -298,10 +298,10 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
         if (c->slots[i].hb == b)
             sl = &c->slots[i];
     if (sl && sl->state != AV_IDLE)
-        return cam_fail(c, HAL_EBUSY, "buffer is already queued", NULL);
+        return cam_fail(c, F4D_EBUSY, "buffer is already queued", NULL);
     if (!sl) {
         if (c->n_slots == AV_BUFFERS_MAX)
-            return cam_fail(c, HAL_EBUSY, "too many distinct buffers", NULL);
+            return cam_fail(c, F4D_EBUSY, "too many distinct buffers", NULL);
         sl = &c->slots[c->n_slots++];
         sl->hb = b;
         sl->ab = arv_buffer_new_full(b->capacity, b->data, b, NULL);
@@ -309,7 +309,7 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
     if (c->st.started)
         return push_slot(c, sl);
     sl->state = AV_PENDING;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static enum hal_frame_status map_status(ArvBufferStatus s)
@@ -404,7 +404,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     ArvBuffer *ab = timeout_us ? arv_stream_timeout_pop_buffer(c->stream, timeout_us)
                                : arv_stream_try_pop_buffer(c->stream);
     if (!ab)
-        return HAL_ETIMEDOUT;
+        return F4D_ETIMEDOUT;
     struct hal_buffer *b = (struct hal_buffer *)arv_buffer_get_user_data(ab);
     struct av_slot *sl = NULL;
     for (uint32_t i = 0; i < c->n_slots && !sl; i++)
@@ -412,7 +412,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             sl = &c->slots[i];
     g_object_unref(ab); /* the stream's reference */
     if (!sl || !b)
-        return cam_fail(c, HAL_EIO, "stream returned a foreign buffer", NULL);
+        return cam_fail(c, F4D_EIO, "stream returned a foreign buffer", NULL);
     sl->state = AV_IDLE;
     uint64_t mono = hal_mono_ns(), real = realtime_ns();
     uint64_t sys = arv_buffer_get_system_timestamp(ab);
@@ -439,7 +439,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
         clear_edge(c->s, b->host_ts_ns, &best, &best_ts);
         if (!best || best_ts < c->start_ns || b->host_ts_ns - best_ts >= c->s->period_ns / 4) {
             push_slot(c, sl);
-            return HAL_ETIMEDOUT;
+            return F4D_ETIMEDOUT;
         }
         /* two frames in a row must agree (a stale frame often comes first,
          * right before the frame of the same edge) */
@@ -449,7 +449,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             c->cand_valid = true;
             c->cand_base = base;
             push_slot(c, sl);
-            return HAL_ETIMEDOUT;
+            return F4D_ETIMEDOUT;
         }
         uint64_t fid = unwrap(c, raw);
         c->have_first = true;
@@ -465,11 +465,11 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     reanchor(c, b);
     if (b->trigger_seq <= c->last_seq_out) { /* renumbered onto a pulse already delivered: drop */
         push_slot(c, sl);
-        return HAL_ETIMEDOUT;
+        return F4D_ETIMEDOUT;
     }
     c->last_seq_out = b->trigger_seq;
     *out = b;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static void cam_close(void *ctx)
@@ -526,19 +526,19 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct av_session *s = ctx;
     if (p->rate_mhz == 0 || p->rate_mhz > 1000000u)
-        return hal_fail(s->err, sizeof s->err, HAL_EINVAL, "aravis trigger: rate %u mHz out of range",
+        return hal_fail(s->err, sizeof s->err, F4D_EINVAL, "aravis trigger: rate %u mHz out of range",
                         (unsigned)p->rate_mhz);
     s->period_ns = 1000000000000ull / p->rate_mhz;
     s->next_pulse_ns = hal_mono_ns() + s->period_ns;
     s->limit = p->count ? s->sent + p->count : 0;
     s->armed = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int trig_disarm(void *ctx)
 {
     ((struct av_session *)ctx)->armed = false;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
@@ -585,11 +585,11 @@ static int av_session_open(const struct hal_board *board, void **session, char *
 {
     struct av_session *s = calloc(1, sizeof *s);
     if (!s)
-        return hal_fail(err, n, HAL_ENOMEM, "aravis: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "aravis: out of memory");
     s->board = board;
     s->software_trigger = strcmp(board->trigger.backend, "aravis") == 0;
     *session = s;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static void av_session_close(void *session) { free(session); }
@@ -599,15 +599,15 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
 {
     struct av_session *s = session;
     if (!cfg->address[0])
-        return hal_fail(err, n, HAL_EINVAL,
+        return hal_fail(err, n, F4D_EINVAL,
                         "aravis camera %s: no address (an IP or device id); discovery is never used",
                         cfg->id);
     if (index >= AV_CAMS_MAX || s->cams[index])
-        return hal_fail(err, n, HAL_EBUSY, "aravis camera %s: index in use", cfg->id);
+        return hal_fail(err, n, F4D_EBUSY, "aravis camera %s: index in use", cfg->id);
     GError *e = NULL;
     ArvCamera *cam = arv_camera_new(cfg->address, &e);
     if (!cam) {
-        int rc = hal_fail(err, n, HAL_ENODEV, "aravis camera %s: cannot open %s: %s", cfg->id,
+        int rc = hal_fail(err, n, F4D_ENODEV, "aravis camera %s: cannot open %s: %s", cfg->id,
                           cfg->address, e ? e->message : "unknown error");
         if (e)
             g_error_free(e);
@@ -616,7 +616,7 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
     struct av_cam *c = calloc(1, sizeof *c);
     if (!c) {
         g_object_unref(cam);
-        return hal_fail(err, n, HAL_ENOMEM, "aravis: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "aravis: out of memory");
     }
     c->s = s;
     c->index = index;
@@ -628,7 +628,7 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
         arv_camera_gv_set_stream_options(cam, ARV_GV_STREAM_OPTION_PACKET_SOCKET_DISABLED);
     s->cams[index] = c;
     hal_camera_bind(out, &av_camera_ops, c, index);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int av_trigger_open(void *session, const struct hal_trigger_config *cfg,

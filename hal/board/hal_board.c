@@ -17,7 +17,7 @@ struct ctx {
 
 static int fail(struct ctx *c, const char *key, const char *what)
 {
-    return hal_fail(c->err, c->errlen, HAL_EINVAL, "board: %s%s%s: %s", c->path, c->path[0] ? "." : "",
+    return hal_fail(c->err, c->errlen, F4D_EINVAL, "board: %s%s%s: %s", c->path, c->path[0] ? "." : "",
                     key, what);
 }
 
@@ -359,7 +359,7 @@ int hal_board_parse(struct hal_board *b, const char *json, size_t len, char *err
     if (!root) {
         const char *at = cJSON_GetErrorPtr();
         size_t off = (at && at >= json && at <= json + len) ? (size_t)(at - json) : 0;
-        return hal_fail(err, errlen, HAL_EINVAL, "board: not valid JSON (near byte %zu)", off);
+        return hal_fail(err, errlen, F4D_EINVAL, "board: not valid JSON (near byte %zu)", off);
     }
     int rc = parse_root(&c, root, b);
     cJSON_Delete(root);
@@ -370,21 +370,21 @@ int hal_board_load(struct hal_board *b, const char *path, char *err, size_t errl
 {
     FILE *f = fopen(path, "rb");
     if (!f)
-        return hal_fail(err, errlen, HAL_EIO, "board %s: cannot open: %s", path, strerror(errno));
+        return hal_fail(err, errlen, F4D_EIO, "board %s: cannot open: %s", path, strerror(errno));
     enum { MAX = 1 << 20 };
     char *buf = malloc(MAX);
     if (!buf) {
         fclose(f);
-        return hal_fail(err, errlen, HAL_ENOMEM, "board %s: out of memory", path);
+        return hal_fail(err, errlen, F4D_ENOMEM, "board %s: out of memory", path);
     }
     size_t n = fread(buf, 1, MAX, f);
     int rd_err = ferror(f);
     fclose(f);
     int rc;
     if (rd_err)
-        rc = hal_fail(err, errlen, HAL_EIO, "board %s: read error", path);
+        rc = hal_fail(err, errlen, F4D_EIO, "board %s: read error", path);
     else if (n == MAX)
-        rc = hal_fail(err, errlen, HAL_EINVAL, "board %s: larger than 1 MiB", path);
+        rc = hal_fail(err, errlen, F4D_EINVAL, "board %s: larger than 1 MiB", path);
     else {
         rc = hal_board_parse(b, buf, n, err, errlen);
         if (rc < 0 && err && errlen) {

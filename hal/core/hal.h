@@ -28,28 +28,15 @@
 #ifndef F4D_HAL_H
 #define F4D_HAL_H
 
+#include "f4d_status.h"
+
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
 #define HAL_API_VERSION 1u
 
-/* ---- status codes (never renumbered) ---------------------------------- */
-enum hal_status {
-    HAL_OK = 0,
-    HAL_EINVAL = -1,    /* bad argument or bad configuration value */
-    HAL_ENOMEM = -2,
-    HAL_EIO = -3,       /* device or file I/O failed */
-    HAL_ETIMEDOUT = -4, /* nothing arrived within the timeout */
-    HAL_ENODEV = -5,    /* device absent or disconnected */
-    HAL_ENOTSUP = -6,   /* optional op not provided by this backend */
-    HAL_EBUSY = -7,     /* resource in use / no buffer queued */
-    HAL_ESTATE = -8,    /* call not allowed in the current state */
-    HAL_EEOF = -9,      /* replay: the take has no more frames */
-    HAL_ECORRUPT = -10, /* data failed a CRC or structural check */
-};
-/* Short name of a status code ("HAL_EINVAL"), for messages. */
-const char *hal_status_name(int rc);
+/* Status codes: F4D_* from f4d_status.h, shared by the whole tree. */
 
 /* ---- pixel formats (values are stored in take files: never renumber) --- */
 enum hal_pixfmt {
@@ -148,7 +135,7 @@ struct hal_camera_ops {
     int (*start)(void *ctx);
     int (*stop)(void *ctx);                                   /* queued buffers come back ABORTED */
     int (*enqueue)(void *ctx, struct hal_buffer *buf);
-    /* HAL_OK with *out set, HAL_ETIMEDOUT, HAL_ENODEV (disconnected), HAL_EEOF (replay ended). */
+    /* F4D_OK with *out set, F4D_ETIMEDOUT, F4D_ENODEV (disconnected), F4D_EEOF (replay ended). */
     int (*dequeue)(void *ctx, struct hal_buffer **out, uint32_t timeout_us);
     void (*close)(void *ctx);
     const char *(*last_error)(void *ctx);                     /* optional */
@@ -173,7 +160,7 @@ static inline const char *hal_camera_last_error(struct hal_camera *c)
 }
 
 /* Fills the derived fields of `f` (tight stride if 0, image_bytes); returns
- * HAL_EINVAL if the pixel format is unknown or the sizes overflow. */
+ * F4D_EINVAL if the pixel format is unknown or the sizes overflow. */
 int hal_format_finish(struct hal_format *f);
 
 /* ---- trigger ----------------------------------------------------------- */
@@ -320,7 +307,7 @@ struct hal_rig {
     void *session[4];
 };
 
-/* snprintf into err (if non-NULL) and return rc: `return hal_fail(err, n, HAL_EINVAL, "...")`. */
+/* snprintf into err (if non-NULL) and return rc: `return hal_fail(err, n, F4D_EINVAL, "...")`. */
 int hal_fail(char *err, size_t errlen, int rc, const char *fmt, ...)
 #if defined(__GNUC__)
     __attribute__((format(printf, 4, 5)))

@@ -47,11 +47,11 @@ int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_tri
                       const char *who, char *err, size_t errlen)
 {
     if (*taken)
-        return hal_fail(err, errlen, HAL_EBUSY, "%s already open", who);
+        return hal_fail(err, errlen, F4D_EBUSY, "%s already open", who);
     *taken = true;
     out->ops = *ops;
     out->ctx = ctx;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 void hal_clock_bind(struct hal_clock *out, uint64_t (*now_ns)(void *), void (*sleep_until_ns)(void *, uint64_t),
@@ -106,21 +106,21 @@ int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
 
 int hal_cam_check_configure(struct hal_cam_state *s)
 {
-    return s->started ? hal_cam_fail(s, HAL_ESTATE, "configure while started") : HAL_OK;
+    return s->started ? hal_cam_fail(s, F4D_ESTATE, "configure while started") : F4D_OK;
 }
 
 int hal_cam_check_start(struct hal_cam_state *s)
 {
-    return s->configured ? HAL_OK : hal_cam_fail(s, HAL_ESTATE, "start before configure");
+    return s->configured ? F4D_OK : hal_cam_fail(s, F4D_ESTATE, "start before configure");
 }
 
 int hal_cam_check_enqueue(struct hal_cam_state *s, const struct hal_buffer *b)
 {
     if (!s->configured)
-        return hal_cam_fail(s, HAL_ESTATE, "enqueue before configure");
+        return hal_cam_fail(s, F4D_ESTATE, "enqueue before configure");
     if (!b || !b->data || b->capacity < s->fmt.image_bytes)
-        return hal_cam_fail(s, HAL_EINVAL, "buffer smaller than the image");
-    return HAL_OK;
+        return hal_cam_fail(s, F4D_EINVAL, "buffer smaller than the image");
+    return F4D_OK;
 }
 
 int hal_cam_check_validated(struct hal_cam_state *s, int rc)
@@ -128,8 +128,8 @@ int hal_cam_check_validated(struct hal_cam_state *s, int rc)
     if (rc < 0)
         return rc; /* validate recorded why */
     if (rc != HAL_FORMAT_VALID)
-        return hal_cam_fail(s, HAL_EINVAL, "format does not validate unchanged");
-    return HAL_OK;
+        return hal_cam_fail(s, F4D_EINVAL, "format does not validate unchanged");
+    return F4D_OK;
 }
 
 int hal_cam_dequeue_begin(struct hal_cam_state *s, struct hal_buffer **out)
@@ -137,9 +137,9 @@ int hal_cam_dequeue_begin(struct hal_cam_state *s, struct hal_buffer **out)
     *out = NULL;
     if (s->n_aborted) {
         *out = s->aborted[--s->n_aborted];
-        return HAL_OK;
+        return F4D_OK;
     }
-    return s->started ? HAL_OK : hal_cam_fail(s, HAL_ESTATE, "dequeue while stopped");
+    return s->started ? F4D_OK : hal_cam_fail(s, F4D_ESTATE, "dequeue while stopped");
 }
 
 void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b)
@@ -155,7 +155,7 @@ void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b)
 int hal_cam_fifo_start(struct hal_cam_state *s)
 {
     int rc = hal_cam_check_start(s);
-    if (rc == HAL_OK)
+    if (rc == F4D_OK)
         s->started = true;
     return rc;
 }
@@ -174,8 +174,8 @@ int hal_cam_fifo_enqueue(struct hal_cam_state *s, struct hal_bufq *q, struct hal
     if (rc < 0)
         return rc;
     if (!hal_bufq_push(q, b))
-        return hal_cam_fail(s, HAL_EBUSY, "buffer queue full");
-    return HAL_OK;
+        return hal_cam_fail(s, F4D_EBUSY, "buffer queue full");
+    return F4D_OK;
 }
 
 /* ---- edges ---- */

@@ -22,7 +22,7 @@ void hal_sleep_until_mono_ns(uint64_t t_ns);
 /* ---- handing out devices (camera_open, trigger_open, clock_get) ------- */
 /* Fills a camera handle with the backend's ops and context. */
 void hal_camera_bind(struct hal_camera *out, const struct hal_camera_ops *ops, void *ctx, uint32_t index);
-/* A session's one trigger: HAL_EBUSY ("<who> already open" in err) when
+/* A session's one trigger: F4D_EBUSY ("<who> already open" in err) when
  * *taken, else marks it taken and fills `out`. */
 int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_trigger_ops *ops, void *ctx,
                       const char *who, char *err, size_t errlen);
@@ -74,14 +74,14 @@ void hal_cam_name(struct hal_cam_state *s, const char *fmt, ...)
 #endif
     ;
 /* Records "<name>: <fmt...>" as the last error and returns rc:
- * `return hal_cam_fail(&c->st, HAL_EIO, "VIDIOC_S_FMT")`. */
+ * `return hal_cam_fail(&c->st, F4D_EIO, "VIDIOC_S_FMT")`. */
 int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
 #if defined(__GNUC__)
     __attribute__((format(printf, 3, 4)))
 #endif
     ;
 
-/* The state rules of hal_camera_ops: HAL_OK, or a negative code with the
+/* The state rules of hal_camera_ops: F4D_OK, or a negative code with the
  * reason recorded by hal_cam_fail. */
 int hal_cam_check_configure(struct hal_cam_state *s);                 /* not started */
 int hal_cam_check_start(struct hal_cam_state *s);                     /* configured */
@@ -91,8 +91,8 @@ int hal_cam_check_enqueue(struct hal_cam_state *s, const struct hal_buffer *b);
  * unchanged (VALID) format may be configured. */
 int hal_cam_check_validated(struct hal_cam_state *s, int rc);
 /* Start of every dequeue: sets *out to NULL, hands back an aborted buffer
- * first (HAL_OK with *out set), else HAL_OK with *out NULL when started, or
- * HAL_ESTATE when stopped. Use: `if (rc < 0 || *out) return rc;`. */
+ * first (F4D_OK with *out set), else F4D_OK with *out NULL when started, or
+ * F4D_ESTATE when stopped. Use: `if (rc < 0 || *out) return rc;`. */
 int hal_cam_dequeue_begin(struct hal_cam_state *s, struct hal_buffer **out);
 
 /* Marks `b` ABORTED (no bytes) and keeps it for dequeue. */
@@ -103,7 +103,7 @@ void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b);
 int hal_cam_fifo_start(struct hal_cam_state *s);
 /* stop = mark stopped and abort every queued buffer */
 void hal_cam_fifo_stop(struct hal_cam_state *s, struct hal_bufq *q);
-/* enqueue = check and append, HAL_EBUSY when the ring is full */
+/* enqueue = check and append, F4D_EBUSY when the ring is full */
 int hal_cam_fifo_enqueue(struct hal_cam_state *s, struct hal_bufq *q, struct hal_buffer *b);
 
 /* ---- trigger edges not yet read by the host ---------------------------- */

@@ -7,24 +7,6 @@
 #include <strings.h>
 #include <time.h>
 
-const char *hal_status_name(int rc)
-{
-    switch (rc) {
-    case HAL_OK: return "HAL_OK";
-    case HAL_EINVAL: return "HAL_EINVAL";
-    case HAL_ENOMEM: return "HAL_ENOMEM";
-    case HAL_EIO: return "HAL_EIO";
-    case HAL_ETIMEDOUT: return "HAL_ETIMEDOUT";
-    case HAL_ENODEV: return "HAL_ENODEV";
-    case HAL_ENOTSUP: return "HAL_ENOTSUP";
-    case HAL_EBUSY: return "HAL_EBUSY";
-    case HAL_ESTATE: return "HAL_ESTATE";
-    case HAL_EEOF: return "HAL_EEOF";
-    case HAL_ECORRUPT: return "HAL_ECORRUPT";
-    default: return rc > 0 ? "HAL_POSITIVE" : "HAL_EUNKNOWN";
-    }
-}
-
 static const struct {
     enum hal_pixfmt f;
     const char *name;
@@ -75,14 +57,14 @@ int hal_format_finish(struct hal_format *f)
 {
     uint32_t bpp = hal_pixfmt_bytes_per_pixel(f->pixfmt);
     if (bpp == 0 || f->width == 0 || f->height == 0 || f->width > 65535 || f->height > 65535)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     uint64_t tight = (uint64_t)f->width * bpp;
     if (f->stride == 0)
         f->stride = (uint32_t)tight;
     if (f->stride < tight)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     f->image_bytes = (size_t)f->stride * f->height;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 int hal_fail(char *err, size_t errlen, int rc, const char *fmt, ...)

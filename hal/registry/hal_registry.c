@@ -59,19 +59,19 @@ static int rig_session(struct hal_rig *rig, const char *name, const struct hal_b
         if (strcmp(rig->session_backend[i]->name, name) == 0) {
             *be = rig->session_backend[i];
             *session = rig->session[i];
-            return HAL_OK;
+            return F4D_OK;
         }
     const struct hal_backend *b = hal_backend_find(name);
     if (!b)
-        return hal_fail(err, errlen, HAL_ENOTSUP,
+        return hal_fail(err, errlen, F4D_ENOTSUP,
                         "backend \"%s\" is not compiled into this build", name);
     if (b->api_version != HAL_API_VERSION)
-        return hal_fail(err, errlen, HAL_ENOTSUP, "backend \"%s\" has api_version %u, want %u",
+        return hal_fail(err, errlen, F4D_ENOTSUP, "backend \"%s\" has api_version %u, want %u",
                         name, (unsigned)b->api_version, (unsigned)HAL_API_VERSION);
     if (b->is_available && !b->is_available())
-        return hal_fail(err, errlen, HAL_ENODEV, "backend \"%s\" is not available here", name);
+        return hal_fail(err, errlen, F4D_ENODEV, "backend \"%s\" is not available here", name);
     if (rig->n_sessions >= sizeof rig->session / sizeof rig->session[0])
-        return hal_fail(err, errlen, HAL_EINVAL, "too many backends in one board");
+        return hal_fail(err, errlen, F4D_EINVAL, "too many backends in one board");
     void *s = NULL;
     int rc = b->session_open(rig->board, &s, err, errlen);
     if (rc < 0)
@@ -80,7 +80,7 @@ static int rig_session(struct hal_rig *rig, const char *name, const struct hal_b
     rig->session[rig->n_sessions++] = s;
     *be = b;
     *session = s;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, size_t errlen)
@@ -89,7 +89,7 @@ int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, 
     rig->board = board;
     rig->clock = hal_clock_monotonic();
     if (board->n_cams == 0 || board->n_cams > HAL_RIG_CAMERAS_MAX)
-        return hal_fail(err, errlen, HAL_EINVAL, "board \"%s\" has %u cameras (want 1..%d)",
+        return hal_fail(err, errlen, F4D_EINVAL, "board \"%s\" has %u cameras (want 1..%d)",
                         board->name, (unsigned)board->n_cams, HAL_RIG_CAMERAS_MAX);
     const struct hal_backend *be;
     void *s;
@@ -98,7 +98,7 @@ int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, 
     if (rc < 0)
         goto fail;
     if (!be->trigger_open) {
-        rc = hal_fail(err, errlen, HAL_ENOTSUP, "backend \"%s\" has no trigger", be->name);
+        rc = hal_fail(err, errlen, F4D_ENOTSUP, "backend \"%s\" has no trigger", be->name);
         goto fail;
     }
     if (be->clock_get && (rc = be->clock_get(s, &rig->clock)) < 0)
@@ -107,7 +107,7 @@ int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, 
     if (rc < 0)
         goto fail;
     if (rig->trigger.ops.api_version != HAL_API_VERSION) {
-        rc = hal_fail(err, errlen, HAL_ENOTSUP, "trigger ops api_version mismatch");
+        rc = hal_fail(err, errlen, F4D_ENOTSUP, "trigger ops api_version mismatch");
         goto fail;
     }
     for (uint32_t i = 0; i < board->n_cams; i++) {
@@ -116,7 +116,7 @@ int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, 
         if (rc < 0)
             goto fail;
         if (!be->camera_open) {
-            rc = hal_fail(err, errlen, HAL_ENOTSUP, "backend \"%s\" has no cameras", be->name);
+            rc = hal_fail(err, errlen, F4D_ENOTSUP, "backend \"%s\" has no cameras", be->name);
             goto fail;
         }
         rc = be->camera_open(s, cc, i, &rig->cams[i], err, errlen);
@@ -125,11 +125,11 @@ int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, 
         rig->cams[i].index = i;
         rig->n_cams = i + 1;
         if (rig->cams[i].ops.api_version != HAL_API_VERSION) {
-            rc = hal_fail(err, errlen, HAL_ENOTSUP, "camera %s: ops api_version mismatch", cc->id);
+            rc = hal_fail(err, errlen, F4D_ENOTSUP, "camera %s: ops api_version mismatch", cc->id);
             goto fail;
         }
     }
-    return HAL_OK;
+    return F4D_OK;
 fail:
     hal_rig_close(rig);
     return rc;

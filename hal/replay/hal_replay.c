@@ -63,7 +63,7 @@ static uint64_t set_time(const struct rp_world *w, const struct f4d_take_set *s)
 static void load_next_time(struct rp_world *w)
 {
     while (w->next_set < w->n_sets) {
-        if (f4d_take_read(w->take, w->next_set, &w->cur) == HAL_OK) {
+        if (f4d_take_read(w->take, w->next_set, &w->cur) == F4D_OK) {
             uint64_t t = set_time(w, &w->cur);
             w->next_set_ns = t > w->next_set_ns ? t : w->next_set_ns;
             return;
@@ -180,10 +180,10 @@ static int cam_configure(void *ctx, const struct hal_format *f)
     struct hal_format v = *f;
     /* validate never fails here: it only adjusts towards the recording */
     if (cam_validate(c, &v) != HAL_FORMAT_VALID)
-        return hal_cam_fail(&c->st, HAL_EINVAL, "format differs from the recording");
+        return hal_cam_fail(&c->st, F4D_EINVAL, "format differs from the recording");
     c->st.fmt = v;
     c->st.configured = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_start(void *ctx) { return hal_cam_fifo_start(&((struct rp_cam *)ctx)->st); }
@@ -193,7 +193,7 @@ static int cam_stop(void *ctx)
     struct rp_cam *c = ctx;
     c->n_ev = 0; /* frames in flight are lost */
     hal_cam_fifo_stop(&c->st, &c->q);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
@@ -209,12 +209,12 @@ static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
     memmove(&c->ev[0], &c->ev[1], (c->n_ev - 1) * sizeof c->ev[0]);
     c->n_ev--;
     if (c->q.count == 0)
-        return HAL_EBUSY;
+        return F4D_EBUSY;
     if (w->frames_index != e.set_index) {
         w->frames_index = UINT64_MAX;
-        if (f4d_take_read(w->frames, e.set_index, &w->fset) != HAL_OK) {
+        if (f4d_take_read(w->frames, e.set_index, &w->fset) != F4D_OK) {
             w->corrupt++;
-            return HAL_ECORRUPT;
+            return F4D_ECORRUPT;
         }
         w->frames_index = e.set_index;
     }
@@ -234,7 +234,7 @@ static int cam_deliver(struct rp_cam *c, struct hal_buffer **out)
     uint64_t h = f->meta.host_ts_ns;
     b->host_ts_ns = h > w->base_ns ? h - w->base_ns : 0;
     *out = b;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
@@ -248,12 +248,12 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     for (;;) {
         while (c->n_ev && c->ev[0].arrival_ns <= now)
-            if (cam_deliver(c, out) == HAL_OK)
-                return HAL_OK;
+            if (cam_deliver(c, out) == F4D_OK)
+                return F4D_OK;
         if (w->next_set >= w->n_sets && c->n_ev == 0)
-            return HAL_EEOF;
+            return F4D_EEOF;
         if (now >= deadline)
-            return HAL_ETIMEDOUT;
+            return F4D_ETIMEDOUT;
         uint64_t next = world_next_for(w, c);
         world_sleep_until(w, next < deadline ? next : deadline);
         now = w->clk.now;
@@ -290,12 +290,12 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
         w->clk.real_t0 = hal_mono_ns() - w->clk.now;
     w->armed = true;
     world_now(w);
-    return HAL_OK;
+    return F4D_OK;
 }
 static int trig_disarm(void *ctx)
 {
     ((struct rp_world *)ctx)->armed = false;
-    return HAL_OK;
+    return F4D_OK;
 }
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
 {
@@ -334,14 +334,14 @@ static int rp_session_open(const struct hal_board *board, void **session, char *
         if (strcmp(board->cams[i].backend, "replay") != 0)
             continue;
         if (dir && strcmp(dir, board->cams[i].address) != 0)
-            return hal_fail(err, n, HAL_EINVAL, "replay: all replay cameras must play the same take");
+            return hal_fail(err, n, F4D_EINVAL, "replay: all replay cameras must play the same take");
         dir = board->cams[i].address;
     }
     if (!dir || !dir[0])
-        return hal_fail(err, n, HAL_EINVAL, "replay: no camera names a take directory (address)");
+        return hal_fail(err, n, F4D_EINVAL, "replay: no camera names a take directory (address)");
     struct rp_world *w = calloc(1, sizeof *w);
     if (!w)
-        return hal_fail(err, n, HAL_ENOMEM, "replay: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "replay: out of memory");
     snprintf(w->dir, sizeof w->dir, "%s", dir);
     int rc = f4d_take_open(&w->take, dir, err, n);
     if (rc < 0) {
@@ -368,7 +368,7 @@ static int rp_session_open(const struct hal_board *board, void **session, char *
         w->next_set_ns = set_time(w, &w->cur);
     }
     *session = w;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static void rp_session_close(void *s)
@@ -385,19 +385,19 @@ static int rp_camera_open(void *session, const struct hal_camera_config *cfg, ui
     struct rp_world *w = session;
     const struct f4d_take_info *info = f4d_take_get_info(w->take);
     if (index >= info->n_cams)
-        return hal_fail(err, n, HAL_ENODEV, "replay camera %s: take %s has only %u cameras", cfg->id,
+        return hal_fail(err, n, F4D_ENODEV, "replay camera %s: take %s has only %u cameras", cfg->id,
                         w->dir, (unsigned)info->n_cams);
     if (w->cams[index])
-        return hal_fail(err, n, HAL_EBUSY, "replay camera %u already open", (unsigned)index);
+        return hal_fail(err, n, F4D_EBUSY, "replay camera %u already open", (unsigned)index);
     struct rp_cam *c = calloc(1, sizeof *c);
     if (!c)
-        return hal_fail(err, n, HAL_ENOMEM, "replay: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "replay: out of memory");
     c->w = w;
     c->index = index;
     hal_cam_name(&c->st, "replay camera %u", (unsigned)index);
     w->cams[index] = c;
     hal_camera_bind(out, &rp_camera_ops, c, index);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int rp_trigger_open(void *session, const struct hal_trigger_config *cfg,
@@ -411,7 +411,7 @@ static int rp_trigger_open(void *session, const struct hal_trigger_config *cfg,
 static int rp_clock_get(void *session, struct hal_clock *out)
 {
     hal_clock_bind(out, clk_now, clk_sleep, clk_next, session);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 const struct hal_backend hal_replay_backend = {
@@ -448,7 +448,7 @@ int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, char *
         snprintf(c->id, sizeof c->id, "%s", info->cam_ids[i][0] ? info->cam_ids[i] : "replay");
         if (strlen(dir) >= sizeof c->address) {
             f4d_take_reader_close(r);
-            return hal_fail(err, errlen, HAL_EINVAL, "replay: take path too long");
+            return hal_fail(err, errlen, F4D_EINVAL, "replay: take path too long");
         }
         snprintf(c->address, sizeof c->address, "%s", dir);
         c->width = info->formats[i].width;
@@ -457,5 +457,5 @@ int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, char *
         c->exposure_us = info->formats[i].exposure_us;
     }
     f4d_take_reader_close(r);
-    return HAL_OK;
+    return F4D_OK;
 }

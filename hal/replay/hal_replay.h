@@ -8,7 +8,7 @@
  * the take starts near 0 on the rig clock. With `board->sim.realtime` the
  * take plays at its original timing, otherwise as fast as possible on a
  * simulated clock. When the take is exhausted, the trigger reports done and
- * dequeue returns HAL_EEOF.
+ * dequeue returns F4D_EEOF.
  *
  *     struct hal_board b;
  *     hal_replay_board(&b, "takes/t1", false, err, n);   // all cameras of the take

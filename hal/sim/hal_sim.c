@@ -269,7 +269,7 @@ static int cam_validate(void *ctx, struct hal_format *f)
     if (f->stride < tight)
         f->stride = tight;
     if (hal_format_finish(f) < 0)
-        return hal_cam_fail(&c->st, HAL_EINVAL, "format cannot be represented");
+        return hal_cam_fail(&c->st, F4D_EINVAL, "format cannot be represented");
     return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
 }
 
@@ -284,7 +284,7 @@ static int cam_configure(void *ctx, const struct hal_format *f)
         return rc;
     c->st.fmt = v;
     c->st.configured = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_start(void *ctx) { return hal_cam_fifo_start(&((struct sim_cam *)ctx)->st); }
@@ -294,7 +294,7 @@ static int cam_stop(void *ctx)
     struct sim_cam *c = ctx;
     c->n_ev = 0; /* frames in flight are lost */
     hal_cam_fifo_stop(&c->st, &c->q);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
@@ -317,7 +317,7 @@ static void stamp_write(uint8_t *d, size_t n, uint64_t seq, uint32_t cam)
 int hal_sim_stamp_read(const uint8_t *d, size_t n, uint64_t *seq, uint32_t *cam)
 {
     if (!d || n < HAL_SIM_STAMP_BYTES || memcmp(d, "F4S1", 4) != 0)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     uint32_t c = 0;
     uint64_t s = 0;
     for (int i = 0; i < 4; i++)
@@ -326,7 +326,7 @@ int hal_sim_stamp_read(const uint8_t *d, size_t n, uint64_t *seq, uint32_t *cam)
         s |= (uint64_t)d[8 + i] << (8 * i);
     *cam = c;
     *seq = s;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_deliver(struct sim_cam *c, struct hal_buffer **out)
@@ -338,7 +338,7 @@ static int cam_deliver(struct sim_cam *c, struct hal_buffer **out)
     struct hal_buffer *b = hal_bufq_pop(&c->q);
     if (!b) {
         w->inj.underruns++;
-        return HAL_EBUSY;
+        return F4D_EBUSY;
     }
     b->format = c->st.fmt;
     int rc = w->render(w->render_user, c->index, e.pulse_ns, &c->st.fmt, b->data);
@@ -364,7 +364,7 @@ static int cam_deliver(struct sim_cam *c, struct hal_buffer **out)
     b->frame_id = e.frame_id;
     b->trigger_seq = e.seq;
     *out = b;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
@@ -378,13 +378,13 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     uint64_t deadline = now + (uint64_t)timeout_us * 1000u;
     for (;;) {
         while (c->n_ev && c->ev[0].arrival_ns <= now) {
-            if (cam_deliver(c, out) == HAL_OK)
-                return HAL_OK;
+            if (cam_deliver(c, out) == F4D_OK)
+                return F4D_OK;
         }
         if (now < c->disconnected_until)
-            return hal_cam_fail(&c->st, HAL_ENODEV, "disconnected");
+            return hal_cam_fail(&c->st, F4D_ENODEV, "disconnected");
         if (now >= deadline)
-            return HAL_ETIMEDOUT;
+            return F4D_ETIMEDOUT;
         uint64_t next = world_next_for(w, c);
         world_sleep_until(w, next < deadline ? next : deadline);
         now = w->clk.now;
@@ -417,20 +417,20 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct sim_world *w = ctx;
     if (p->rate_mhz == 0 || p->rate_mhz > 10000000u)
-        return hal_fail(w->err, sizeof w->err, HAL_EINVAL, "sim trigger: rate %u mHz out of range",
+        return hal_fail(w->err, sizeof w->err, F4D_EINVAL, "sim trigger: rate %u mHz out of range",
                         (unsigned)p->rate_mhz);
     world_now(w);
     w->period_ns = 1000000000000ull / p->rate_mhz;
     w->width_ns = (uint64_t)p->width_us * 1000u;
     if (w->width_ns >= w->period_ns)
-        return hal_fail(w->err, sizeof w->err, HAL_EINVAL, "sim trigger: pulse width %u us >= period",
+        return hal_fail(w->err, sizeof w->err, F4D_EINVAL, "sim trigger: pulse width %u us >= period",
                         (unsigned)p->width_us);
     w->next_pulse_ns = w->clk.now + w->period_ns;
     w->scheduled_limit = w->inj.pulses_scheduled + p->count;
     if (p->count == 0)
         w->scheduled_limit = 0;
     w->armed = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int trig_disarm(void *ctx)
@@ -439,7 +439,7 @@ static int trig_disarm(void *ctx)
     world_now(w);
     w->armed = false;
     w->extra_at = 0;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
@@ -487,12 +487,12 @@ static int sim_session_open(const struct hal_board *board, void **session, char 
     if (f->drop < 0 || f->duplicate < 0 || f->late < 0 || f->incomplete < 0 || sum > 1.0 ||
         f->trigger_missing < 0 || f->trigger_missing > 1 || f->trigger_extra < 0 ||
         f->trigger_extra > 1 || f->disconnect < 0 || f->disconnect > 1)
-        return hal_fail(err, n, HAL_EINVAL,
+        return hal_fail(err, n, F4D_EINVAL,
                         "sim faults: probabilities must be in [0,1] and drop+duplicate+late+incomplete <= 1 (got %.3f)",
                         sum);
     struct sim_world *w = calloc(1, sizeof *w);
     if (!w)
-        return hal_fail(err, n, HAL_ENOMEM, "sim: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "sim: out of memory");
     w->board = board;
     w->cfg = board->sim;
     w->rng = board->sim.seed ^ 0x5EEDF4D0ull;
@@ -500,7 +500,7 @@ static int sim_session_open(const struct hal_board *board, void **session, char 
     w->clk.real_t0 = hal_mono_ns();
     w->render = hal_sim_render_pattern;
     *session = w;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static void sim_session_close(void *s) { free(s); }
@@ -510,10 +510,10 @@ static int sim_camera_open(void *session, const struct hal_camera_config *cfg, u
 {
     struct sim_world *w = session;
     if (index >= HAL_RIG_CAMERAS_MAX || w->cams[index])
-        return hal_fail(err, n, HAL_EBUSY, "sim camera %s: index %u already open", cfg->id, (unsigned)index);
+        return hal_fail(err, n, F4D_EBUSY, "sim camera %s: index %u already open", cfg->id, (unsigned)index);
     struct sim_cam *c = calloc(1, sizeof *c);
     if (!c)
-        return hal_fail(err, n, HAL_ENOMEM, "sim camera %s: out of memory", cfg->id);
+        return hal_fail(err, n, F4D_ENOMEM, "sim camera %s: out of memory", cfg->id);
     c->w = w;
     c->index = index;
     c->cfg = cfg;
@@ -530,7 +530,7 @@ static int sim_camera_open(void *session, const struct hal_camera_config *cfg, u
     if (index + 1 > w->n_cams)
         w->n_cams = index + 1;
     hal_camera_bind(out, &sim_camera_ops, c, index);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int sim_trigger_open(void *session, const struct hal_trigger_config *cfg,
@@ -544,7 +544,7 @@ static int sim_trigger_open(void *session, const struct hal_trigger_config *cfg,
 static int sim_clock_get(void *session, struct hal_clock *out)
 {
     hal_clock_bind(out, clk_now, clk_sleep, clk_next, session);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 const struct hal_backend hal_sim_backend = {
@@ -560,9 +560,9 @@ const struct hal_backend hal_sim_backend = {
 int hal_sim_injected_get(const void *world, struct hal_sim_injected *out)
 {
     if (!world)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     *out = ((const struct sim_world *)world)->inj;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 void hal_sim_set_renderer(void *world, hal_sim_render_fn fn, void *user)

@@ -53,7 +53,7 @@ int hal_sim_render_pattern(void *user, uint32_t cam, uint64_t t_ns,
                            const struct hal_format *f, uint8_t *dst);
 
 #define HAL_SIM_STAMP_BYTES 16
-/* Reads the ground-truth stamp of a sim frame; HAL_EINVAL if absent. */
+/* Reads the ground-truth stamp of a sim frame; F4D_EINVAL if absent. */
 int hal_sim_stamp_read(const uint8_t *data, size_t n, uint64_t *seq, uint32_t *cam);
 
 extern const struct hal_backend hal_sim_backend;

@@ -165,15 +165,15 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
 {
     *out = NULL;
     if (!info || info->n_cams == 0 || info->n_cams > HAL_RIG_CAMERAS_MAX || durability_ms == 0)
-        return hal_fail(err, errlen, HAL_EINVAL, "take %s: bad take info", dir);
+        return hal_fail(err, errlen, F4D_EINVAL, "take %s: bad take info", dir);
     if (mkdir_p(dir) < 0)
-        return hal_fail(err, errlen, HAL_EIO, "take %s: cannot create directory: %s", dir, strerror(errno));
+        return hal_fail(err, errlen, F4D_EIO, "take %s: cannot create directory: %s", dir, strerror(errno));
     char path[HAL_PATH_MAX + 32];
     if (path_join(path, sizeof path, dir, F4D_TAKE_FILE) < 0 || strlen(dir) >= HAL_PATH_MAX)
-        return hal_fail(err, errlen, HAL_EINVAL, "take %s: path too long", dir);
+        return hal_fail(err, errlen, F4D_EINVAL, "take %s: path too long", dir);
     struct f4d_take_writer *w = calloc(1, sizeof *w);
     if (!w)
-        return hal_fail(err, errlen, HAL_ENOMEM, "take %s: out of memory", dir);
+        return hal_fail(err, errlen, F4D_ENOMEM, "take %s: out of memory", dir);
     w->idx_fd = -1;
     snprintf(w->dir, sizeof w->dir, "%s", dir);
     w->info = *info;
@@ -183,14 +183,14 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     if (w->fd < 0) {
         int e = errno;
         free(w);
-        return hal_fail(err, errlen, HAL_EIO, "take %s: cannot create %s: %s", dir, F4D_TAKE_FILE,
+        return hal_fail(err, errlen, F4D_EIO, "take %s: cannot create %s: %s", dir, F4D_TAKE_FILE,
                         strerror(e));
     }
     path_join(path, sizeof path, dir, F4D_TAKE_INDEX);
     w->idx_fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
-    int rc = HAL_OK;
+    int rc = F4D_OK;
     if (w->idx_fd < 0) {
-        rc = hal_fail(err, errlen, HAL_EIO, "take %s: cannot create index: %s", dir, strerror(errno));
+        rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot create index: %s", dir, strerror(errno));
         goto fail;
     }
     uint8_t ih[8];
@@ -198,14 +198,14 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     put32(ih + 4, 1);
     struct iovec iv = {ih, 8};
     if (write_all(w->idx_fd, &iv, 1) < 0) {
-        rc = hal_fail(err, errlen, HAL_EIO, "take %s: index write: %s", dir, strerror(errno));
+        rc = hal_fail(err, errlen, F4D_EIO, "take %s: index write: %s", dir, strerror(errno));
         goto fail;
     }
     if (board_json) {
         path_join(path, sizeof path, dir, F4D_TAKE_BOARD);
         FILE *f = fopen(path, "w");
         if (!f || fputs(board_json, f) < 0 || fclose(f) != 0) {
-            rc = hal_fail(err, errlen, HAL_EIO, "take %s: cannot write board.json", dir);
+            rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot write board.json", dir);
             goto fail;
         }
     }
@@ -232,14 +232,14 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     put32(p + len, crc(0, p, len));
     struct iovec io = {buf, HDR_BYTES + len + 4};
     if (write_all(w->fd, &io, 1) < 0 || fdatasync(w->fd) < 0) {
-        rc = hal_fail(err, errlen, HAL_EIO, "take %s: write: %s", dir, strerror(errno));
+        rc = hal_fail(err, errlen, F4D_EIO, "take %s: write: %s", dir, strerror(errno));
         goto fail;
     }
     fsync_dir(dir);
     w->offset = HDR_BYTES + len + 4;
     w->last_sync_ns = mono_ns();
     *out = w;
-    return HAL_OK;
+    return F4D_OK;
 fail:
     if (w->idx_fd >= 0)
         close(w->idx_fd);
@@ -251,7 +251,7 @@ fail:
 int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
 {
     if (w->failed)
-        return HAL_EIO;
+        return F4D_EIO;
     uint8_t meta[HDR_BYTES + SET_META_BYTES + HAL_RIG_CAMERAS_MAX * FRAME_META_BYTES];
     uint8_t tail[4];
     struct iovec iov[HAL_RIG_CAMERAS_MAX + 2];
@@ -284,7 +284,7 @@ int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
         len += FRAME_META_BYTES + b->bytes_used;
     }
     if (len > F4D_TAKE_RECORD_MAX)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     /* frame headers sit before all image data: shift them together */
     put64(p, set->seq);
     put64(p + 8, set->trigger_ts_ns);
@@ -310,12 +310,12 @@ int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
     for (int i = 0; i < niov; i++) {
         if (write_all(w->fd, &iov[i], 1) < 0) {
             w->failed = true;
-            return HAL_EIO;
+            return F4D_EIO;
         }
     }
     if (w->n_pending == IDX_PENDING && flush_index(w) < 0) {
         w->failed = true;
-        return HAL_EIO;
+        return F4D_EIO;
     }
     uint8_t *e = w->idx_pending + (size_t)w->n_pending++ * IDX_ENTRY_BYTES;
     put64(e, set->seq);
@@ -326,9 +326,9 @@ int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
     w->sets++;
     if (mono_ns() - w->last_sync_ns >= w->durability_ns && sync_now(w) < 0) {
         w->failed = true;
-        return HAL_EIO;
+        return F4D_EIO;
     }
-    return HAL_OK;
+    return F4D_OK;
 }
 
 uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w) { return w->durable; }
@@ -337,7 +337,7 @@ uint64_t f4d_take_sets_written(const struct f4d_take_writer *w) { return w->sets
 
 int f4d_take_close(struct f4d_take_writer *w, char *err, size_t errlen)
 {
-    int rc = HAL_OK;
+    int rc = F4D_OK;
     if (!w->failed) {
         uint8_t buf[HDR_BYTES + 8 + 4];
         put64(buf + HDR_BYTES, w->sets);
@@ -345,13 +345,13 @@ int f4d_take_close(struct f4d_take_writer *w, char *err, size_t errlen)
         put32(buf + HDR_BYTES + 8, crc(0, buf + HDR_BYTES, 8));
         struct iovec io = {buf, sizeof buf};
         if (write_all(w->fd, &io, 1) < 0 || sync_now(w) < 0 || fsync(w->idx_fd) < 0)
-            rc = hal_fail(err, errlen, HAL_EIO, "take %s: closing: %s", w->dir, strerror(errno));
+            rc = hal_fail(err, errlen, F4D_EIO, "take %s: closing: %s", w->dir, strerror(errno));
     } else {
-        rc = hal_fail(err, errlen, HAL_EIO, "take %s: an earlier write failed", w->dir);
+        rc = hal_fail(err, errlen, F4D_EIO, "take %s: an earlier write failed", w->dir);
     }
     close(w->idx_fd);
-    if (close(w->fd) < 0 && rc == HAL_OK)
-        rc = hal_fail(err, errlen, HAL_EIO, "take %s: close: %s", w->dir, strerror(errno));
+    if (close(w->fd) < 0 && rc == F4D_OK)
+        rc = hal_fail(err, errlen, F4D_EIO, "take %s: close: %s", w->dir, strerror(errno));
     free(w);
     return rc;
 }
@@ -411,30 +411,30 @@ static int header_at(struct scanner *s, uint64_t off, struct rec *r)
     return r->len <= F4D_TAKE_RECORD_MAX;
 }
 
-/* Reads and CRC-checks the payload of r into s->buf: 0 ok, HAL_ECORRUPT, HAL_EEOF (torn). */
+/* Reads and CRC-checks the payload of r into s->buf: 0 ok, F4D_ECORRUPT, F4D_EEOF (torn). */
 static int payload(struct scanner *s, const struct rec *r)
 {
     uint64_t end = r->offset + HDR_BYTES + (uint64_t)r->len + 4;
     if (end > s->size)
-        return HAL_EEOF;
+        return F4D_EEOF;
     if (ensure(s, (size_t)r->len + 4) < 0)
-        return HAL_ENOMEM;
+        return F4D_ENOMEM;
     if (read_at(s->fd, s->buf, (size_t)r->len + 4, r->offset + HDR_BYTES) < 0)
-        return HAL_EIO;
-    return get32(s->buf + r->len) == crc(0, s->buf, r->len) ? HAL_OK : HAL_ECORRUPT;
+        return F4D_EIO;
+    return get32(s->buf + r->len) == crc(0, s->buf, r->len) ? F4D_OK : F4D_ECORRUPT;
 }
 
 static int parse_info(const uint8_t *p, uint32_t len, struct f4d_take_info *info)
 {
     if (len < 16)
-        return HAL_ECORRUPT;
+        return F4D_ECORRUPT;
     memset(info, 0, sizeof *info);
     info->n_cams = get32(p);
     info->rate_mhz = get32(p + 4);
     info->durability_ms = get32(p + 8);
     if (info->n_cams == 0 || info->n_cams > HAL_RIG_CAMERAS_MAX ||
         len != 16 + info->n_cams * INFO_CAM_BYTES)
-        return HAL_ECORRUPT;
+        return F4D_ECORRUPT;
     for (uint32_t i = 0; i < info->n_cams; i++) {
         const uint8_t *c = p + 16 + i * INFO_CAM_BYTES;
         struct hal_format *f = &info->formats[i];
@@ -448,16 +448,16 @@ static int parse_info(const uint8_t *p, uint32_t len, struct f4d_take_info *info
         memcpy(info->cam_ids[i], c + 24, 31);
         info->cam_ids[i][31] = 0;
         if (hal_format_finish(f) < 0)
-            return HAL_ECORRUPT;
+            return F4D_ECORRUPT;
     }
-    return HAL_OK;
+    return F4D_OK;
 }
 
 /* Structure check of a set payload; fills out (data pointers into p). */
 static int parse_set(const uint8_t *p, uint32_t len, uint32_t n_cams, struct f4d_take_set *out)
 {
     if (len < SET_META_BYTES)
-        return HAL_ECORRUPT;
+        return F4D_ECORRUPT;
     memset(out, 0, sizeof *out);
     out->seq = get64(p);
     out->trigger_ts_ns = get64(p + 8);
@@ -468,14 +468,14 @@ static int parse_set(const uint8_t *p, uint32_t len, uint32_t n_cams, struct f4d
     out->ok_mask = get32(p + 24);
     uint32_t nf = get32(p + 28);
     if (nf > n_cams || (uint64_t)SET_META_BYTES + (uint64_t)nf * FRAME_META_BYTES > len)
-        return HAL_ECORRUPT;
+        return F4D_ECORRUPT;
     uint64_t data_off = SET_META_BYTES + (uint64_t)nf * FRAME_META_BYTES;
     uint32_t seen = 0;
     for (uint32_t k = 0; k < nf; k++) {
         const uint8_t *f = p + SET_META_BYTES + k * FRAME_META_BYTES;
         uint32_t cam = get32(f);
         if (cam >= n_cams || (seen & (1u << cam)))
-            return HAL_ECORRUPT;
+            return F4D_ECORRUPT;
         seen |= 1u << cam;
         struct f4d_take_frame *fr = &out->frames[cam];
         struct hal_buffer *m = &fr->meta;
@@ -493,15 +493,15 @@ static int parse_set(const uint8_t *p, uint32_t len, uint32_t n_cams, struct f4d
         m->camera_index = cam;
         if (m->status > HAL_FRAME_ABORTED || hal_format_finish(&m->format) < 0 ||
             fr->bytes > m->format.image_bytes || data_off + fr->bytes > len)
-            return HAL_ECORRUPT;
+            return F4D_ECORRUPT;
         m->bytes_used = fr->bytes;
         fr->data = p + data_off;
         fr->present = true;
         data_off += fr->bytes;
     }
     if (data_off != len || seen != out->present_mask || (out->ok_mask & ~seen))
-        return HAL_ECORRUPT;
-    return HAL_OK;
+        return F4D_ECORRUPT;
+    return F4D_OK;
 }
 
 /* Next plausible header at or after `from` (resync after damage); UINT64_MAX if none. */
@@ -551,24 +551,24 @@ static int scan_all(struct scanner *s, struct scan_result *res)
             continue;
         }
         int rc = payload(s, &r);
-        if (rc == HAL_EEOF)
+        if (rc == F4D_EEOF)
             break; /* torn tail */
-        if (rc == HAL_ENOMEM || rc == HAL_EIO)
+        if (rc == F4D_ENOMEM || rc == F4D_EIO)
             return rc;
         uint64_t next = off + HDR_BYTES + r.len + 4;
-        bool ok = rc == HAL_OK;
+        bool ok = rc == F4D_OK;
         if (ok && r.type == F4D_TAKE_REC_INFO && !res->have_info) {
-            ok = parse_info(s->buf, r.len, &res->info) == HAL_OK;
+            ok = parse_info(s->buf, r.len, &res->info) == F4D_OK;
             res->have_info = ok;
         } else if (ok && r.type == F4D_TAKE_REC_SET && res->have_info) {
             struct f4d_take_set tmp;
-            ok = parse_set(s->buf, r.len, res->info.n_cams, &tmp) == HAL_OK;
+            ok = parse_set(s->buf, r.len, res->info.n_cams, &tmp) == F4D_OK;
             if (ok) {
                 if (res->n_sets == res->cap_sets) {
                     uint64_t nc = res->cap_sets ? res->cap_sets * 2 : 256;
                     struct rec *ns = realloc(res->sets, nc * sizeof *ns);
                     if (!ns)
-                        return HAL_ENOMEM;
+                        return F4D_ENOMEM;
                     res->sets = ns;
                     res->cap_sets = nc;
                 }
@@ -587,7 +587,7 @@ static int scan_all(struct scanner *s, struct scan_result *res)
         }
         off = next;
     }
-    return HAL_OK;
+    return F4D_OK;
 }
 
 /* ======================= reader ======================= */
@@ -602,18 +602,18 @@ static int open_take_file(const char *dir, int *fd, uint64_t *size, char *err, s
 {
     char path[HAL_PATH_MAX + 32];
     if (path_join(path, sizeof path, dir, F4D_TAKE_FILE) < 0)
-        return hal_fail(err, errlen, HAL_EINVAL, "take %s: path too long", dir);
+        return hal_fail(err, errlen, F4D_EINVAL, "take %s: path too long", dir);
     *fd = open(path, flags | O_CLOEXEC);
     if (*fd < 0)
-        return hal_fail(err, errlen, HAL_EIO, "take %s: cannot open %s: %s", dir, F4D_TAKE_FILE,
+        return hal_fail(err, errlen, F4D_EIO, "take %s: cannot open %s: %s", dir, F4D_TAKE_FILE,
                         strerror(errno));
     struct stat st;
     if (fstat(*fd, &st) < 0) {
         close(*fd);
-        return hal_fail(err, errlen, HAL_EIO, "take %s: stat: %s", dir, strerror(errno));
+        return hal_fail(err, errlen, F4D_EIO, "take %s: stat: %s", dir, strerror(errno));
     }
     *size = (uint64_t)st.st_size;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 /* Loads take.idx if every entry is well-formed and inside the file. */
@@ -663,24 +663,24 @@ int f4d_take_open(struct f4d_take_reader **out, const char *dir, char *err, size
     *out = NULL;
     struct f4d_take_reader *r = calloc(1, sizeof *r);
     if (!r)
-        return hal_fail(err, errlen, HAL_ENOMEM, "take %s: out of memory", dir);
+        return hal_fail(err, errlen, F4D_ENOMEM, "take %s: out of memory", dir);
     int rc = open_take_file(dir, &r->s.fd, &r->s.size, err, errlen, O_RDONLY);
     if (rc < 0) {
         free(r);
         return rc;
     }
     struct rec h;
-    if (header_at(&r->s, 0, &h) && h.type == F4D_TAKE_REC_INFO && payload(&r->s, &h) == HAL_OK &&
-        parse_info(r->s.buf, h.len, &r->info) == HAL_OK && load_index(dir, r) == 0) {
+    if (header_at(&r->s, 0, &h) && h.type == F4D_TAKE_REC_INFO && payload(&r->s, &h) == F4D_OK &&
+        parse_info(r->s.buf, h.len, &r->info) == F4D_OK && load_index(dir, r) == 0) {
         *out = r;
-        return HAL_OK;
+        return F4D_OK;
     }
     struct scan_result res;
     rc = scan_all(&r->s, &res);
-    if (rc == HAL_OK && !res.have_info)
-        rc = hal_fail(err, errlen, HAL_ECORRUPT, "take %s: no valid take header record", dir);
+    if (rc == F4D_OK && !res.have_info)
+        rc = hal_fail(err, errlen, F4D_ECORRUPT, "take %s: no valid take header record", dir);
     else if (rc < 0)
-        rc = hal_fail(err, errlen, rc, "take %s: scan failed (%s)", dir, hal_status_name(rc));
+        rc = hal_fail(err, errlen, rc, "take %s: scan failed (%s)", dir, f4d_status_name(rc));
     if (rc < 0) {
         free(res.sets);
         f4d_take_reader_close(r);
@@ -690,7 +690,7 @@ int f4d_take_open(struct f4d_take_reader **out, const char *dir, char *err, size
     r->sets = res.sets;
     r->n_sets = res.n_sets;
     *out = r;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 const struct f4d_take_info *f4d_take_get_info(const struct f4d_take_reader *r) { return &r->info; }
@@ -699,10 +699,10 @@ uint64_t f4d_take_count(const struct f4d_take_reader *r) { return r->n_sets; }
 int f4d_take_read(struct f4d_take_reader *r, uint64_t i, struct f4d_take_set *out)
 {
     if (i >= r->n_sets)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     int rc = payload(&r->s, &r->sets[i]);
     if (rc < 0)
-        return rc == HAL_EEOF ? HAL_ECORRUPT : rc;
+        return rc == F4D_EEOF ? F4D_ECORRUPT : rc;
     return parse_set(r->s.buf, r->sets[i].len, r->info.n_cams, out);
 }
 
@@ -735,8 +735,8 @@ static int write_index(const char *dir, const struct scan_result *res, struct sc
         uint8_t e[IDX_ENTRY_BYTES];
         struct f4d_take_set tmpset;
         /* the set's seq lives in its payload */
-        if (payload(s, &res->sets[i]) != HAL_OK ||
-            parse_set(s->buf, res->sets[i].len, res->info.n_cams, &tmpset) != HAL_OK) {
+        if (payload(s, &res->sets[i]) != F4D_OK ||
+            parse_set(s->buf, res->sets[i].len, res->info.n_cams, &tmpset) != F4D_OK) {
             rc = -1;
             break;
         }
@@ -768,7 +768,7 @@ int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, c
         /* how many sets the existing index lists (what a reader saw before repair) */
         struct f4d_take_reader probe = {0};
         if (open_take_file(dir, &probe.s.fd, &probe.s.size, err, errlen, O_RDONLY) < 0)
-            return hal_fail(err, errlen, HAL_EIO, "take %s: cannot open %s", dir, F4D_TAKE_FILE);
+            return hal_fail(err, errlen, F4D_EIO, "take %s: cannot open %s", dir, F4D_TAKE_FILE);
         if (load_index(dir, &probe) == 0)
             indexed = probe.n_sets;
         free(probe.sets);
@@ -781,11 +781,11 @@ int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, c
     struct scan_result res;
     rc = scan_all(&s, &res);
     if (rc < 0) {
-        rc = hal_fail(err, errlen, rc, "take %s: scan failed (%s)", dir, hal_status_name(rc));
+        rc = hal_fail(err, errlen, rc, "take %s: scan failed (%s)", dir, f4d_status_name(rc));
         goto out;
     }
     if (!res.have_info) {
-        rc = hal_fail(err, errlen, HAL_ECORRUPT, "take %s: no valid take header record", dir);
+        rc = hal_fail(err, errlen, F4D_ECORRUPT, "take %s: no valid take header record", dir);
         goto out;
     }
     rep->sets = res.n_sets;
@@ -796,20 +796,20 @@ int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, c
     bool index_ok = indexed == res.n_sets && rep->truncated_bytes == 0;
     if (repair) {
         if (rep->truncated_bytes && (ftruncate(s.fd, (off_t)res.valid_end) < 0 || fsync(s.fd) < 0)) {
-            rc = hal_fail(err, errlen, HAL_EIO, "take %s: cannot truncate the torn tail: %s", dir,
+            rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot truncate the torn tail: %s", dir,
                           strerror(errno));
             goto out;
         }
         s.size = res.valid_end;
         if (!index_ok) {
             if (write_index(dir, &res, &s) < 0) {
-                rc = hal_fail(err, errlen, HAL_EIO, "take %s: cannot rewrite the index", dir);
+                rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot rewrite the index", dir);
                 goto out;
             }
             rep->index_rebuilt = true;
         }
     }
-    rc = HAL_OK;
+    rc = F4D_OK;
 out:
     free(res.sets);
     free(s.buf);

@@ -86,7 +86,7 @@ struct f4d_take_reader;
 int f4d_take_open(struct f4d_take_reader **r, const char *dir, char *err, size_t errlen);
 const struct f4d_take_info *f4d_take_get_info(const struct f4d_take_reader *r);
 uint64_t f4d_take_count(const struct f4d_take_reader *r);
-/* Reads set i; frame data stays valid until the next read. HAL_ECORRUPT on a bad CRC. */
+/* Reads set i; frame data stays valid until the next read. F4D_ECORRUPT on a bad CRC. */
 int f4d_take_read(struct f4d_take_reader *r, uint64_t i, struct f4d_take_set *out);
 void f4d_take_reader_close(struct f4d_take_reader *r);
 

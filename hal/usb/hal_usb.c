@@ -102,18 +102,18 @@ static int cam_validate(void *ctx, struct hal_format *f)
     struct v4l2_format vf = capture_format(f);
     errno = 0;
     if (xioctl(c->fd, VIDIOC_TRY_FMT, &vf) < 0)
-        return cam_fail(c, HAL_EIO, "VIDIOC_TRY_FMT");
+        return cam_fail(c, F4D_EIO, "VIDIOC_TRY_FMT");
     enum hal_pixfmt p = from_fourcc(vf.fmt.pix.pixelformat);
     errno = 0;
     if (p == HAL_PIXFMT_INVALID)
-        return cam_fail(c, HAL_ENOTSUP, "the driver offers no pixel format this HAL knows");
+        return cam_fail(c, F4D_ENOTSUP, "the driver offers no pixel format this HAL knows");
     f->pixfmt = p;
     f->width = vf.fmt.pix.width;
     f->height = vf.fmt.pix.height;
     f->stride = vf.fmt.pix.bytesperline;
     f->trigger = HAL_TRIGGER_FREE_RUN; /* UVC has no trigger input */
     if (hal_format_finish(f) < 0)
-        return cam_fail(c, HAL_EINVAL, "the driver returned an unusable format");
+        return cam_fail(c, F4D_EINVAL, "the driver returned an unusable format");
     if (vf.fmt.pix.sizeimage > f->image_bytes)
         f->image_bytes = vf.fmt.pix.sizeimage;
     return memcmp(&in, f, sizeof in) == 0 ? HAL_FORMAT_VALID : HAL_FORMAT_ADJUSTED;
@@ -131,7 +131,7 @@ static int cam_configure(void *ctx, const struct hal_format *f)
         return rc;
     struct v4l2_format vf = capture_format(f);
     if (xioctl(c->fd, VIDIOC_S_FMT, &vf) < 0)
-        return cam_fail(c, HAL_EIO, "VIDIOC_S_FMT");
+        return cam_fail(c, F4D_EIO, "VIDIOC_S_FMT");
     if (f->rate_mhz) {
         struct v4l2_streamparm sp;
         memset(&sp, 0, sizeof sp);
@@ -139,11 +139,11 @@ static int cam_configure(void *ctx, const struct hal_format *f)
         sp.parm.capture.timeperframe.numerator = 1000;
         sp.parm.capture.timeperframe.denominator = f->rate_mhz;
         if (xioctl(c->fd, VIDIOC_S_PARM, &sp) < 0 && errno != ENOTTY && errno != EINVAL)
-            return cam_fail(c, HAL_EIO, "VIDIOC_S_PARM (frame interval)");
+            return cam_fail(c, F4D_EIO, "VIDIOC_S_PARM (frame interval)");
     }
     c->st.fmt = v;
     c->st.configured = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int qbuf(struct usb_cam *c, uint32_t i)
@@ -157,9 +157,9 @@ static int qbuf(struct usb_cam *c, uint32_t i)
     vb.length = (uint32_t)c->slots[i]->capacity;
     errno = 0;
     if (xioctl(c->fd, VIDIOC_QBUF, &vb) < 0)
-        return cam_fail(c, HAL_EIO, "VIDIOC_QBUF");
+        return cam_fail(c, F4D_EIO, "VIDIOC_QBUF");
     c->queued[i] = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_start(void *ctx)
@@ -170,19 +170,19 @@ static int cam_start(void *ctx)
     if (rc < 0)
         return rc;
     if (c->st.started)
-        return HAL_OK;
+        return F4D_OK;
     if (c->n_slots == 0)
-        return cam_fail(c, HAL_ESTATE, "start with no buffer queued");
+        return cam_fail(c, F4D_ESTATE, "start with no buffer queued");
     struct v4l2_requestbuffers rb;
     memset(&rb, 0, sizeof rb);
     rb.count = c->n_slots;
     rb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
     rb.memory = V4L2_MEMORY_USERPTR;
     if (xioctl(c->fd, VIDIOC_REQBUFS, &rb) < 0)
-        return cam_fail(c, HAL_ENOTSUP, "VIDIOC_REQBUFS (USERPTR streaming)");
+        return cam_fail(c, F4D_ENOTSUP, "VIDIOC_REQBUFS (USERPTR streaming)");
     if (rb.count < c->n_slots) {
         errno = 0;
-        return cam_fail(c, HAL_ENOMEM, "the driver accepted fewer buffers than queued");
+        return cam_fail(c, F4D_ENOMEM, "the driver accepted fewer buffers than queued");
     }
     for (uint32_t i = 0; i < c->n_slots; i++) {
         rc = qbuf(c, i);
@@ -191,10 +191,10 @@ static int cam_start(void *ctx)
     }
     int type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
     if (xioctl(c->fd, VIDIOC_STREAMON, &type) < 0)
-        return cam_fail(c, HAL_EIO, "VIDIOC_STREAMON");
+        return cam_fail(c, F4D_EIO, "VIDIOC_STREAMON");
     c->have_seq = false;
     c->st.started = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_stop(void *ctx)
@@ -215,7 +215,7 @@ static int cam_stop(void *ctx)
         c->queued[i] = false;
     }
     c->n_slots = 0; /* the next start requests buffers again */
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int cam_enqueue(void *ctx, struct hal_buffer *b)
@@ -229,16 +229,16 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
         if (c->slots[i] != b)
             continue;
         if (c->queued[i])
-            return cam_fail(c, HAL_EBUSY, "buffer is already queued");
-        return c->st.started ? qbuf(c, i) : (c->queued[i] = true, HAL_OK);
+            return cam_fail(c, F4D_EBUSY, "buffer is already queued");
+        return c->st.started ? qbuf(c, i) : (c->queued[i] = true, F4D_OK);
     }
     if (c->st.started)
-        return cam_fail(c, HAL_ESTATE, "a new buffer while streaming (V4L2 fixes the set at start)");
+        return cam_fail(c, F4D_ESTATE, "a new buffer while streaming (V4L2 fixes the set at start)");
     if (c->n_slots == USB_BUFFERS_MAX)
-        return cam_fail(c, HAL_EBUSY, "too many buffers");
+        return cam_fail(c, F4D_EBUSY, "too many buffers");
     c->slots[c->n_slots] = b;
     c->queued[c->n_slots++] = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 /* Sequence of the host tick nearest to t, 0 if before the first tick. */
@@ -264,7 +264,7 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
         vb.memory = V4L2_MEMORY_USERPTR;
         if (xioctl(c->fd, VIDIOC_DQBUF, &vb) == 0) {
             if (vb.index >= c->n_slots)
-                return cam_fail(c, HAL_EIO, "VIDIOC_DQBUF returned an unknown index");
+                return cam_fail(c, F4D_EIO, "VIDIOC_DQBUF returned an unknown index");
             struct hal_buffer *b = c->slots[vb.index];
             c->queued[vb.index] = false;
             uint64_t ts = (uint64_t)vb.timestamp.tv_sec * 1000000000u + (uint64_t)vb.timestamp.tv_usec * 1000u;
@@ -297,17 +297,17 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             b->frame_id = c->seq_hi + vb.sequence;
             b->trigger_seq = seq;
             *out = b;
-            return HAL_OK;
+            return F4D_OK;
         }
         if (errno != EAGAIN)
-            return cam_fail(c, errno == ENODEV ? HAL_ENODEV : HAL_EIO, "VIDIOC_DQBUF");
+            return cam_fail(c, errno == ENODEV ? F4D_ENODEV : F4D_EIO, "VIDIOC_DQBUF");
         uint64_t now = hal_mono_ns();
         if (now >= deadline)
-            return HAL_ETIMEDOUT;
+            return F4D_ETIMEDOUT;
         struct pollfd p = {c->fd, POLLIN, 0};
         int ms = (int)((deadline - now + 999999u) / 1000000u);
         if (poll(&p, 1, ms) < 0 && errno != EINTR)
-            return cam_fail(c, HAL_EIO, "poll");
+            return cam_fail(c, F4D_EIO, "poll");
         errno = 0;
     }
 }
@@ -349,19 +349,19 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct usb_session *s = ctx;
     if (p->rate_mhz == 0 || p->rate_mhz > 1000000u)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     s->period_ns = 1000000000000ull / p->rate_mhz;
     s->first_tick_ns = s->next_tick_ns = hal_mono_ns() + s->period_ns;
     s->sent = 0;
     s->limit = p->count;
     s->armed = true;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int trig_disarm(void *ctx)
 {
     ((struct usb_session *)ctx)->armed = false;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int trig_read_edges(void *ctx, struct hal_edge *e, uint32_t max, uint32_t timeout_us)
@@ -399,10 +399,10 @@ static int usb_session_open(const struct hal_board *board, void **session, char 
 {
     struct usb_session *s = calloc(1, sizeof *s);
     if (!s)
-        return hal_fail(err, n, HAL_ENOMEM, "usb: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "usb: out of memory");
     s->board = board;
     *session = s;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static void usb_session_close(void *s) { free(s); }
@@ -411,29 +411,29 @@ static int usb_camera_open(void *session, const struct hal_camera_config *cfg, u
                            struct hal_camera *out, char *err, size_t n)
 {
     if (!cfg->address[0])
-        return hal_fail(err, n, HAL_EINVAL, "usb camera %s: no device node (address)", cfg->id);
+        return hal_fail(err, n, F4D_EINVAL, "usb camera %s: no device node (address)", cfg->id);
     int fd = open(cfg->address, O_RDWR | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
-        return hal_fail(err, n, errno == ENOENT ? HAL_ENODEV : HAL_EIO, "usb camera %s: cannot open %s: %s",
+        return hal_fail(err, n, errno == ENOENT ? F4D_ENODEV : F4D_EIO, "usb camera %s: cannot open %s: %s",
                         cfg->id, cfg->address, strerror(errno));
     struct v4l2_capability cap;
     memset(&cap, 0, sizeof cap);
     if (xioctl(fd, VIDIOC_QUERYCAP, &cap) < 0) {
         int e = errno;
         close(fd);
-        return hal_fail(err, n, HAL_ENODEV, "usb camera %s: %s is not a V4L2 device (VIDIOC_QUERYCAP: %s)",
+        return hal_fail(err, n, F4D_ENODEV, "usb camera %s: %s is not a V4L2 device (VIDIOC_QUERYCAP: %s)",
                         cfg->id, cfg->address, strerror(e));
     }
     uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
     if (!(caps & V4L2_CAP_VIDEO_CAPTURE) || !(caps & V4L2_CAP_STREAMING)) {
         close(fd);
-        return hal_fail(err, n, HAL_ENOTSUP, "usb camera %s: %s (%.32s) cannot stream video capture",
+        return hal_fail(err, n, F4D_ENOTSUP, "usb camera %s: %s (%.32s) cannot stream video capture",
                         cfg->id, cfg->address, (const char *)cap.card);
     }
     struct usb_cam *c = calloc(1, sizeof *c);
     if (!c) {
         close(fd);
-        return hal_fail(err, n, HAL_ENOMEM, "usb: out of memory");
+        return hal_fail(err, n, F4D_ENOMEM, "usb: out of memory");
     }
     c->s = session;
     c->index = index;
@@ -441,7 +441,7 @@ static int usb_camera_open(void *session, const struct hal_camera_config *cfg, u
     c->fd = fd;
     hal_cam_name(&c->st, "usb camera %.40s (%.80s)", cfg->id, cfg->address);
     hal_camera_bind(out, &usb_camera_ops, c, index);
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static int usb_trigger_open(void *session, const struct hal_trigger_config *cfg,

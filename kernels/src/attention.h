@@ -27,7 +27,7 @@ static inline int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc
 {
     (void)ctx; (void)a; (void)q; (void)ldq; (void)nq; (void)k; (void)ldk; (void)v; (void)ldv;
     (void)nk; (void)out; (void)ldo;
-    return FK_ENOTSUP;
+    return F4D_ENOTSUP;
 }
 #endif
 

@@ -102,7 +102,7 @@ int fk__attention_ref(fk_ctx *ctx, const struct fk_attention_desc *a, const floa
                 o[c] = (float)(acc[c] / l);
         }
     }
-    return FK_OK;
+    return F4D_OK;
 }
 
 static int ranges_overlap(const float *a, int n, int ld, int w, const float *b, int nb, int ldb, int wb)
@@ -117,37 +117,37 @@ int fk_attention(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q,
 {
     FK_CHECK_CTX(ctx);
     if (!a)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL descriptor");
+        return FK_FAIL(ctx, F4D_EINVAL, "NULL descriptor");
     if (a->heads <= 0 || a->head_dim <= 0 || a->head_dim % 2)
-        return FK_FAIL(ctx, FK_EINVAL, "heads %d x head_dim %d: need heads > 0 and an even head_dim > 0",
+        return FK_FAIL(ctx, F4D_EINVAL, "heads %d x head_dim %d: need heads > 0 and an even head_dim > 0",
                        a->heads, a->head_dim);
     if ((a->pos_q != NULL) != (a->pos_k != NULL))
-        return FK_FAIL(ctx, FK_EINVAL, "RoPE needs both pos_q and pos_k");
+        return FK_FAIL(ctx, F4D_EINVAL, "RoPE needs both pos_q and pos_k");
     if (a->pos_q && a->head_dim % 4)
-        return FK_FAIL(ctx, FK_EINVAL, "RoPE needs head_dim %% 4 == 0, got %d", a->head_dim);
+        return FK_FAIL(ctx, F4D_EINVAL, "RoPE needs head_dim %% 4 == 0, got %d", a->head_dim);
     if (!(a->scale >= 0) || !isfinite(a->scale))
-        return FK_FAIL(ctx, FK_EINVAL, "scale %g must be finite and >= 0", a->scale);
+        return FK_FAIL(ctx, F4D_EINVAL, "scale %g must be finite and >= 0", a->scale);
     int norm = a->qk_norm || a->q_norm_w || a->q_norm_b || a->k_norm_w || a->k_norm_b;
     if (norm && !(a->norm_eps > 0))
-        return FK_FAIL(ctx, FK_EINVAL, "qk-norm needs eps > 0, got %g", a->norm_eps);
+        return FK_FAIL(ctx, F4D_EINVAL, "qk-norm needs eps > 0, got %g", a->norm_eps);
     if (nq < 0 || nk < 0)
-        return FK_FAIL(ctx, FK_EINVAL, "negative token count (nq %d, nk %d)", nq, nk);
+        return FK_FAIL(ctx, F4D_EINVAL, "negative token count (nq %d, nk %d)", nq, nk);
     if (nq == 0)
-        return FK_OK;
+        return F4D_OK;
     if (nk == 0)
-        return FK_FAIL(ctx, FK_EINVAL, "%d queries but no keys", nq);
+        return FK_FAIL(ctx, F4D_EINVAL, "%d queries but no keys", nq);
     if (!q || !k || !v || !out)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL %s", !q ? "q" : !k ? "k" : !v ? "v" : "out");
+        return FK_FAIL(ctx, F4D_EINVAL, "NULL %s", !q ? "q" : !k ? "k" : !v ? "v" : "out");
     long width = (long)a->heads * a->head_dim;
     if (width > 1 << 20)
-        return FK_FAIL(ctx, FK_ERANGE, "heads x head_dim = %ld is too wide", width);
+        return FK_FAIL(ctx, F4D_ERANGE, "heads x head_dim = %ld is too wide", width);
     int C = (int)width;
     if (ldq < C || ldk < C || ldv < C || ldo < C)
-        return FK_FAIL(ctx, FK_EINVAL, "row strides (q %d, k %d, v %d, out %d) must be >= heads*head_dim = %d",
+        return FK_FAIL(ctx, F4D_EINVAL, "row strides (q %d, k %d, v %d, out %d) must be >= heads*head_dim = %d",
                        ldq, ldk, ldv, ldo, C);
     if (ranges_overlap(out, nq, ldo, C, q, nq, ldq, C) || ranges_overlap(out, nq, ldo, C, k, nk, ldk, C) ||
         ranges_overlap(out, nq, ldo, C, v, nk, ldv, C))
-        return FK_FAIL(ctx, FK_EINVAL, "output overlaps q, k or v");
+        return FK_FAIL(ctx, F4D_EINVAL, "output overlaps q, k or v");
     if (fk__isa_avx2(ctx->isa))
         return fk__attention_avx2(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
     return fk__attention_ref(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);

@@ -98,12 +98,13 @@ int fk__fail(fk_ctx *ctx, int status, const char *func, const char *fmt, ...)
     if (!ctx)
         return status;
     va_list ap;
-    int n = snprintf(ctx->err, sizeof ctx->err, "%s: ", func);
-    if (n < 0 || (size_t)n >= sizeof ctx->err)
+    int n = snprintf(ctx->err.msg, sizeof ctx->err.msg, "%s: ", func);
+    if (n < 0 || (size_t)n >= sizeof ctx->err.msg)
         n = 0;
     va_start(ap, fmt);
-    vsnprintf(ctx->err + n, sizeof ctx->err - (size_t)n, fmt, ap);
+    vsnprintf(ctx->err.msg + n, sizeof ctx->err.msg - (size_t)n, fmt, ap);
     va_end(ap);
+    ctx->err.code = status;
     return status;
 }
 
@@ -118,25 +119,25 @@ void *fk__alloc(size_t bytes)
 static int arena_grow(fk_ctx *ctx, struct fk_arena *a, size_t bytes)
 {
     if (a->bytes >= bytes)
-        return FK_OK;
+        return F4D_OK;
     if (ctx->frozen)
-        return fk__fail(ctx, FK_ENOMEM, "fk_scratch",
+        return fk__fail(ctx, F4D_ENOMEM, "fk_scratch",
                         "context is frozen and %zu scratch bytes are needed (%zu reserved)",
                         bytes, a->bytes);
     void *p = fk__alloc(bytes);
     if (!p)
-        return fk__fail(ctx, FK_ENOMEM, "fk_scratch", "cannot allocate %zu bytes", bytes);
+        return fk__fail(ctx, F4D_ENOMEM, "fk_scratch", "cannot allocate %zu bytes", bytes);
     free(a->ptr);
     a->ptr = p;
     a->bytes = fk__round_up(bytes, FK_ALIGN);
-    return FK_OK;
+    return F4D_OK;
 }
 
 int fk__scratch_reserve(fk_ctx *ctx, size_t per_thread, size_t shared)
 {
     for (int t = 0; t < ctx->threads; t++) {
         int st = arena_grow(ctx, &ctx->local[t], per_thread);
-        if (st != FK_OK)
+        if (st != F4D_OK)
             return st;
     }
     return arena_grow(ctx, &ctx->shared, shared);
@@ -165,41 +166,41 @@ size_t fk_ctx_scratch_bytes(const fk_ctx *ctx)
 int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
 {
     if (!out)
-        return FK_EINVAL;
+        return F4D_EINVAL;
     *out = NULL;
     struct fk_ctx_config def = { FK_ISA_AUTO, 0 };
     if (!cfg)
         cfg = &def;
     enum fk_isa isa = cfg->isa == FK_ISA_AUTO ? best_isa() : cfg->isa;
     if (!fk_isa_supported(isa))
-        return FK_ENOTSUP;
+        return F4D_ENOTSUP;
     int threads = cfg->threads;
     if (threads <= 0) {
         long n = sysconf(_SC_NPROCESSORS_ONLN);
         threads = n > 0 ? (int)n : 1;
     }
     if (threads > 256)
-        return FK_EINVAL;
+        return F4D_EINVAL;
 
     fk_ctx *ctx = calloc(1, sizeof *ctx);
     if (!ctx)
-        return FK_ENOMEM;
+        return F4D_ENOMEM;
     ctx->isa = isa;
     ctx->threads = threads;
     ctx->local = calloc((size_t)threads, sizeof *ctx->local);
     if (!ctx->local) {
         free(ctx);
-        return FK_ENOMEM;
+        return F4D_ENOMEM;
     }
     if (threads > 1) {
         ctx->pool = fk__pool_new(threads);
         if (!ctx->pool) {
             fk_ctx_free(ctx);
-            return FK_ENOMEM;
+            return F4D_ENOMEM;
         }
     }
     *out = ctx;
-    return FK_OK;
+    return F4D_OK;
 }
 
 void fk_ctx_free(fk_ctx *ctx)
@@ -216,7 +217,9 @@ void fk_ctx_free(fk_ctx *ctx)
 
 enum fk_isa fk_ctx_isa(const fk_ctx *ctx) { return ctx->isa; }
 int fk_ctx_threads(const fk_ctx *ctx) { return ctx->threads; }
-const char *fk_ctx_error(const fk_ctx *ctx) { return ctx ? ctx->err : "no context"; }
+const char *fk_ctx_error(const fk_ctx *ctx) { return ctx ? ctx->err.msg : "no context"; }
+
+int fk_ctx_status(const fk_ctx *ctx) { return ctx ? ctx->err.code : F4D_EINVAL; }
 
 void fk_parallel_for(fk_ctx *ctx, int n_tasks, double work, fk_task_fn fn, void *arg)
 {

@@ -24,7 +24,7 @@ struct fk_ctx {
     struct fk_pool  *pool;       /* NULL when threads == 1           */
     struct fk_arena *local;      /* [threads] per-thread scratch      */
     struct fk_arena  shared;
-    char             err[FK_ERR_LEN];
+    struct f4d_err   err;        /* last failure: code + "func: what" */
 };
 
 /* Records "func: message" as the context's error and returns status. */
@@ -34,7 +34,7 @@ int   fk__fail(fk_ctx *ctx, int status, const char *func, const char *fmt, ...)
 
 /* Scratch, reserved on the caller's thread before a parallel loop:
  * fk__scratch_reserve makes every per-thread arena at least `per_thread`
- * bytes and the shared one at least `shared` bytes (FK_ENOMEM with a message
+ * bytes and the shared one at least `shared` bytes (F4D_ENOMEM with a message
  * when frozen or out of memory). Inside tasks, fk__scratch(ctx, thread) and
  * fk__scratch_shared(ctx) return the 64-byte aligned arenas. */
 int   fk__scratch_reserve(fk_ctx *ctx, size_t per_thread, size_t shared);
@@ -60,6 +60,6 @@ static inline int fk__isa_avx2(enum fk_isa isa)
 }
 
 /* Checks shared by the front ends. */
-#define FK_CHECK_CTX(ctx) do { if (!(ctx)) return FK_EINVAL; } while (0)
+#define FK_CHECK_CTX(ctx) do { if (!(ctx)) return F4D_EINVAL; } while (0)
 
 #endif /* FK_INTERNAL_H */

@@ -69,12 +69,12 @@ float fk_f16_to_f32_ref(fk_f16 h)
 /* Argument checks shared by both directions: 1 when there is work to do. */
 static int bulk_args(fk_ctx *ctx, const void *src, void *dst, size_t n, int *st)
 {
-    *st = FK_OK;
+    *st = F4D_OK;
     if (!ctx)
-        *st = FK_EINVAL;
+        *st = F4D_EINVAL;
     else if (n > 0 && (!src || !dst))
-        *st = FK_FAIL(ctx, FK_EINVAL, "NULL buffer for %zu values", n);
-    return *st == FK_OK && n > 0;
+        *st = FK_FAIL(ctx, F4D_EINVAL, "NULL buffer for %zu values", n);
+    return *st == F4D_OK && n > 0;
 }
 
 int fk_f32_to_f16(fk_ctx *ctx, const float *src, fk_f16 *dst, size_t n)
@@ -87,7 +87,7 @@ int fk_f32_to_f16(fk_ctx *ctx, const float *src, fk_f16 *dst, size_t n)
     else
         for (size_t i = 0; i < n; i++)
             dst[i] = fk_f32_to_f16_ref(src[i]);
-    return FK_OK;
+    return F4D_OK;
 }
 
 int fk_f16_to_f32(fk_ctx *ctx, const fk_f16 *src, float *dst, size_t n)
@@ -100,5 +100,5 @@ int fk_f16_to_f32(fk_ctx *ctx, const fk_f16 *src, float *dst, size_t n)
     else
         for (size_t i = 0; i < n; i++)
             dst[i] = fk_f16_to_f32_ref(src[i]);
-    return FK_OK;
+    return F4D_OK;
 }

@@ -47,7 +47,7 @@ static inline int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const st
                                 int m, const struct fk__cdst *c, const struct fk_epilogue *ep)
 {
     (void)ctx; (void)L; (void)a; (void)m; (void)c; (void)ep;
-    return FK_ENOTSUP;
+    return F4D_ENOTSUP;
 }
 #endif
 /* Validates the epilogue and the packing ISA, then runs the ISA's driver. */

@@ -39,11 +39,11 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
 {
     memset(L, 0, sizeof *L);
     if (n <= 0 || k <= 0)
-        return FK_FAIL(ctx, FK_EINVAL, "weight shape [%d, %d] must be positive", n, k);
+        return FK_FAIL(ctx, F4D_EINVAL, "weight shape [%d, %d] must be positive", n, k);
     if (as != FK_W_F32 && as != FK_W_F16 && as != FK_W_Q8)
-        return FK_FAIL(ctx, FK_EINVAL, "unknown weight type %d", (int)as);
+        return FK_FAIL(ctx, F4D_EINVAL, "unknown weight type %d", (int)as);
     if (as == FK_W_Q8 && k > FK_Q8_K_MAX)
-        return FK_FAIL(ctx, FK_ERANGE, "int8 rows of %d exceed %d: the int32 sum could overflow",
+        return FK_FAIL(ctx, F4D_ERANGE, "int8 rows of %d exceed %d: the int32 sum could overflow",
                        k, FK_Q8_K_MAX);
     L->type = as;
     L->isa = ctx->isa;
@@ -54,7 +54,7 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
     size_t k_pad = simd && as == FK_W_Q8 ? fk__round_up((size_t)k, 4) : (size_t)k;
     size_t esize = as == FK_W_F32 ? 4 : as == FK_W_F16 ? 2 : 1;
     if (n_pad * k_pad > SIZE_MAX / 8)
-        return FK_FAIL(ctx, FK_ERANGE, "weight shape [%d, %d] is too large", n, k);
+        return FK_FAIL(ctx, F4D_ERANGE, "weight shape [%d, %d] is too large", n, k);
     size_t wbytes = n_pad * k_pad * esize;
     L->data = fk__alloc(wbytes);
     L->bias = fk__alloc(n_pad * sizeof(float));
@@ -70,13 +70,13 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
     }
     if (!L->data || !L->bias || (as == FK_W_Q8 && (!L->scale || !L->colsum))) {
         fk_linear_free(L);
-        return FK_FAIL(ctx, FK_ENOMEM, "cannot allocate %zu bytes of weights", wbytes);
+        return FK_FAIL(ctx, F4D_ENOMEM, "cannot allocate %zu bytes of weights", wbytes);
     }
     memset(L->data, 0, wbytes);
     memset(L->bias, 0, n_pad * sizeof(float));
     if (bias)
         memcpy(L->bias, bias, (size_t)n * sizeof(float));
-    return FK_OK;
+    return F4D_OK;
 }
 
 /* Index of element (row j, column i) of W in the packed layout. */
@@ -116,7 +116,7 @@ static int pack_rows(fk_ctx *ctx, struct fk_linear *L, const float *wf, const fk
             free(q);
             free(row);
             fk_linear_free(L);
-            return FK_FAIL(ctx, FK_ENOMEM, "cannot allocate a %d-wide row", L->k);
+            return FK_FAIL(ctx, F4D_ENOMEM, "cannot allocate a %d-wide row", L->k);
         }
     }
     for (int j = 0; j < L->n; j++) {
@@ -142,7 +142,7 @@ static int pack_rows(fk_ctx *ctx, struct fk_linear *L, const float *wf, const fk
                 free(q);
                 free(row);
                 fk_linear_free(L);
-                return FK_FAIL(ctx, FK_EINVAL, "weight row %d holds Inf or NaN", j);
+                return FK_FAIL(ctx, F4D_EINVAL, "weight row %d holds Inf or NaN", j);
             }
             finish_q8(L, j, q, s);
             break;
@@ -151,7 +151,7 @@ static int pack_rows(fk_ctx *ctx, struct fk_linear *L, const float *wf, const fk
     }
     free(q);
     free(row);
-    return FK_OK;
+    return F4D_OK;
 }
 
 int fk_linear_pack(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, const float *w, int n,
@@ -159,7 +159,7 @@ int fk_linear_pack(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, const flo
 {
     FK_CHECK_CTX(ctx);
     if (!L || !w)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL %s", !L ? "layer" : "weights");
+        return FK_FAIL(ctx, F4D_EINVAL, "NULL %s", !L ? "layer" : "weights");
     int st = pack_alloc(ctx, L, as, n, k, bias);
     return st ? st : pack_rows(ctx, L, w, NULL);
 }
@@ -169,7 +169,7 @@ int fk_linear_pack_f16(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, const
 {
     FK_CHECK_CTX(ctx);
     if (!L || !w)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL %s", !L ? "layer" : "weights");
+        return FK_FAIL(ctx, F4D_EINVAL, "NULL %s", !L ? "layer" : "weights");
     int st = pack_alloc(ctx, L, as, n, k, bias);
     return st ? st : pack_rows(ctx, L, NULL, w);
 }
@@ -179,7 +179,7 @@ int fk_linear_pack_q8(fk_ctx *ctx, struct fk_linear *L, const int8_t *q, const f
 {
     FK_CHECK_CTX(ctx);
     if (!L || !q || !scale)
-        return FK_FAIL(ctx, FK_EINVAL, "NULL %s", !L ? "layer" : !q ? "weights" : "scales");
+        return FK_FAIL(ctx, F4D_EINVAL, "NULL %s", !L ? "layer" : !q ? "weights" : "scales");
     int st = pack_alloc(ctx, L, FK_W_Q8, n, k, bias);
     if (st)
         return st;
@@ -187,17 +187,17 @@ int fk_linear_pack_q8(fk_ctx *ctx, struct fk_linear *L, const int8_t *q, const f
         const int8_t *r = q + (size_t)j * (size_t)k;
         if (!isfinite(scale[j]) || scale[j] < 0) {
             fk_linear_free(L);
-            return FK_FAIL(ctx, FK_EINVAL, "scale of output channel %d is %g", j, scale[j]);
+            return FK_FAIL(ctx, F4D_EINVAL, "scale of output channel %d is %g", j, scale[j]);
         }
         for (int i = 0; i < k; i++)
             if (r[i] == -128) {
                 fk_linear_free(L);
-                return FK_FAIL(ctx, FK_EINVAL,
+                return FK_FAIL(ctx, F4D_EINVAL,
                                "weight [%d, %d] is -128: symmetric int8 uses [-127, 127]", j, i);
             }
         finish_q8(L, j, r, scale[j]);
     }
-    return FK_OK;
+    return F4D_OK;
 }
 
 void fk_linear_free(struct fk_linear *L)
@@ -267,7 +267,7 @@ int fk__gemm_ref(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *
     if (!row || !qa) {
         free(row);
         free(qa);
-        return FK_FAIL(ctx, FK_ENOMEM, "cannot allocate a %d-wide row", k);
+        return FK_FAIL(ctx, F4D_ENOMEM, "cannot allocate a %d-wide row", k);
     }
     for (int r = 0; r < m; r++) {
         fk__asrc_row(a, r, 0, k, row);
@@ -299,7 +299,7 @@ int fk__gemm_ref(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *
     }
     free(row);
     free(qa);
-    return FK_OK;
+    return F4D_OK;
 }
 
 /* -------------------------------------------------------------- front end */
@@ -311,12 +311,12 @@ int fk__gemm_run(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *
     if (!ep)
         ep = &none;
     if ((unsigned)ep->act > FK_ACT_SILU)
-        return FK_FAIL(ctx, FK_EINVAL, "unknown activation %d", (int)ep->act);
+        return FK_FAIL(ctx, F4D_EINVAL, "unknown activation %d", (int)ep->act);
     if (L->isa != ctx->isa && (fk__isa_avx2(L->isa) != fk__isa_avx2(ctx->isa)))
-        return FK_FAIL(ctx, FK_EINVAL, "weights were packed for %s, context runs %s",
+        return FK_FAIL(ctx, F4D_EINVAL, "weights were packed for %s, context runs %s",
                        fk_isa_name(L->isa), fk_isa_name(ctx->isa));
     if (m == 0)
-        return FK_OK;
+        return F4D_OK;
     if (fk__isa_avx2(ctx->isa))
         return fk__gemm_avx2(ctx, L, a, m, c, ep);
     return fk__gemm_ref(ctx, L, a, m, c, ep);
@@ -327,20 +327,20 @@ int fk_linear_forward(fk_ctx *ctx, const struct fk_linear *L, const float *x, in
 {
     FK_CHECK_CTX(ctx);
     if (!L || !L->data)
-        return FK_FAIL(ctx, FK_EINVAL, "layer is NULL or not packed");
+        return FK_FAIL(ctx, F4D_EINVAL, "layer is NULL or not packed");
     if (m < 0)
-        return FK_FAIL(ctx, FK_EINVAL, "negative row count %d", m);
+        return FK_FAIL(ctx, F4D_EINVAL, "negative row count %d", m);
     if (m > 0 && (!x || !y))
-        return FK_FAIL(ctx, FK_EINVAL, "NULL %s", !x ? "input" : "output");
+        return FK_FAIL(ctx, F4D_EINVAL, "NULL %s", !x ? "input" : "output");
     if (ldx < L->k)
-        return FK_FAIL(ctx, FK_EINVAL, "input row stride %d is less than k = %d", ldx, L->k);
+        return FK_FAIL(ctx, F4D_EINVAL, "input row stride %d is less than k = %d", ldx, L->k);
     if (ldy < L->n)
-        return FK_FAIL(ctx, FK_EINVAL, "output row stride %d is less than n = %d", ldy, L->n);
+        return FK_FAIL(ctx, F4D_EINVAL, "output row stride %d is less than n = %d", ldy, L->n);
     if (m > 0) {
         const char *xb = (const char *)x, *xe = (const char *)(x + (size_t)(m - 1) * (size_t)ldx + (size_t)L->k);
         const char *yb = (const char *)y, *ye = (const char *)(y + (size_t)(m - 1) * (size_t)ldy + (size_t)L->n);
         if (xb < ye && yb < xe)
-            return FK_FAIL(ctx, FK_EINVAL, "input and output overlap");
+            return FK_FAIL(ctx, F4D_EINVAL, "input and output overlap");
     }
     struct fk__asrc a = { .x = x, .ldx = ldx };
     struct fk__cdst c = { .y = y, .ldy = ldy };

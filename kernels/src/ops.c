@@ -88,35 +88,35 @@ static int check_rows(fk_ctx *ctx, const char *func, const void *x, int ldx, con
                       int ldy, int rows, int cols, const char *xn, const char *yn)
 {
     if (rows < 0 || cols < 1)
-        return fk__fail(ctx, FK_EINVAL, func, "bad shape rows=%d cols=%d (need rows >= 0, cols >= 1)",
+        return fk__fail(ctx, F4D_EINVAL, func, "bad shape rows=%d cols=%d (need rows >= 0, cols >= 1)",
                         rows, cols);
     if (ldx < cols)
-        return fk__fail(ctx, FK_EINVAL, func, "row stride ld%s=%d < cols=%d", xn, ldx, cols);
+        return fk__fail(ctx, F4D_EINVAL, func, "row stride ld%s=%d < cols=%d", xn, ldx, cols);
     if (ldy < cols)
-        return fk__fail(ctx, FK_EINVAL, func, "row stride ld%s=%d < cols=%d", yn, ldy, cols);
+        return fk__fail(ctx, F4D_EINVAL, func, "row stride ld%s=%d < cols=%d", yn, ldy, cols);
     if (rows == 0)
-        return FK_OK;
+        return F4D_OK;
     if (!x)
-        return fk__fail(ctx, FK_EINVAL, func, "%s is NULL", xn);
+        return fk__fail(ctx, F4D_EINVAL, func, "%s is NULL", xn);
     if (!y)
-        return fk__fail(ctx, FK_EINVAL, func, "%s is NULL", yn);
+        return fk__fail(ctx, F4D_EINVAL, func, "%s is NULL", yn);
     if (!(x == y && ldx == ldy) && spans_overlap(x, ldx, y, ldy, rows, cols))
-        return fk__fail(ctx, FK_EINVAL, func,
+        return fk__fail(ctx, F4D_EINVAL, func,
                         "%s and %s overlap without being the same matrix (in place needs %s == %s "
                         "and ld%s == ld%s)", xn, yn, xn, yn, xn, yn);
-    return FK_OK;
+    return F4D_OK;
 }
 
 static int check_array(fk_ctx *ctx, const char *func, const float *x, size_t n, const float *y)
 {
     if (n == 0)
-        return FK_OK;
+        return F4D_OK;
     if (!x || !y)
-        return fk__fail(ctx, FK_EINVAL, func, "%s is NULL (n=%zu)", x ? "y" : "x", n);
+        return fk__fail(ctx, F4D_EINVAL, func, "%s is NULL (n=%zu)", x ? "y" : "x", n);
     uintptr_t a = (uintptr_t)x, b = (uintptr_t)y, bytes = n * sizeof(float);
     if (a != b && a < b + bytes && b < a + bytes)
-        return fk__fail(ctx, FK_EINVAL, func, "x and y overlap without being equal");
-    return FK_OK;
+        return fk__fail(ctx, F4D_EINVAL, func, "x and y overlap without being equal");
+    return F4D_OK;
 }
 
 /* ---- threading -------------------------------------------------------- */
@@ -172,13 +172,13 @@ static int elementwise(fk_ctx *ctx, const char *func, enum elt_op op, const floa
 {
     FK_CHECK_CTX(ctx);
     int st = check_array(ctx, func, x, n, y);
-    if (st != FK_OK || n == 0)
+    if (st != F4D_OK || n == 0)
         return st;
     struct elt_job j = { op, fk__isa_avx2(ctx->isa), x, y, n, 16384 };
     while ((n + j.chunk - 1) / j.chunk > INT32_MAX)
         j.chunk *= 2;
     fk_parallel_for(ctx, (int)((n + j.chunk - 1) / j.chunk), elt_cost[op] * (double)n, elt_task, &j);
-    return FK_OK;
+    return F4D_OK;
 }
 
 int fk_gelu(fk_ctx *ctx, const float *x, size_t n, float *y)
@@ -263,7 +263,7 @@ static int run_rows(fk_ctx *ctx, struct row_job *j, double cost)
     j->per = rows_per_task(ctx, j->rows);
     fk_parallel_for(ctx, (j->rows + j->per - 1) / j->per, cost * j->rows * (double)j->cols,
                     row_task, j);
-    return FK_OK;
+    return F4D_OK;
 }
 
 int fk_layernorm(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, const float *w,
@@ -271,12 +271,12 @@ int fk_layernorm(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, const
 {
     FK_CHECK_CTX(ctx);
     int st = check_rows(ctx, __func__, x, ldx, y, ldy, rows, cols, "x", "y");
-    if (st != FK_OK)
+    if (st != F4D_OK)
         return st;
     if (!(eps >= 0) || isinf(eps))
-        return FK_FAIL(ctx, FK_EINVAL, "eps=%g must be finite and >= 0", (double)eps);
+        return FK_FAIL(ctx, F4D_EINVAL, "eps=%g must be finite and >= 0", (double)eps);
     if (rows == 0)
-        return FK_OK;
+        return F4D_OK;
     struct row_job j = { .op = ROW_LAYERNORM, .rows = rows, .cols = cols, .ldx = ldx, .ldy = ldy,
                          .x = x, .w = w, .b = b, .y = y, .eps = eps };
     return run_rows(ctx, &j, 12.0);
@@ -286,7 +286,7 @@ int fk_softmax(fk_ctx *ctx, const float *x, int rows, int cols, int ldx, float *
 {
     FK_CHECK_CTX(ctx);
     int st = check_rows(ctx, __func__, x, ldx, y, ldy, rows, cols, "x", "y");
-    if (st != FK_OK || rows == 0)
+    if (st != F4D_OK || rows == 0)
         return st;
     struct row_job j = { .op = ROW_SOFTMAX, .rows = rows, .cols = cols, .ldx = ldx, .ldy = ldy,
                          .x = x, .y = y };
@@ -298,7 +298,7 @@ int fk_residual_add(fk_ctx *ctx, float *x, int ldx, const float *r, int ldr, con
 {
     FK_CHECK_CTX(ctx);
     int st = check_rows(ctx, __func__, r, ldr, x, ldx, rows, cols, "r", "x");
-    if (st != FK_OK || rows == 0)
+    if (st != F4D_OK || rows == 0)
         return st;
     struct row_job j = { .op = ROW_RESIDUAL, .rows = rows, .cols = cols, .ldx = ldr, .ldy = ldx,
                          .x = r, .w = gamma, .y = x };

@@ -17,19 +17,19 @@ static int check_resize(fk_ctx *ctx, const char *func, const float *x, int h, in
                         const float *y, int ho, int wo)
 {
     if (h < 1 || w < 1 || c < 1)
-        return fk__fail(ctx, FK_EINVAL, func, "bad input shape h=%d w=%d c=%d (need >= 1)", h, w, c);
+        return fk__fail(ctx, F4D_EINVAL, func, "bad input shape h=%d w=%d c=%d (need >= 1)", h, w, c);
     if (ho < 1 || wo < 1)
-        return fk__fail(ctx, FK_EINVAL, func, "bad output size ho=%d wo=%d (need >= 1)", ho, wo);
+        return fk__fail(ctx, F4D_EINVAL, func, "bad output size ho=%d wo=%d (need >= 1)", ho, wo);
     if (!x)
-        return fk__fail(ctx, FK_EINVAL, func, "x is NULL");
+        return fk__fail(ctx, F4D_EINVAL, func, "x is NULL");
     if (!y)
-        return fk__fail(ctx, FK_EINVAL, func, "y is NULL");
+        return fk__fail(ctx, F4D_EINVAL, func, "y is NULL");
     uintptr_t a0 = (uintptr_t)x, b0 = (uintptr_t)y;
     uintptr_t a1 = a0 + (size_t)h * w * c * sizeof(float);
     uintptr_t b1 = b0 + (size_t)ho * wo * c * sizeof(float);
     if (a0 < b1 && b0 < a1)
-        return fk__fail(ctx, FK_EINVAL, func, "x and y overlap (resizing cannot run in place)");
-    return FK_OK;
+        return fk__fail(ctx, F4D_EINVAL, func, "x and y overlap (resizing cannot run in place)");
+    return F4D_OK;
 }
 
 /* ---- bilinear ---------------------------------------------------------- */
@@ -110,17 +110,17 @@ int fk_resize_bilinear(fk_ctx *ctx, const float *x, int h, int w, int c, float *
 {
     FK_CHECK_CTX(ctx);
     int st = check_resize(ctx, __func__, x, h, w, c, y, ho, wo);
-    if (st != FK_OK)
+    if (st != F4D_OK)
         return st;
     if (align_corners != 0 && align_corners != 1)
-        return FK_FAIL(ctx, FK_EINVAL, "align_corners=%d (need 0 or 1)", align_corners);
+        return FK_FAIL(ctx, F4D_EINVAL, "align_corners=%d (need 0 or 1)", align_corners);
     if (ho == h && wo == w) { /* identity either way: a copy, so Inf stays Inf */
         memcpy(y, x, (size_t)h * w * c * sizeof *x);
-        return FK_OK;
+        return F4D_OK;
     }
     size_t tab = fk__round_up(2 * ((size_t)ho + wo) * sizeof(int32_t), FK_ALIGN);
     st = fk__scratch_reserve(ctx, 0, 2 * tab);
-    if (st != FK_OK)
+    if (st != F4D_OK)
         return st;
     char *s = fk__scratch_shared(ctx);
     int32_t *yi = (int32_t *)s, *xi = yi + 2 * (size_t)ho;
@@ -130,7 +130,7 @@ int fk_resize_bilinear(fk_ctx *ctx, const float *x, int h, int w, int c, float *
     struct bilinear_job j = { fk__isa_avx2(ctx->isa), rows_per_task(ctx, ho), ho, w, c, wo, x, y,
                               yi, xi, yw, xw };
     fk_parallel_for(ctx, (ho + j.per - 1) / j.per, 8.0 * ho * (double)wo * c, bilinear_task, &j);
-    return FK_OK;
+    return F4D_OK;
 }
 
 /* ---- antialiased bicubic (PIL / torch antialias=True, a = -0.5) -------- */
@@ -258,11 +258,11 @@ int fk_resize_bicubic_aa(fk_ctx *ctx, const float *x, int h, int w, int c, float
 {
     FK_CHECK_CTX(ctx);
     int st = check_resize(ctx, __func__, x, h, w, c, y, ho, wo);
-    if (st != FK_OK)
+    if (st != F4D_OK)
         return st;
     if (ho == h && wo == w) { /* identity on both axes */
         memcpy(y, x, (size_t)h * w * c * sizeof *x);
-        return FK_OK;
+        return F4D_OK;
     }
     int do_h = wo != w, do_v = ho != h;
     int kw = aa_ksize(w, wo), kh = aa_ksize(h, ho);
@@ -270,7 +270,7 @@ int fk_resize_bicubic_aa(fk_ctx *ctx, const float *x, int h, int w, int c, float
     size_t tab_h = do_v ? fk__round_up((size_t)ho * (2 * sizeof(int32_t) + kh * sizeof(float)), FK_ALIGN) : 0;
     size_t tmp = do_h && do_v ? (size_t)h * wo * c * sizeof(float) : 0;
     st = fk__scratch_reserve(ctx, 0, tab_w + tab_h + tmp);
-    if (st != FK_OK)
+    if (st != F4D_OK)
         return st;
     char *s = fk__scratch_shared(ctx);
     int avx2 = fk__isa_avx2(ctx->isa);
@@ -294,5 +294,5 @@ int fk_resize_bicubic_aa(fk_ctx *ctx, const float *x, int h, int w, int c, float
                             (size_t)wo * c, mid, y, first, count, wt };
         fk_parallel_for(ctx, (ho + j.per - 1) / j.per, 2.0 * ho * (double)wo * c * kh, aa_vtask, &j);
     }
-    return FK_OK;
+    return F4D_OK;
 }

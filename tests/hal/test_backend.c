@@ -39,47 +39,47 @@ static void cam_state_rules_and_messages(void **state)
     struct hal_buffer *out = &b;
     hal_cam_name(&s, "test camera %s", "cam0");
 
-    assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), HAL_ESTATE);
+    assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), F4D_ESTATE);
     assert_string_equal(s.err, "test camera cam0: enqueue before configure");
-    assert_int_equal(hal_cam_fifo_start(&s), HAL_ESTATE);
+    assert_int_equal(hal_cam_fifo_start(&s), F4D_ESTATE);
     assert_string_equal(s.err, "test camera cam0: start before configure");
-    assert_int_equal(hal_cam_dequeue_begin(&s, &out), HAL_ESTATE);
+    assert_int_equal(hal_cam_dequeue_begin(&s, &out), F4D_ESTATE);
     assert_null(out);
     assert_string_equal(s.err, "test camera cam0: dequeue while stopped");
 
-    assert_int_equal(hal_cam_check_validated(&s, HAL_EIO), HAL_EIO);
-    assert_int_equal(hal_cam_check_validated(&s, HAL_FORMAT_ADJUSTED), HAL_EINVAL);
+    assert_int_equal(hal_cam_check_validated(&s, F4D_EIO), F4D_EIO);
+    assert_int_equal(hal_cam_check_validated(&s, HAL_FORMAT_ADJUSTED), F4D_EINVAL);
     assert_string_equal(s.err, "test camera cam0: format does not validate unchanged");
-    assert_int_equal(hal_cam_check_validated(&s, HAL_FORMAT_VALID), HAL_OK);
+    assert_int_equal(hal_cam_check_validated(&s, HAL_FORMAT_VALID), F4D_OK);
 
     s.configured = true;
     s.fmt.image_bytes = sizeof px + 1;
-    assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), HAL_EINVAL);
+    assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), F4D_EINVAL);
     assert_string_equal(s.err, "test camera cam0: buffer smaller than the image");
     s.fmt.image_bytes = sizeof px;
-    assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), HAL_OK);
-    assert_int_equal(hal_cam_fifo_start(&s), HAL_OK);
-    assert_int_equal(hal_cam_check_configure(&s), HAL_ESTATE);
+    assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), F4D_OK);
+    assert_int_equal(hal_cam_fifo_start(&s), F4D_OK);
+    assert_int_equal(hal_cam_check_configure(&s), F4D_ESTATE);
     assert_string_equal(s.err, "test camera cam0: configure while started");
-    assert_int_equal(hal_cam_dequeue_begin(&s, &out), HAL_OK);
+    assert_int_equal(hal_cam_dequeue_begin(&s, &out), F4D_OK);
     assert_null(out); /* started, nothing aborted: the backend goes on */
 
     /* stop hands the queued buffer back ABORTED, before the stopped check */
     b.bytes_used = 7;
     hal_cam_fifo_stop(&s, &q);
     assert_false(s.started);
-    assert_int_equal(hal_cam_dequeue_begin(&s, &out), HAL_OK);
+    assert_int_equal(hal_cam_dequeue_begin(&s, &out), F4D_OK);
     assert_ptr_equal(out, &b);
     assert_int_equal(b.status, HAL_FRAME_ABORTED);
     assert_int_equal(b.bytes_used, 0);
-    assert_int_equal(hal_cam_dequeue_begin(&s, &out), HAL_ESTATE);
+    assert_int_equal(hal_cam_dequeue_begin(&s, &out), F4D_ESTATE);
 
     /* the aborted list never overflows, even if nobody collects it */
     for (int i = 0; i < 3 * HAL_BUFQ_MAX; i++)
         hal_cam_abort(&s, &b);
     assert_int_equal(s.n_aborted, HAL_BUFQ_MAX);
 
-    assert_int_equal(hal_cam_fail(&s, HAL_EIO, "%s: %d", "VIDIOC_X", 5), HAL_EIO);
+    assert_int_equal(hal_cam_fail(&s, F4D_EIO, "%s: %d", "VIDIOC_X", 5), F4D_EIO);
     assert_string_equal(s.err, "test camera cam0: VIDIOC_X: 5");
 }
 
@@ -117,10 +117,10 @@ static void trigger_claim_once(void **state)
     int ctx;
     struct hal_trigger t;
     char err[64] = "";
-    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", err, sizeof err), HAL_OK);
+    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", err, sizeof err), F4D_OK);
     assert_true(taken);
     assert_ptr_equal(t.ctx, &ctx);
-    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", err, sizeof err), HAL_EBUSY);
+    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", err, sizeof err), F4D_EBUSY);
     assert_string_equal(err, "x trigger already open");
 }
 

@@ -95,13 +95,13 @@ static void errors_name_the_key(void **state)
         struct hal_board b;
         char err[256] = "";
         int rc = hal_board_parse(&b, cases[i].json, strlen(cases[i].json), err, sizeof err);
-        if (rc != HAL_EINVAL || !strstr(err, cases[i].want))
+        if (rc != F4D_EINVAL || !strstr(err, cases[i].want))
             fail_msg("case %zu (%s): rc %d, message \"%s\", want \"%s\"", i, cases[i].json, rc, err,
                      cases[i].want);
     }
     struct hal_board b;
     char err[256] = "";
-    assert_int_equal(hal_board_load(&b, "/nonexistent/board.json", err, sizeof err), HAL_EIO);
+    assert_int_equal(hal_board_load(&b, "/nonexistent/board.json", err, sizeof err), F4D_EIO);
     assert_non_null(strstr(err, "/nonexistent/board.json"));
 }
 

@@ -54,9 +54,9 @@ static void contract_single_camera(struct fixture *fx, struct hal_rig *rig)
     uint8_t small[16];
     struct hal_buffer tiny = {.data = small, .capacity = sizeof small};
     struct hal_buffer *out;
-    assert_int_equal(hal_camera_enqueue(cam, &tiny), HAL_ESTATE);
-    assert_int_equal(hal_camera_dequeue(cam, &out, 0), HAL_ESTATE);
-    assert_int_equal(hal_camera_start(cam), HAL_ESTATE);
+    assert_int_equal(hal_camera_enqueue(cam, &tiny), F4D_ESTATE);
+    assert_int_equal(hal_camera_dequeue(cam, &out, 0), F4D_ESTATE);
+    assert_int_equal(hal_camera_start(cam), F4D_ESTATE);
 
     /* negotiation: nonsense is adjusted to something the device supports */
     struct hal_format f = {HAL_PIXFMT_INVALID, 3, 5, 0, fx->board.trigger.rate_mhz, HAL_TRIGGER_HARDWARE,
@@ -71,7 +71,7 @@ static void contract_single_camera(struct fixture *fx, struct hal_rig *rig)
     bad.pixfmt = HAL_PIXFMT_INVALID;
     assert_true(hal_camera_configure(cam, &bad) < 0);
     assert_true(strlen(hal_camera_last_error(cam)) > 0);
-    assert_int_equal(hal_camera_start(cam), HAL_ESTATE);
+    assert_int_equal(hal_camera_start(cam), F4D_ESTATE);
 
     /* the board's format, negotiated */
     const struct hal_camera_config *cc = &fx->board.cams[0];
@@ -80,9 +80,9 @@ static void contract_single_camera(struct fixture *fx, struct hal_rig *rig)
     int v = hal_camera_validate(cam, &g);
     assert_true(v == HAL_FORMAT_VALID || v == HAL_FORMAT_ADJUSTED);
     assert_int_equal(hal_camera_validate(cam, &g), HAL_FORMAT_VALID);
-    assert_int_equal(hal_camera_configure(cam, &g), HAL_OK);
-    assert_int_equal(hal_camera_enqueue(cam, &tiny), HAL_EINVAL);
-    assert_int_equal(hal_camera_enqueue(cam, NULL), HAL_EINVAL);
+    assert_int_equal(hal_camera_configure(cam, &g), F4D_OK);
+    assert_int_equal(hal_camera_enqueue(cam, &tiny), F4D_EINVAL);
+    assert_int_equal(hal_camera_enqueue(cam, NULL), F4D_EINVAL);
 }
 
 static void contract_stream(struct fixture *fx, struct hal_rig *rig)
@@ -98,19 +98,19 @@ static void contract_stream(struct fixture *fx, struct hal_rig *rig)
                                HAL_TRIGGER_HARDWARE, cc->exposure_us, 0};
         if (hal_camera_validate(&rig->cams[i], &f) == HAL_FORMAT_ADJUSTED)
             assert_int_equal(hal_camera_validate(&rig->cams[i], &f), HAL_FORMAT_VALID);
-        assert_int_equal(hal_camera_configure(&rig->cams[i], &f), HAL_OK);
+        assert_int_equal(hal_camera_configure(&rig->cams[i], &f), F4D_OK);
         fmt[i] = f;
         mem[i] = calloc(NBUF, f.image_bytes);
         assert_non_null(mem[i]);
         for (int k = 0; k < NBUF; k++) {
             bufs[i][k] = (struct hal_buffer){.data = mem[i] + (size_t)k * f.image_bytes,
                                              .capacity = f.image_bytes};
-            assert_int_equal(hal_camera_enqueue(&rig->cams[i], &bufs[i][k]), HAL_OK);
+            assert_int_equal(hal_camera_enqueue(&rig->cams[i], &bufs[i][k]), F4D_OK);
         }
-        assert_int_equal(hal_camera_start(&rig->cams[i]), HAL_OK);
+        assert_int_equal(hal_camera_start(&rig->cams[i]), F4D_OK);
     }
     struct hal_pulse_train train = {fx->board.trigger.rate_mhz, fx->board.trigger.pulse_width_us, WANT + 8};
-    assert_int_equal(hal_trigger_arm(&rig->trigger, &train), HAL_OK);
+    assert_int_equal(hal_trigger_arm(&rig->trigger, &train), F4D_OK);
     uint32_t got[HAL_RIG_CAMERAS_MAX] = {0};
     uint64_t last_fid[HAL_RIG_CAMERAS_MAX] = {0}, last_seq[HAL_RIG_CAMERAS_MAX] = {0},
              last_host[HAL_RIG_CAMERAS_MAX] = {0};
@@ -133,7 +133,7 @@ static void contract_stream(struct fixture *fx, struct hal_rig *rig)
         for (uint32_t i = 0; i < n; i++) {
             struct hal_buffer *b;
             int rc = hal_camera_dequeue(&rig->cams[i], &b, fx->dequeue_timeout_us);
-            if (rc == HAL_OK) {
+            if (rc == F4D_OK) {
                 assert_true(b >= &bufs[i][0] && b < &bufs[i][NBUF]);
                 assert_int_equal(b->camera_index, i);
                 assert_int_equal(b->format.image_bytes, fmt[i].image_bytes);
@@ -151,9 +151,9 @@ static void contract_stream(struct fixture *fx, struct hal_rig *rig)
                 last_seq[i] = b->trigger_seq;
                 last_host[i] = b->host_ts_ns;
                 got[i]++;
-                assert_int_equal(hal_camera_enqueue(&rig->cams[i], b), HAL_OK);
+                assert_int_equal(hal_camera_enqueue(&rig->cams[i], b), F4D_OK);
             } else {
-                assert_int_equal(rc, HAL_ETIMEDOUT);
+                assert_int_equal(rc, F4D_ETIMEDOUT);
             }
             done &= got[i] >= WANT;
         }
@@ -164,15 +164,15 @@ static void contract_stream(struct fixture *fx, struct hal_rig *rig)
     hal_trigger_disarm(&rig->trigger);
     for (uint32_t i = 0; i < n; i++) {
         /* stop hands every queued buffer back, ABORTED */
-        assert_int_equal(hal_camera_stop(&rig->cams[i]), HAL_OK);
+        assert_int_equal(hal_camera_stop(&rig->cams[i]), F4D_OK);
         uint32_t aborted = 0;
         struct hal_buffer *b;
-        while (hal_camera_dequeue(&rig->cams[i], &b, 0) == HAL_OK) {
+        while (hal_camera_dequeue(&rig->cams[i], &b, 0) == F4D_OK) {
             assert_int_equal(b->status, HAL_FRAME_ABORTED);
             aborted++;
         }
         assert_int_equal(aborted, NBUF);
-        assert_int_equal(hal_camera_dequeue(&rig->cams[i], &b, 0), HAL_ESTATE);
+        assert_int_equal(hal_camera_dequeue(&rig->cams[i], &b, 0), F4D_ESTATE);
         free(mem[i]);
     }
     /* drain edges left from the train */

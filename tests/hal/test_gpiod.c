@@ -28,7 +28,7 @@ static int open_trigger(const char *chip, int line, int strobe, char *err, size_
     assert_int_equal(be->session_open(NULL, &session, err, n), 0);
     struct hal_trigger t;
     int rc = be->trigger_open(session, &cfg, &t, err, n);
-    if (rc == HAL_OK) /* a machine with a real chip: do not drive its lines */
+    if (rc == F4D_OK) /* a machine with a real chip: do not drive its lines */
         t.ops.close(t.ctx);
     if (be->session_close)
         be->session_close(session);
@@ -40,13 +40,13 @@ static void no_chip(void **state)
     (void)state;
     char err[256] = "";
     int rc = open_trigger("gpiochip0", 17, 18, err, sizeof err);
-    if (rc == HAL_OK)
+    if (rc == F4D_OK)
         skip(); /* a GPIO chip exists here after all */
-    assert_int_equal(rc, HAL_ENODEV);
+    assert_int_equal(rc, F4D_ENODEV);
     assert_non_null(strstr(err, "gpiochip0"));
     assert_non_null(strstr(err, "No such file"));
     err[0] = 0;
-    assert_int_equal(open_trigger("trigger-header", 3, -1, err, sizeof err), HAL_ENODEV);
+    assert_int_equal(open_trigger("trigger-header", 3, -1, err, sizeof err), F4D_ENODEV);
     assert_non_null(strstr(err, "trigger-header"));
 }
 
@@ -63,9 +63,9 @@ static void bad_config(void **state)
 {
     (void)state;
     char err[256] = "";
-    assert_int_equal(open_trigger("", 0, -1, err, sizeof err), HAL_EINVAL);
+    assert_int_equal(open_trigger("", 0, -1, err, sizeof err), F4D_EINVAL);
     assert_non_null(strstr(err, "trigger.chip"));
-    assert_int_equal(open_trigger("gpiochip0", -1, -1, err, sizeof err), HAL_EINVAL);
+    assert_int_equal(open_trigger("gpiochip0", -1, -1, err, sizeof err), F4D_EINVAL);
     assert_non_null(strstr(err, "line -1"));
 }
 
@@ -79,7 +79,7 @@ static void gige_board_without_gpio(void **state)
     assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/gige-4cam.json", err, sizeof err), 0);
     struct hal_rig rig;
     int rc = hal_rig_open(&rig, &b, err, sizeof err);
-    if (rc == HAL_OK) {
+    if (rc == F4D_OK) {
         hal_rig_close(&rig);
         skip();
     }

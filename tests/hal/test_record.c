@@ -153,7 +153,7 @@ static void round_trip(void **state)
             assert_int_equal(cam, c);
         }
     }
-    assert_int_equal(f4d_take_read(r, 20, &(struct f4d_take_set){0}), HAL_EINVAL);
+    assert_int_equal(f4d_take_read(r, 20, &(struct f4d_take_set){0}), F4D_EINVAL);
     f4d_take_reader_close(r);
     struct f4d_take_report rep;
     assert_int_equal(f4d_take_verify(dir, true, &rep, err, sizeof err), 0);
@@ -166,7 +166,7 @@ static void round_trip(void **state)
     /* an existing take is never overwritten */
     struct f4d_take_writer *w;
     struct f4d_take_info info = {.n_cams = 1};
-    assert_int_equal(f4d_take_create(&w, dir, &info, NULL, 10, err, sizeof err), HAL_EIO);
+    assert_int_equal(f4d_take_create(&w, dir, &info, NULL, 10, err, sizeof err), F4D_EIO);
     assert_non_null(strstr(err, "take.f4t"));
 }
 
@@ -204,8 +204,8 @@ static void crc_catches_corruption(void **state)
     for (uint64_t i = 0; i < f4d_take_count(r); i++) {
         struct f4d_take_set s;
         int rc = f4d_take_read(r, i, &s);
-        assert_true(rc == HAL_OK || rc == HAL_ECORRUPT);
-        bad += rc == HAL_ECORRUPT;
+        assert_true(rc == F4D_OK || rc == F4D_ECORRUPT);
+        bad += rc == F4D_ECORRUPT;
     }
     f4d_take_reader_close(r);
     assert_int_equal(bad, 1);
@@ -262,7 +262,7 @@ static void torn_tail_and_lost_index(void **state)
     FILE *f = fopen(path, "w");
     fputs("this is not a take", f);
     fclose(f);
-    assert_int_equal(f4d_take_verify(gdir, true, &rep, err, sizeof err), HAL_ECORRUPT);
+    assert_int_equal(f4d_take_verify(gdir, true, &rep, err, sizeof err), F4D_ECORRUPT);
     assert_non_null(strstr(err, "no valid take header"));
 }
 

@@ -36,13 +36,13 @@ static void renders_the_scene_over_time(void **state)
     g.width = 32;
     g.stride = 0;
     assert_int_equal(hal_format_finish(&g), 0);
-    assert_int_equal(f4d_simscene_render(ss, 0, 0, &g, a), HAL_EINVAL);
-    assert_int_equal(f4d_simscene_render(ss, 9, 0, &f, a), HAL_EINVAL);
+    assert_int_equal(f4d_simscene_render(ss, 0, 0, &g, a), F4D_EINVAL);
+    assert_int_equal(f4d_simscene_render(ss, 9, 0, &f, a), F4D_EINVAL);
     free(a);
     free(b);
     free(c);
     f4d_simscene_free(ss);
-    assert_int_equal(f4d_simscene_new(&ss, "moonwalk", 1, 4, 64, 48, err, sizeof err), HAL_EINVAL);
+    assert_int_equal(f4d_simscene_new(&ss, "moonwalk", 1, 4, 64, 48, err, sizeof err), F4D_EINVAL);
     assert_non_null(strstr(err, "moonwalk"));
 }
 

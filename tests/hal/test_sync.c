@@ -56,7 +56,7 @@ static void sync_by_hand(void **state)
     assert_int_equal(f4d_sync_init(&s, &cfg, sink_set, sink_release, &k), 0);
     struct f4d_sync_config bad = cfg;
     bad.n_cams = 0;
-    assert_int_equal(f4d_sync_init(&s, &bad, sink_set, sink_release, &k), HAL_EINVAL);
+    assert_int_equal(f4d_sync_init(&s, &bad, sink_set, sink_release, &k), F4D_EINVAL);
     assert_int_equal(f4d_sync_init(&s, &cfg, sink_set, sink_release, &k), 0);
 
     const uint64_t ms = 1000000;

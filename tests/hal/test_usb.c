@@ -240,13 +240,13 @@ static void open_failures(void **state)
     struct hal_rig rig;
     char err[256];
     usb_board(&b, "/dev/video77");
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), HAL_ENODEV);
+    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), F4D_ENODEV);
     assert_non_null(strstr(err, "/dev/video77"));
     usb_board(&b, "/dev/null");
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), HAL_ENODEV);
+    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), F4D_ENODEV);
     assert_non_null(strstr(err, "not a V4L2 device"));
     usb_board(&b, "");
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), HAL_EINVAL);
+    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), F4D_EINVAL);
     assert_non_null(strstr(err, "no device node"));
 }
 
@@ -292,9 +292,9 @@ static void negotiate_and_stream(void **state)
     assert_int_equal(f.stride, 1280);
     assert_int_equal(f.trigger, HAL_TRIGGER_FREE_RUN);
     assert_int_equal(hal_camera_validate(cam, &f), HAL_FORMAT_VALID);
-    assert_int_equal(hal_camera_start(cam), HAL_ESTATE);
-    assert_int_equal(hal_camera_configure(cam, &f), HAL_OK);
-    assert_int_equal(hal_camera_start(cam), HAL_ESTATE); /* no buffers yet */
+    assert_int_equal(hal_camera_start(cam), F4D_ESTATE);
+    assert_int_equal(hal_camera_configure(cam, &f), F4D_OK);
+    assert_int_equal(hal_camera_start(cam), F4D_ESTATE); /* no buffers yet */
     assert_non_null(strstr(hal_camera_last_error(cam), "no buffer"));
     hal_camera_stop(cam);
     hal_rig_close(&rig);

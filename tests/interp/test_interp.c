@@ -20,7 +20,7 @@ static fk_ctx *make_ctx(void)
 {
     fk_ctx *ctx = NULL;
     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     return ctx;
 }
 
@@ -118,11 +118,11 @@ static void test_dual_consistency_pairs(void **state)
     assert_int_equal(st.fused, 0);
     assert_int_equal(out.count, 5);
     /* bad input */
-    assert_int_equal(interp_at(ip, &k0, &k1, 1.5f, &cfg, &out, &st, &err), SPLAT_EINVAL);
+    assert_int_equal(interp_at(ip, &k0, &k1, 1.5f, &cfg, &out, &st, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "[0, 1]"));
     free(f1.motion_bwd);
     f1.motion_bwd = NULL;
-    assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &st, &err), SPLAT_EINVAL);
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &st, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "backward motion"));
     interp_key_free(&k0);
     interp_key_free(&k1);
@@ -244,9 +244,9 @@ static void test_budget(void **state)
     f.pos[12] = 100.0f;
     assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
     assert_int_equal(st.pruned_outside, 1);
-    assert_int_equal(budget_prune(&f, &rig, &cfg, &f, &st, &err), SPLAT_EINVAL);
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &f, &st, &err), F4D_EINVAL);
     cfg.voxel = -1.0f;
-    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), SPLAT_EINVAL);
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, ">= 0"));
     splat_frame_free(&f);
     splat_frame_free(&out);

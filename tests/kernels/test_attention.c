@@ -55,7 +55,7 @@ static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale
     int ldk = kv ? 2 * C : ld;
     float *want = xmalloc(sizeof(float) * (size_t)c->nq * C), *got = xmalloc(sizeof(float) * (size_t)c->nq * C);
     fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
-    assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), FK_OK);
+    assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), F4D_OK);
     fk_ctx_free(ref);
     enum fk_isa isas[4];
     int n_isa = test_isas(isas);
@@ -64,7 +64,7 @@ static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale
             fk_ctx *ctx = test_ctx(isas[i], threads);
             memset(got, 0xff, sizeof(float) * (size_t)c->nq * C);
             int st = fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C);
-            if (st != FK_OK)
+            if (st != F4D_OK)
                 fail_msg("%s", fk_ctx_error(ctx));
             double e = budget_ratio(got, want, (size_t)c->nq * C, 2e-5, 2e-5);
             if (e > 1.0)
@@ -122,7 +122,7 @@ static void test_onehot_and_uniform(void **state)
     for (int a = 0; a < n_isa; a++) {
         fk_ctx *ctx = test_ctx(all[a], 2);
         struct fk_attention_desc desc = { .heads = 1, .head_dim = d };
-        assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, o, d), FK_OK);
+        assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, o, d), F4D_OK);
         for (int c = 0; c < d; c++) {
             assert_float_equal(o[c], v[20 * d + c], 1e-4);
             float mean = (float)((nk - 1) * 3) / 2.0f + (float)c;
@@ -153,7 +153,7 @@ static void test_nonfinite(void **state)
     for (int a = 0; a < n_isa; a++) {
         fk_ctx *ctx = test_ctx(all[a], 1);
         struct fk_attention_desc desc = { .heads = heads, .head_dim = d };
-        assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), FK_OK);
+        assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), F4D_OK);
         for (int i = 0; i < n; i++)
             for (int h = 0; h < heads; h++) {
                 int bad = (i == 3 && h == 0) || (i == 7 && h == 1);
@@ -167,7 +167,7 @@ static void test_nonfinite(void **state)
             }
         /* a NaN value row poisons every query that attends to it */
         v[5 * C + 3] = NAN;
-        assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), FK_OK);
+        assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), F4D_OK);
         for (int i = 0; i < n; i++)
             assert_true(isnan(o[i * C + 3]));
         v[5 * C + 3] = 0;
@@ -183,27 +183,27 @@ static void test_bad_arguments(void **state)
     float x[64] = { 0 }, o[64];
     int32_t pos[8] = { 0 };
     struct fk_attention_desc a = { .heads = 2, .head_dim = 8 };
-    assert_int_equal(fk_attention(ctx, NULL, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
-    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 2, o, 15), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, NULL, x, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 2, o, 15), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "stride"));
-    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 0, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 0, o, 16), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "no keys"));
-    assert_int_equal(fk_attention(ctx, &a, x, 16, 0, x, 16, x, 16, 0, o, 16), FK_OK);
-    assert_int_equal(fk_attention(ctx, &a, x, 16, -1, x, 16, x, 16, 2, o, 16), FK_EINVAL);
-    assert_int_equal(fk_attention(ctx, &a, NULL, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
-    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 2, x + 4, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 0, x, 16, x, 16, 0, o, 16), F4D_OK);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, -1, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, NULL, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
+    assert_int_equal(fk_attention(ctx, &a, x, 16, 2, x, 16, x, 16, 2, x + 4, 16), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "overlap"));
     struct fk_attention_desc odd = { .heads = 1, .head_dim = 7 };
-    assert_int_equal(fk_attention(ctx, &odd, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &odd, x, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
     struct fk_attention_desc half_rope = { .heads = 2, .head_dim = 8, .pos_q = pos };
-    assert_int_equal(fk_attention(ctx, &half_rope, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &half_rope, x, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
     struct fk_attention_desc rope6 = { .heads = 1, .head_dim = 6, .pos_q = pos, .pos_k = pos };
-    assert_int_equal(fk_attention(ctx, &rope6, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &rope6, x, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
     struct fk_attention_desc noeps = { .heads = 2, .head_dim = 8, .qk_norm = 1 };
-    assert_int_equal(fk_attention(ctx, &noeps, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &noeps, x, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "eps"));
     struct fk_attention_desc badscale = { .heads = 2, .head_dim = 8, .scale = NAN };
-    assert_int_equal(fk_attention(ctx, &badscale, x, 16, 2, x, 16, x, 16, 2, o, 16), FK_EINVAL);
+    assert_int_equal(fk_attention(ctx, &badscale, x, 16, 2, x, 16, x, 16, 2, o, 16), F4D_EINVAL);
     fk_ctx_free(ctx);
 }
 

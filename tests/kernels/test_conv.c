@@ -58,7 +58,7 @@ static void check_conv(int h, int w, int cin, int cout, int kh, int kw, int stri
     size_t n = (size_t)ho * wo * cout;
     float *want = xmalloc(sizeof(float) * n), *got = xmalloc(sizeof(float) * n);
     double *s = xmalloc(sizeof(double) * n), *q = xmalloc(sizeof(double) * n);
-    assert_int_equal(fk_conv2d_ref(x, h, w, cin, wt, b, cout, kh, kw, stride, pad, want), FK_OK);
+    assert_int_equal(fk_conv2d_ref(x, h, w, cin, wt, b, cout, kh, kw, stride, pad, want), F4D_OK);
     conv_scale(x, h, w, cin, wt, b, cout, kh, kw, stride, pad, s, q);
     enum fk_isa all[5] = { FK_ISA_REF };
     int n_isa = 1 + test_isas(all + 1);
@@ -66,19 +66,19 @@ static void check_conv(int h, int w, int cin, int cout, int kh, int kw, int stri
         for (int t = FK_W_F32; t <= FK_W_Q8; t++) {
             fk_ctx *ctx = test_ctx(all[a], 2);
             struct fk_conv2d c;
-            assert_int_equal(fk_conv2d_pack(ctx, &c, (enum fk_wtype)t, wt, b, cout, cin, kh, kw, stride, pad), FK_OK);
+            assert_int_equal(fk_conv2d_pack(ctx, &c, (enum fk_wtype)t, wt, b, cout, cin, kh, kw, stride, pad), F4D_OK);
             int oh, ow;
             fk_conv2d_out_size(&c, h, w, &oh, &ow);
             assert_int_equal(oh, ho);
             assert_int_equal(ow, wo);
-            if (fk_conv2d_forward(ctx, &c, x, h, w, got, FK_ACT_NONE) != FK_OK)
+            if (fk_conv2d_forward(ctx, &c, x, h, w, got, FK_ACT_NONE) != F4D_OK)
                 fail_msg("%s", fk_ctx_error(ctx));
             for (size_t i = 0; i < n; i++)
                 if (!(fabs((double)got[i] - want[i]) <= (t == FK_W_Q8 ? q[i] : budget[t] * s[i])))
                     fail_msg("%s type %d conv %dx%d s%d p%d %dx%dx%d->%d: out %zu = %g, ref %g",
                              fk_isa_name(all[a]), t, kh, kw, stride, pad, h, w, cin, cout, i, got[i], want[i]);
             /* fused ReLU */
-            assert_int_equal(fk_conv2d_forward(ctx, &c, x, h, w, got, FK_ACT_RELU), FK_OK);
+            assert_int_equal(fk_conv2d_forward(ctx, &c, x, h, w, got, FK_ACT_RELU), F4D_OK);
             for (size_t i = 0; i < n; i++)
                 assert_true(got[i] >= 0);
             fk_conv2d_free(&c);
@@ -110,16 +110,16 @@ static void check_tconv(int h, int w, int cin, int cout, int k, uint64_t seed)
     rng_fill_normal(&r, b, (size_t)cout, 0.1f);
     size_t n = (size_t)h * k * w * k * cout;
     float *want = xmalloc(sizeof(float) * n), *got = xmalloc(sizeof(float) * n);
-    assert_int_equal(fk_conv_transpose2d_ref(x, h, w, cin, wt, b, cout, k, want), FK_OK);
+    assert_int_equal(fk_conv_transpose2d_ref(x, h, w, cin, wt, b, cout, k, want), F4D_OK);
     enum fk_isa all[5] = { FK_ISA_REF };
     int n_isa = 1 + test_isas(all + 1);
     for (int a = 0; a < n_isa; a++)
         for (int t = FK_W_F32; t <= FK_W_Q8; t++) {
             fk_ctx *ctx = test_ctx(all[a], 2);
             struct fk_conv_transpose2d c;
-            assert_int_equal(fk_conv_transpose2d_pack(ctx, &c, (enum fk_wtype)t, wt, b, cin, cout, k), FK_OK);
+            assert_int_equal(fk_conv_transpose2d_pack(ctx, &c, (enum fk_wtype)t, wt, b, cin, cout, k), F4D_OK);
             memset(got, 0xff, sizeof(float) * n); /* every output must be written */
-            if (fk_conv_transpose2d_forward(ctx, &c, x, h, w, got) != FK_OK)
+            if (fk_conv_transpose2d_forward(ctx, &c, x, h, w, got) != F4D_OK)
                 fail_msg("%s", fk_ctx_error(ctx));
             for (int i = 0; i < h; i++)
                 for (int j = 0; j < w; j++)
@@ -157,24 +157,24 @@ static void test_bad_input(void **state)
     float w[64] = { 0 }, x[64] = { 0 }, y[256];
     struct fk_conv2d c;
     struct fk_conv_transpose2d t;
-    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 2, 2, 3, 3, 1, 3), FK_EINVAL);
+    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 2, 2, 3, 3, 1, 3), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "padding"));
-    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 0, 2, 3, 3, 1, 1), FK_EINVAL);
-    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 2, 2, 3, 3, 0, 1), FK_EINVAL);
-    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, NULL, NULL, 2, 2, 3, 3, 1, 1), FK_EINVAL);
-    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 2, 2, 3, 3, 1, 0), FK_OK);
-    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 2, 2, y, FK_ACT_NONE), FK_EINVAL); /* 2x2 < 3x3 */
+    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 0, 2, 3, 3, 1, 1), F4D_EINVAL);
+    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 2, 2, 3, 3, 0, 1), F4D_EINVAL);
+    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, NULL, NULL, 2, 2, 3, 3, 1, 1), F4D_EINVAL);
+    assert_int_equal(fk_conv2d_pack(ctx, &c, FK_W_F32, w, NULL, 2, 2, 3, 3, 1, 0), F4D_OK);
+    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 2, 2, y, FK_ACT_NONE), F4D_EINVAL); /* 2x2 < 3x3 */
     assert_non_null(strstr(fk_ctx_error(ctx), "smaller"));
-    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 0, 5, y, FK_ACT_NONE), FK_EINVAL);
-    assert_int_equal(fk_conv2d_forward(ctx, &c, NULL, 4, 4, y, FK_ACT_NONE), FK_EINVAL);
-    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 4, 4, y, (enum fk_act)12), FK_EINVAL);
+    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 0, 5, y, FK_ACT_NONE), F4D_EINVAL);
+    assert_int_equal(fk_conv2d_forward(ctx, &c, NULL, 4, 4, y, FK_ACT_NONE), F4D_EINVAL);
+    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 4, 4, y, (enum fk_act)12), F4D_EINVAL);
     fk_conv2d_free(&c);
-    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 4, 4, y, FK_ACT_NONE), FK_EINVAL); /* freed */
-    assert_int_equal(fk_conv_transpose2d_pack(ctx, &t, FK_W_F32, w, NULL, 2, 2, 0), FK_EINVAL);
-    assert_int_equal(fk_conv_transpose2d_pack(ctx, &t, FK_W_F32, w, NULL, 2, 2, 2), FK_OK);
-    assert_int_equal(fk_conv_transpose2d_forward(ctx, &t, x, -1, 2, y), FK_EINVAL);
+    assert_int_equal(fk_conv2d_forward(ctx, &c, x, 4, 4, y, FK_ACT_NONE), F4D_EINVAL); /* freed */
+    assert_int_equal(fk_conv_transpose2d_pack(ctx, &t, FK_W_F32, w, NULL, 2, 2, 0), F4D_EINVAL);
+    assert_int_equal(fk_conv_transpose2d_pack(ctx, &t, FK_W_F32, w, NULL, 2, 2, 2), F4D_OK);
+    assert_int_equal(fk_conv_transpose2d_forward(ctx, &t, x, -1, 2, y), F4D_EINVAL);
     fk_conv_transpose2d_free(&t);
-    assert_int_equal(fk_conv2d_ref(x, 2, 2, 1, w, NULL, 1, 3, 3, 1, 0, y), FK_EINVAL);
+    assert_int_equal(fk_conv2d_ref(x, 2, 2, 1, w, NULL, 1, 3, 3, 1, 0, y), F4D_EINVAL);
     fk_ctx_free(ctx);
 }
 

@@ -12,18 +12,18 @@ static void test_isa_selection(void **state)
     (void)state;
     fk_ctx *ctx = NULL;
     struct fk_ctx_config cfg = { FK_ISA_AUTO, 1 };
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     assert_true(fk_isa_supported(fk_ctx_isa(ctx)));
     assert_string_equal(fk_ctx_error(ctx), "");
     fk_ctx_free(ctx);
     cfg.isa = FK_ISA_NEON; /* the seam exists, the kernels do not: never offered */
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_ENOTSUP);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_ENOTSUP);
     assert_null(ctx);
     cfg.isa = (enum fk_isa)99;
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_ENOTSUP);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_ENOTSUP);
     cfg = (struct fk_ctx_config){ FK_ISA_REF, 1000 };
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_EINVAL);
-    assert_int_equal(fk_ctx_new(&cfg, NULL), FK_EINVAL);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_EINVAL);
+    assert_int_equal(fk_ctx_new(&cfg, NULL), F4D_EINVAL);
     for (int i = FK_ISA_AUTO; i <= FK_ISA_NEON; i++)
         assert_int_equal(fk_isa_from_name(fk_isa_name((enum fk_isa)i)), i);
     assert_int_equal((int)fk_isa_from_name("sse9"), -1);
@@ -80,22 +80,22 @@ static void test_frozen_scratch(void **state)
     for (int i = 0; i < 64 * 64; i++)
         w[i] = x[i] = (float)(i % 7) * 0.25f;
     struct fk_linear L;
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 64, 64, NULL), FK_OK);
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 64, 64, NULL), F4D_OK);
     /* warm up, then freeze: the same call must still work with no allocation */
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 64, 64, y, 64, NULL), FK_OK);
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 64, 64, y, 64, NULL), F4D_OK);
     size_t reserved = fk_ctx_scratch_bytes(ctx);
     assert_true(reserved > 0);
     fk_ctx_freeze(ctx, 1);
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 64, 64, y, 64, NULL), FK_OK);
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 64, 64, y, 64, NULL), F4D_OK);
     assert_int_equal(fk_ctx_scratch_bytes(ctx), reserved);
     /* a bigger job than planned fails cleanly and says why */
     struct fk_linear big;
     float *wb = xmalloc(sizeof(float) * 64 * 4096), *xb = xmalloc(sizeof(float) * 64 * 4096);
-    assert_int_equal(fk_linear_pack(ctx, &big, FK_W_F32, wb, 64, 4096, NULL), FK_OK);
-    assert_int_equal(fk_linear_forward(ctx, &big, xb, 64, 4096, y, 64, NULL), FK_ENOMEM);
+    assert_int_equal(fk_linear_pack(ctx, &big, FK_W_F32, wb, 64, 4096, NULL), F4D_OK);
+    assert_int_equal(fk_linear_forward(ctx, &big, xb, 64, 4096, y, 64, NULL), F4D_ENOMEM);
     assert_non_null(strstr(fk_ctx_error(ctx), "frozen"));
     fk_ctx_freeze(ctx, 0);
-    assert_int_equal(fk_linear_forward(ctx, &big, xb, 64, 4096, y, 64, NULL), FK_OK);
+    assert_int_equal(fk_linear_forward(ctx, &big, xb, 64, 4096, y, 64, NULL), F4D_OK);
     fk_linear_free(&big);
     fk_linear_free(&L);
     free(wb);

@@ -72,11 +72,11 @@ static float *run(fk_ctx *ctx, const struct problem *p, enum fk_wtype t,
                   const struct fk_epilogue *ep)
 {
     struct fk_linear L;
-    assert_int_equal(fk_linear_pack(ctx, &L, t, p->w, p->n, p->k, p->b), FK_OK);
+    assert_int_equal(fk_linear_pack(ctx, &L, t, p->w, p->n, p->k, p->b), F4D_OK);
     float *y = xmalloc(sizeof(float) * (size_t)p->m * (size_t)p->n);
     memcpy(y, p->y0, sizeof(float) * (size_t)p->m * (size_t)p->n);
     int st = fk_linear_forward(ctx, &L, p->x, p->m, p->k, y, p->n, ep);
-    if (st != FK_OK)
+    if (st != F4D_OK)
         fail_msg("forward: %s", fk_ctx_error(ctx));
     fk_linear_free(&L);
     return y;
@@ -203,8 +203,8 @@ static void test_int8_exact_accumulation(void **state)
     for (int a = 0; a < n_isa; a++) {
         fk_ctx *ctx = test_ctx(all[a], 2);
         struct fk_linear L;
-        assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, n, k, NULL), FK_OK);
-        assert_int_equal(fk_linear_forward(ctx, &L, x, m, k, y, n, NULL), FK_OK);
+        assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, n, k, NULL), F4D_OK);
+        assert_int_equal(fk_linear_forward(ctx, &L, x, m, k, y, n, NULL), F4D_OK);
         for (int i = 0; i < m; i++)
             for (int j = 0; j < n; j++) {
                 int64_t acc = 0;
@@ -258,35 +258,35 @@ static void test_bad_input(void **state)
     fk_ctx *ctx = test_ctx(FK_ISA_AUTO, 1);
     float w[12] = { 0 }, x[12] = { 0 }, y[12];
     struct fk_linear L;
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 0, 3, NULL), FK_EINVAL);
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 0, 3, NULL), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "shape"));
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 3, -1, NULL), FK_EINVAL);
-    assert_int_equal(fk_linear_pack(ctx, &L, (enum fk_wtype)7, w, 3, 4, NULL), FK_EINVAL);
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, NULL, 3, 4, NULL), FK_EINVAL);
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, 1, 70000, NULL), FK_ERANGE);
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 3, -1, NULL), F4D_EINVAL);
+    assert_int_equal(fk_linear_pack(ctx, &L, (enum fk_wtype)7, w, 3, 4, NULL), F4D_EINVAL);
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, NULL, 3, 4, NULL), F4D_EINVAL);
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, 1, 70000, NULL), F4D_ERANGE);
     w[5] = NAN;
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, 3, 4, NULL), FK_EINVAL);
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, 3, 4, NULL), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "row 1"));
     int8_t q[4] = { 1, -128, 0, 0 };
     float sc[1] = { 1.0f };
-    assert_int_equal(fk_linear_pack_q8(ctx, &L, q, sc, 1, 4, NULL), FK_EINVAL);
+    assert_int_equal(fk_linear_pack_q8(ctx, &L, q, sc, 1, 4, NULL), F4D_EINVAL);
     assert_non_null(strstr(fk_ctx_error(ctx), "-128"));
     w[5] = 0;
 
-    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 3, 4, NULL), FK_OK);
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 3, y, 3, NULL), FK_EINVAL); /* ldx < k */
+    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_F32, w, 3, 4, NULL), F4D_OK);
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 3, y, 3, NULL), F4D_EINVAL); /* ldx < k */
     assert_non_null(strstr(fk_ctx_error(ctx), "stride"));
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 4, y, 2, NULL), FK_EINVAL); /* ldy < n */
-    assert_int_equal(fk_linear_forward(ctx, &L, x, -1, 4, y, 3, NULL), FK_EINVAL);
-    assert_int_equal(fk_linear_forward(ctx, &L, NULL, 2, 4, y, 3, NULL), FK_EINVAL);
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 0, 4, y, 3, NULL), FK_OK);     /* empty */
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 4, x + 2, 3, NULL), FK_EINVAL); /* overlap */
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 4, y, 2, NULL), F4D_EINVAL); /* ldy < n */
+    assert_int_equal(fk_linear_forward(ctx, &L, x, -1, 4, y, 3, NULL), F4D_EINVAL);
+    assert_int_equal(fk_linear_forward(ctx, &L, NULL, 2, 4, y, 3, NULL), F4D_EINVAL);
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 0, 4, y, 3, NULL), F4D_OK);     /* empty */
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 4, x + 2, 3, NULL), F4D_EINVAL); /* overlap */
     struct fk_epilogue bad = { (enum fk_act)9, NULL, 0 };
-    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 4, y, 3, &bad), FK_EINVAL);
-    assert_int_equal(fk_linear_forward(ctx, NULL, x, 2, 4, y, 3, NULL), FK_EINVAL);
+    assert_int_equal(fk_linear_forward(ctx, &L, x, 2, 4, y, 3, &bad), F4D_EINVAL);
+    assert_int_equal(fk_linear_forward(ctx, NULL, x, 2, 4, y, 3, NULL), F4D_EINVAL);
     if (fk_ctx_isa(ctx) != FK_ISA_REF) { /* weights packed for another layout */
         fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
-        assert_int_equal(fk_linear_forward(ref, &L, x, 2, 4, y, 3, NULL), FK_EINVAL);
+        assert_int_equal(fk_linear_forward(ref, &L, x, 2, 4, y, 3, NULL), F4D_EINVAL);
         assert_non_null(strstr(fk_ctx_error(ref), "packed"));
         fk_ctx_free(ref);
     }
@@ -302,14 +302,14 @@ static void test_f16_source_and_q8_import(void **state)
     struct problem p;
     problem_make(&p, 11, 21, 33, 77);
     fk_f16 *wh = xmalloc(sizeof(fk_f16) * 21 * 33);
-    assert_int_equal(fk_f32_to_f16(ctx, p.w, wh, 21 * 33), FK_OK);
+    assert_int_equal(fk_f32_to_f16(ctx, p.w, wh, 21 * 33), F4D_OK);
     struct fk_linear a, b;
     float *ya = xmalloc(sizeof(float) * 11 * 21), *yb = xmalloc(sizeof(float) * 11 * 21);
     /* fp16 kept as fp16 equals fp32 weights rounded to fp16 */
-    assert_int_equal(fk_linear_pack_f16(ctx, &a, FK_W_F16, wh, 21, 33, p.b), FK_OK);
-    assert_int_equal(fk_linear_pack(ctx, &b, FK_W_F16, p.w, 21, 33, p.b), FK_OK);
-    assert_int_equal(fk_linear_forward(ctx, &a, p.x, 11, 33, ya, 21, NULL), FK_OK);
-    assert_int_equal(fk_linear_forward(ctx, &b, p.x, 11, 33, yb, 21, NULL), FK_OK);
+    assert_int_equal(fk_linear_pack_f16(ctx, &a, FK_W_F16, wh, 21, 33, p.b), F4D_OK);
+    assert_int_equal(fk_linear_pack(ctx, &b, FK_W_F16, p.w, 21, 33, p.b), F4D_OK);
+    assert_int_equal(fk_linear_forward(ctx, &a, p.x, 11, 33, ya, 21, NULL), F4D_OK);
+    assert_int_equal(fk_linear_forward(ctx, &b, p.x, 11, 33, yb, 21, NULL), F4D_OK);
     assert_memory_equal(ya, yb, sizeof(float) * 11 * 21);
     fk_linear_free(&a); fk_linear_free(&b);
     /* pre-quantized import equals quantize-at-pack */
@@ -317,10 +317,10 @@ static void test_f16_source_and_q8_import(void **state)
     float sc[21];
     for (int j = 0; j < 21; j++)
         sc[j] = fk_quantize_row_q8(p.w + j * 33, 33, q + j * 33);
-    assert_int_equal(fk_linear_pack_q8(ctx, &a, q, sc, 21, 33, p.b), FK_OK);
-    assert_int_equal(fk_linear_pack(ctx, &b, FK_W_Q8, p.w, 21, 33, p.b), FK_OK);
-    assert_int_equal(fk_linear_forward(ctx, &a, p.x, 11, 33, ya, 21, NULL), FK_OK);
-    assert_int_equal(fk_linear_forward(ctx, &b, p.x, 11, 33, yb, 21, NULL), FK_OK);
+    assert_int_equal(fk_linear_pack_q8(ctx, &a, q, sc, 21, 33, p.b), F4D_OK);
+    assert_int_equal(fk_linear_pack(ctx, &b, FK_W_Q8, p.w, 21, 33, p.b), F4D_OK);
+    assert_int_equal(fk_linear_forward(ctx, &a, p.x, 11, 33, ya, 21, NULL), F4D_OK);
+    assert_int_equal(fk_linear_forward(ctx, &b, p.x, 11, 33, yb, 21, NULL), F4D_OK);
     assert_memory_equal(ya, yb, sizeof(float) * 11 * 21);
     assert_true(a.bytes < (size_t)21 * 33 * 4); /* int8 holds less than fp32 */
     fk_linear_free(&a); fk_linear_free(&b);

@@ -116,11 +116,11 @@ static void check_elementwise(const char *name, elt_fn fn, double atol, double r
         float *x = xmalloc((n + 1) * sizeof *x), *want = xmalloc(n * sizeof *want);
         float *got = xmalloc((n + 1) * sizeof *got), *one = xmalloc(n * sizeof *one);
         fill_elementwise(x, n, 100 + n);
-        assert_int_equal(fn(ref, x, n, want), FK_OK);
+        assert_int_equal(fn(ref, x, n, want), F4D_OK);
         for (int ci = 0; ci < nc; ci++) {
             fk_ctx *ctx = test_ctx(cfgs[ci].isa, cfgs[ci].threads);
             got[n] = SENTINEL;
-            assert_int_equal(fn(ctx, x, n, got), FK_OK);
+            assert_int_equal(fn(ctx, x, n, got), F4D_OK);
             assert_true(got[n] == SENTINEL);          /* nothing written past n */
             check_budget(name, cfgs[ci], got, want, n, atol, rtol);
             if (cfgs[ci].threads == 1 && cfgs[ci].isa != FK_ISA_REF)
@@ -129,7 +129,7 @@ static void check_elementwise(const char *name, elt_fn fn, double atol, double r
                 check_same_bits("2 threads vs 1", got, one, n);
             /* in place */
             memcpy(got, x, n * sizeof *x);
-            assert_int_equal(fn(ctx, got, n, got), FK_OK);
+            assert_int_equal(fn(ctx, got, n, got), F4D_OK);
             check_budget(name, cfgs[ci], got, want, n, atol, rtol);
             fk_ctx_free(ctx);
         }
@@ -156,9 +156,9 @@ static void test_elementwise_special(void **state)
     for (int ci = 0; ci < nc; ci++) {
         fk_ctx *ctx = test_ctx(cfgs[ci].isa, cfgs[ci].threads);
         float g[N], s[N], r[N];
-        assert_int_equal(fk_gelu(ctx, x, N, g), FK_OK);
-        assert_int_equal(fk_silu(ctx, x, N, s), FK_OK);
-        assert_int_equal(fk_relu(ctx, x, N, r), FK_OK);
+        assert_int_equal(fk_gelu(ctx, x, N, g), F4D_OK);
+        assert_int_equal(fk_silu(ctx, x, N, s), F4D_OK);
+        assert_int_equal(fk_relu(ctx, x, N, r), F4D_OK);
         assert_true(isnan(g[0]) && isnan(s[0]) && isnan(r[0]));
         for (int i = 1; i < N; i++)
             assert_true(!isnan(g[i]) && !isnan(s[i]) && !isnan(r[i]));
@@ -203,7 +203,7 @@ static float *check_rows_vs_ref(const char *name, row_op_fn op, const void *arg,
         for (size_t i = 0; i < n; i++)
             out[i] = rc->inplace ? x[i] : SENTINEL;
         assert_int_equal(op(ctx, rc->inplace ? out : x, rc->rows, rc->cols, rc->ldx, out, ldy, arg),
-                         FK_OK);
+                         F4D_OK);
         fk_ctx_free(ctx);
         if (k == 0) {
             for (int i = 0; i < rc->rows; i++)
@@ -271,7 +271,7 @@ static void test_layernorm_vs_ref(void **state)
 static void run_layernorm(fk_ctx *ctx, const float *x, int rows, int cols, const float *w,
                           const float *b, float eps, float *y)
 {
-    assert_int_equal(fk_layernorm(ctx, x, rows, cols, cols, w, b, eps, y, cols), FK_OK);
+    assert_int_equal(fk_layernorm(ctx, x, rows, cols, cols, w, b, eps, y, cols), F4D_OK);
 }
 
 /* LayerNorm written out in double, no affine part. */
@@ -417,7 +417,7 @@ static void test_softmax_hard(void **state)
             x[5][j] = (float)-j;
         }
         x[4][7] = NAN;                                  /* NaN: that row only        */
-        assert_int_equal(fk_softmax(ctx, &x[0][0], 6, C, C, &y[0][0], C), FK_OK);
+        assert_int_equal(fk_softmax(ctx, &x[0][0], 6, C, C, &y[0][0], C), F4D_OK);
         for (int j = 0; j < C; j++) {
             assert_true(y[0][j] == (j == 5 ? 1.0f : 0.0f));
             assert_true(y[1][j] == (j == 2 || j == 11 ? 0.5f : 0.0f));
@@ -428,14 +428,14 @@ static void test_softmax_hard(void **state)
         }
         /* a single column is always 1; an all -Inf row is NaN (0/0), as +Inf is */
         float one[3] = { -1e30f, -INFINITY, INFINITY }, o[3];
-        assert_int_equal(fk_softmax(ctx, one, 3, 1, 1, o, 1), FK_OK);
+        assert_int_equal(fk_softmax(ctx, one, 3, 1, 1, o, 1), F4D_OK);
         assert_true(o[0] == 1.0f && isnan(o[1]) && isnan(o[2]));
         /* uniform rows of every length up to 40 */
         for (int n = 1; n <= 40; n++) {
             float u[40], v[40];
             for (int j = 0; j < n; j++)
                 u[j] = -7.25f;
-            assert_int_equal(fk_softmax(ctx, u, 1, n, n, v, n), FK_OK);
+            assert_int_equal(fk_softmax(ctx, u, 1, n, n, v, n), F4D_OK);
             for (int j = 0; j < n; j++)
                 assert_true(v[j] == 1.0f / (float)n);
         }
@@ -472,7 +472,7 @@ static void test_residual_vs_ref(void **state)
                 fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
                 memcpy(want, x, nx * sizeof *x);
                 assert_int_equal(fk_residual_add(ref, want, ldx, self ? want : r, ldr,
-                                                 gamma ? g : NULL, rows, cols), FK_OK);
+                                                 gamma ? g : NULL, rows, cols), F4D_OK);
                 fk_ctx_free(ref);
                 for (int i = 0; i < rows; i++) /* spot check the definition */
                     assert_true(want[(size_t)i * ldx] ==
@@ -482,7 +482,7 @@ static void test_residual_vs_ref(void **state)
                     fk_ctx *ctx = test_ctx(cfgs[k].isa, cfgs[k].threads);
                     memcpy(got, x, nx * sizeof *x);
                     assert_int_equal(fk_residual_add(ctx, got, ldx, self ? got : r, ldr,
-                                                     gamma ? g : NULL, rows, cols), FK_OK);
+                                                     gamma ? g : NULL, rows, cols), F4D_OK);
                     check_same_bits("residual add", got, want, nx);
                     fk_ctx_free(ctx);
                 }
@@ -496,7 +496,7 @@ static void test_residual_vs_ref(void **state)
 
 static void expect_einval(fk_ctx *ctx, int st, const char *needle)
 {
-    assert_int_equal(st, FK_EINVAL);
+    assert_int_equal(st, F4D_EINVAL);
     if (!strstr(fk_ctx_error(ctx), needle))
         fail_msg("error \"%s\" does not mention \"%s\"", fk_ctx_error(ctx), needle);
 }
@@ -507,12 +507,12 @@ static void test_bad_arguments(void **state)
     fk_ctx *ctx = test_ctx(FK_ISA_AUTO, 1);
     float a[64] = { 0 }, b[64] = { 0 };
 
-    assert_int_equal(fk_gelu(NULL, a, 4, b), FK_EINVAL);
-    assert_int_equal(fk_layernorm(NULL, a, 1, 4, 4, NULL, NULL, 1e-5f, b, 4), FK_EINVAL);
-    assert_int_equal(fk_softmax(NULL, a, 1, 4, 4, b, 4), FK_EINVAL);
-    assert_int_equal(fk_residual_add(NULL, a, 4, b, 4, NULL, 1, 4), FK_EINVAL);
+    assert_int_equal(fk_gelu(NULL, a, 4, b), F4D_EINVAL);
+    assert_int_equal(fk_layernorm(NULL, a, 1, 4, 4, NULL, NULL, 1e-5f, b, 4), F4D_EINVAL);
+    assert_int_equal(fk_softmax(NULL, a, 1, 4, 4, b, 4), F4D_EINVAL);
+    assert_int_equal(fk_residual_add(NULL, a, 4, b, 4, NULL, 1, 4), F4D_EINVAL);
 
-    assert_int_equal(fk_gelu(ctx, NULL, 0, NULL), FK_OK);      /* empty: nothing to do */
+    assert_int_equal(fk_gelu(ctx, NULL, 0, NULL), F4D_OK);      /* empty: nothing to do */
     expect_einval(ctx, fk_gelu(ctx, NULL, 4, b), "x is NULL");
     expect_einval(ctx, fk_silu(ctx, a, 4, NULL), "y is NULL");
     expect_einval(ctx, fk_relu(ctx, a, 8, a + 1), "overlap");
@@ -527,8 +527,8 @@ static void test_bad_arguments(void **state)
     expect_einval(ctx, fk_layernorm(ctx, a, 2, 8, 8, NULL, NULL, NAN, b, 8), "eps");
     expect_einval(ctx, fk_layernorm(ctx, a, 2, 8, 8, NULL, NULL, 1e-5f, a, 16), "overlap");
     expect_einval(ctx, fk_layernorm(ctx, a, 2, 8, 8, NULL, NULL, 1e-5f, a + 4, 8), "overlap");
-    assert_int_equal(fk_layernorm(ctx, a, 2, 8, 8, NULL, NULL, 1e-5f, a, 8), FK_OK);  /* in place */
-    assert_int_equal(fk_layernorm(ctx, NULL, 0, 8, 8, NULL, NULL, 1e-5f, NULL, 8), FK_OK);
+    assert_int_equal(fk_layernorm(ctx, a, 2, 8, 8, NULL, NULL, 1e-5f, a, 8), F4D_OK);  /* in place */
+    assert_int_equal(fk_layernorm(ctx, NULL, 0, 8, 8, NULL, NULL, 1e-5f, NULL, 8), F4D_OK);
 
     expect_einval(ctx, fk_softmax(ctx, a, -3, 4, 4, b, 4), "rows=-3");
     expect_einval(ctx, fk_softmax(ctx, a, 1, 0, 0, b, 0), "cols=0");

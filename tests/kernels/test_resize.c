@@ -135,7 +135,7 @@ static void check_resize(const char *name, resize_fn fn, int align, int h, int w
         fk_ctx *ctx = test_ctx(cfgs[k].isa, cfgs[k].threads);
         float *out = k == 0 ? ref : got;
         out[ny] = 12345.0f;
-        assert_int_equal(fn(ctx, x, h, w, c, out, ho, wo, align), FK_OK);
+        assert_int_equal(fn(ctx, x, h, w, c, out, ho, wo, align), F4D_OK);
         assert_true(out[ny] == 12345.0f);
         if (k == 0) {
             double r = budget_ratio(ref, direct, ny, 1e-6, 1e-6);
@@ -219,9 +219,9 @@ static float *extract_weights(fk_ctx *ctx, int n_in, int n_out, int axis)
     for (int j = 0; j < n_in; j++)
         x[(size_t)j * n_in + j] = 1.0f;   /* pixel j, channel j */
     if (axis == 0)
-        assert_int_equal(fk_resize_bicubic_aa(ctx, x, 1, n_in, n_in, y, 1, n_out), FK_OK);
+        assert_int_equal(fk_resize_bicubic_aa(ctx, x, 1, n_in, n_in, y, 1, n_out), F4D_OK);
     else
-        assert_int_equal(fk_resize_bicubic_aa(ctx, x, n_in, 1, n_in, y, n_out, 1), FK_OK);
+        assert_int_equal(fk_resize_bicubic_aa(ctx, x, n_in, 1, n_in, y, n_out, 1), F4D_OK);
     free(x);
     return y;   /* y[i * n_in + j] = weight of input j in output i */
 }
@@ -292,13 +292,13 @@ static void test_identity_and_constants(void **state)
     for (int k = 0; k < nc; k++) {
         fk_ctx *ctx = test_ctx(cfgs[k].isa, cfgs[k].threads);
         for (int align = 0; align < 2; align++) {
-            assert_int_equal(fk_resize_bilinear(ctx, x, H, W, C, y, H, W, align), FK_OK);
+            assert_int_equal(fk_resize_bilinear(ctx, x, H, W, C, y, H, W, align), F4D_OK);
             assert_true(budget_ratio(y, x, (size_t)H * W * C, 0, 0) == 0);
         }
-        assert_int_equal(fk_resize_bicubic_aa(ctx, x, H, W, C, y, H, W), FK_OK);
+        assert_int_equal(fk_resize_bicubic_aa(ctx, x, H, W, C, y, H, W), F4D_OK);
         assert_true(budget_ratio(y, x, (size_t)H * W * C, 0, 0) == 0);
         /* one identity axis: the other axis only, no mixing along the first */
-        assert_int_equal(fk_resize_bicubic_aa(ctx, x, H, W, C, y, 2 * H, W), FK_OK);
+        assert_int_equal(fk_resize_bicubic_aa(ctx, x, H, W, C, y, 2 * H, W), F4D_OK);
         for (int i = 0; i < 2 * H; i++)
             for (int j = 0; j < W; j++)
                 for (int ch = 0; ch < C; ch++)
@@ -310,22 +310,22 @@ static void test_identity_and_constants(void **state)
         for (int i = 0; i < 4 * 5 * 3; i++)
             cst[i] = one[i % 3];
         for (int align = 0; align < 2; align++) {
-            assert_int_equal(fk_resize_bilinear(ctx, cst, 4, 5, 3, y, 13, 2, align), FK_OK);
+            assert_int_equal(fk_resize_bilinear(ctx, cst, 4, 5, 3, y, 13, 2, align), F4D_OK);
             for (int i = 0; i < 13 * 2 * 3; i++)
                 assert_true(fabsf(y[i] - one[i % 3]) <= 1e-6f * fabsf(one[i % 3]));
-            assert_int_equal(fk_resize_bilinear(ctx, one, 1, 1, 3, y, 4, 6, align), FK_OK);
+            assert_int_equal(fk_resize_bilinear(ctx, one, 1, 1, 3, y, 4, 6, align), F4D_OK);
             for (int i = 0; i < 4 * 6 * 3; i++)
                 assert_true(y[i] == one[i % 3]);
         }
-        assert_int_equal(fk_resize_bicubic_aa(ctx, cst, 4, 5, 3, y, 13, 2), FK_OK);
+        assert_int_equal(fk_resize_bicubic_aa(ctx, cst, 4, 5, 3, y, 13, 2), F4D_OK);
         for (int i = 0; i < 13 * 2 * 3; i++)
             assert_true(fabsf(y[i] - one[i % 3]) <= 1e-6f * fabsf(one[i % 3]));
-        assert_int_equal(fk_resize_bicubic_aa(ctx, one, 1, 1, 3, y, 4, 6), FK_OK);
+        assert_int_equal(fk_resize_bicubic_aa(ctx, one, 1, 1, 3, y, 4, 6), F4D_OK);
         for (int i = 0; i < 4 * 6 * 3; i++)
             assert_true(fabsf(y[i] - one[i % 3]) <= 1e-6f * fabsf(one[i % 3]));
 
         /* align_corners = 1 hits the corners exactly */
-        assert_int_equal(fk_resize_bilinear(ctx, x, H, W, C, y, 3 * H - 1, 2 * W + 3, 1), FK_OK);
+        assert_int_equal(fk_resize_bilinear(ctx, x, H, W, C, y, 3 * H - 1, 2 * W + 3, 1), F4D_OK);
         for (int ch = 0; ch < C; ch++) {
             size_t wo = 2 * W + 3, last = (size_t)(3 * H - 2) * wo;
             assert_true(y[ch] == x[ch]);
@@ -353,7 +353,7 @@ static void test_nan_stays_local(void **state)
         for (int f = 0; f < 3; f++) {
             int st = f < 2 ? fk_resize_bilinear(ctx, x, H, W, C, y, 40, 40, f)
                            : fk_resize_bicubic_aa(ctx, x, H, W, C, y, 40, 40);
-            assert_int_equal(st, FK_OK);
+            assert_int_equal(st, F4D_OK);
             int nan_count = 0;
             for (int i = 0; i < 40; i++)
                 for (int j = 0; j < 40; j++)
@@ -375,7 +375,7 @@ static void test_nan_stays_local(void **state)
 
 static void expect_einval(fk_ctx *ctx, int st, const char *needle)
 {
-    assert_int_equal(st, FK_EINVAL);
+    assert_int_equal(st, F4D_EINVAL);
     if (!strstr(fk_ctx_error(ctx), needle))
         fail_msg("error \"%s\" does not mention \"%s\"", fk_ctx_error(ctx), needle);
 }
@@ -385,8 +385,8 @@ static void test_bad_arguments(void **state)
     (void)state;
     fk_ctx *ctx = test_ctx(FK_ISA_AUTO, 1);
     float a[64] = { 0 }, b[64] = { 0 };
-    assert_int_equal(fk_resize_bilinear(NULL, a, 2, 2, 1, b, 2, 2, 0), FK_EINVAL);
-    assert_int_equal(fk_resize_bicubic_aa(NULL, a, 2, 2, 1, b, 2, 2), FK_EINVAL);
+    assert_int_equal(fk_resize_bilinear(NULL, a, 2, 2, 1, b, 2, 2, 0), F4D_EINVAL);
+    assert_int_equal(fk_resize_bicubic_aa(NULL, a, 2, 2, 1, b, 2, 2), F4D_EINVAL);
     expect_einval(ctx, fk_resize_bilinear(ctx, NULL, 2, 2, 1, b, 2, 2, 0), "x is NULL");
     expect_einval(ctx, fk_resize_bilinear(ctx, a, 2, 2, 1, NULL, 2, 2, 1), "y is NULL");
     expect_einval(ctx, fk_resize_bilinear(ctx, a, 0, 2, 1, b, 2, 2, 0), "h=0");
@@ -401,14 +401,14 @@ static void test_bad_arguments(void **state)
     expect_einval(ctx, fk_resize_bicubic_aa(ctx, a, 2, 0, 1, b, 2, 2), "w=0");
     expect_einval(ctx, fk_resize_bicubic_aa(ctx, a, 2, 2, 1, b, 2, 0), "wo=0");
     expect_einval(ctx, fk_resize_bicubic_aa(ctx, a, 4, 4, 1, a, 2, 2), "overlap");
-    /* a frozen context without scratch reports FK_ENOMEM instead of allocating */
+    /* a frozen context without scratch reports F4D_ENOMEM instead of allocating */
     fk_ctx *frozen = test_ctx(FK_ISA_AUTO, 1);
     fk_ctx_freeze(frozen, 1);
-    assert_int_equal(fk_resize_bicubic_aa(frozen, a, 4, 4, 2, b, 3, 3), FK_ENOMEM);
+    assert_int_equal(fk_resize_bicubic_aa(frozen, a, 4, 4, 2, b, 3, 3), F4D_ENOMEM);
     fk_ctx_freeze(frozen, 0);
-    assert_int_equal(fk_resize_bicubic_aa(frozen, a, 4, 4, 2, b, 3, 3), FK_OK);
+    assert_int_equal(fk_resize_bicubic_aa(frozen, a, 4, 4, 2, b, 3, 3), F4D_OK);
     fk_ctx_freeze(frozen, 1);
-    assert_int_equal(fk_resize_bicubic_aa(frozen, a, 4, 4, 2, b, 3, 3), FK_OK);
+    assert_int_equal(fk_resize_bicubic_aa(frozen, a, 4, 4, 2, b, 3, 3), F4D_OK);
     fk_ctx_free(frozen);
     fk_ctx_free(ctx);
 }

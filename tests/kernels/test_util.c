@@ -53,7 +53,7 @@ fk_ctx *test_ctx(enum fk_isa isa, int threads)
 {
     fk_ctx *ctx = NULL;
     struct fk_ctx_config cfg = { isa, threads };
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     return ctx;
 }
 

@@ -120,10 +120,10 @@ static void test_roundtrip(void **state)
     assert_int_equal(gguf_get_int_array(f, "t.arr", arr, 8, &na), 0);
     assert_int_equal(na, 3);
     assert_int_equal(arr[2], 17);
-    assert_int_equal(gguf_get_int_array(f, "t.arr", arr, 2, &na), GGUF_EFORMAT);
-    assert_int_equal(gguf_get_int(f, "t.nope", &v), GGUF_ENOENT);
+    assert_int_equal(gguf_get_int_array(f, "t.arr", arr, 2, &na), F4D_EFORMAT);
+    assert_int_equal(gguf_get_int(f, "t.nope", &v), F4D_ENOENT);
     assert_non_null(strstr(gguf_error(f), "t.nope"));
-    assert_int_equal(gguf_get_float(f, "t.u8", &d), GGUF_ETYPE);
+    assert_int_equal(gguf_get_float(f, "t.u8", &d), F4D_ETYPE);
     assert_int_equal(gguf_tensor_count(f), 3);
     const struct gguf_tensor *t = gguf_find_tensor(f, "a.weight");
     assert_non_null(t);
@@ -133,9 +133,9 @@ static void test_roundtrip(void **state)
     assert_true(((const float *)t->data)[14] == 14.0f);
     const int64_t good[2] = { 3, 5 }, bad[2] = { 5, 3 };
     assert_int_equal(gguf_expect_tensor(f, "a.weight", GGUF_T_F32, 2, good, &t), 0);
-    assert_int_equal(gguf_expect_tensor(f, "a.weight", GGUF_T_F32, 2, bad, &t), GGUF_EFORMAT);
+    assert_int_equal(gguf_expect_tensor(f, "a.weight", GGUF_T_F32, 2, bad, &t), F4D_EFORMAT);
     assert_non_null(strstr(gguf_error(f), "'a.weight' has shape [3,5], expected [5,3]"));
-    assert_int_equal(gguf_expect_tensor(f, "a.weight", GGUF_T_F16, 2, good, &t), GGUF_ETYPE);
+    assert_int_equal(gguf_expect_tensor(f, "a.weight", GGUF_T_F16, 2, good, &t), F4D_ETYPE);
     assert_non_null(strstr(gguf_error(f), "type F32, expected F16"));
     t = gguf_find_tensor(f, "c.q");
     assert_int_equal(((const int8_t *)t->data)[0], -4);
@@ -292,7 +292,7 @@ static void expect_init_fails(const struct rewrite *r, const char *what)
     rewrite_tiny(r);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
-    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m = NULL;
     char err[512] = "";
     int rc = model_init(ctx, tmp_path, FK_W_F32, &m, err, sizeof err);
@@ -312,7 +312,7 @@ static void test_model_init_validates(void **state)
     rewrite_tiny(&none);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
-    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m;
     char err[512];
     assert_int_equal(model_init(ctx, tmp_path, FK_W_F16, &m, err, sizeof err), 0);
@@ -340,11 +340,11 @@ static void test_model_prepare_refuses_unknown_group(void **state)
     rewrite_tiny(&(struct rewrite){ .extra = "gaussian_head.norm.weight" });
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
-    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m = NULL;
     char err[512];
     assert_int_equal(model_init(ctx, tmp_path, FK_W_F32, &m, err, sizeof err), 0);
-    assert_int_equal(model_prepare(m, 1, 42, 70), MODEL_EFORMAT);
+    assert_int_equal(model_prepare(m, 1, 42, 70), F4D_EFORMAT);
     assert_non_null(strstr(model_error(m), "unknown tensor 'gaussian_head.norm.weight'"));
     model_free(m);
     fk_ctx_free(ctx);

@@ -139,7 +139,7 @@ static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtyp
     snprintf(path, sizeof path, "%s/%s_%s.gguf", gguf_dir, cfg, type);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
-    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m = NULL;
     int rc = model_init(ctx, path, wt, &m, err, sizeof err);
     if (rc < 0)
@@ -264,7 +264,7 @@ static void test_arena_bounds(void **state)
     snprintf(path, sizeof path, "%s/tiny_f32.gguf", gguf_dir);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
-    assert_int_equal(fk_ctx_new(&cc, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m;
     assert_int_equal(model_init(ctx, path, FK_W_F32, &m, err, sizeof err), 0);
     assert_int_equal(model_prepare(m, 2, 42, 70), 0);
@@ -278,14 +278,14 @@ static void test_arena_bounds(void **state)
     assert_int_equal(model_eval(m, img, 1, 28, 56, &out), 0);
     assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
     assert_int_equal(fk_ctx_scratch_bytes(ctx), scratch);
-    assert_int_equal(model_eval(m, img, 3, 42, 70, &out), MODEL_EINVAL);
+    assert_int_equal(model_eval(m, img, 3, 42, 70, &out), F4D_EINVAL);
     assert_non_null(strstr(model_error(m), "exceed the arena"));
-    assert_int_equal(model_eval(m, img, 1, 42, 71, &out), MODEL_EINVAL);
+    assert_int_equal(model_eval(m, img, 1, 42, 71, &out), F4D_EINVAL);
     assert_non_null(strstr(model_error(m), "multiple of the patch"));
     /* Wider than planned but smaller in total: fits. More patches per view than
      * planned (the resized pos-embed grid): refused. */
     assert_int_equal(model_eval(m, img, 1, 28, 84, &out), 0);
-    assert_int_equal(model_eval(m, img, 1, 42, 126, &out), MODEL_EINVAL);
+    assert_int_equal(model_eval(m, img, 1, 42, 126, &out), F4D_EINVAL);
     free(img);
     model_free(m);
     fk_ctx_free(ctx);

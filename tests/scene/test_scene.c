@@ -251,7 +251,7 @@ static void test_pixel_flow_matches_gaussian_motion(void **state)
     assert_int_equal(scene_eval(s, 0.4, 1.0 / SCENE_FPS, &f, NULL), 0);
     fk_ctx *ctx;
     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     splat_renderer *r;
     assert_int_equal(splat_renderer_new(ctx, W, H, &r, NULL), 0);
     size_t np = (size_t)W * H;
@@ -296,14 +296,14 @@ static void test_bad_input_rejected(void **state)
     assert_non_null(strstr(err.msg, "throw"));
     assert_int_equal(scene_preset_from_name("close", &err), SCENE_CLOSE);
     scene *s = NULL;
-    assert_int_equal(scene_new((enum scene_preset)42, 1, 0, &s, &err), SPLAT_EINVAL);
+    assert_int_equal(scene_new((enum scene_preset)42, 1, 0, &s, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "preset"));
-    assert_int_equal(scene_new(SCENE_WALK, 1, 10, &s, &err), SPLAT_EINVAL);
+    assert_int_equal(scene_new(SCENE_WALK, 1, 10, &s, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "10 Gaussians"));
     s = make(SCENE_WALK, 1);
     struct splat_frame f = { 0 };
-    assert_int_equal(scene_eval(s, NAN, 0.0, &f, &err), SPLAT_EINVAL);
-    assert_int_equal(scene_eval(s, 0.0, -1.0, &f, &err), SPLAT_EINVAL);
+    assert_int_equal(scene_eval(s, NAN, 0.0, &f, &err), F4D_EINVAL);
+    assert_int_equal(scene_eval(s, 0.0, -1.0, &f, &err), F4D_EINVAL);
     scene_free(s);
 }
 

@@ -33,7 +33,7 @@ static fk_ctx *make_ctx(int threads)
 {
     fk_ctx *ctx = NULL;
     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = threads };
-    assert_int_equal(fk_ctx_new(&cfg, &ctx), FK_OK);
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     return ctx;
 }
 
@@ -416,8 +416,8 @@ static void test_simd_matches_scalar(void **state)
     }
     fk_ctx *ref = NULL, *simd = NULL;
     struct fk_ctx_config c1 = { .isa = FK_ISA_REF, .threads = 2 }, c2 = { .isa = FK_ISA_AVX2, .threads = 2 };
-    assert_int_equal(fk_ctx_new(&c1, &ref), FK_OK);
-    assert_int_equal(fk_ctx_new(&c2, &simd), FK_OK);
+    assert_int_equal(fk_ctx_new(&c1, &ref), F4D_OK);
+    assert_int_equal(fk_ctx_new(&c2, &simd), F4D_OK);
     struct splat_camera cam = axis_camera(100, 60, 60.0f);
     struct splat_frame f = { 0 };
     random_frame(&f, 4003, 0.1f, 5.0f, 2.0f); /* 4003: a tail beyond the 8-wide blocks */
@@ -512,20 +512,20 @@ static void test_bad_render_input_rejected(void **state)
     fk_ctx *ctx = make_ctx(1);
     splat_renderer *r;
     struct splat_error err;
-    assert_int_equal(splat_renderer_new(ctx, 0, 10, &r, &err), SPLAT_EINVAL);
+    assert_int_equal(splat_renderer_new(ctx, 0, 10, &r, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "0x10"));
     assert_int_equal(splat_renderer_new(ctx, 32, 32, &r, &err), 0);
     struct splat_camera cam = axis_camera(64, 32, 40.0f);
     struct splat_frame f = { 0 };
     float rgb[3 * 32 * 32];
     struct splat_render_out o = { .rgb = rgb };
-    assert_int_equal(splat_render(r, &cam, &f, NULL, &o), SPLAT_EINVAL);
+    assert_int_equal(splat_render(r, &cam, &f, NULL, &o), F4D_EINVAL);
     assert_non_null(strstr(splat_renderer_error(r), "64x32"));
     splat_renderer_free(r);
     /* validation names the offending Gaussian */
     assert_int_equal(splat_frame_resize(&f, 3, 0, NULL), 0);
     set_gaussian(&f, 2, 0, 0, 1, 0.1f, 1.5f, 1, 1, 1);
-    assert_int_equal(splat_frame_validate(&f, &err), SPLAT_EINVAL);
+    assert_int_equal(splat_frame_validate(&f, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "Gaussian 2"));
     splat_frame_free(&f);
     fk_ctx_free(ctx);
@@ -629,16 +629,16 @@ static void test_ply_bad_input_rejected(void **state)
     tmp_path(p, sizeof p, "bad.ply");
     struct splat_frame f = { 0 };
     struct splat_error err;
-    assert_int_equal(splat_ply_read("/nonexistent/x.ply", &f, &err), SPLAT_EIO);
+    assert_int_equal(splat_ply_read("/nonexistent/x.ply", &f, &err), F4D_EIO);
     assert_non_null(strstr(err.msg, "cannot open"));
     write_text(p, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n");
-    assert_int_equal(splat_ply_read(p, &f, &err), SPLAT_EFORMAT);
+    assert_int_equal(splat_ply_read(p, &f, &err), F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "ascii"));
     write_text(p, "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nend_header\n");
-    assert_int_equal(splat_ply_read(p, &f, &err), SPLAT_EFORMAT);
+    assert_int_equal(splat_ply_read(p, &f, &err), F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "'y' is missing"));
     write_text(p, "not a ply\n");
-    assert_int_equal(splat_ply_read(p, &f, &err), SPLAT_EFORMAT);
+    assert_int_equal(splat_ply_read(p, &f, &err), F4D_EFORMAT);
     /* truncated data */
     struct splat_frame g = { 0 };
     random_frame(&g, 10, 1, 2, 1);
@@ -646,7 +646,7 @@ static void test_ply_bad_input_rejected(void **state)
     struct stat st;
     assert_int_equal(stat(p, &st), 0);
     assert_int_equal(truncate(p, st.st_size - 100), 0);
-    assert_int_equal(splat_ply_read(p, &f, &err), SPLAT_EFORMAT);
+    assert_int_equal(splat_ply_read(p, &f, &err), F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "truncated"));
     splat_frame_free(&g);
     splat_frame_free(&f);
@@ -682,22 +682,22 @@ static void test_rig_json(void **state)
     assert_memory_equal(&back.cams[0], &rig.cams[0], sizeof rig.cams[0]);
     assert_memory_equal(&back.cams[1], &rig.cams[1], sizeof rig.cams[1]);
 
-    assert_int_equal(splat_rig_parse("{\"cameras\": [", &rig, &err), SPLAT_EFORMAT);
+    assert_int_equal(splat_rig_parse("{\"cameras\": [", &rig, &err), F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "invalid JSON"));
-    assert_int_equal(splat_rig_parse("{\"cams\": []}", &rig, &err), SPLAT_EFORMAT);
+    assert_int_equal(splat_rig_parse("{\"cams\": []}", &rig, &err), F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "cameras"));
     assert_int_equal(splat_rig_parse("{\"cameras\": [{\"width\": 4, \"height\": 4, \"fx\": 1, \"fy\": 1, \"cx\": 2,"
                                      " \"world_to_camera\": [1,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1]}]}", &rig, &err),
-                     SPLAT_EFORMAT);
+                     F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "cy"));
     assert_int_equal(splat_rig_parse("{\"cameras\": [{\"width\": 4, \"height\": 4, \"fx\": 1, \"fy\": 1, \"cx\": 2,"
                                      " \"cy\": 2, \"world_to_camera\": [2,0,0,0,0,1,0,0,0,0,1,0,0,0,0,1]}]}", &rig, &err),
-                     SPLAT_EFORMAT);
+                     F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "orthonormal"));
     assert_int_equal(splat_rig_parse("{\"cameras\": [{\"width\": 4, \"height\": 4, \"fx\": 1, \"fy\": 1, \"cx\": 2,"
-                                     " \"cy\": 2, \"world_to_camera\": [1,0,0]}]}", &rig, &err), SPLAT_EFORMAT);
+                                     " \"cy\": 2, \"world_to_camera\": [1,0,0]}]}", &rig, &err), F4D_EFORMAT);
     assert_non_null(strstr(err.msg, "16"));
-    assert_int_equal(splat_rig_load("/nonexistent.json", &rig, &err), SPLAT_EIO);
+    assert_int_equal(splat_rig_load("/nonexistent.json", &rig, &err), F4D_EIO);
 }
 
 static void test_png_and_npy(void **state)
@@ -720,7 +720,7 @@ static void test_png_and_npy(void **state)
         assert_float_equal(back[i], floorf(v * 255.0f + 0.5f) / 255.0f, 1e-7);
     }
     free(back);
-    assert_int_equal(splat_png_read_rgb("/nonexistent.png", &back, &w, &h, &err), SPLAT_EIO);
+    assert_int_equal(splat_png_read_rgb("/nonexistent.png", &back, &w, &h, &err), F4D_EIO);
     tmp_path(p, sizeof p, "t.npy");
     size_t shape[3] = { 4, 5, 3 };
     assert_int_equal(splat_npy_write_f32(p, img, shape, 3, &err), 0);

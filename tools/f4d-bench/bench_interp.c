@@ -84,7 +84,7 @@ int bench_interp(int argc, char **argv)
     }
     fk_ctx *ctx;
     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 2 };
-    if (fk_ctx_new(&cfg, &ctx) != FK_OK)
+    if (fk_ctx_new(&cfg, &ctx) != F4D_OK)
         return 1;
     splat_renderer *r;
     struct splat_error err;

@@ -104,7 +104,7 @@ static fk_ctx *make_ctx(enum fk_isa isa, int threads)
 {
     fk_ctx *ctx;
     struct fk_ctx_config cfg = { isa, threads };
-    if (fk_ctx_new(&cfg, &ctx) != FK_OK) {
+    if (fk_ctx_new(&cfg, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-bench: cannot create a %s context with %d threads\n",
                 fk_isa_name(isa), threads);
         exit(1);
@@ -119,7 +119,7 @@ static double time_linear(fk_ctx *ctx, const struct fk_linear *L, const float *x
     double best = 1e30;
     for (int r = 0; r < reps; r++) {
         double t0 = bench_now();
-        if (fk_linear_forward(ctx, L, x, m, L->k, y, L->n, NULL) != FK_OK) {
+        if (fk_linear_forward(ctx, L, x, m, L->k, y, L->n, NULL) != F4D_OK) {
             fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
             exit(1);
         }
@@ -167,7 +167,7 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         static const char *names[] = { "f32", "f16", "int8" };
         for (int t = 0; t < 3; t++) {
             struct fk_linear L;
-            if (fk_linear_pack(ctx, &L, types[t], w, n, k, b) != FK_OK) {
+            if (fk_linear_pack(ctx, &L, types[t], w, n, k, b) != F4D_OK) {
                 fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
                 exit(1);
             }
@@ -221,7 +221,7 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
     float *ref = malloc((size_t)nsample * C * sizeof *ref);
     fk_ctx *rctx = make_ctx(FK_ISA_REF, 1);
     if (!ref || fk_attention(rctx, &a, qkv, 3 * C, nsample, qkv + C, 3 * C, qkv + 2 * C, 3 * C,
-                             ntok, ref, C) != FK_OK) {
+                             ntok, ref, C) != F4D_OK) {
         fprintf(stderr, "f4d-bench: reference attention: %s\n", fk_ctx_error(rctx));
         exit(1);
     }
@@ -233,7 +233,7 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
         for (int r = 0; r < o->reps; r++) {
             double t0 = bench_now();
             if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
-                             out, C) != FK_OK) {
+                             out, C) != F4D_OK) {
                 fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
                 exit(1);
             }

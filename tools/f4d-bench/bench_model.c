@@ -243,7 +243,7 @@ int bench_model(int argc, char **argv)
     }
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
-    if (fk_ctx_new(&cc, &ctx) != FK_OK) {
+    if (fk_ctx_new(&cc, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-bench model: cannot create the kernel context\n");
         return 1;
     }

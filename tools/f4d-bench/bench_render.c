@@ -382,7 +382,7 @@ int bench_render(int argc, char **argv)
     for (int threads = 1; threads <= 2; threads++) {
         fk_ctx *ctx;
         struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = threads };
-        if (fk_ctx_new(&cfg, &ctx) != FK_OK)
+        if (fk_ctx_new(&cfg, &ctx) != F4D_OK)
             return 1;
         struct gl_peer gl;
         int have_gl = gl_peer_open(&gl, threads) == 0;

@@ -215,7 +215,7 @@ int main(int argc, char **argv)
     fk_ctx *ctx = NULL;
     struct model *m = NULL;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
-    if (fk_ctx_new(&cc, &ctx) != FK_OK) {
+    if (fk_ctx_new(&cc, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-infer: cannot create the kernel context\n");
         goto done;
     }

@@ -98,7 +98,7 @@ int main(int argc, char **argv)
     }
     const struct splat_camera *cam = &rig.cams[ci];
     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = threads };
-    if (fk_ctx_new(&cfg, &ctx) != FK_OK) {
+    if (fk_ctx_new(&cfg, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-render: cannot create the kernel context\n");
         goto done;
     }

@@ -123,7 +123,7 @@ int main(int argc, char **argv)
     struct splat_rig rig;
     scene_default_rig(sc, (int)views, (int)W, (int)H, &rig);
     struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = (int)threads };
-    if (fk_ctx_new(&cfg, &ctx) != FK_OK || splat_renderer_new(ctx, (int)W, (int)H, &r, &err) < 0) {
+    if (fk_ctx_new(&cfg, &ctx) != F4D_OK || splat_renderer_new(ctx, (int)W, (int)H, &r, &err) < 0) {
         fprintf(stderr, "f4d-scene: cannot create the renderer: %s\n", err.msg);
         goto done;
     }

@@ -40,7 +40,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     memset(out, 0, sizeof *out);
     struct run *r = calloc(1, sizeof *r);
     if (!r)
-        return hal_fail(err, errlen, HAL_ENOMEM, "capture: out of memory");
+        return hal_fail(err, errlen, F4D_ENOMEM, "capture: out of memory");
     r->rig = rig;
     r->on_set = on_set;
     r->user = user;
@@ -56,7 +56,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     uint8_t *arena[HAL_RIG_CAMERAS_MAX] = {0};
     uint32_t started = 0;
     if (!bufs) {
-        rc = hal_fail(err, errlen, HAL_ENOMEM, "capture: out of memory");
+        rc = hal_fail(err, errlen, F4D_ENOMEM, "capture: out of memory");
         goto out;
     }
     /* Negotiate: the board's wish, adjusted once by the device, then fixed. */
@@ -69,7 +69,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         if (rc == HAL_FORMAT_ADJUSTED)
             rc = hal_camera_validate(cam, &f);
         if (rc != HAL_FORMAT_VALID) {
-            rc = hal_fail(err, errlen, rc < 0 ? rc : HAL_EINVAL,
+            rc = hal_fail(err, errlen, rc < 0 ? rc : F4D_EINVAL,
                           "camera %s: no usable format (%s)", cc->id, hal_camera_last_error(cam));
             goto out;
         }
@@ -81,7 +81,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         out->formats[i] = f;
         arena[i] = malloc((size_t)nbuf * f.image_bytes);
         if (!arena[i]) {
-            rc = hal_fail(err, errlen, HAL_ENOMEM, "camera %s: cannot allocate %u buffers of %zu bytes",
+            rc = hal_fail(err, errlen, F4D_ENOMEM, "camera %s: cannot allocate %u buffers of %zu bytes",
                           cc->id, (unsigned)nbuf, f.image_bytes);
             goto out;
         }
@@ -126,7 +126,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     uint64_t last_edge = t0;
     bool armed = true, cam_gone[HAL_RIG_CAMERAS_MAX] = {false};
     out->t_start_ns = t0;
-    rc = HAL_OK;
+    rc = F4D_OK;
     for (;;) {
         uint64_t now = hal_clock_now(clk);
         struct hal_edge edges[32];
@@ -141,7 +141,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             for (uint32_t guard = 0; guard < nbuf * 4; guard++) {
                 struct hal_buffer *b = NULL;
                 int d = hal_camera_dequeue(&rig->cams[i], &b, 0);
-                if (d == HAL_OK) {
+                if (d == F4D_OK) {
                     cam_gone[i] = false;
                     out->frames_in++;
                     out->bytes_in += b->bytes_used;
@@ -149,13 +149,13 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
                     f4d_sync_frame(&r->sync, b);
                     continue;
                 }
-                if (d == HAL_ENODEV) {
+                if (d == F4D_ENODEV) {
                     if (!cam_gone[i]) {
                         cam_gone[i] = true;
                         out->disconnects++;
                         f4d_sync_camera_reset(&r->sync, i);
                     }
-                } else if (d != HAL_ETIMEDOUT && d != HAL_EEOF) {
+                } else if (d != F4D_ETIMEDOUT && d != F4D_EEOF) {
                     out->dequeue_errors++;
                 }
                 break;
@@ -204,7 +204,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     if (rc >= 0 && r->set_rc < 0)
         rc = hal_fail(err, errlen, r->set_rc, "capture stopped: the set consumer failed");
     if (rc >= 0 && r->requeue_errors)
-        rc = hal_fail(err, errlen, HAL_EIO, "capture: %u buffers could not be queued again",
+        rc = hal_fail(err, errlen, F4D_EIO, "capture: %u buffers could not be queued again",
                       (unsigned)r->requeue_errors);
 out:
     for (uint32_t i = 0; i < started; i++)
@@ -212,7 +212,7 @@ out:
     /* collect the buffers stop handed back, so none points into freed memory */
     for (uint32_t i = 0; i < rig->n_cams; i++) {
         struct hal_buffer *b;
-        for (uint32_t k = 0; k < nbuf * 2 && hal_camera_dequeue(&rig->cams[i], &b, 0) == HAL_OK; k++) {
+        for (uint32_t k = 0; k < nbuf * 2 && hal_camera_dequeue(&rig->cams[i], &b, 0) == F4D_OK; k++) {
         }
         free(arena[i]);
     }

@@ -34,7 +34,7 @@ struct f4d_capture_config {
 
 struct f4d_capture_stats {
     struct f4d_sync_counters sync;
-    uint64_t disconnects;       /* times a camera reported HAL_ENODEV after delivering */
+    uint64_t disconnects;       /* times a camera reported F4D_ENODEV after delivering */
     uint64_t dequeue_errors;    /* other dequeue failures */
     uint64_t frames_in;         /* frames dequeued */
     uint64_t bytes_in;          /* image bytes dequeued */

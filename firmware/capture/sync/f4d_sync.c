@@ -36,7 +36,7 @@ int f4d_sync_init(struct f4d_sync *s, const struct f4d_sync_config *cfg, f4d_syn
     if (!cfg || cfg->n_cams < 1 || cfg->n_cams > F4D_SYNC_CAMS_MAX || cfg->pending_max < 1 ||
         cfg->pending_max > F4D_SYNC_PENDING_MAX || cfg->window_us == 0 || cfg->max_latency_us == 0 ||
         !on_set || !on_release)
-        return HAL_EINVAL;
+        return F4D_EINVAL;
     memset(s, 0, sizeof *s);
     s->cfg = *cfg;
     if (s->cfg.learn_frames == 0 || s->cfg.learn_frames > F4D_SYNC_LEARN_FRAMES)
@@ -44,7 +44,7 @@ int f4d_sync_init(struct f4d_sync *s, const struct f4d_sync_config *cfg, f4d_syn
     s->on_set = on_set;
     s->on_release = on_release;
     s->user = user;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 static struct f4d_sync_slot *slot_at(struct f4d_sync *s, uint32_t i)

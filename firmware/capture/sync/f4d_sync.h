@@ -115,7 +115,7 @@ struct f4d_sync {
     struct f4d_sync_counters c;
 };
 
-/* HAL_EINVAL if the config is out of range (n_cams 1..16, pending 1..64, window > 0). */
+/* F4D_EINVAL if the config is out of range (n_cams 1..16, pending 1..64, window > 0). */
 int f4d_sync_init(struct f4d_sync *s, const struct f4d_sync_config *cfg, f4d_sync_set_fn on_set,
                   f4d_sync_release_fn on_release, void *user);
 void f4d_sync_edge(struct f4d_sync *s, const struct hal_edge *e);

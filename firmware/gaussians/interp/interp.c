@@ -33,20 +33,20 @@ struct interp_config interp_config_default(void)
 int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct splat_error *err)
 {
     if (!out || !rig || !ctx)
-        return fail(err, SPLAT_EINVAL, "interp_new: NULL argument");
+        return fail(err, F4D_EINVAL, "interp_new: NULL argument");
     *out = NULL;
     if (rig->count < 1 || rig->count > SPLAT_RIG_MAX)
-        return fail(err, SPLAT_EINVAL, "interp_new: the rig has no cameras");
+        return fail(err, F4D_EINVAL, "interp_new: the rig has no cameras");
     for (int i = 0; i < rig->count; i++) {
         int rc = splat_camera_validate(&rig->cams[i], err);
         if (rc < 0)
             return rc;
         if (rig->cams[i].width != rig->cams[0].width || rig->cams[i].height != rig->cams[0].height)
-            return fail(err, SPLAT_EINVAL, "interp_new: all cameras of the rig must have the same size");
+            return fail(err, F4D_EINVAL, "interp_new: all cameras of the rig must have the same size");
     }
     interp *ip = calloc(1, sizeof *ip);
     if (!ip)
-        return fail(err, SPLAT_ENOMEM, "interp_new: out of memory");
+        return fail(err, F4D_ENOMEM, "interp_new: out of memory");
     ip->ctx = ctx;
     ip->rig = *rig;
     ip->W = rig->cams[0].width;
@@ -57,7 +57,7 @@ int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct sp
         return rc;
     }
     *out = ip;
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 void interp_free(interp *ip)
@@ -110,24 +110,24 @@ static int grow_i32(int32_t **p, size_t *cap, size_t need)
 int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct splat_error *err)
 {
     if (!ip || !f || !k)
-        return fail(err, SPLAT_EINVAL, "interp_key_build: NULL argument");
+        return fail(err, F4D_EINVAL, "interp_key_build: NULL argument");
     const int V = ip->rig.count;
     const size_t np = (size_t)ip->W * (size_t)ip->H, n = f->count;
     if (grow_i32(&k->cell_start, &k->cap_cells, (size_t)V * (np + 1)) < 0 ||
         grow_i32(&k->cell_items, &k->cap_items, (size_t)V * n + 1) < 0 ||
         grow_i32(&k->origin, &k->cap_origin, n + 1) < 0)
-        return fail(err, SPLAT_ENOMEM, "interp_key_build: out of memory for the pixel lists");
+        return fail(err, F4D_ENOMEM, "interp_key_build: out of memory for the pixel lists");
     if (np > ip->cap_depth) {
         float *d = realloc(ip->depth, np * sizeof *d);
         if (!d)
-            return fail(err, SPLAT_ENOMEM, "interp_key_build: out of memory");
+            return fail(err, F4D_ENOMEM, "interp_key_build: out of memory");
         ip->depth = d;
         ip->cap_depth = np;
     }
     if (n + 1 > ip->cap_pix) {
         long *px = realloc(ip->pix, (n + 1) * sizeof *px);
         if (!px)
-            return fail(err, SPLAT_ENOMEM, "interp_key_build: out of memory");
+            return fail(err, F4D_ENOMEM, "interp_key_build: out of memory");
         ip->pix = px;
         ip->cap_pix = n + 1;
     }
@@ -138,7 +138,7 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
         const struct splat_camera *cam = &ip->rig.cams[v];
         struct splat_render_out o = { .depth = ip->depth };
         if (splat_render(ip->r, cam, f, NULL, &o) < 0)
-            return fail(err, SPLAT_EINVAL, splat_renderer_error(ip->r));
+            return fail(err, F4D_EINVAL, splat_renderer_error(ip->r));
         int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
         memset(start, 0, (np + 1) * sizeof *start);
         for (size_t g = 0; g < n; g++) {
@@ -164,7 +164,7 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
             start[p] = start[p - 1];
         start[0] = 0;
     }
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 /* ---- attributes and fusion ----------------------------------------------------- */
@@ -264,9 +264,9 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
               struct splat_error *err)
 {
     if (!ip || !prev || !next || !prev->f || !next->f || !cfg || !out)
-        return fail(err, SPLAT_EINVAL, "interp_at: NULL argument (keys must be built)");
+        return fail(err, F4D_EINVAL, "interp_at: NULL argument (keys must be built)");
     if (!(a >= 0.0f && a <= 1.0f))
-        return fail(err, SPLAT_EINVAL, "interp_at: a must be in [0, 1]");
+        return fail(err, F4D_EINVAL, "interp_at: a must be in [0, 1]");
     const struct splat_frame *F0 = prev->f, *F1 = next->f;
     struct interp_stats st = { 0 };
     if (cfg->mode == INTERP_NEAREST) {
@@ -275,12 +275,12 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
             return rc;
         if (stats)
             *stats = st;
-        return SPLAT_OK;
+        return F4D_OK;
     }
     if (!F0->motion_fwd || !F1->motion_bwd)
-        return fail(err, SPLAT_EINVAL, "interp_at: key t-1 needs forward motion and key t backward motion");
+        return fail(err, F4D_EINVAL, "interp_at: key t-1 needs forward motion and key t backward motion");
     if (cfg->mode == INTERP_FUSED && (!cfg->fuse || !(cfg->tau >= 0.0f)))
-        return fail(err, SPLAT_EINVAL, "interp_at: fusion needs a fuse function and tau >= 0");
+        return fail(err, F4D_EINVAL, "interp_at: fusion needs a fuse function and tau >= 0");
     int rc = splat_frame_reserve(out, F0->count + F1->count, 0, err);
     if (rc < 0)
         return rc;
@@ -327,7 +327,7 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
     out->count = o;
     if (stats)
         *stats = st;
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 /* ---- budget ---------------------------------------------------------------------- */
@@ -416,13 +416,13 @@ int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, cons
                  struct splat_frame *out, struct budget_stats *stats, struct splat_error *err)
 {
     if (!in || !rig || !cfg || !out || in == out)
-        return fail(err, SPLAT_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");
+        return fail(err, F4D_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");
     if (!(cfg->voxel >= 0.0f) || !(cfg->min_footprint >= 0.0f) || !(cfg->min_opacity >= 0.0f))
-        return fail(err, SPLAT_EINVAL, "budget_prune: thresholds must be >= 0");
+        return fail(err, F4D_EINVAL, "budget_prune: thresholds must be >= 0");
     struct budget_stats st = { .total = in->count };
     struct vox *vx = malloc((in->count + 1) * sizeof *vx);
     if (!vx)
-        return fail(err, SPLAT_ENOMEM, "budget_prune: out of memory");
+        return fail(err, F4D_ENOMEM, "budget_prune: out of memory");
     const float base = cfg->voxel > 0.0f ? cfg->voxel : 1e-4f;
     size_t nv = 0;
     for (size_t i = 0; i < in->count; i++) {
@@ -550,5 +550,5 @@ int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, cons
     free(vx);
     if (stats)
         *stats = st;
-    return SPLAT_OK;
+    return F4D_OK;
 }

@@ -19,9 +19,9 @@ int splat_frame_reserve(struct splat_frame *f, size_t capacity, int with_motion,
                         struct splat_error *err)
 {
     if (!f)
-        return splat__fail(err, SPLAT_EINVAL, "splat_frame_reserve: frame is NULL");
+        return splat__fail(err, F4D_EINVAL, "splat_frame_reserve: frame is NULL");
     if (capacity > SIZE_MAX / (4 * sizeof(float)))
-        return splat__fail(err, SPLAT_EINVAL, "splat_frame_reserve: %zu Gaussians is too many", capacity);
+        return splat__fail(err, F4D_EINVAL, "splat_frame_reserve: %zu Gaussians is too many", capacity);
     size_t old = f->capacity;
     if (capacity > old) {
         if (grow(&f->pos, 3 * old, 3 * capacity) || grow(&f->scale, 3 * old, 3 * capacity) ||
@@ -29,18 +29,18 @@ int splat_frame_reserve(struct splat_frame *f, size_t capacity, int with_motion,
             grow(&f->rgb, 3 * old, 3 * capacity) ||
             (f->motion_bwd && grow(&f->motion_bwd, 3 * old, 3 * capacity)) ||
             (f->motion_fwd && grow(&f->motion_fwd, 3 * old, 3 * capacity)))
-            return splat__fail(err, SPLAT_ENOMEM, "splat_frame_reserve: out of memory for %zu Gaussians", capacity);
+            return splat__fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for %zu Gaussians", capacity);
         for (size_t i = old; i < capacity; i++)
             f->rot[4 * i] = 1.0f;
         f->capacity = capacity;
     }
     if (with_motion) {
         if (!f->motion_bwd && !(f->motion_bwd = calloc(3 * f->capacity + 1, sizeof(float))))
-            return splat__fail(err, SPLAT_ENOMEM, "splat_frame_reserve: out of memory for motion");
+            return splat__fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for motion");
         if (!f->motion_fwd && !(f->motion_fwd = calloc(3 * f->capacity + 1, sizeof(float))))
-            return splat__fail(err, SPLAT_ENOMEM, "splat_frame_reserve: out of memory for motion");
+            return splat__fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for motion");
     }
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 int splat_frame_resize(struct splat_frame *f, size_t n, int with_motion, struct splat_error *err)
@@ -49,13 +49,13 @@ int splat_frame_resize(struct splat_frame *f, size_t n, int with_motion, struct 
     if (rc < 0)
         return rc;
     f->count = n;
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 int splat_frame_copy(struct splat_frame *dst, const struct splat_frame *src, struct splat_error *err)
 {
     if (!dst || !src)
-        return splat__fail(err, SPLAT_EINVAL, "splat_frame_copy: NULL frame");
+        return splat__fail(err, F4D_EINVAL, "splat_frame_copy: NULL frame");
     int motion = src->motion_bwd && src->motion_fwd;
     int rc = splat_frame_resize(dst, src->count, motion, err);
     if (rc < 0)
@@ -70,7 +70,7 @@ int splat_frame_copy(struct splat_frame *dst, const struct splat_frame *src, str
         memcpy(dst->motion_bwd, src->motion_bwd, 3 * n * sizeof(float));
         memcpy(dst->motion_fwd, src->motion_fwd, 3 * n * sizeof(float));
     }
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 void splat_frame_free(struct splat_frame *f)
@@ -98,25 +98,25 @@ static int all_finite(const float *v, int n)
 int splat_frame_validate(const struct splat_frame *f, struct splat_error *err)
 {
     if (!f)
-        return splat__fail(err, SPLAT_EINVAL, "frame is NULL");
+        return splat__fail(err, F4D_EINVAL, "frame is NULL");
     if (f->count > f->capacity)
-        return splat__fail(err, SPLAT_EINVAL, "frame count %zu exceeds capacity %zu", f->count, f->capacity);
+        return splat__fail(err, F4D_EINVAL, "frame count %zu exceeds capacity %zu", f->count, f->capacity);
     for (size_t i = 0; i < f->count; i++) {
         if (!all_finite(f->pos + 3 * i, 3))
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: position is not finite", i);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: position is not finite", i);
         if (!all_finite(f->scale + 3 * i, 3) || f->scale[3 * i] < 0 || f->scale[3 * i + 1] < 0 ||
             f->scale[3 * i + 2] < 0)
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: scale must be finite and >= 0", i);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: scale must be finite and >= 0", i);
         if (!all_finite(f->rot + 4 * i, 4))
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: rotation is not finite", i);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: rotation is not finite", i);
         if (!(f->opacity[i] >= 0.0f && f->opacity[i] <= 1.0f))
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: opacity %g is outside [0,1]", i, (double)f->opacity[i]);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: opacity %g is outside [0,1]", i, (double)f->opacity[i]);
         if (!all_finite(f->rgb + 3 * i, 3))
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: colour is not finite", i);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: colour is not finite", i);
         if (f->motion_bwd && !all_finite(f->motion_bwd + 3 * i, 3))
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: backward motion is not finite", i);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: backward motion is not finite", i);
         if (f->motion_fwd && !all_finite(f->motion_fwd + 3 * i, 3))
-            return splat__fail(err, SPLAT_EINVAL, "Gaussian %zu: forward motion is not finite", i);
+            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: forward motion is not finite", i);
     }
-    return SPLAT_OK;
+    return F4D_OK;
 }

@@ -79,10 +79,10 @@ static size_t round_up(size_t n, size_t m) { return (n + m - 1) / m * m; }
 int splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs)
 {
     if (!r)
-        return SPLAT_EINVAL;
+        return F4D_EINVAL;
     if (gaussians > r->cap_g) {
         if (gaussians > (size_t)INT32_MAX)
-            return fail(r, SPLAT_EINVAL, "renderer: more than 2^31 Gaussians", NULL);
+            return fail(r, F4D_EINVAL, "renderer: more than 2^31 Gaussians", NULL);
         free_gaussian_buffers(r);
         size_t n = round_up(gaussians, PREP_CHUNK);
         r->proj = aligned_alloc(64, n * sizeof *r->proj); /* records on cache lines */
@@ -97,35 +97,35 @@ int splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs)
         if (!r->proj || !r->sorted || !r->rect || !r->key || !r->key_tmp || !r->idx || !r->idx_tmp ||
             !r->chunk_visible || !r->hist) {
             free_gaussian_buffers(r);
-            return fail(r, SPLAT_ENOMEM, "renderer: out of memory for the Gaussian buffers", NULL);
+            return fail(r, F4D_ENOMEM, "renderer: out of memory for the Gaussian buffers", NULL);
         }
         r->cap_g = n;
     }
     if (pairs > r->cap_pairs) {
         if (pairs > (size_t)UINT32_MAX)
-            return fail(r, SPLAT_EINVAL, "renderer: more than 2^32 Gaussian-tile pairs", NULL);
+            return fail(r, F4D_EINVAL, "renderer: more than 2^32 Gaussian-tile pairs", NULL);
         int32_t *p = realloc(r->pairs, pairs * sizeof *p);
         if (!p)
-            return fail(r, SPLAT_ENOMEM, "renderer: out of memory for the tile lists", NULL);
+            return fail(r, F4D_ENOMEM, "renderer: out of memory for the tile lists", NULL);
         r->pairs = p;
         r->cap_pairs = pairs;
     }
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out, struct splat_error *err)
 {
     if (!out)
-        return splat__fail(err, SPLAT_EINVAL, "splat_renderer_new: out is NULL");
+        return splat__fail(err, F4D_EINVAL, "splat_renderer_new: out is NULL");
     *out = NULL;
     if (!ctx)
-        return splat__fail(err, SPLAT_EINVAL, "splat_renderer_new: fk context is NULL");
+        return splat__fail(err, F4D_EINVAL, "splat_renderer_new: fk context is NULL");
     if (width <= 0 || height <= 0 || width > 16384 || height > 16384)
-        return splat__fail(err, SPLAT_EINVAL, "splat_renderer_new: size %dx%d must be within 1..16384",
+        return splat__fail(err, F4D_EINVAL, "splat_renderer_new: size %dx%d must be within 1..16384",
                            width, height);
     splat_renderer *r = calloc(1, sizeof *r);
     if (!r)
-        return splat__fail(err, SPLAT_ENOMEM, "splat_renderer_new: out of memory");
+        return splat__fail(err, F4D_ENOMEM, "splat_renderer_new: out of memory");
     r->ctx = ctx;
     r->width = width;
     r->height = height;
@@ -136,10 +136,10 @@ int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out,
     r->sort_count = malloc((size_t)SORT_TASKS * SORT_RADIX * sizeof *r->sort_count);
     if (!r->tile_start || !r->sort_count || splat_renderer_reserve(r, 1024, 4096) < 0) {
         splat_renderer_free(r);
-        return splat__fail(err, SPLAT_ENOMEM, "splat_renderer_new: out of memory");
+        return splat__fail(err, F4D_ENOMEM, "splat_renderer_new: out of memory");
     }
     *out = r;
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 void splat_renderer_free(splat_renderer *r)
@@ -620,19 +620,19 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
 {
     double t0 = now_ms(), t1, t2, t3;
     if (!r)
-        return SPLAT_EINVAL;
+        return F4D_EINVAL;
     r->err.msg[0] = '\0';
     if (!cam || !f)
-        return fail(r, SPLAT_EINVAL, "render: camera or frame is NULL", NULL);
+        return fail(r, F4D_EINVAL, "render: camera or frame is NULL", NULL);
     if (cam->width != r->width || cam->height != r->height) {
         char d[96];
         snprintf(d, sizeof d, "%dx%d but the renderer is %dx%d", cam->width, cam->height, r->width, r->height);
-        return fail(r, SPLAT_EINVAL, "render: camera size ", d);
+        return fail(r, F4D_EINVAL, "render: camera size ", d);
     }
     if (!(cam->fx > 0) || !(cam->fy > 0))
-        return fail(r, SPLAT_EINVAL, "render: camera focal lengths must be > 0", NULL);
+        return fail(r, F4D_EINVAL, "render: camera focal lengths must be > 0", NULL);
     if (f->count && (!f->pos || !f->scale || !f->rot || !f->opacity || !f->rgb))
-        return fail(r, SPLAT_EINVAL, "render: frame arrays are NULL", NULL);
+        return fail(r, F4D_EINVAL, "render: frame arrays are NULL", NULL);
     int rc = splat_renderer_reserve(r, f->count, 0);
     if (rc < 0)
         return rc;
@@ -705,14 +705,14 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
         *visible_out = nv;
     if (pairs_out)
         *pairs_out = npairs;
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 int splat_render(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                  const float bg[3], struct splat_render_out *out)
 {
     if (!out)
-        return r ? fail(r, SPLAT_EINVAL, "render: out is NULL", NULL) : SPLAT_EINVAL;
+        return r ? fail(r, F4D_EINVAL, "render: out is NULL", NULL) : F4D_EINVAL;
     return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, 0,
                        &out->visible, &out->pairs, out->ms_stage);
 }
@@ -721,6 +721,6 @@ int splat_render_features(splat_renderer *r, const struct splat_camera *cam, con
                           const float *features, float *out)
 {
     if (!features || !out)
-        return r ? fail(r, SPLAT_EINVAL, "render_features: features or out is NULL", NULL) : SPLAT_EINVAL;
+        return r ? fail(r, F4D_EINVAL, "render_features: features or out is NULL", NULL) : F4D_EINVAL;
     return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, 1, NULL, NULL, NULL);
 }

@@ -40,6 +40,8 @@
 #ifndef F4D_SPLAT_H
 #define F4D_SPLAT_H
 
+#include "f4d_status.h"
+
 #include <stddef.h>
 #include <stdint.h>
 
@@ -48,14 +50,6 @@
 #ifdef __cplusplus
 extern "C" {
 #endif
-
-enum splat_status {
-    SPLAT_OK      =  0,
-    SPLAT_EINVAL  = -1, /* bad argument or value                          */
-    SPLAT_ENOMEM  = -2, /* allocation failed                              */
-    SPLAT_EIO     = -3, /* file could not be opened, read or written      */
-    SPLAT_EFORMAT = -4, /* file content malformed or unsupported          */
-};
 
 struct splat_error {
     char msg[256];

@@ -107,27 +107,27 @@ static int rd_str(struct cursor *c, char **out, const char *what, char *err, siz
     uint64_t len;
     if (rd(c, &len, 8) < 0) {
         seterr(err, en, "gguf: truncated length of %s at byte %zu", what, c->pos);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     if (len > c->size - c->pos) {
         seterr(err, en, "gguf: %s length %" PRIu64 " runs past the end of the file", what, len);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     if (len == 0 || len >= GGUF_NAME_MAX) {
         seterr(err, en, "gguf: %s length %" PRIu64 " out of range 1..%d", what, len,
                GGUF_NAME_MAX - 1);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     char *s = malloc((size_t)len + 1);
     if (!s)
-        return GGUF_ENOMEM;
+        return F4D_ENOMEM;
     memcpy(s, c->p + c->pos, (size_t)len);
     s[len] = 0;
     c->pos += (size_t)len;
     if (memchr(s, 0, (size_t)len)) {
         seterr(err, en, "gguf: %s contains a NUL byte", what);
         free(s);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     *out = s;
     return 0;
@@ -140,18 +140,18 @@ static int skip_value(struct cursor *c, uint32_t t, const char *key, char *err, 
         uint64_t len;
         if (rd(c, &len, 8) < 0 || skip(c, len) < 0) {
             seterr(err, en, "gguf: key '%s': string value runs past the end of the file", key);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         return 0;
     }
     size_t sz = vtype_size(t);
     if (!sz) {
         seterr(err, en, "gguf: key '%s': unknown value type %u", key, t);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     if (skip(c, sz) < 0) {
         seterr(err, en, "gguf: key '%s': value runs past the end of the file", key);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     return 0;
 }
@@ -186,27 +186,27 @@ static int parse(gguf_file *f, char *err, size_t en)
     uint64_t n_t, n_kv;
     if (rd(&c, &magic, 4) < 0 || magic != GGUF_MAGIC) {
         seterr(err, en, "gguf: bad magic (not a GGUF file)");
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     if (rd(&c, &version, 4) < 0 || version != GGUF_VERSION) {
         seterr(err, en, "gguf: unsupported version %u (need %u)", version, GGUF_VERSION);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     if (rd(&c, &n_t, 8) < 0 || rd(&c, &n_kv, 8) < 0) {
         seterr(err, en, "gguf: truncated header");
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     /* Each key needs >= 13 bytes and each tensor info >= 29: bound the counts. */
     if (n_kv > f->size / 13 || n_t > f->size / 29) {
         seterr(err, en, "gguf: %" PRIu64 " keys / %" PRIu64 " tensors cannot fit in %zu bytes",
                n_kv, n_t, f->size);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     f->kv = calloc(n_kv ? n_kv : 1, sizeof *f->kv);
     f->t = calloc(n_t ? n_t : 1, sizeof *f->t);
     f->sorted = calloc(n_t ? n_t : 1, sizeof *f->sorted);
     if (!f->kv || !f->t || !f->sorted)
-        return GGUF_ENOMEM;
+        return F4D_ENOMEM;
     f->align = GGUF_DEFAULT_ALIGN;
     for (uint64_t i = 0; i < n_kv; i++) {
         struct gguf_kv *kv = &f->kv[i];
@@ -217,25 +217,25 @@ static int parse(gguf_file *f, char *err, size_t en)
         for (uint64_t j = 0; j < i; j++)
             if (!strcmp(f->kv[j].key, kv->key)) {
                 seterr(err, en, "gguf: duplicate key '%s'", kv->key);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
         if (rd(&c, &kv->type, 4) < 0) {
             seterr(err, en, "gguf: key '%s': truncated type", kv->key);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         if (kv->type == GGUF_V_ARRAY) {
             if (rd(&c, &kv->arr_type, 4) < 0 || rd(&c, &kv->arr_n, 8) < 0) {
                 seterr(err, en, "gguf: key '%s': truncated array header", kv->key);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             if (kv->arr_type == GGUF_V_ARRAY) {
                 seterr(err, en, "gguf: key '%s': nested arrays are not supported", kv->key);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             if (kv->arr_n > c.size - c.pos) {
                 seterr(err, en, "gguf: key '%s': array of %" PRIu64 " runs past the end",
                        kv->key, kv->arr_n);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             kv->val = c.p + c.pos;
             for (uint64_t j = 0; j < kv->arr_n; j++)
@@ -250,12 +250,12 @@ static int parse(gguf_file *f, char *err, size_t en)
             uint32_t a;
             if (kv->type != GGUF_V_UINT32) {
                 seterr(err, en, "gguf: key 'general.alignment' must be uint32");
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             memcpy(&a, kv->val, 4);
             if (a == 0 || (a & (a - 1)) || a > 65536) {
                 seterr(err, en, "gguf: key 'general.alignment' = %u is not a power of two", a);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             f->align = a;
         }
@@ -270,12 +270,12 @@ static int parse(gguf_file *f, char *err, size_t en)
         f->n_t = (size_t)i + 1;
         if (rd(&c, &t->n_dims, 4) < 0) {
             seterr(err, en, "gguf: tensor '%s': truncated info", name);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         if (t->n_dims < 1 || t->n_dims > GGUF_MAX_DIMS) {
             seterr(err, en, "gguf: tensor '%s': %u dims (1..%d allowed)", name, t->n_dims,
                    GGUF_MAX_DIMS);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         uint64_t n = 1;
         for (uint32_t d = 0; d < GGUF_MAX_DIMS; d++)
@@ -283,36 +283,36 @@ static int parse(gguf_file *f, char *err, size_t en)
         for (uint32_t d = 0; d < t->n_dims; d++) {
             if (rd(&c, &t->ne[d], 8) < 0) {
                 seterr(err, en, "gguf: tensor '%s': truncated dims", name);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             if (t->ne[d] == 0 || t->ne[d] > (UINT64_C(1) << 40) / n) {
                 seterr(err, en, "gguf: tensor '%s': dim %u = %" PRIu64 " is zero or too large",
                        name, d, t->ne[d]);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
             n *= t->ne[d];
         }
         t->n_elements = n;
         if (rd(&c, &t->type, 4) < 0 || rd(&c, &t->offset, 8) < 0) {
             seterr(err, en, "gguf: tensor '%s': truncated info", name);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         size_t es = gguf_type_size(t->type);
         if (!es) {
             seterr(err, en, "gguf: tensor '%s': unsupported type %u", name, t->type);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         t->nbytes = (size_t)(n * es);
         if (t->offset % f->align) {
             seterr(err, en, "gguf: tensor '%s': offset %" PRIu64 " not aligned to %u", name,
                    t->offset, f->align);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
     }
     size_t data_start = (c.pos + f->align - 1) / f->align * f->align;
     if (data_start > f->size) {
         seterr(err, en, "gguf: data section starts past the end of the file");
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     size_t data_size = f->size - data_start;
     for (size_t i = 0; i < f->n_t; i++) {
@@ -320,20 +320,20 @@ static int parse(gguf_file *f, char *err, size_t en)
         if (t->offset > data_size || t->nbytes > data_size - t->offset) {
             seterr(err, en, "gguf: tensor '%s': bytes [%" PRIu64 ", +%zu) past the data end %zu",
                    t->name, t->offset, t->nbytes, data_size);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
         t->data = f->map + data_start + t->offset;
         f->sorted[i] = i;
     }
     size_t *tmp = malloc((f->n_t ? f->n_t : 1) * sizeof *tmp);
     if (!tmp)
-        return GGUF_ENOMEM;
+        return F4D_ENOMEM;
     sort_idx(f->sorted, tmp, f->n_t, f->t);
     free(tmp);
     for (size_t i = 1; i < f->n_t; i++)
         if (!strcmp(f->t[f->sorted[i]].name, f->t[f->sorted[i - 1]].name)) {
             seterr(err, en, "gguf: duplicate tensor '%s'", f->t[f->sorted[i]].name);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
     /* Overlap check: O(n^2) over a few thousand tensors is cheap at load. */
     for (size_t i = 0; i < f->n_t; i++)
@@ -342,10 +342,10 @@ static int parse(gguf_file *f, char *err, size_t en)
             if (a->nbytes && b->nbytes && a->offset < b->offset + b->nbytes &&
                 b->offset < a->offset + a->nbytes) {
                 seterr(err, en, "gguf: tensors '%s' and '%s' overlap", a->name, b->name);
-                return GGUF_EFORMAT;
+                return F4D_EFORMAT;
             }
         }
-    return GGUF_OK;
+    return F4D_OK;
 }
 
 int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
@@ -353,19 +353,19 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
     *out = NULL;
     gguf_file *f = calloc(1, sizeof *f);
     if (!f)
-        return GGUF_ENOMEM;
+        return F4D_ENOMEM;
     int fd = open(path, O_RDONLY);
     if (fd < 0) {
         seterr(err, err_size, "gguf: cannot open '%s': %s", path, strerror(errno));
         free(f);
-        return GGUF_EIO;
+        return F4D_EIO;
     }
     struct stat st;
     if (fstat(fd, &st) < 0 || st.st_size < 24) {
         seterr(err, err_size, "gguf: '%s' is too small to be a GGUF file", path);
         close(fd);
         free(f);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     f->size = (size_t)st.st_size;
     void *m = mmap(NULL, f->size, PROT_READ, MAP_PRIVATE, fd, 0);
@@ -373,18 +373,18 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
     if (m == MAP_FAILED) {
         seterr(err, err_size, "gguf: cannot mmap '%s': %s", path, strerror(errno));
         free(f);
-        return GGUF_EIO;
+        return F4D_EIO;
     }
     f->map = m;
     int rc = parse(f, err, err_size);
     if (rc < 0) {
-        if (rc == GGUF_ENOMEM)
+        if (rc == F4D_ENOMEM)
             seterr(err, err_size, "gguf: out of memory reading '%s'", path);
         gguf_close(f);
         return rc;
     }
     *out = f;
-    return GGUF_OK;
+    return F4D_OK;
 }
 
 void gguf_close(gguf_file *f)
@@ -426,7 +426,7 @@ static const struct gguf_kv *find_kv(const gguf_file *f, const char *key)
 int gguf_key_type(const gguf_file *f, const char *key)
 {
     const struct gguf_kv *kv = find_kv(f, key);
-    return kv ? (int)kv->type : GGUF_ENOENT;
+    return kv ? (int)kv->type : F4D_ENOENT;
 }
 
 /* Reads one integer of type t at p into int64, range-checked. */
@@ -445,11 +445,11 @@ static int int_at(const uint8_t *p, uint32_t t, int64_t *v)
         uint64_t x;
         memcpy(&x, p, 8);
         if (x > (uint64_t)INT64_MAX)
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         *v = (int64_t)x;
         return 0;
     }
-    default: return GGUF_ETYPE;
+    default: return F4D_ETYPE;
     }
 }
 
@@ -458,7 +458,7 @@ int gguf_get_int(gguf_file *f, const char *key, int64_t *v)
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
         seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return GGUF_ENOENT;
+        return F4D_ENOENT;
     }
     int rc = int_at(kv->val, kv->type, v);
     if (rc < 0)
@@ -472,7 +472,7 @@ int gguf_get_float(gguf_file *f, const char *key, double *v)
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
         seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return GGUF_ENOENT;
+        return F4D_ENOENT;
     }
     if (kv->type == GGUF_V_FLOAT32) {
         float x;
@@ -482,7 +482,7 @@ int gguf_get_float(gguf_file *f, const char *key, double *v)
         memcpy(v, kv->val, 8);
     } else {
         seterr(f->err, sizeof f->err, "gguf: key '%s' is not a float (type %u)", key, kv->type);
-        return GGUF_ETYPE;
+        return F4D_ETYPE;
     }
     return 0;
 }
@@ -495,17 +495,17 @@ int gguf_get_str(gguf_file *f, const char *key, const char **v)
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
         seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return GGUF_ENOENT;
+        return F4D_ENOENT;
     }
     if (kv->type != GGUF_V_STRING) {
         seterr(f->err, sizeof f->err, "gguf: key '%s' is not a string (type %u)", key, kv->type);
-        return GGUF_ETYPE;
+        return F4D_ETYPE;
     }
     uint64_t len;
     memcpy(&len, kv->val, 8);
     if (len >= sizeof f->err / 2) {
         seterr(f->err, sizeof f->err, "gguf: key '%s': string too long", key);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     if (len == 0) {
         *v = empty;
@@ -517,7 +517,7 @@ int gguf_get_str(gguf_file *f, const char *key, const char **v)
     s[len] = 0;
     if (strlen(s) != len) {
         seterr(f->err, sizeof f->err / 2, "gguf: key '%s': string contains NUL", key);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     f->err[0] = 0;
     *v = s;
@@ -529,23 +529,23 @@ int gguf_get_int_array(gguf_file *f, const char *key, int64_t *v, size_t cap, si
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
         seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return GGUF_ENOENT;
+        return F4D_ENOENT;
     }
     size_t es = vtype_size(kv->arr_type);
     if (kv->type != GGUF_V_ARRAY || kv->arr_type == GGUF_V_FLOAT32 ||
         kv->arr_type == GGUF_V_FLOAT64 || !es) {
         seterr(f->err, sizeof f->err, "gguf: key '%s' is not an integer array", key);
-        return GGUF_ETYPE;
+        return F4D_ETYPE;
     }
     if (kv->arr_n > cap) {
         seterr(f->err, sizeof f->err, "gguf: key '%s' has %" PRIu64 " entries (at most %zu)",
                key, kv->arr_n, cap);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     for (size_t i = 0; i < kv->arr_n; i++)
         if (int_at(kv->val + i * es, kv->arr_type, &v[i]) < 0) {
             seterr(f->err, sizeof f->err, "gguf: key '%s'[%zu] out of range", key, i);
-            return GGUF_EFORMAT;
+            return F4D_EFORMAT;
         }
     *n = (size_t)kv->arr_n;
     return 0;
@@ -573,12 +573,12 @@ int gguf_expect_tensor(gguf_file *f, const char *name, uint32_t type, int n_dims
     const struct gguf_tensor *t = gguf_find_tensor(f, name);
     if (!t) {
         seterr(f->err, sizeof f->err, "gguf: missing tensor '%s'", name);
-        return GGUF_ENOENT;
+        return F4D_ENOENT;
     }
     if (t->type != type) {
         seterr(f->err, sizeof f->err, "gguf: tensor '%s' has type %s, expected %s", name,
                gguf_type_name(t->type), gguf_type_name(type));
-        return GGUF_ETYPE;
+        return F4D_ETYPE;
     }
     int ok = (int)t->n_dims == n_dims;
     for (int d = 0; ok && d < n_dims; d++)
@@ -593,7 +593,7 @@ int gguf_expect_tensor(gguf_file *f, const char *name, uint32_t type, int n_dims
                      shape[d]);
         seterr(f->err, sizeof f->err, "gguf: tensor '%s' has shape [%s], expected [%s]", name,
                got, want);
-        return GGUF_EFORMAT;
+        return F4D_EFORMAT;
     }
     *out = t;
     return 0;
@@ -629,7 +629,7 @@ static int wput(gguf_writer *w, struct wbuf *b, const void *src, size_t n)
         if (!p) {
             seterr(w->err, sizeof w->err, "gguf writer: out of memory");
             w->failed = 1;
-            return GGUF_ENOMEM;
+            return F4D_ENOMEM;
         }
         b->p = p;
         b->cap = cap;
@@ -643,7 +643,7 @@ static int wstr(gguf_writer *w, struct wbuf *b, const char *s)
 {
     uint64_t len = strlen(s);
     if (wput(w, b, &len, 8) < 0)
-        return GGUF_ENOMEM;
+        return F4D_ENOMEM;
     return wput(w, b, s, (size_t)len);
 }
 
@@ -680,7 +680,7 @@ static int key_ok(gguf_writer *w, const char *key)
     if (!key || !*key || strlen(key) >= GGUF_NAME_MAX || w->fp) {
         seterr(w->err, sizeof w->err, "gguf writer: bad key '%s' or header already written",
                key ? key : "(null)");
-        return GGUF_EINVAL;
+        return F4D_EINVAL;
     }
     return 0;
 }
@@ -691,7 +691,7 @@ static int put_int(gguf_writer *w, struct wbuf *b, enum gguf_vtype t, int64_t v)
     size_t n = vtype_size(t);
     if (!n || t == GGUF_V_FLOAT32 || t == GGUF_V_FLOAT64 || t == GGUF_V_STRING) {
         seterr(w->err, sizeof w->err, "gguf writer: type %d is not an integer type", (int)t);
-        return GGUF_EINVAL;
+        return F4D_EINVAL;
     }
     /* Little-endian truncation to the chosen width (x86/ARM hosts). */
     uint64_t u = (uint64_t)v;
@@ -704,7 +704,7 @@ int gguf_writer_add_int(gguf_writer *w, const char *key, enum gguf_vtype t, int6
     uint32_t ty = (uint32_t)t;
     if (key_ok(w, key) < 0 || wstr(w, &w->kv, key) < 0 || wput(w, &w->kv, &ty, 4) < 0 ||
         put_int(w, &w->kv, t, v) < 0)
-        return w->failed = 1, GGUF_EINVAL;
+        return w->failed = 1, F4D_EINVAL;
     w->n_kv++;
     return 0;
 }
@@ -714,7 +714,7 @@ int gguf_writer_add_f32(gguf_writer *w, const char *key, float v)
     uint32_t ty = GGUF_V_FLOAT32;
     if (key_ok(w, key) < 0 || wstr(w, &w->kv, key) < 0 || wput(w, &w->kv, &ty, 4) < 0 ||
         wput(w, &w->kv, &v, 4) < 0)
-        return w->failed = 1, GGUF_EINVAL;
+        return w->failed = 1, F4D_EINVAL;
     w->n_kv++;
     return 0;
 }
@@ -724,7 +724,7 @@ int gguf_writer_add_str(gguf_writer *w, const char *key, const char *v)
     uint32_t ty = GGUF_V_STRING;
     if (key_ok(w, key) < 0 || wstr(w, &w->kv, key) < 0 || wput(w, &w->kv, &ty, 4) < 0 ||
         wstr(w, &w->kv, v) < 0)
-        return w->failed = 1, GGUF_EINVAL;
+        return w->failed = 1, F4D_EINVAL;
     w->n_kv++;
     return 0;
 }
@@ -736,10 +736,10 @@ int gguf_writer_add_int_array(gguf_writer *w, const char *key, enum gguf_vtype t
     uint64_t nn = n;
     if (key_ok(w, key) < 0 || wstr(w, &w->kv, key) < 0 || wput(w, &w->kv, &ty, 4) < 0 ||
         wput(w, &w->kv, &et, 4) < 0 || wput(w, &w->kv, &nn, 8) < 0)
-        return w->failed = 1, GGUF_EINVAL;
+        return w->failed = 1, F4D_EINVAL;
     for (size_t i = 0; i < n; i++)
         if (put_int(w, &w->kv, t, v[i]) < 0)
-            return w->failed = 1, GGUF_EINVAL;
+            return w->failed = 1, F4D_EINVAL;
     w->n_kv++;
     return 0;
 }
@@ -750,14 +750,14 @@ int gguf_writer_add_tensor(gguf_writer *w, const char *name, uint32_t type, int 
     size_t es = gguf_type_size(type);
     if (key_ok(w, name) < 0 || !es || n_dims < 1 || n_dims > GGUF_MAX_DIMS) {
         seterr(w->err, sizeof w->err, "gguf writer: tensor '%s': bad type or dims", name);
-        return w->failed = 1, GGUF_EINVAL;
+        return w->failed = 1, F4D_EINVAL;
     }
     uint64_t n = 1;
     for (int d = 0; d < n_dims; d++) {
         if (shape[d] <= 0) {
             seterr(w->err, sizeof w->err, "gguf writer: tensor '%s': dim %d is %" PRId64, name,
                    d, shape[d]);
-            return w->failed = 1, GGUF_EINVAL;
+            return w->failed = 1, F4D_EINVAL;
         }
         n *= (uint64_t)shape[d];
     }
@@ -765,20 +765,20 @@ int gguf_writer_add_tensor(gguf_writer *w, const char *name, uint32_t type, int 
         size_t cap = w->sizes_cap ? 2 * w->sizes_cap : 256;
         uint64_t *s = realloc(w->sizes, cap * sizeof *s);
         if (!s)
-            return w->failed = 1, GGUF_ENOMEM;
+            return w->failed = 1, F4D_ENOMEM;
         w->sizes = s;
         w->sizes_cap = cap;
     }
     uint32_t nd = (uint32_t)n_dims;
     if (wstr(w, &w->ti, name) < 0 || wput(w, &w->ti, &nd, 4) < 0)
-        return w->failed = 1, GGUF_ENOMEM;
+        return w->failed = 1, F4D_ENOMEM;
     for (int d = n_dims - 1; d >= 0; d--) {
         uint64_t ne = (uint64_t)shape[d];
         if (wput(w, &w->ti, &ne, 8) < 0)
-            return w->failed = 1, GGUF_ENOMEM;
+            return w->failed = 1, F4D_ENOMEM;
     }
     if (wput(w, &w->ti, &type, 4) < 0 || wput(w, &w->ti, &w->data_off, 8) < 0)
-        return w->failed = 1, GGUF_ENOMEM;
+        return w->failed = 1, F4D_ENOMEM;
     w->sizes[w->n_t++] = n * es;
     w->data_off += (n * es + GGUF_DEFAULT_ALIGN - 1) / GGUF_DEFAULT_ALIGN * GGUF_DEFAULT_ALIGN;
     return 0;
@@ -790,7 +790,7 @@ static int wfile(gguf_writer *w, const void *p, size_t n)
         seterr(w->err, sizeof w->err, "gguf writer: write to '%s' failed: %s", w->tmp,
                strerror(errno));
         w->failed = 1;
-        return GGUF_EIO;
+        return F4D_EIO;
     }
     return 0;
 }
@@ -800,7 +800,7 @@ static int wpad(gguf_writer *w)
     static const uint8_t zeros[GGUF_DEFAULT_ALIGN];
     long pos = ftell(w->fp);
     if (pos < 0)
-        return GGUF_EIO;
+        return F4D_EIO;
     size_t pad = (GGUF_DEFAULT_ALIGN - (size_t)pos % GGUF_DEFAULT_ALIGN) % GGUF_DEFAULT_ALIGN;
     return wfile(w, zeros, pad);
 }
@@ -808,25 +808,25 @@ static int wpad(gguf_writer *w)
 int gguf_writer_begin(gguf_writer *w, const char *path)
 {
     if (w->failed || w->fp)
-        return GGUF_EINVAL;
+        return F4D_EINVAL;
     size_t n = strlen(path);
     w->path = malloc(n + 1);
     w->tmp = malloc(n + 5);
     if (!w->path || !w->tmp)
-        return GGUF_ENOMEM;
+        return F4D_ENOMEM;
     memcpy(w->path, path, n + 1);
     snprintf(w->tmp, n + 5, "%s.tmp", path);
     w->fp = fopen(w->tmp, "wb");
     if (!w->fp) {
         seterr(w->err, sizeof w->err, "gguf writer: cannot create '%s': %s", w->tmp,
                strerror(errno));
-        return GGUF_EIO;
+        return F4D_EIO;
     }
     uint32_t magic = GGUF_MAGIC, ver = GGUF_VERSION;
     if (wfile(w, &magic, 4) < 0 || wfile(w, &ver, 4) < 0 || wfile(w, &w->n_t, 8) < 0 ||
         wfile(w, &w->n_kv, 8) < 0 || wfile(w, w->kv.p, w->kv.n) < 0 ||
         wfile(w, w->ti.p, w->ti.n) < 0 || wpad(w) < 0)
-        return GGUF_EIO;
+        return F4D_EIO;
     return 0;
 }
 
@@ -836,11 +836,11 @@ int gguf_writer_write(gguf_writer *w, const void *data, size_t nbytes)
         seterr(w->err, sizeof w->err, "gguf writer: tensor %" PRIu64 " written out of order or "
                "with %zu bytes", w->written_t, nbytes);
         w->failed = 1;
-        return GGUF_EINVAL;
+        return F4D_EINVAL;
     }
     w->written_t++;
     if (wfile(w, data, nbytes) < 0 || wpad(w) < 0)
-        return GGUF_EIO;
+        return F4D_EIO;
     return 0;
 }
 
@@ -849,7 +849,7 @@ int gguf_writer_finish(gguf_writer *w)
     if (!w->fp || w->failed || w->written_t != w->n_t) {
         seterr(w->err, sizeof w->err, "gguf writer: %" PRIu64 " of %" PRIu64
                " tensors written", w->written_t, w->n_t);
-        return GGUF_EINVAL;
+        return F4D_EINVAL;
     }
     int bad = fflush(w->fp) != 0 || fsync(fileno(w->fp)) != 0;
     bad |= fclose(w->fp) != 0;
@@ -858,7 +858,7 @@ int gguf_writer_finish(gguf_writer *w)
         seterr(w->err, sizeof w->err, "gguf writer: cannot finish '%s': %s", w->path,
                strerror(errno));
         remove(w->tmp);
-        return GGUF_EIO;
+        return F4D_EIO;
     }
     return 0;
 }

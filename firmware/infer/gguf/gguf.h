@@ -28,6 +28,8 @@
 #ifndef F4D_GGUF_H
 #define F4D_GGUF_H
 
+#include "f4d_status.h"
+
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -37,16 +39,6 @@
 #define GGUF_DEFAULT_ALIGN  32u
 #define GGUF_MAX_DIMS       4
 #define GGUF_NAME_MAX       256         /* longest accepted key or tensor name */
-
-enum gguf_status {
-    GGUF_OK      =  0,
-    GGUF_EIO     = -1, /* open/read/write/mmap failed                        */
-    GGUF_EFORMAT = -2, /* malformed or inconsistent file                      */
-    GGUF_ENOENT  = -3, /* key or tensor absent                                */
-    GGUF_ETYPE   = -4, /* key present with another value type                 */
-    GGUF_ENOMEM  = -5,
-    GGUF_EINVAL  = -6, /* bad argument                                        */
-};
 
 /* Metadata value types (GGUF spec numbering). */
 enum gguf_vtype {

@@ -24,7 +24,7 @@ int model_fail(struct model *m, int rc, const char *fmt, ...)
 
 int model_kfail(struct model *m, const char *what)
 {
-    return model_fail(m, MODEL_EKERNEL, "model: %s: %s", what, fk_ctx_error(m->ctx));
+    return model_fail(m, fk_ctx_status(m->ctx), "model: %s: %s", what, fk_ctx_error(m->ctx));
 }
 
 double model_now(void)
@@ -55,31 +55,31 @@ static int check_tensor(void *user, const struct model_tensor_info *ti)
     const struct gguf_tensor *t = gguf_find_tensor(m->gf, ti->name);
     if (ti->tclass == MODEL_T_UNUSED) {
         if (t)
-            return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' is unused and must not be "
+            return model_fail(m, F4D_EFORMAT, "model: tensor '%s' is unused and must not be "
                               "in the file", ti->name);
         return 0;
     }
     if (!t)
-        return model_fail(m, MODEL_EFORMAT, "model: missing tensor '%s'", ti->name);
+        return model_fail(m, F4D_EFORMAT, "model: missing tensor '%s'", ti->name);
     if (!allowed_type(ti, t->type))
-        return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' has type %s (allowed: %s)",
+        return model_fail(m, F4D_EFORMAT, "model: tensor '%s' has type %s (allowed: %s)",
                           ti->name, gguf_type_name(t->type),
                           ti->tclass == MODEL_T_QUANT ? "F32, F16, I8" : "F32");
     const struct gguf_tensor *ok;
     if (gguf_expect_tensor(m->gf, ti->name, t->type, ti->n_dims, ti->shape, &ok) < 0)
-        return model_fail(m, MODEL_EFORMAT, "model: %s (from the forge4d.* metadata)",
+        return model_fail(m, F4D_EFORMAT, "model: %s (from the forge4d.* metadata)",
                           gguf_error(m->gf));
     cc->n_schema++;
     if (t->type == GGUF_T_I8) {
         char sn[MODEL_NAME_MAX + 8];
         snprintf(sn, sizeof sn, "%s.scale", ti->name);
         if (gguf_expect_tensor(m->gf, sn, GGUF_T_F32, 1, &ti->shape[ti->qaxis], &ok) < 0)
-            return model_fail(m, MODEL_EFORMAT, "model: int8 tensor '%s': %s", ti->name,
+            return model_fail(m, F4D_EFORMAT, "model: int8 tensor '%s': %s", ti->name,
                               gguf_error(m->gf));
         const float *s = ok->data;
         for (int64_t i = 0; i < ti->shape[ti->qaxis]; i++)
             if (!(s[i] >= 0.0f) || s[i] > 1e30f)
-                return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' has a bad scale [%"
+                return model_fail(m, F4D_EFORMAT, "model: tensor '%s' has a bad scale [%"
                                   PRId64 "]", sn, i);
         cc->n_schema++;
     }
@@ -94,7 +94,7 @@ int model_load_f32(struct model *m, const char *name, size_t count, const float 
 {
     const struct gguf_tensor *t = gguf_find_tensor(m->gf, name);
     if (!t || t->type != GGUF_T_F32 || t->n_elements != count)
-        return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' missing, not F32 or not %zu "
+        return model_fail(m, F4D_EFORMAT, "model: tensor '%s' missing, not F32 or not %zu "
                           "elements", name, count);
     *v = t->data;
     return 0;
@@ -111,16 +111,16 @@ static int weight_f32(struct model *m, const char *name, size_t count, int qaxis
 {
     const struct gguf_tensor *t = gguf_find_tensor(m->gf, name);
     if (!t || t->n_elements != count)
-        return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' missing or not %zu elements",
+        return model_fail(m, F4D_EFORMAT, "model: tensor '%s' missing or not %zu elements",
                           name, count);
     *tt = t;
     float *w = malloc(count * sizeof *w);
     if (!w)
-        return model_fail(m, MODEL_ENOMEM, "model: out of memory for '%s'", name);
+        return model_fail(m, F4D_ENOMEM, "model: out of memory for '%s'", name);
     if (t->type == GGUF_T_F32) {
         memcpy(w, t->data, count * sizeof *w);
     } else if (t->type == GGUF_T_F16) {
-        if (fk_f16_to_f32(m->ctx, t->data, w, count) != FK_OK) {
+        if (fk_f16_to_f32(m->ctx, t->data, w, count) != F4D_OK) {
             free(w);
             return model_kfail(m, "f16 widening");
         }
@@ -130,7 +130,7 @@ static int weight_f32(struct model *m, const char *name, size_t count, int qaxis
         const struct gguf_tensor *st = gguf_find_tensor(m->gf, sn);
         if (!st || st->type != GGUF_T_F32) {
             free(w);
-            return model_fail(m, MODEL_EFORMAT, "model: int8 tensor '%s' has no F32 '%s'",
+            return model_fail(m, F4D_EFORMAT, "model: int8 tensor '%s' has no F32 '%s'",
                               name, sn);
         }
         size_t nch = (size_t)t->ne[t->n_dims - 1 - qaxis], inner = 1;
@@ -138,7 +138,7 @@ static int weight_f32(struct model *m, const char *name, size_t count, int qaxis
             inner *= (size_t)t->ne[t->n_dims - 1 - d];
         if (st->n_elements != nch) {
             free(w);
-            return model_fail(m, MODEL_EFORMAT, "model: '%s' has %" PRIu64 " scales, expected %zu",
+            return model_fail(m, F4D_EFORMAT, "model: '%s' has %" PRIu64 " scales, expected %zu",
                               sn, st->n_elements, nch);
         }
         const int8_t *q = t->data;
@@ -147,7 +147,7 @@ static int weight_f32(struct model *m, const char *name, size_t count, int qaxis
             w[i] = (float)q[i] * s[(i / inner) % nch];
     } else {
         free(w);
-        return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' has type %s", name,
+        return model_fail(m, F4D_EFORMAT, "model: tensor '%s' has type %s", name,
                           gguf_type_name(t->type));
     }
     *out = w;
@@ -163,7 +163,7 @@ int model_load_linear(struct model *m, struct fk_linear *L, const char *wname,
         return rc;
     const struct gguf_tensor *t = gguf_find_tensor(m->gf, wname);
     if (!t || t->n_dims != 2 || t->ne[0] != (uint64_t)k || t->ne[1] != (uint64_t)n)
-        return model_fail(m, MODEL_EFORMAT, "model: tensor '%s' missing or not [%d, %d]", wname,
+        return model_fail(m, F4D_EFORMAT, "model: tensor '%s' missing or not [%d, %d]", wname,
                           n, k);
     if (t->type == GGUF_T_F32) {
         krc = fk_linear_pack(m->ctx, L, m->wtype, t->data, n, k, bias);
@@ -174,7 +174,7 @@ int model_load_linear(struct model *m, struct fk_linear *L, const char *wname,
         snprintf(sn, sizeof sn, "%s.scale", wname);
         const struct gguf_tensor *st = gguf_find_tensor(m->gf, sn);
         if (!st || st->type != GGUF_T_F32 || st->n_elements != (uint64_t)n)
-            return model_fail(m, MODEL_EFORMAT, "model: int8 tensor '%s' has no F32 '%s' [%d]",
+            return model_fail(m, F4D_EFORMAT, "model: int8 tensor '%s' has no F32 '%s' [%d]",
                               wname, sn, n);
         krc = fk_linear_pack_q8(m->ctx, L, t->data, st->data, n, k, bias);
     } else {
@@ -184,8 +184,8 @@ int model_load_linear(struct model *m, struct fk_linear *L, const char *wname,
         krc = fk_linear_pack(m->ctx, L, m->wtype, w, n, k, bias);
         free(w);
     }
-    if (krc != FK_OK)
-        return model_fail(m, MODEL_EKERNEL, "model: packing '%s': %s", wname,
+    if (krc != F4D_OK)
+        return model_fail(m, fk_ctx_status(m->ctx), "model: packing '%s': %s", wname,
                           fk_ctx_error(m->ctx));
     m->weight_bytes += L->bytes;
     return 0;
@@ -207,8 +207,8 @@ int model_load_conv(struct model *m, struct fk_conv2d *c, const char *prefix, in
         return rc;
     int krc = fk_conv2d_pack(m->ctx, c, as, w, b, cout, cin, k, k, stride, pad);
     free(w);
-    if (krc != FK_OK)
-        return model_fail(m, MODEL_EKERNEL, "model: packing '%s': %s", wn, fk_ctx_error(m->ctx));
+    if (krc != F4D_OK)
+        return model_fail(m, fk_ctx_status(m->ctx), "model: packing '%s': %s", wn, fk_ctx_error(m->ctx));
     m->weight_bytes += c->lin.bytes;
     return 0;
 }
@@ -229,8 +229,8 @@ int model_load_convt(struct model *m, struct fk_conv_transpose2d *c, const char 
         return rc;
     int krc = fk_conv_transpose2d_pack(m->ctx, c, m->wtype, w, b, cin, cout, k);
     free(w);
-    if (krc != FK_OK)
-        return model_fail(m, MODEL_EKERNEL, "model: packing '%s': %s", wn, fk_ctx_error(m->ctx));
+    if (krc != F4D_OK)
+        return model_fail(m, fk_ctx_status(m->ctx), "model: packing '%s': %s", wn, fk_ctx_error(m->ctx));
     m->weight_bytes += c->lin.bytes;
     return 0;
 }
@@ -245,19 +245,19 @@ int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model 
     *out = NULL;
     if (wtype != FK_W_F32 && wtype != FK_W_F16 && wtype != FK_W_Q8) {
         snprintf(err, err_size, "model: unknown weight precision %d", (int)wtype);
-        return MODEL_EINVAL;
+        return F4D_EINVAL;
     }
     struct model *m = calloc(1, sizeof *m);
     if (!m) {
         snprintf(err, err_size, "model: out of memory");
-        return MODEL_ENOMEM;
+        return F4D_ENOMEM;
     }
     m->ctx = ctx;
     m->wtype = wtype;
     m->flops = &m->st_flops[0];
     int rc = gguf_open(path, &m->gf, m->err, sizeof m->err);
     if (rc < 0) {
-        rc = rc == GGUF_EIO ? MODEL_EIO : MODEL_EFORMAT;
+        rc = rc == F4D_EIO ? F4D_EIO : F4D_EFORMAT;
         goto fail;
     }
     if ((rc = model_config_read(m->gf, &m->cfg, m->err, sizeof m->err)) < 0)
@@ -265,7 +265,7 @@ int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model 
     for (size_t i = 0; i < gguf_tensor_count(m->gf); i++)
         m->groups |= model_group_of(gguf_tensor_at(m->gf, i)->name);
     if (!(m->groups & MODEL_G_AGGREGATOR)) {
-        rc = model_fail(m, MODEL_EFORMAT, "model: '%s' has no aggregator.* tensors", path);
+        rc = model_fail(m, F4D_EFORMAT, "model: '%s' has no aggregator.* tensors", path);
         goto fail;
     }
     struct check_ctx cc = { m, 0 };
@@ -288,20 +288,20 @@ int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model 
 fail:
     snprintf(err, err_size, "%s", m->err);
     model_free(m);
-    return rc < 0 ? rc : MODEL_EFORMAT;
+    return rc < 0 ? rc : F4D_EFORMAT;
 }
 
 int model_register_head(struct model *m, const struct model_head_ops *ops)
 {
     if (m->arena)
-        return model_fail(m, MODEL_EINVAL, "model: head '%s' registered after model_prepare",
+        return model_fail(m, F4D_EINVAL, "model: head '%s' registered after model_prepare",
                           ops->prefix);
     if (ops->api_version != MODEL_HEAD_API_VERSION || !ops->init || !ops->layers ||
         !ops->plan || !ops->eval || !ops->free)
-        return model_fail(m, MODEL_EINVAL, "model: head '%s': api_version %u (need %u) or a "
+        return model_fail(m, F4D_EINVAL, "model: head '%s': api_version %u (need %u) or a "
                           "missing op", ops->prefix, ops->api_version, MODEL_HEAD_API_VERSION);
     if (m->n_heads == MODEL_HEADS_MAX)
-        return model_fail(m, MODEL_EINVAL, "model: more than %d heads", MODEL_HEADS_MAX);
+        return model_fail(m, F4D_EINVAL, "model: more than %d heads", MODEL_HEADS_MAX);
     void *h = NULL;
     int rc = ops->init(m, &h);
     if (rc < 0) {
@@ -314,7 +314,7 @@ int model_register_head(struct model *m, const struct model_head_ops *ops)
     uint64_t mask = ops->layers(h);
     if (m->cfg.depth < 64 && (mask >> m->cfg.depth)) {
         ops->free(h);
-        return model_fail(m, MODEL_EINVAL, "model: head '%s' reads a layer beyond depth %d",
+        return model_fail(m, F4D_EINVAL, "model: head '%s' reads a layer beyond depth %d",
                           ops->prefix, m->cfg.depth);
     }
     m->head_ops[m->n_heads] = ops;
@@ -337,7 +337,7 @@ static int check_unknown(struct model *m)
             known = !strncmp(nm, m->head_ops[h]->prefix, n) && nm[n] == '.';
         }
         if (!known)
-            return model_fail(m, MODEL_EFORMAT, "model: unknown tensor '%s'", nm);
+            return model_fail(m, F4D_EFORMAT, "model: unknown tensor '%s'", nm);
     }
     return 0;
 }
@@ -368,10 +368,10 @@ static int name_extra(struct model *m)
             continue;
         model_schema_foreach(&m->cfg, m->groups, find_name, &fc);
         if (!fc.found)
-            return model_fail(m, MODEL_EFORMAT, "model: unknown tensor '%s' (not in the schema "
+            return model_fail(m, F4D_EFORMAT, "model: unknown tensor '%s' (not in the schema "
                               "of the forge4d.* metadata)", fc.name);
     }
-    return model_fail(m, MODEL_EFORMAT, "model: tensor count does not match the schema");
+    return model_fail(m, F4D_EFORMAT, "model: tensor count does not match the schema");
 }
 
 /* ------------------------------------------------------------ plan */
@@ -410,9 +410,9 @@ static int check_shape(struct model *m, int S, int H, int W)
 {
     const int p = m->cfg.patch_size;
     if (S < 1 || S > MODEL_VIEWS_MAX)
-        return model_fail(m, MODEL_EINVAL, "model: %d views (1..%d)", S, MODEL_VIEWS_MAX);
+        return model_fail(m, F4D_EINVAL, "model: %d views (1..%d)", S, MODEL_VIEWS_MAX);
     if (H < p || W < p || H % p || W % p || H > 4096 || W > 4096)
-        return model_fail(m, MODEL_EINVAL, "model: input %dx%d is not a multiple of the patch "
+        return model_fail(m, F4D_EINVAL, "model: input %dx%d is not a multiple of the patch "
                           "size %d (or exceeds 4096)", W, H, p);
     return 0;
 }
@@ -421,7 +421,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
 {
     int rc;
     if (m->arena)
-        return model_fail(m, MODEL_EINVAL, "model: already prepared");
+        return model_fail(m, F4D_EINVAL, "model: already prepared");
     if ((rc = check_shape(m, max_views, max_h, max_w)) < 0 || (rc = check_unknown(m)) < 0)
         return rc;
     size_t persist, scratch;
@@ -437,7 +437,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
     m->arena_bytes = persist + scratch;
     m->arena = aligned_alloc(MODEL_ALIGN, (m->arena_bytes + MODEL_ALIGN - 1) / MODEL_ALIGN * MODEL_ALIGN);
     if (!m->arena)
-        return model_fail(m, MODEL_ENOMEM, "model: cannot allocate the %zu-byte arena",
+        return model_fail(m, F4D_ENOMEM, "model: cannot allocate the %zu-byte arena",
                           m->arena_bytes);
     /* Touch every page now, so that Eval never takes a first-touch page fault. */
     memset(m->arena, 0, m->arena_bytes);
@@ -457,7 +457,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
     for (int l = 0; l < c->depth; l++)
         m->layers[l] = (m->keep >> l & 1) ? BUMP_F(&b, n * 2 * c->embed_dim) : NULL;
     if (b.off != agg_persist)
-        return model_fail(m, MODEL_EINVAL, "model: internal plan mismatch");
+        return model_fail(m, F4D_EINVAL, "model: internal plan mismatch");
     for (int i = 0; i < m->n_heads; i++)
         m->head_persist[i] = bump_take(&b, m->head_persist_bytes[i]);
     m->scratch = (float *)(m->arena + persist);
@@ -473,7 +473,7 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
     int rc;
     memset(out, 0, sizeof *out);
     if (!m->arena)
-        return model_fail(m, MODEL_EINVAL, "model: model_eval before model_prepare");
+        return model_fail(m, F4D_EINVAL, "model: model_eval before model_prepare");
     if ((rc = check_shape(m, S, H, W)) < 0)
         return rc;
     /* Fits when every part of this frame set's plan fits the prepared one. */
@@ -490,7 +490,7 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
         fits = hp <= m->head_persist_bytes[i] && hs <= m->scratch_bytes;
     }
     if (!fits)
-        return model_fail(m, MODEL_EINVAL, "model: %d views of %dx%d exceed the arena planned "
+        return model_fail(m, F4D_EINVAL, "model: %d views of %dx%d exceed the arena planned "
                           "for %d views of %dx%d", S, W, H, m->max_S, m->max_W, m->max_H);
     for (int i = 0; i < ST_COUNT; i++)
         m->st_sec[i] = m->st_flops[i] = 0;

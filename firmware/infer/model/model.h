@@ -37,6 +37,8 @@
 #ifndef F4D_MODEL_H
 #define F4D_MODEL_H
 
+#include "f4d_status.h"
+
 #include <stddef.h>
 #include <stdint.h>
 
@@ -50,15 +52,6 @@
 #define MODEL_POSE_DIM    9
 #define MODEL_NAME_MAX    96
 #define MODEL_DPT_HIDDEN2 32   /* output_conv2.0 width, fixed in VGGT        */
-
-enum model_status {
-    MODEL_OK      =  0,
-    MODEL_EINVAL  = -1, /* bad argument or shape                                  */
-    MODEL_EFORMAT = -2, /* weight file inconsistent (names the tensor or key)      */
-    MODEL_ENOMEM  = -3,
-    MODEL_EKERNEL = -4, /* a kernel failed (its message is passed on)               */
-    MODEL_EIO     = -5,
-};
 
 enum model_patch_embed { MODEL_PATCH_DINO = 0, MODEL_PATCH_CONV = 1 };
 

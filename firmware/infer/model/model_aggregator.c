@@ -33,7 +33,7 @@ int model_aggregator_load(struct model *m)
             return rc;
         m->dino = calloc((size_t)c->dino_depth, sizeof *m->dino);
         if (!m->dino)
-            return model_fail(m, MODEL_ENOMEM, "model: out of memory");
+            return model_fail(m, F4D_ENOMEM, "model: out of memory");
         for (int i = 0; i < c->dino_depth; i++) {
             snprintf(b, sizeof b, "aggregator.patch_embed.blocks.%d", i);
             if ((rc = model_load_block(m, &m->dino[i], b, C, c->dino_num_heads, hid, 1e-6f, 0)) < 0)
@@ -53,7 +53,7 @@ int model_aggregator_load(struct model *m)
     m->frame = calloc((size_t)c->depth, sizeof *m->frame);
     m->global = calloc((size_t)c->depth, sizeof *m->global);
     if (!m->frame || !m->global)
-        return model_fail(m, MODEL_ENOMEM, "model: out of memory");
+        return model_fail(m, F4D_ENOMEM, "model: out of memory");
     for (int i = 0; i < c->depth; i++) {
         snprintf(b, sizeof b, "aggregator.frame_blocks.%d", i);
         if ((rc = model_load_block(m, &m->frame[i], b, C, c->num_heads, hid, 1e-5f, 1)) < 0)
@@ -144,7 +144,7 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
         }
     if (c->patch_embed == MODEL_PATCH_DINO && (m->pe_h != h || m->pe_w != w)) {
         const int g = c->img_size / p;
-        if (fk_resize_bicubic_aa(m->ctx, m->pos_embed + C, g, g, C, m->pe_grid, h, w) != FK_OK)
+        if (fk_resize_bicubic_aa(m->ctx, m->pos_embed + C, g, g, C, m->pe_grid, h, w) != F4D_OK)
             return model_kfail(m, "pos-embed resize");
         m->pe_h = h;
         m->pe_w = w;
@@ -164,7 +164,7 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
                 tok[i] = m->cls[i] + m->pos_embed[i];
             if (R)
                 memcpy(tok + C, m->dino_reg, (size_t)R * C * sizeof *tok);
-            if (fk_residual_add(m->ctx, tok + (size_t)ns * C, C, m->pe_grid, C, NULL, P, C) != FK_OK)
+            if (fk_residual_add(m->ctx, tok + (size_t)ns * C, C, m->pe_grid, C, NULL, P, C) != F4D_OK)
                 return model_kfail(m, "pos-embed add");
         }
     }
@@ -175,7 +175,7 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
         for (int i = 0; i < c->dino_depth; i++)
             if ((rc = model_block_forward(m, &m->dino[i], x, S, P1, NULL, &a.bb)) < 0)
                 return rc;
-        if (fk_layernorm(m->ctx, x, n, C, C, m->dino_nw, m->dino_nb, 1e-6f, x, C) != FK_OK)
+        if (fk_layernorm(m->ctx, x, n, C, C, m->dino_nw, m->dino_nb, 1e-6f, x, C) != F4D_OK)
             return model_kfail(m, "dino norm");
         m->st_sec[ST_DINO] += model_now() - t1;
     }
@@ -204,7 +204,7 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
         m->st_sec[ST_GLOBAL] += model_now() - tb;
         if (m->hooks.after_global &&
             (rc = m->hooks.after_global(m->hooks.user, i, x, S, P1, C)) < 0)
-            return model_fail(m, MODEL_EINVAL, "model: after_global hook failed at layer %d (%d)",
+            return model_fail(m, F4D_EINVAL, "model: after_global hook failed at layer %d (%d)",
                               i, rc);
         if (m->layers[i]) {
             copy_rows(m->layers[i] + C, 2 * C, x, C, n, C);

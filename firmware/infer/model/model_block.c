@@ -5,7 +5,7 @@
 int model_linear(struct model *m, const struct fk_linear *L, const float *x, int rows, int ldx,
                  float *y, int ldy, const struct fk_epilogue *ep)
 {
-    if (fk_linear_forward(m->ctx, L, x, rows, ldx, y, ldy, ep) != FK_OK)
+    if (fk_linear_forward(m->ctx, L, x, rows, ldx, y, ldy, ep) != F4D_OK)
         return model_kfail(m, "linear");
     *m->flops += 2.0 * rows * L->n * L->k;
     return 0;
@@ -15,7 +15,7 @@ int model_conv(struct model *m, const struct fk_conv2d *c, const float *x, int h
                float *y, enum fk_act act)
 {
     int ho, wo;
-    if (fk_conv2d_forward(m->ctx, c, x, h, w, y, act) != FK_OK)
+    if (fk_conv2d_forward(m->ctx, c, x, h, w, y, act) != F4D_OK)
         return model_kfail(m, "conv2d");
     fk_conv2d_out_size(c, h, w, &ho, &wo);
     *m->flops += 2.0 * ho * wo * c->cout * c->cin * c->kh * c->kw;
@@ -25,7 +25,7 @@ int model_conv(struct model *m, const struct fk_conv2d *c, const float *x, int h
 int model_convt(struct model *m, const struct fk_conv_transpose2d *c, const float *x, int h,
                 int w, float *y)
 {
-    if (fk_conv_transpose2d_forward(m->ctx, c, x, h, w, y) != FK_OK)
+    if (fk_conv_transpose2d_forward(m->ctx, c, x, h, w, y) != F4D_OK)
         return model_kfail(m, "conv_transpose2d");
     *m->flops += 2.0 * h * w * c->cin * c->cout * c->k * c->k;
     return 0;
@@ -44,7 +44,7 @@ int model_block_forward(struct model *m, const struct blk *b, float *x, int nseq
 {
     const int C = b->dim, n = nseq * seqlen, d = C / b->heads;
     int rc;
-    if (fk_layernorm(m->ctx, x, n, C, C, b->n1w, b->n1b, b->eps, bb->ln, C) != FK_OK)
+    if (fk_layernorm(m->ctx, x, n, C, C, b->n1w, b->n1b, b->eps, bb->ln, C) != F4D_OK)
         return model_kfail(m, "layernorm");
     if ((rc = model_linear(m, &b->qkv, bb->ln, n, C, bb->qkv, 3 * C, NULL)) < 0)
         return rc;
@@ -56,14 +56,14 @@ int model_block_forward(struct model *m, const struct blk *b, float *x, int nseq
     for (int s = 0; s < nseq; s++) {
         const float *q = bb->qkv + (size_t)s * seqlen * 3 * C;
         if (fk_attention(m->ctx, &a, q, 3 * C, seqlen, q + C, 3 * C, q + 2 * C, 3 * C, seqlen,
-                         bb->o + (size_t)s * seqlen * C, C) != FK_OK)
+                         bb->o + (size_t)s * seqlen * C, C) != F4D_OK)
             return model_kfail(m, "attention");
     }
     *m->flops += 4.0 * nseq * (double)seqlen * seqlen * C;
     struct fk_epilogue res1 = { .act = FK_ACT_NONE, .gamma = b->g1, .accumulate = 1 };
     if ((rc = model_linear(m, &b->proj, bb->o, n, C, x, C, &res1)) < 0)
         return rc;
-    if (fk_layernorm(m->ctx, x, n, C, C, b->n2w, b->n2b, b->eps, bb->ln, C) != FK_OK)
+    if (fk_layernorm(m->ctx, x, n, C, C, b->n2w, b->n2b, b->eps, bb->ln, C) != F4D_OK)
         return model_kfail(m, "layernorm");
     struct fk_epilogue gelu = { .act = FK_ACT_GELU };
     if ((rc = model_linear(m, &b->fc1, bb->ln, n, C, bb->hid, b->hidden, &gelu)) < 0)

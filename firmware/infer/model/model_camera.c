@@ -35,7 +35,7 @@ static int camera_init(struct model *m, void **out)
         return 1;
     struct camera_head *h = calloc(1, sizeof *h);
     if (!h)
-        return MODEL_ENOMEM;
+        return F4D_ENOMEM;
     const int D = 2 * c->embed_dim;
     h->cfg = *c;
     h->D = D;
@@ -58,7 +58,7 @@ static int camera_init(struct model *m, void **out)
         goto fail;
     h->trunk = calloc((size_t)h->trunk_depth, sizeof *h->trunk);
     if (!h->trunk) {
-        rc = MODEL_ENOMEM;
+        rc = F4D_ENOMEM;
         goto fail;
     }
     for (int i = 0; i < h->trunk_depth; i++) {
@@ -159,8 +159,8 @@ static int camera_eval(void *hp, struct model_run *run, float *persist)
     const float *last = run->layers[run->cfg->depth - 1];
     int rc;
     /* Camera token (index 0) of every frame, both halves. */
-    if (fk_layernorm(ctx, last, S, D, P1 * D, h->tn_w, h->tn_b, 1e-5f, a.t, D) != FK_OK ||
-        fk_layernorm(ctx, a.t, S, D, D, NULL, NULL, 1e-6f, a.tn, D) != FK_OK)
+    if (fk_layernorm(ctx, last, S, D, P1 * D, h->tn_w, h->tn_b, 1e-5f, a.t, D) != F4D_OK ||
+        fk_layernorm(ctx, a.t, S, D, D, NULL, NULL, 1e-6f, a.tn, D) != F4D_OK)
         return model_kfail(m, "camera token norm");
     for (int it = 0; it < h->iters; it++) {
         if (it == 0) {
@@ -172,7 +172,7 @@ static int camera_eval(void *hp, struct model_run *run, float *persist)
         }
         if (rc < 0)
             return rc;
-        if (fk_silu(ctx, a.e, (size_t)S * D, a.e) != FK_OK)
+        if (fk_silu(ctx, a.e, (size_t)S * D, a.e) != F4D_OK)
             return model_kfail(m, "silu");
         if ((rc = model_linear(m, &h->mod, a.e, S, D, a.mod, 3 * D, NULL)) < 0)
             return rc;
@@ -186,7 +186,7 @@ static int camera_eval(void *hp, struct model_run *run, float *persist)
         for (int b = 0; b < h->trunk_depth; b++)
             if ((rc = model_block_forward(m, &h->trunk[b], a.x, 1, S, NULL, &a.bb)) < 0)
                 return rc;
-        if (fk_layernorm(ctx, a.x, S, D, D, h->kn_w, h->kn_b, 1e-5f, a.ln, D) != FK_OK)
+        if (fk_layernorm(ctx, a.x, S, D, D, h->kn_w, h->kn_b, 1e-5f, a.ln, D) != F4D_OK)
             return model_kfail(m, "trunk norm");
         struct fk_epilogue gelu = { .act = FK_ACT_GELU };
         if ((rc = model_linear(m, &h->fc1, a.ln, S, D, a.h1, D / 2, &gelu)) < 0)

@@ -13,7 +13,7 @@ static int fail(char *err, size_t n, const char *fmt, ...)
         vsnprintf(err, n, fmt, ap);
         va_end(ap);
     }
-    return MODEL_EFORMAT;
+    return F4D_EFORMAT;
 }
 
 void model_config_default(struct model_config *c)
@@ -83,7 +83,7 @@ int model_config_check(const struct model_config *c, char *err, size_t n)
             return fail(err, n, "config: dpt_layer_idx[%d] = %d out of 0..%d", i,
                         c->dpt_layer_idx[i], c->depth - 1);
     }
-    return MODEL_OK;
+    return F4D_OK;
 }
 
 /* The forge4d.* integer keys, in one table shared by reader and writer. */
@@ -158,5 +158,5 @@ int model_config_write(const struct model_config *c, gguf_writer *w)
                               model_mlp_hidden(c, c->embed_dim));
     rc |= gguf_writer_add_int(w, "forge4d.patch_start_idx", GGUF_V_UINT32,
                               1 + c->num_register_tokens);
-    return rc ? MODEL_EINVAL : MODEL_OK;
+    return rc ? F4D_EINVAL : F4D_OK;
 }

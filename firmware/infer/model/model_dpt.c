@@ -59,7 +59,7 @@ static int dpt_init_common(struct model *m, void **out, const char *prefix, int 
         return 1;
     struct dpt_head *h = calloc(1, sizeof *h);
     if (!h)
-        return MODEL_ENOMEM;
+        return F4D_ENOMEM;
     h->cfg = *c;
     h->prefix = prefix;
     h->out_dim = out_dim;
@@ -247,12 +247,12 @@ static int rcu(struct model *m, const struct rcu *r, float *x, int nh, int nw, i
 {
     int rc;
     fk_ctx *ctx = model_ctx(m);
-    if (fk_relu(ctx, x, (size_t)nh * nw * F, x) != FK_OK)
+    if (fk_relu(ctx, x, (size_t)nh * nw * F, x) != F4D_OK)
         return model_kfail(m, "relu");
     if ((rc = model_conv(m, &r->conv1, x, nh, nw, tm, FK_ACT_RELU)) < 0 ||
         (rc = model_conv(m, &r->conv2, tm, nh, nw, y, FK_ACT_NONE)) < 0)
         return rc;
-    if (fk_residual_add(ctx, y, F, x, F, NULL, nh * nw, F) != FK_OK)
+    if (fk_residual_add(ctx, y, F, x, F, NULL, nh * nw, F) != F4D_OK)
         return model_kfail(m, "rcu residual");
     return 0;
 }
@@ -269,7 +269,7 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
     for (int l = 0; l < 4; l++) {
         const float *lay = run->layers[c->dpt_layer_idx[l]] + ((size_t)f * P1 + ns) * D;
         const int ocl = c->dpt_out_channels[l];
-        if (fk_layernorm(ctx, lay, P, D, D, h->norm_w, h->norm_b, 1e-5f, a->tok, D) != FK_OK)
+        if (fk_layernorm(ctx, lay, P, D, D, h->norm_w, h->norm_b, 1e-5f, a->tok, D) != F4D_OK)
             return model_kfail(m, "dpt norm");
         if ((rc = model_conv(m, &h->proj[l], a->tok, hh, ww, a->proj, FK_ACT_NONE)) < 0)
             return rc;
@@ -299,13 +299,13 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
         if (l < 3) {
             if ((rc = rcu(m, &h->rcu1[l], a->rn[l], lh[l], lw[l], F, a->tm, a->y)) < 0)
                 return rc;
-            if (fk_residual_add(ctx, cur, F, a->y, F, NULL, lh[l] * lw[l], F) != FK_OK)
+            if (fk_residual_add(ctx, cur, F, a->y, F, NULL, lh[l] * lw[l], F) != F4D_OK)
                 return model_kfail(m, "fusion add");
         }
         if ((rc = rcu(m, &h->rcu2[l], cur, lh[l], lw[l], F, a->tm, a->y)) < 0)
             return rc;
         int th = l > 0 ? lh[l - 1] : 2 * lh[0], tw = l > 0 ? lw[l - 1] : 2 * lw[0];
-        if (fk_resize_bilinear(ctx, a->y, lh[l], lw[l], F, a->up, th, tw, 1) != FK_OK)
+        if (fk_resize_bilinear(ctx, a->y, lh[l], lw[l], F, a->up, th, tw, 1) != F4D_OK)
             return model_kfail(m, "fusion upsample");
         if ((rc = model_conv(m, &h->out_conv[l], a->up, th, tw, a->o, FK_ACT_NONE)) < 0)
             return rc;
@@ -318,7 +318,7 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
     }
     if ((rc = model_conv(m, &h->oc1, a->o, fh, fw, a->up, FK_ACT_NONE)) < 0)
         return rc;
-    if (fk_resize_bilinear(ctx, a->up, fh, fw, F / 2, a->big1, H, W, 1) != FK_OK)
+    if (fk_resize_bilinear(ctx, a->up, fh, fw, F / 2, a->big1, H, W, 1) != F4D_OK)
         return model_kfail(m, "dpt output upsample");
     add_uv_pe(a->big1, H, W, F / 2, H, W, a->pe);
     if ((rc = model_conv(m, &h->oc2a, a->big1, H, W, a->big2, FK_ACT_RELU)) < 0 ||

@@ -596,21 +596,21 @@ int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene *
 {
     if (!out) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: out is NULL");
-        return SPLAT_EINVAL;
+        return F4D_EINVAL;
     }
     *out = NULL;
     if ((int)preset < 0 || preset >= SCENE_PRESET_COUNT) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: unknown preset %d", (int)preset);
-        return SPLAT_EINVAL;
+        return F4D_EINVAL;
     }
     if (gaussians != 0 && (gaussians < 1000 || gaussians > 20000000)) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: %zu Gaussians requested, need 1000..20000000 (or 0)", gaussians);
-        return SPLAT_EINVAL;
+        return F4D_EINVAL;
     }
     scene *S = calloc(1, sizeof *S);
     if (!S) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: out of memory");
-        return SPLAT_ENOMEM;
+        return F4D_ENOMEM;
     }
     S->preset = preset;
     S->rng = seed * 0x9E3779B97F4A7C15ull + 0x1234567ull;
@@ -638,10 +638,10 @@ int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene *
     if (build(S, body_sp * S->s, floor_sp) < 0) {
         scene_free(S);
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: out of memory building the figure");
-        return SPLAT_ENOMEM;
+        return F4D_ENOMEM;
     }
     *out = S;
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 void scene_free(scene *s)
@@ -673,7 +673,7 @@ int scene_eval(const scene *S, double t, double dt, struct splat_frame *f, struc
 {
     if (!S || !f || !isfinite(t) || !(dt >= 0) || !isfinite(dt)) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_eval: bad argument (t and dt must be finite, dt >= 0)");
-        return SPLAT_EINVAL;
+        return F4D_EINVAL;
     }
     int rc = splat_frame_resize(f, S->n, dt > 0, err);
     if (rc < 0)
@@ -699,7 +699,7 @@ int scene_eval(const scene *S, double t, double dt, struct splat_frame *f, struc
             f->motion_fwd[i] -= f->pos[i];
         }
     }
-    return SPLAT_OK;
+    return F4D_OK;
 }
 
 void scene_default_rig(const scene *S, int views, int width, int height, struct splat_rig *rig)

@@ -27,29 +27,29 @@ int f4d_simscene_new(struct f4d_simscene **out, const char *preset, uint64_t see
     memset(&se, 0, sizeof se);
     int p = scene_preset_from_name(preset, &se);
     if (p < 0)
-        return hal_fail(err, errlen, HAL_EINVAL, "sim scene: %s", se.msg);
+        return hal_fail(err, errlen, F4D_EINVAL, "sim scene: %s", se.msg);
     if (views < 1 || views > 8 || width < 16 || height < 16)
-        return hal_fail(err, errlen, HAL_EINVAL, "sim scene: %u views of %ux%u (want 1..8 views, >= 16x16)",
+        return hal_fail(err, errlen, F4D_EINVAL, "sim scene: %u views of %ux%u (want 1..8 views, >= 16x16)",
                         (unsigned)views, (unsigned)width, (unsigned)height);
     struct f4d_simscene *ss = calloc(1, sizeof *ss);
     if (!ss)
-        return hal_fail(err, errlen, HAL_ENOMEM, "sim scene: out of memory");
+        return hal_fail(err, errlen, F4D_ENOMEM, "sim scene: out of memory");
     ss->width = width;
     ss->height = height;
     ss->rgb = malloc((size_t)width * height * 3 * sizeof *ss->rgb);
     struct fk_ctx_config cfg = {.isa = FK_ISA_AUTO, .threads = 0};
-    if (!ss->rgb || fk_ctx_new(&cfg, &ss->ctx) != FK_OK) {
+    if (!ss->rgb || fk_ctx_new(&cfg, &ss->ctx) != F4D_OK) {
         f4d_simscene_free(ss);
-        return hal_fail(err, errlen, HAL_ENOMEM, "sim scene: cannot create the compute context");
+        return hal_fail(err, errlen, F4D_ENOMEM, "sim scene: cannot create the compute context");
     }
     if (scene_new((enum scene_preset)p, seed, 0, &ss->sc, &se) < 0 ||
         splat_renderer_new(ss->ctx, (int)width, (int)height, &ss->r, &se) < 0) {
         f4d_simscene_free(ss);
-        return hal_fail(err, errlen, HAL_EINVAL, "sim scene %s: %s", preset, se.msg);
+        return hal_fail(err, errlen, F4D_EINVAL, "sim scene %s: %s", preset, se.msg);
     }
     scene_default_rig(ss->sc, (int)views, (int)width, (int)height, &ss->rig);
     *out = ss;
-    return HAL_OK;
+    return F4D_OK;
 }
 
 int f4d_simscene_render(void *user, uint32_t cam, uint64_t t_ns, const struct hal_format *f,
@@ -57,12 +57,12 @@ int f4d_simscene_render(void *user, uint32_t cam, uint64_t t_ns, const struct ha
 {
     struct f4d_simscene *ss = user;
     if (cam >= (uint32_t)ss->rig.count || f->width != ss->width || f->height != ss->height)
-        return HAL_EINVAL; /* the sim falls back to its pattern */
+        return F4D_EINVAL; /* the sim falls back to its pattern */
     double t = (double)t_ns * 1e-9;
     struct splat_error se;
     if (!ss->have_t || t != ss->t_cached) { /* all views of one trigger share one evaluation */
         if (scene_eval(ss->sc, t, 0.0, &ss->f, &se) < 0)
-            return HAL_EINVAL;
+            return F4D_EINVAL;
         ss->t_cached = t;
         ss->have_t = true;
     }
@@ -70,7 +70,7 @@ int f4d_simscene_render(void *user, uint32_t cam, uint64_t t_ns, const struct ha
     memset(&o, 0, sizeof o);
     o.rgb = ss->rgb;
     if (splat_render(ss->r, &ss->rig.cams[cam], &ss->f, scene_background(), &o) < 0)
-        return HAL_EIO;
+        return F4D_EIO;
     const uint32_t bpp = hal_pixfmt_bytes_per_pixel(f->pixfmt);
     for (uint32_t y = 0; y < f->height; y++) {
         uint8_t *row = dst + (size_t)y * f->stride;

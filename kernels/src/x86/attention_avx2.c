@@ -371,5 +371,5 @@ int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc *a, const flo
         fk_parallel_for(ctx, j.k_chunks + j.q_chunks, 20.0 * d * j.hn * (double)(nq + nk), prep_task, &j);
         fk_parallel_for(ctx, j.hn * j.q_blocks, att_work * j.hn, attn_task, &j);
     }
-    return FK_OK;
+    return F4D_OK;
 }

@@ -548,5 +548,5 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
 
     double work = 2.0 * m * (double)L->n * k;
     fk_parallel_for(ctx, m_blocks * j.n_chunks, work, gemm_task, &j);
-    return FK_OK;
+    return F4D_OK;
 }
