@@ -63,7 +63,7 @@ static void test_dual_consistency_pairs(void **state)
     struct splat_rig rig;
     small_rig(&rig);
     interp *ip;
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
     struct splat_frame f0 = { 0 }, f1 = { 0 }, out = { 0 };
     assert_int_equal(splat_frame_resize(&f0, 2, 1, NULL), 0);
@@ -163,7 +163,7 @@ static void test_gt_interpolation_beats_nearest_on_every_preset(void **state)
         struct splat_rig rig;
         scene_default_rig(s, 4, W, H, &rig);
         interp *ip;
-        struct splat_error err;
+        struct f4d_err err;
         assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
         struct splat_frame f0 = { 0 }, f1 = { 0 }, gt = { 0 }, out = { 0 };
         struct interp_key k0 = { 0 }, k1 = { 0 };
@@ -221,7 +221,7 @@ static void test_budget(void **state)
     f.opacity[3] = 0.4f;
     struct budget_config cfg = budget_config_default();
     struct budget_stats st;
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
     assert_int_equal(st.total, 5);
     assert_int_equal(st.pruned_opacity, 1);

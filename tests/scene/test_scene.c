@@ -16,7 +16,7 @@
 static scene *make(enum scene_preset p, uint64_t seed)
 {
     scene *s = NULL;
-    struct splat_error err;
+    struct f4d_err err;
     if (scene_new(p, seed, 0, &s, &err) < 0)
         fail_msg("%s", err.msg);
     return s;
@@ -53,7 +53,7 @@ static void test_motion_is_exact_at_any_time(void **state)
         for (size_t k = 0; k < sizeof times / sizeof times[0]; k++) {
             double t = times[k], dt = 1.0 / SCENE_FPS;
             assert_int_equal(scene_eval(s, t, dt, &f, NULL), 0);
-            struct splat_error err;
+            struct f4d_err err;
             assert_int_equal(splat_frame_validate(&f, &err), 0);
             scene_positions(s, t - dt, a);
             scene_positions(s, t + dt, b);
@@ -88,7 +88,7 @@ static void test_default_rig(void **state)
     assert_int_equal(rig.count, 4);
     float c[4][3];
     for (int k = 0; k < 4; k++) {
-        struct splat_error err;
+        struct f4d_err err;
         assert_int_equal(splat_camera_validate(&rig.cams[k], &err), 0);
         assert_int_equal(rig.cams[k].width, 518);
         splat_camera_center(&rig.cams[k], c[k]);
@@ -290,7 +290,7 @@ static void test_pixel_flow_matches_gaussian_motion(void **state)
 static void test_bad_input_rejected(void **state)
 {
     (void)state;
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(scene_preset_from_name("dance", &err), -1);
     assert_non_null(strstr(err.msg, "'dance'"));
     assert_non_null(strstr(err.msg, "throw"));

@@ -75,7 +75,7 @@ static struct img render(fk_ctx *ctx, const struct splat_camera *cam, const stru
     m.top = malloc(np * sizeof(int32_t));
     assert_non_null(m.rgb);
     splat_renderer *r;
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(splat_renderer_new(ctx, m.W, m.H, &r, &err), 0);
     struct splat_render_out o = { .rgb = m.rgb, .alpha = m.alpha, .depth = m.depth, .top = m.top };
     int rc = splat_render(r, cam, f, bg, &o);
@@ -511,7 +511,7 @@ static void test_bad_render_input_rejected(void **state)
     (void)state;
     fk_ctx *ctx = make_ctx(1);
     splat_renderer *r;
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(splat_renderer_new(ctx, 0, 10, &r, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "0x10"));
     assert_int_equal(splat_renderer_new(ctx, 32, 32, &r, &err), 0);
@@ -559,7 +559,7 @@ static void test_ply_round_trip(void **state)
     f.opacity[1] = 1.0f;
     char p[300];
     tmp_path(p, sizeof p, "rt.ply");
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(splat_ply_write(p, &f, &err), 0);
     assert_int_equal(splat_ply_read(p, &g, &err), 0);
     assert_int_equal(g.count, f.count);
@@ -600,7 +600,7 @@ static void test_ply_inria_by_name(void **state)
     fwrite(v, sizeof v, 1, fp);
     fclose(fp);
     struct splat_frame f = { 0 };
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(splat_ply_read(p, &f, &err), 0);
     assert_int_equal(f.count, 2);
     assert_null(f.motion_bwd);
@@ -628,7 +628,7 @@ static void test_ply_bad_input_rejected(void **state)
     char p[300];
     tmp_path(p, sizeof p, "bad.ply");
     struct splat_frame f = { 0 };
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(splat_ply_read("/nonexistent/x.ply", &f, &err), F4D_EIO);
     assert_non_null(strstr(err.msg, "cannot open"));
     write_text(p, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n");
@@ -656,7 +656,7 @@ static void test_rig_json(void **state)
 {
     (void)state;
     struct splat_rig rig, back;
-    struct splat_error err;
+    struct f4d_err err;
     const char *good = "{\"cameras\": [{\"name\": \"left\", \"width\": 64, \"height\": 48, \"fx\": 50, \"fy\": 51,"
                        " \"cx\": 32, \"cy\": 24, \"world_to_camera\": [[1,0,0,0.5],[0,1,0,0],[0,0,1,2],[0,0,0,1]]},"
                        " {\"name\": \"right\", \"width\": 64, \"height\": 48, \"fx\": 50, \"fy\": 50, \"cx\": 32,"
@@ -708,7 +708,7 @@ static void test_png_and_npy(void **state)
     float img[3 * 5 * 4];
     for (int i = 0; i < 60; i++)
         img[i] = (float)i / 59.0f * 1.2f - 0.1f;
-    struct splat_error err;
+    struct f4d_err err;
     assert_int_equal(splat_png_write_rgb(p, img, 5, 4, &err), 0);
     float *back;
     int w, h;
@@ -800,7 +800,7 @@ static void test_donut_renders(void **state)
         return;
     }
     struct splat_frame f = { 0 };
-    struct splat_error err;
+    struct f4d_err err;
     if (splat_ply_read(path, &f, &err) < 0)
         fail_msg("%s", err.msg);
     assert_int_equal(f.count, 45624);

@@ -65,7 +65,7 @@ int bench_interp(int argc, char **argv)
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
         else if (!strcmp(argv[i], "--preset") && i + 1 < argc) {
-            struct splat_error e;
+            struct f4d_err e;
             if ((only = scene_preset_from_name(argv[++i], &e)) < 0) {
                 fprintf(stderr, "f4d-bench interp: %s\n", e.msg);
                 return 2;
@@ -87,7 +87,7 @@ int bench_interp(int argc, char **argv)
     if (fk_ctx_new(&cfg, &ctx) != F4D_OK)
         return 1;
     splat_renderer *r;
-    struct splat_error err;
+    struct f4d_err err;
     if (splat_renderer_new(ctx, W, H, &r, &err) < 0)
         return 1;
     float *a = malloc(3 * NP * sizeof(float)), *b = malloc(3 * NP * sizeof(float));

@@ -367,7 +367,7 @@ int bench_render(int argc, char **argv)
         if (quick && c == 2)
             continue;
         scene *s;
-        struct splat_error err;
+        struct f4d_err err;
         if (scene_new(SCENE_WALK, 1, counts[c], &s, &err) < 0 || scene_eval(s, 0.3, 0.0, &frames[c], &err) < 0) {
             fprintf(stderr, "f4d-bench render: %s\n", err.msg);
             return 1;
@@ -391,7 +391,7 @@ int bench_render(int argc, char **argv)
                 continue;
             int W = sizes[z][0], H = sizes[z][1];
             splat_renderer *r;
-            struct splat_error err;
+            struct f4d_err err;
             if (splat_renderer_new(ctx, W, H, &r, &err) < 0)
                 return 1;
             for (int c = 0; c < 3; c++) {

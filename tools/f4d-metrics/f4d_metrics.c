@@ -35,7 +35,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: f4d-metrics A.png B.png [--json]\n");
         return 2;
     }
-    struct splat_error err = { "" };
+    struct f4d_err err = {0};
     float *a = NULL, *b = NULL;
     int wa, ha, wb, hb, rc = 1;
     if (splat_png_read_rgb(pa, &a, &wa, &ha, &err) < 0 || splat_png_read_rgb(pb, &b, &wb, &hb, &err) < 0) {

@@ -79,7 +79,7 @@ int main(int argc, char **argv)
         usage(stderr);
         return 2;
     }
-    struct splat_error err = { "" };
+    struct f4d_err err = {0};
     struct splat_frame f = { 0 };
     struct splat_rig rig;
     int rc = 1;

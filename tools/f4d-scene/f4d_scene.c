@@ -93,7 +93,7 @@ int main(int argc, char **argv)
         usage(stderr);
         return 2;
     }
-    struct splat_error err = { "" };
+    struct f4d_err err = {0};
     int preset = scene_preset_from_name(preset_name, &err);
     if (preset < 0) {
         fprintf(stderr, "f4d-scene: %s\n", err.msg);

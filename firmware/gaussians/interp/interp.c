@@ -17,7 +17,7 @@ struct interp {
     size_t           cap_depth, cap_pix;
 };
 
-static int fail(struct splat_error *err, int code, const char *msg)
+static int fail(struct f4d_err *err, int code, const char *msg)
 {
     if (err)
         snprintf(err->msg, sizeof err->msg, "%s", msg);
@@ -30,7 +30,7 @@ struct interp_config interp_config_default(void)
     return c;
 }
 
-int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct splat_error *err)
+int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct f4d_err *err)
 {
     if (!out || !rig || !ctx)
         return fail(err, F4D_EINVAL, "interp_new: NULL argument");
@@ -107,7 +107,7 @@ static int grow_i32(int32_t **p, size_t *cap, size_t need)
     return 0;
 }
 
-int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct splat_error *err)
+int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err)
 {
     if (!ip || !f || !k)
         return fail(err, F4D_EINVAL, "interp_key_build: NULL argument");
@@ -261,7 +261,7 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
 
 int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key *next, float a,
               const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
-              struct splat_error *err)
+              struct f4d_err *err)
 {
     if (!ip || !prev || !next || !prev->f || !next->f || !cfg || !out)
         return fail(err, F4D_EINVAL, "interp_at: NULL argument (keys must be built)");
@@ -413,7 +413,7 @@ static void mat_to_quat(double R[3][3], float q[4])
 }
 
 int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
-                 struct splat_frame *out, struct budget_stats *stats, struct splat_error *err)
+                 struct splat_frame *out, struct budget_stats *stats, struct f4d_err *err)
 {
     if (!in || !rig || !cfg || !out || in == out)
         return fail(err, F4D_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");

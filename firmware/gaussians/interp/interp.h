@@ -77,7 +77,7 @@ struct interp_stats {
 typedef struct interp interp;
 
 /* A workspace for the rig's cameras; ctx (borrowed) gives the threads. */
-int  interp_new (fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct splat_error *err);
+int  interp_new (fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct f4d_err *err);
 void interp_free(interp *ip);
 
 /* One key frame with its pixel lookup: per-view maps of the pixel's Gaussian
@@ -90,7 +90,7 @@ struct interp_key {
     int32_t *origin;       /* [count] view * H * W + pixel, -1 none            */
     size_t   cap_cells, cap_items, cap_origin;
 };
-int  interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct splat_error *err);
+int  interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err);
 void interp_key_free (struct interp_key *k);
 
 /* The Gaussians at t' = t - 1 + a into out (resized, no motion). prev needs
@@ -98,7 +98,7 @@ void interp_key_free (struct interp_key *k);
  * NULL. */
 int  interp_at(interp *ip, const struct interp_key *prev, const struct interp_key *next, float a,
                const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
-               struct splat_error *err);
+               struct f4d_err *err);
 
 /* ---- scene budget ---------------------------------------------------------- */
 
@@ -126,7 +126,7 @@ struct budget_stats {
  * and per-axis scale sqrt(mean scale² + spread²) so that it covers its
  * members. */
 int  budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
-                  struct splat_frame *out, struct budget_stats *stats, struct splat_error *err);
+                  struct splat_frame *out, struct budget_stats *stats, struct f4d_err *err);
 
 #ifdef __cplusplus
 }

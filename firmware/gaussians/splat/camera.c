@@ -93,48 +93,48 @@ void splat_camera_look_at(struct splat_camera *cam, const float eye[3], const fl
     cam->w2c[15] = 1.0f;
 }
 
-int splat_camera_validate(const struct splat_camera *cam, struct splat_error *err)
+int splat_camera_validate(const struct splat_camera *cam, struct f4d_err *err)
 {
     if (!cam)
-        return splat__fail(err, F4D_EINVAL, "camera is NULL");
+        return f4d_fail(err, F4D_EINVAL, "camera is NULL");
     const char *n = cam->name;
     if (cam->width <= 0 || cam->height <= 0 || cam->width > 16384 || cam->height > 16384)
-        return splat__fail(err, F4D_EINVAL, "camera '%s': size %dx%d must be within 1..16384", n,
+        return f4d_fail(err, F4D_EINVAL, "camera '%s': size %dx%d must be within 1..16384", n,
                            cam->width, cam->height);
     if (!(cam->fx > 0) || !(cam->fy > 0) || !isfinite(cam->fx) || !isfinite(cam->fy))
-        return splat__fail(err, F4D_EINVAL, "camera '%s': fx, fy must be finite and > 0", n);
+        return f4d_fail(err, F4D_EINVAL, "camera '%s': fx, fy must be finite and > 0", n);
     if (!isfinite(cam->cx) || !isfinite(cam->cy))
-        return splat__fail(err, F4D_EINVAL, "camera '%s': cx, cy must be finite", n);
+        return f4d_fail(err, F4D_EINVAL, "camera '%s': cx, cy must be finite", n);
     for (int k = 0; k < 16; k++)
         if (!isfinite(cam->w2c[k]))
-            return splat__fail(err, F4D_EINVAL, "camera '%s': world_to_camera[%d] is not finite", n, k);
+            return f4d_fail(err, F4D_EINVAL, "camera '%s': world_to_camera[%d] is not finite", n, k);
     const float *m = cam->w2c;
     for (int a = 0; a < 3; a++)
         for (int b = 0; b < 3; b++) {
             float d = m[4 * a] * m[4 * b] + m[4 * a + 1] * m[4 * b + 1] + m[4 * a + 2] * m[4 * b + 2];
             if (fabsf(d - (a == b ? 1.0f : 0.0f)) > 1e-3f)
-                return splat__fail(err, F4D_EINVAL,
+                return f4d_fail(err, F4D_EINVAL,
                                    "camera '%s': world_to_camera rotation block is not orthonormal", n);
         }
     if (fabsf(m[12]) > 1e-6f || fabsf(m[13]) > 1e-6f || fabsf(m[14]) > 1e-6f || fabsf(m[15] - 1) > 1e-6f)
-        return splat__fail(err, F4D_EINVAL, "camera '%s': world_to_camera last row must be 0 0 0 1", n);
+        return f4d_fail(err, F4D_EINVAL, "camera '%s': world_to_camera last row must be 0 0 0 1", n);
     return F4D_OK;
 }
 
-static int get_number(const cJSON *obj, const char *key, double *v, int idx, struct splat_error *err)
+static int get_number(const cJSON *obj, const char *key, double *v, int idx, struct f4d_err *err)
 {
     const cJSON *it = cJSON_GetObjectItemCaseSensitive(obj, key);
     if (!cJSON_IsNumber(it))
-        return splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].%s is missing or not a number", idx, key);
+        return f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].%s is missing or not a number", idx, key);
     *v = it->valuedouble;
     return 0;
 }
 
-static int parse_matrix(const cJSON *m, float out[16], int idx, struct splat_error *err)
+static int parse_matrix(const cJSON *m, float out[16], int idx, struct f4d_err *err)
 {
     int k = 0;
     if (!cJSON_IsArray(m))
-        return splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera is missing or not an array", idx);
+        return f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera is missing or not an array", idx);
     const cJSON *e;
     cJSON_ArrayForEach(e, m) {
         if (cJSON_IsArray(e)) { /* 4 rows of 4 */
@@ -142,42 +142,42 @@ static int parse_matrix(const cJSON *m, float out[16], int idx, struct splat_err
             int c = 0;
             cJSON_ArrayForEach(v, e) {
                 if (!cJSON_IsNumber(v) || k >= 16 || c >= 4)
-                    return splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera must be 4x4 numbers", idx);
+                    return f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera must be 4x4 numbers", idx);
                 out[k++] = (float)v->valuedouble;
                 c++;
             }
             if (c != 4)
-                return splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera rows must have 4 numbers", idx);
+                return f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera rows must have 4 numbers", idx);
         } else if (cJSON_IsNumber(e) && k < 16) {
             out[k++] = (float)e->valuedouble;
         } else {
-            return splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera must hold 16 numbers", idx);
+            return f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera must hold 16 numbers", idx);
         }
     }
     if (k != 16)
-        return splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera has %d numbers, need 16", idx, k);
+        return f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].world_to_camera has %d numbers, need 16", idx, k);
     return 0;
 }
 
-int splat_rig_parse(const char *json, struct splat_rig *rig, struct splat_error *err)
+int splat_rig_parse(const char *json, struct splat_rig *rig, struct f4d_err *err)
 {
     if (!json || !rig)
-        return splat__fail(err, F4D_EINVAL, "splat_rig_parse: NULL argument");
+        return f4d_fail(err, F4D_EINVAL, "splat_rig_parse: NULL argument");
     memset(rig, 0, sizeof *rig);
     cJSON *root = cJSON_Parse(json);
     if (!root) {
         const char *at = cJSON_GetErrorPtr();
-        return splat__fail(err, F4D_EFORMAT, "rig: invalid JSON near '%.20s'", at ? at : "?");
+        return f4d_fail(err, F4D_EFORMAT, "rig: invalid JSON near '%.20s'", at ? at : "?");
     }
     int rc = F4D_OK;
     const cJSON *cams = cJSON_GetObjectItemCaseSensitive(root, "cameras");
     if (!cJSON_IsArray(cams)) {
-        rc = splat__fail(err, F4D_EFORMAT, "rig: top-level \"cameras\" array is missing");
+        rc = f4d_fail(err, F4D_EFORMAT, "rig: top-level \"cameras\" array is missing");
         goto done;
     }
     int n = cJSON_GetArraySize(cams);
     if (n < 1 || n > SPLAT_RIG_MAX) {
-        rc = splat__fail(err, F4D_EFORMAT, "rig: %d cameras, need 1..%d", n, SPLAT_RIG_MAX);
+        rc = f4d_fail(err, F4D_EFORMAT, "rig: %d cameras, need 1..%d", n, SPLAT_RIG_MAX);
         goto done;
     }
     const cJSON *c;
@@ -185,18 +185,18 @@ int splat_rig_parse(const char *json, struct splat_rig *rig, struct splat_error 
     cJSON_ArrayForEach(c, cams) {
         struct splat_camera *cam = &rig->cams[i];
         if (!cJSON_IsObject(c)) {
-            rc = splat__fail(err, F4D_EFORMAT, "rig: cameras[%d] is not an object", i);
+            rc = f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d] is not an object", i);
             goto done;
         }
         const cJSON *name = cJSON_GetObjectItemCaseSensitive(c, "name");
         if (cJSON_IsString(name) && name->valuestring) {
             if (strlen(name->valuestring) >= SPLAT_NAME_MAX) {
-                rc = splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].name is longer than %d bytes", i, SPLAT_NAME_MAX - 1);
+                rc = f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].name is longer than %d bytes", i, SPLAT_NAME_MAX - 1);
                 goto done;
             }
             strcpy(cam->name, name->valuestring);
         } else if (name) {
-            rc = splat__fail(err, F4D_EFORMAT, "rig: cameras[%d].name is not a string", i);
+            rc = f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d].name is not a string", i);
             goto done;
         } else {
             snprintf(cam->name, sizeof cam->name, "cam%d", i);
@@ -207,7 +207,7 @@ int splat_rig_parse(const char *json, struct splat_rig *rig, struct splat_error 
             (rc = get_number(c, "cx", &cx, i, err)) < 0 || (rc = get_number(c, "cy", &cy, i, err)) < 0)
             goto done;
         if (w != floor(w) || h != floor(h) || w < 1 || h < 1 || w > 16384 || h > 16384) {
-            rc = splat__fail(err, F4D_EFORMAT, "rig: cameras[%d] width/height must be integers in 1..16384", i);
+            rc = f4d_fail(err, F4D_EFORMAT, "rig: cameras[%d] width/height must be integers in 1..16384", i);
             goto done;
         }
         cam->width = (int)w;
@@ -227,11 +227,11 @@ done:
     return rc;
 }
 
-int splat_rig_load(const char *path, struct splat_rig *rig, struct splat_error *err)
+int splat_rig_load(const char *path, struct splat_rig *rig, struct f4d_err *err)
 {
     FILE *fp = fopen(path, "rb");
     if (!fp)
-        return splat__fail(err, F4D_EIO, "rig: cannot open '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "rig: cannot open '%s': %s", path, strerror(errno));
     char *buf = NULL;
     size_t len = 0, cap = 0;
     int rc = F4D_OK;
@@ -239,12 +239,12 @@ int splat_rig_load(const char *path, struct splat_rig *rig, struct splat_error *
         if (len + 4096 + 1 > cap) {
             cap = cap ? 2 * cap : 8192;
             if (cap > (64u << 20)) {
-                rc = splat__fail(err, F4D_EFORMAT, "rig: '%s' is larger than 64 MiB", path);
+                rc = f4d_fail(err, F4D_EFORMAT, "rig: '%s' is larger than 64 MiB", path);
                 goto out;
             }
             char *nb = realloc(buf, cap);
             if (!nb) {
-                rc = splat__fail(err, F4D_ENOMEM, "rig: out of memory reading '%s'", path);
+                rc = f4d_fail(err, F4D_ENOMEM, "rig: out of memory reading '%s'", path);
                 goto out;
             }
             buf = nb;
@@ -255,7 +255,7 @@ int splat_rig_load(const char *path, struct splat_rig *rig, struct splat_error *
             break;
     }
     if (ferror(fp)) {
-        rc = splat__fail(err, F4D_EIO, "rig: error reading '%s'", path);
+        rc = f4d_fail(err, F4D_EIO, "rig: error reading '%s'", path);
         goto out;
     }
     buf[len] = '\0';
@@ -273,13 +273,13 @@ out:
     return rc;
 }
 
-int splat_rig_save(const char *path, const struct splat_rig *rig, struct splat_error *err)
+int splat_rig_save(const char *path, const struct splat_rig *rig, struct f4d_err *err)
 {
     if (!rig || rig->count < 1 || rig->count > SPLAT_RIG_MAX)
-        return splat__fail(err, F4D_EINVAL, "rig_save: rig must hold 1..%d cameras", SPLAT_RIG_MAX);
+        return f4d_fail(err, F4D_EINVAL, "rig_save: rig must hold 1..%d cameras", SPLAT_RIG_MAX);
     FILE *fp = fopen(path, "wb");
     if (!fp)
-        return splat__fail(err, F4D_EIO, "rig: cannot create '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "rig: cannot create '%s': %s", path, strerror(errno));
     /* Written by hand so the 4x4 stays readable as rows; %.9g round-trips floats. */
     fprintf(fp, "{\n  \"cameras\": [\n");
     for (int i = 0; i < rig->count; i++) {
@@ -302,14 +302,14 @@ int splat_rig_save(const char *path, const struct splat_rig *rig, struct splat_e
     }
     fprintf(fp, "  ]\n}\n");
     if (fclose(fp) != 0)
-        return splat__fail(err, F4D_EIO, "rig: error writing '%s'", path);
+        return f4d_fail(err, F4D_EIO, "rig: error writing '%s'", path);
     return F4D_OK;
 }
 
-int splat_rig_find(const struct splat_rig *rig, const char *key, struct splat_error *err)
+int splat_rig_find(const struct splat_rig *rig, const char *key, struct f4d_err *err)
 {
     if (!rig || !key || !*key)
-        return splat__fail(err, F4D_EINVAL, "camera name or index is empty");
+        return f4d_fail(err, F4D_EINVAL, "camera name or index is empty");
     for (int i = 0; i < rig->count; i++)
         if (!strcmp(rig->cams[i].name, key))
             return i;
@@ -319,9 +319,9 @@ int splat_rig_find(const struct splat_rig *rig, const char *key, struct splat_er
     if (*end == '\0' && errno == 0) {
         if (v >= 0 && v < rig->count)
             return (int)v;
-        return splat__fail(err, F4D_EINVAL, "camera index %ld is out of range 0..%d", v, rig->count - 1);
+        return f4d_fail(err, F4D_EINVAL, "camera index %ld is out of range 0..%d", v, rig->count - 1);
     }
-    return splat__fail(err, F4D_EINVAL, "no camera named '%s' in the rig (%d cameras)", key, rig->count);
+    return f4d_fail(err, F4D_EINVAL, "no camera named '%s' in the rig (%d cameras)", key, rig->count);
 }
 
 void splat_flow_from_motion(const struct splat_camera *cam, const float *depth, const float *alpha,

@@ -16,12 +16,12 @@ static int grow(float **p, size_t old_n, size_t n)
 }
 
 int splat_frame_reserve(struct splat_frame *f, size_t capacity, int with_motion,
-                        struct splat_error *err)
+                        struct f4d_err *err)
 {
     if (!f)
-        return splat__fail(err, F4D_EINVAL, "splat_frame_reserve: frame is NULL");
+        return f4d_fail(err, F4D_EINVAL, "splat_frame_reserve: frame is NULL");
     if (capacity > SIZE_MAX / (4 * sizeof(float)))
-        return splat__fail(err, F4D_EINVAL, "splat_frame_reserve: %zu Gaussians is too many", capacity);
+        return f4d_fail(err, F4D_EINVAL, "splat_frame_reserve: %zu Gaussians is too many", capacity);
     size_t old = f->capacity;
     if (capacity > old) {
         if (grow(&f->pos, 3 * old, 3 * capacity) || grow(&f->scale, 3 * old, 3 * capacity) ||
@@ -29,21 +29,21 @@ int splat_frame_reserve(struct splat_frame *f, size_t capacity, int with_motion,
             grow(&f->rgb, 3 * old, 3 * capacity) ||
             (f->motion_bwd && grow(&f->motion_bwd, 3 * old, 3 * capacity)) ||
             (f->motion_fwd && grow(&f->motion_fwd, 3 * old, 3 * capacity)))
-            return splat__fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for %zu Gaussians", capacity);
+            return f4d_fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for %zu Gaussians", capacity);
         for (size_t i = old; i < capacity; i++)
             f->rot[4 * i] = 1.0f;
         f->capacity = capacity;
     }
     if (with_motion) {
         if (!f->motion_bwd && !(f->motion_bwd = calloc(3 * f->capacity + 1, sizeof(float))))
-            return splat__fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for motion");
+            return f4d_fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for motion");
         if (!f->motion_fwd && !(f->motion_fwd = calloc(3 * f->capacity + 1, sizeof(float))))
-            return splat__fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for motion");
+            return f4d_fail(err, F4D_ENOMEM, "splat_frame_reserve: out of memory for motion");
     }
     return F4D_OK;
 }
 
-int splat_frame_resize(struct splat_frame *f, size_t n, int with_motion, struct splat_error *err)
+int splat_frame_resize(struct splat_frame *f, size_t n, int with_motion, struct f4d_err *err)
 {
     int rc = splat_frame_reserve(f, n, with_motion, err);
     if (rc < 0)
@@ -52,10 +52,10 @@ int splat_frame_resize(struct splat_frame *f, size_t n, int with_motion, struct 
     return F4D_OK;
 }
 
-int splat_frame_copy(struct splat_frame *dst, const struct splat_frame *src, struct splat_error *err)
+int splat_frame_copy(struct splat_frame *dst, const struct splat_frame *src, struct f4d_err *err)
 {
     if (!dst || !src)
-        return splat__fail(err, F4D_EINVAL, "splat_frame_copy: NULL frame");
+        return f4d_fail(err, F4D_EINVAL, "splat_frame_copy: NULL frame");
     int motion = src->motion_bwd && src->motion_fwd;
     int rc = splat_frame_resize(dst, src->count, motion, err);
     if (rc < 0)
@@ -95,28 +95,28 @@ static int all_finite(const float *v, int n)
     return 1;
 }
 
-int splat_frame_validate(const struct splat_frame *f, struct splat_error *err)
+int splat_frame_validate(const struct splat_frame *f, struct f4d_err *err)
 {
     if (!f)
-        return splat__fail(err, F4D_EINVAL, "frame is NULL");
+        return f4d_fail(err, F4D_EINVAL, "frame is NULL");
     if (f->count > f->capacity)
-        return splat__fail(err, F4D_EINVAL, "frame count %zu exceeds capacity %zu", f->count, f->capacity);
+        return f4d_fail(err, F4D_EINVAL, "frame count %zu exceeds capacity %zu", f->count, f->capacity);
     for (size_t i = 0; i < f->count; i++) {
         if (!all_finite(f->pos + 3 * i, 3))
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: position is not finite", i);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: position is not finite", i);
         if (!all_finite(f->scale + 3 * i, 3) || f->scale[3 * i] < 0 || f->scale[3 * i + 1] < 0 ||
             f->scale[3 * i + 2] < 0)
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: scale must be finite and >= 0", i);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: scale must be finite and >= 0", i);
         if (!all_finite(f->rot + 4 * i, 4))
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: rotation is not finite", i);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: rotation is not finite", i);
         if (!(f->opacity[i] >= 0.0f && f->opacity[i] <= 1.0f))
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: opacity %g is outside [0,1]", i, (double)f->opacity[i]);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: opacity %g is outside [0,1]", i, (double)f->opacity[i]);
         if (!all_finite(f->rgb + 3 * i, 3))
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: colour is not finite", i);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: colour is not finite", i);
         if (f->motion_bwd && !all_finite(f->motion_bwd + 3 * i, 3))
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: backward motion is not finite", i);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: backward motion is not finite", i);
         if (f->motion_fwd && !all_finite(f->motion_fwd + 3 * i, 3))
-            return splat__fail(err, F4D_EINVAL, "Gaussian %zu: forward motion is not finite", i);
+            return f4d_fail(err, F4D_EINVAL, "Gaussian %zu: forward motion is not finite", i);
     }
     return F4D_OK;
 }

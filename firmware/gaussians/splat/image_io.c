@@ -17,14 +17,14 @@ static unsigned char quantize(float v)
     return (unsigned char)q;
 }
 
-int splat_png_write_rgb(const char *path, const float *rgb, int width, int height, struct splat_error *err)
+int splat_png_write_rgb(const char *path, const float *rgb, int width, int height, struct f4d_err *err)
 {
     if (!path || !rgb || width <= 0 || height <= 0)
-        return splat__fail(err, F4D_EINVAL, "png_write: bad arguments (size %dx%d)", width, height);
+        return f4d_fail(err, F4D_EINVAL, "png_write: bad arguments (size %dx%d)", width, height);
     size_t n = (size_t)width * (size_t)height * 3;
     unsigned char *buf = malloc(n);
     if (!buf)
-        return splat__fail(err, F4D_ENOMEM, "png_write: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "png_write: out of memory");
     for (size_t i = 0; i < n; i++)
         buf[i] = quantize(rgb[i]);
     png_image img;
@@ -36,23 +36,23 @@ int splat_png_write_rgb(const char *path, const float *rgb, int width, int heigh
     int ok = png_image_write_to_file(&img, path, 0, buf, 0, NULL);
     free(buf);
     if (!ok) {
-        int rc = splat__fail(err, F4D_EIO, "png: cannot write '%s': %s", path, img.message);
+        int rc = f4d_fail(err, F4D_EIO, "png: cannot write '%s': %s", path, img.message);
         png_image_free(&img);
         return rc;
     }
     return F4D_OK;
 }
 
-int splat_png_read_rgb(const char *path, float **rgb, int *width, int *height, struct splat_error *err)
+int splat_png_read_rgb(const char *path, float **rgb, int *width, int *height, struct f4d_err *err)
 {
     if (!path || !rgb || !width || !height)
-        return splat__fail(err, F4D_EINVAL, "png_read: NULL argument");
+        return f4d_fail(err, F4D_EINVAL, "png_read: NULL argument");
     *rgb = NULL;
     png_image img;
     memset(&img, 0, sizeof img);
     img.version = PNG_IMAGE_VERSION;
     if (!png_image_begin_read_from_file(&img, path))
-        return splat__fail(err, F4D_EIO, "png: cannot read '%s': %s", path, img.message);
+        return f4d_fail(err, F4D_EIO, "png: cannot read '%s': %s", path, img.message);
     img.format = PNG_FORMAT_RGB;
     size_t n = PNG_IMAGE_SIZE(img);
     unsigned char *buf = malloc(n ? n : 1);
@@ -61,10 +61,10 @@ int splat_png_read_rgb(const char *path, float **rgb, int *width, int *height, s
         png_image_free(&img);
         free(buf);
         free(out);
-        return splat__fail(err, F4D_ENOMEM, "png: out of memory reading '%s'", path);
+        return f4d_fail(err, F4D_ENOMEM, "png: out of memory reading '%s'", path);
     }
     if (!png_image_finish_read(&img, NULL, buf, 0, NULL)) {
-        int rc = splat__fail(err, F4D_EFORMAT, "png: cannot decode '%s': %s", path, img.message);
+        int rc = f4d_fail(err, F4D_EFORMAT, "png: cannot decode '%s': %s", path, img.message);
         free(buf);
         free(out);
         return rc;
@@ -79,10 +79,10 @@ int splat_png_read_rgb(const char *path, float **rgb, int *width, int *height, s
 }
 
 int splat_npy_write_f32(const char *path, const float *data, const size_t *shape, int ndim,
-                        struct splat_error *err)
+                        struct f4d_err *err)
 {
     if (!path || !data || !shape || ndim < 1 || ndim > 8)
-        return splat__fail(err, F4D_EINVAL, "npy_write: bad arguments");
+        return f4d_fail(err, F4D_EINVAL, "npy_write: bad arguments");
     char dims[256];
     size_t o = 0, n = 1;
     for (int k = 0; k < ndim; k++) {
@@ -97,7 +97,7 @@ int splat_npy_write_f32(const char *path, const float *data, const size_t *shape
     int pad = (64 - total % 64) % 64;
     FILE *fp = fopen(path, "wb");
     if (!fp)
-        return splat__fail(err, F4D_EIO, "npy: cannot create '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "npy: cannot create '%s': %s", path, strerror(errno));
     unsigned short len = (unsigned short)(hl + pad + 1);
     unsigned char pre[10] = { 0x93, 'N', 'U', 'M', 'P', 'Y', 1, 0, (unsigned char)(len & 255),
                               (unsigned char)(len >> 8) };
@@ -109,6 +109,6 @@ int splat_npy_write_f32(const char *path, const float *data, const size_t *shape
     if (fclose(fp) != 0)
         ok = 0;
     if (!ok)
-        return splat__fail(err, F4D_EIO, "npy: error writing '%s'", path);
+        return f4d_fail(err, F4D_EIO, "npy: error writing '%s'", path);
     return F4D_OK;
 }

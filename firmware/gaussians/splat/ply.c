@@ -51,15 +51,15 @@ static int host_little_endian(void)
 
 static float sigmoidf_(float x) { return 1.0f / (1.0f + expf(-x)); }
 
-int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *err)
+int splat_ply_read(const char *path, struct splat_frame *f, struct f4d_err *err)
 {
     if (!path || !f)
-        return splat__fail(err, F4D_EINVAL, "ply_read: NULL argument");
+        return f4d_fail(err, F4D_EINVAL, "ply_read: NULL argument");
     if (!host_little_endian())
-        return splat__fail(err, F4D_EFORMAT, "ply_read: big-endian hosts are not supported");
+        return f4d_fail(err, F4D_EFORMAT, "ply_read: big-endian hosts are not supported");
     FILE *fp = fopen(path, "rb");
     if (!fp)
-        return splat__fail(err, F4D_EIO, "ply: cannot open '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "ply: cannot open '%s': %s", path, strerror(errno));
     int rc = F4D_OK;
     unsigned char *data = NULL;
     struct ply_prop props[PLY_MAX_PROPS];
@@ -68,13 +68,13 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
     char line[512];
 
     if (!fgets(line, sizeof line, fp) || strncmp(line, "ply", 3) != 0) {
-        rc = splat__fail(err, F4D_EFORMAT, "ply: '%s' does not start with 'ply'", path);
+        rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s' does not start with 'ply'", path);
         goto out;
     }
     for (;;) {
         line_no++;
         if (!fgets(line, sizeof line, fp)) {
-            rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': header ends without end_header", path);
+            rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': header ends without end_header", path);
             goto out;
         }
         line[strcspn(line, "\r\n")] = '\0';
@@ -86,7 +86,7 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
             break;
         if (!strcmp(w0, "format")) {
             if (strcmp(w1, "binary_little_endian") != 0) {
-                rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': format '%s' is not supported (need binary_little_endian)",
+                rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': format '%s' is not supported (need binary_little_endian)",
                                  path, w1);
                 goto out;
             }
@@ -97,14 +97,14 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
                 continue;
             }
             if (strcmp(w1, "vertex") != 0) {
-                rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': element '%s' comes before 'vertex'", path, w1);
+                rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': element '%s' comes before 'vertex'", path, w1);
                 goto out;
             }
             char *end;
             errno = 0;
             count = strtoll(w2, &end, 10);
             if (*end || errno || count < 0 || count > (long long)INT32_MAX) {
-                rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': bad vertex count '%s'", path, w2);
+                rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': bad vertex count '%s'", path, w2);
                 goto out;
             }
             seen_vertex = in_vertex = 1;
@@ -112,7 +112,7 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
             if (!in_vertex)
                 continue;
             if (!strcmp(w1, "list")) {
-                rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': list property in 'vertex' is not supported", path);
+                rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': list property in 'vertex' is not supported", path);
                 goto out;
             }
             enum ply_type t = PT_NONE;
@@ -123,11 +123,11 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
                     size = ply_types[k].size;
                 }
             if (t == PT_NONE || nw < 3) {
-                rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': header line %d: bad property '%s'", path, line_no, line);
+                rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': header line %d: bad property '%s'", path, line_no, line);
                 goto out;
             }
             if (nprops == PLY_MAX_PROPS) {
-                rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': more than %d vertex properties", path, PLY_MAX_PROPS);
+                rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': more than %d vertex properties", path, PLY_MAX_PROPS);
                 goto out;
             }
             snprintf(props[nprops].name, sizeof props[nprops].name, "%s", w2);
@@ -136,12 +136,12 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
             stride += size;
             nprops++;
         } else {
-            rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': header line %d not understood: '%s'", path, line_no, line);
+            rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': header line %d not understood: '%s'", path, line_no, line);
             goto out;
         }
     }
     if (!format_ok || !seen_vertex) {
-        rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': header lacks %s", path, format_ok ? "a vertex element" : "the format line");
+        rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': header lacks %s", path, format_ok ? "a vertex element" : "the format line");
         goto out;
     }
     static const char *need[] = { "x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
@@ -155,7 +155,7 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
             if (!strcmp(props[p].name, need[k]))
                 at[k] = p;
         if (at[k] < 0) {
-            rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': vertex property '%s' is missing", path, need[k]);
+            rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': vertex property '%s' is missing", path, need[k]);
             goto out;
         }
     }
@@ -170,11 +170,11 @@ int splat_ply_read(const char *path, struct splat_frame *f, struct splat_error *
     size_t n = (size_t)count, bytes = n * (size_t)stride;
     data = malloc(bytes ? bytes : 1);
     if (!data) {
-        rc = splat__fail(err, F4D_ENOMEM, "ply: '%s': out of memory for %zu Gaussians", path, n);
+        rc = f4d_fail(err, F4D_ENOMEM, "ply: '%s': out of memory for %zu Gaussians", path, n);
         goto out;
     }
     if (fread(data, 1, bytes, fp) != bytes) {
-        rc = splat__fail(err, F4D_EFORMAT, "ply: '%s': file is truncated (header says %zu vertices of %d bytes)",
+        rc = f4d_fail(err, F4D_EFORMAT, "ply: '%s': file is truncated (header says %zu vertices of %d bytes)",
                          path, n, stride);
         goto out;
     }
@@ -225,17 +225,17 @@ static float logitf_(float p)
     return logf(p / (1.0f - p));
 }
 
-int splat_ply_write(const char *path, const struct splat_frame *f, struct splat_error *err)
+int splat_ply_write(const char *path, const struct splat_frame *f, struct f4d_err *err)
 {
     if (!path || !f)
-        return splat__fail(err, F4D_EINVAL, "ply_write: NULL argument");
+        return f4d_fail(err, F4D_EINVAL, "ply_write: NULL argument");
     if (f->count > (size_t)INT32_MAX)
-        return splat__fail(err, F4D_EINVAL, "ply_write: %zu Gaussians is too many", f->count);
+        return f4d_fail(err, F4D_EINVAL, "ply_write: %zu Gaussians is too many", f->count);
     if (!host_little_endian())
-        return splat__fail(err, F4D_EFORMAT, "ply_write: big-endian hosts are not supported");
+        return f4d_fail(err, F4D_EFORMAT, "ply_write: big-endian hosts are not supported");
     FILE *fp = fopen(path, "wb");
     if (!fp)
-        return splat__fail(err, F4D_EIO, "ply: cannot create '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "ply: cannot create '%s': %s", path, strerror(errno));
     int motion = f->motion_bwd && f->motion_fwd;
     static const char *names[] = { "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
                                    "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
@@ -266,10 +266,10 @@ int splat_ply_write(const char *path, const struct splat_frame *f, struct splat_
             }
         if (fwrite(v, sizeof(float), (size_t)np, fp) != (size_t)np) {
             fclose(fp);
-            return splat__fail(err, F4D_EIO, "ply: error writing '%s'", path);
+            return f4d_fail(err, F4D_EIO, "ply: error writing '%s'", path);
         }
     }
     if (fclose(fp) != 0)
-        return splat__fail(err, F4D_EIO, "ply: error writing '%s'", path);
+        return f4d_fail(err, F4D_EIO, "ply: error writing '%s'", path);
     return F4D_OK;
 }

@@ -53,7 +53,7 @@ struct splat_renderer {
     /* per tile */
     uint32_t *tile_start;     /* [n_tiles + 1] */
     int32_t  *pairs;          /* [cap_pairs] indices into sorted, tile-major, ascending */
-    struct splat_error err;
+    struct f4d_err err;
 };
 
 static int fail(splat_renderer *r, int code, const char *msg, const char *detail)
@@ -113,19 +113,19 @@ int splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs)
     return F4D_OK;
 }
 
-int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out, struct splat_error *err)
+int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out, struct f4d_err *err)
 {
     if (!out)
-        return splat__fail(err, F4D_EINVAL, "splat_renderer_new: out is NULL");
+        return f4d_fail(err, F4D_EINVAL, "splat_renderer_new: out is NULL");
     *out = NULL;
     if (!ctx)
-        return splat__fail(err, F4D_EINVAL, "splat_renderer_new: fk context is NULL");
+        return f4d_fail(err, F4D_EINVAL, "splat_renderer_new: fk context is NULL");
     if (width <= 0 || height <= 0 || width > 16384 || height > 16384)
-        return splat__fail(err, F4D_EINVAL, "splat_renderer_new: size %dx%d must be within 1..16384",
+        return f4d_fail(err, F4D_EINVAL, "splat_renderer_new: size %dx%d must be within 1..16384",
                            width, height);
     splat_renderer *r = calloc(1, sizeof *r);
     if (!r)
-        return splat__fail(err, F4D_ENOMEM, "splat_renderer_new: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "splat_renderer_new: out of memory");
     r->ctx = ctx;
     r->width = width;
     r->height = height;
@@ -136,7 +136,7 @@ int splat_renderer_new(fk_ctx *ctx, int width, int height, splat_renderer **out,
     r->sort_count = malloc((size_t)SORT_TASKS * SORT_RADIX * sizeof *r->sort_count);
     if (!r->tile_start || !r->sort_count || splat_renderer_reserve(r, 1024, 4096) < 0) {
         splat_renderer_free(r);
-        return splat__fail(err, F4D_ENOMEM, "splat_renderer_new: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "splat_renderer_new: out of memory");
     }
     *out = r;
     return F4D_OK;

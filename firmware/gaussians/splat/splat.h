@@ -2,7 +2,7 @@
  * .npy I/O and image metrics. Library f4d_splat; depends on kernels/ (fk) only,
  * so the simulated HAL and the tools can render without the pipeline.
  *
- *     struct splat_error err;
+ *     struct f4d_err err;
  *     struct splat_frame f = {0};
  *     struct splat_rig rig;
  *     if (splat_ply_read("donut.ply", &f, &err) < 0 ||
@@ -51,10 +51,6 @@
 extern "C" {
 #endif
 
-struct splat_error {
-    char msg[256];
-};
-
 /* SH degree-0 constant of the reference rasterizer (auxiliary.h SH_C0). */
 #define SPLAT_SH_C0 0.28209479177387814f
 
@@ -77,17 +73,17 @@ struct splat_frame {
  * also allocates both motion arrays (zero-filled). A zero-initialised struct
  * is a valid empty frame. */
 int  splat_frame_reserve(struct splat_frame *f, size_t capacity, int with_motion,
-                         struct splat_error *err);
+                         struct f4d_err *err);
 /* Sets count = n after reserving; new slots are zero with identity rotation. */
 int  splat_frame_resize (struct splat_frame *f, size_t n, int with_motion,
-                         struct splat_error *err);
+                         struct f4d_err *err);
 /* Deep copy of src into dst (dst is grown, its motion arrays follow src). */
 int  splat_frame_copy   (struct splat_frame *dst, const struct splat_frame *src,
-                         struct splat_error *err);
+                         struct f4d_err *err);
 void splat_frame_free   (struct splat_frame *f);
 /* Checks every value is finite, scales >= 0, opacity in [0,1]; names the
  * first offending Gaussian. */
-int  splat_frame_validate(const struct splat_frame *f, struct splat_error *err);
+int  splat_frame_validate(const struct splat_frame *f, struct f4d_err *err);
 
 /* ------------------------------------------------------------------------ */
 /* Cameras and rigs (JSON: {"cameras": [{"name", "width", "height", "fx",
@@ -108,14 +104,14 @@ struct splat_rig {
     struct splat_camera cams[SPLAT_RIG_MAX];
 };
 
-int  splat_rig_load      (const char *path, struct splat_rig *rig, struct splat_error *err);
-int  splat_rig_parse     (const char *json, struct splat_rig *rig, struct splat_error *err);
-int  splat_rig_save      (const char *path, const struct splat_rig *rig, struct splat_error *err);
+int  splat_rig_load      (const char *path, struct splat_rig *rig, struct f4d_err *err);
+int  splat_rig_parse     (const char *json, struct splat_rig *rig, struct f4d_err *err);
+int  splat_rig_save      (const char *path, const struct splat_rig *rig, struct f4d_err *err);
 /* Index of the camera called `name_or_index`, or parsed as a decimal index. */
 int  splat_rig_find      (const struct splat_rig *rig, const char *name_or_index,
-                          struct splat_error *err);
+                          struct f4d_err *err);
 /* Checks sizes > 0, focal > 0, finite values, orthonormal rotation block. */
-int  splat_camera_validate(const struct splat_camera *cam, struct splat_error *err);
+int  splat_camera_validate(const struct splat_camera *cam, struct f4d_err *err);
 /* A camera at `eye` looking at `target` with `up` roughly upward in the image. */
 void splat_camera_look_at(struct splat_camera *cam, const float eye[3],
                           const float target[3], const float up[3]);
@@ -172,7 +168,7 @@ struct splat_render_out {
  * Measured (f4d-bench render, 2 threads of this 2-core box): 300k Gaussians
  * at 518x518 in 24 ms, 1M in 66 ms. */
 int  splat_renderer_new    (fk_ctx *ctx, int width, int height,
-                            splat_renderer **out, struct splat_error *err);
+                            splat_renderer **out, struct f4d_err *err);
 int  splat_renderer_reserve(splat_renderer *r, size_t gaussians, size_t pairs);
 void splat_renderer_free   (splat_renderer *r);
 const char *splat_renderer_error(const splat_renderer *r);
@@ -209,20 +205,20 @@ void splat_flow_from_motion(const struct splat_camera *cam, const float *depth, 
  * Write: the 17 standard properties (x y z nx ny nz f_dc_0..2 opacity
  * scale_0..2 rot_0..3 without f_rest; standard viewers read it), plus the
  * motion properties when the frame has motion. */
-int  splat_ply_read (const char *path, struct splat_frame *f, struct splat_error *err);
-int  splat_ply_write(const char *path, const struct splat_frame *f, struct splat_error *err);
+int  splat_ply_read (const char *path, struct splat_frame *f, struct f4d_err *err);
+int  splat_ply_write(const char *path, const struct splat_frame *f, struct f4d_err *err);
 
 /* PNG through libpng. Float images are clamped to [0,1] and quantised as
  * torchvision.save_image does: floor(v * 255 + 0.5). */
 int  splat_png_write_rgb(const char *path, const float *rgb, int width, int height,
-                         struct splat_error *err);
+                         struct f4d_err *err);
 /* Reads any PNG as 8-bit RGB into *rgb (malloc'd, [H * W * 3] in [0,1]). */
 int  splat_png_read_rgb (const char *path, float **rgb, int *width, int *height,
-                         struct splat_error *err);
+                         struct f4d_err *err);
 
 /* NumPy .npy (version 1.0, little-endian float32, C order). */
 int  splat_npy_write_f32(const char *path, const float *data, const size_t *shape,
-                         int ndim, struct splat_error *err);
+                         int ndim, struct f4d_err *err);
 
 /* ------------------------------------------------------------------------ */
 /* Metrics, exactly as 3DGS evaluates (gaussians.md §4), on [0,1] images

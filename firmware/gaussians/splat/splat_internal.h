@@ -8,19 +8,6 @@
 
 #include "splat.h"
 
-#if defined(__GNUC__)
-__attribute__((format(printf, 3, 4)))
-#endif
-static inline int splat__fail(struct splat_error *err, int code, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-    }
-    return code;
-}
 
 /* Rotation matrix (row-major 3x3) of a quaternion (w,x,y,z), normalised here;
  * a zero or non-finite quaternion gives the identity. Inline: the

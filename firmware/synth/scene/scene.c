@@ -592,7 +592,7 @@ static int build(scene *S, float body_sp, float floor_sp)
     return rc;
 }
 
-int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene **out, struct splat_error *err)
+int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene **out, struct f4d_err *err)
 {
     if (!out) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: out is NULL");
@@ -669,7 +669,7 @@ void scene_positions(const scene *S, double t, float *pos)
     }
 }
 
-int scene_eval(const scene *S, double t, double dt, struct splat_frame *f, struct splat_error *err)
+int scene_eval(const scene *S, double t, double dt, struct splat_frame *f, struct f4d_err *err)
 {
     if (!S || !f || !isfinite(t) || !(dt >= 0) || !isfinite(dt)) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_eval: bad argument (t and dt must be finite, dt >= 0)");
@@ -742,7 +742,7 @@ const char *scene_preset_name(enum scene_preset p)
     return ((int)p >= 0 && p < SCENE_PRESET_COUNT) ? preset_names[p] : "unknown";
 }
 
-int scene_preset_from_name(const char *name, struct splat_error *err)
+int scene_preset_from_name(const char *name, struct f4d_err *err)
 {
     for (int k = 0; k < SCENE_PRESET_COUNT; k++)
         if (name && !strcmp(name, preset_names[k]))

@@ -53,7 +53,7 @@ typedef struct scene scene;
  * sampling jitter. gaussians = 0 gives the default density (about 40k);
  * otherwise the figure and floor are resampled to about that many. */
 int          scene_new      (enum scene_preset preset, uint64_t seed, size_t gaussians,
-                             scene **out, struct splat_error *err);
+                             scene **out, struct f4d_err *err);
 void         scene_free     (scene *s);
 size_t       scene_count    (const scene *s);   /* Gaussians per frame, constant */
 float        scene_height   (const scene *s);   /* figure height, metres */
@@ -64,7 +64,7 @@ enum scene_preset scene_preset_of(const scene *s);
  * motion_fwd = pos(t + dt) - pos(t); with dt = 0 motion arrays are left as
  * they are. */
 int          scene_eval     (const scene *s, double t, double dt, struct splat_frame *f,
-                             struct splat_error *err);
+                             struct f4d_err *err);
 /* Exact positions only ([3 * count]), cheaper than scene_eval. */
 void         scene_positions(const scene *s, double t, float *pos);
 
@@ -79,7 +79,7 @@ const float *scene_background(void);
 
 const char  *scene_preset_name(enum scene_preset p);
 /* Preset by name; -1 (with a message listing the names) when unknown. */
-int          scene_preset_from_name(const char *name, struct splat_error *err);
+int          scene_preset_from_name(const char *name, struct f4d_err *err);
 
 #ifdef __cplusplus
 }

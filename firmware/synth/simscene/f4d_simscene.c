@@ -23,7 +23,7 @@ int f4d_simscene_new(struct f4d_simscene **out, const char *preset, uint64_t see
                      uint32_t width, uint32_t height, char *err, size_t errlen)
 {
     *out = NULL;
-    struct splat_error se;
+    struct f4d_err se;
     memset(&se, 0, sizeof se);
     int p = scene_preset_from_name(preset, &se);
     if (p < 0)
@@ -59,7 +59,7 @@ int f4d_simscene_render(void *user, uint32_t cam, uint64_t t_ns, const struct ha
     if (cam >= (uint32_t)ss->rig.count || f->width != ss->width || f->height != ss->height)
         return F4D_EINVAL; /* the sim falls back to its pattern */
     double t = (double)t_ns * 1e-9;
-    struct splat_error se;
+    struct f4d_err se;
     if (!ss->have_t || t != ss->t_cached) { /* all views of one trigger share one evaluation */
         if (scene_eval(ss->sc, t, 0.0, &ss->f, &se) < 0)
             return F4D_EINVAL;
