@@ -1,7 +1,7 @@
 /* f4d_simscene.h: the seam between the simulated cameras (hal/sim) and the
- * synthetic 4D scenes (firmware/scene): a hal_sim_render_fn that renders the
+ * synthetic 4D scenes (firmware/synth/scene): a hal_sim_render_fn that renders the
  * scene's Gaussians at the trigger time through each camera of the scene's
- * default rig (firmware/splat rasterizer), so a simulated take shows a moving
+ * default rig (firmware/gaussians/splat rasterizer), so a simulated take shows a moving
  * human figure instead of the procedural pattern.
  *
  *     struct f4d_simscene *ss;
