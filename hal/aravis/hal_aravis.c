@@ -12,6 +12,13 @@
 #define AV_BUFFERS_MAX 64
 #define AV_CAMS_MAX HAL_RIG_CAMERAS_MAX
 #define AV_EDGE_LOG 64
+/* Software trigger: a started camera streams once a probe trigger comes back
+ * as a frame. One probe at a time; unanswered after AV_PROBE_RETRY_NS it is
+ * sent again, and an answer to a round with resends (it may be an early one,
+ * with a later answer still to come) is followed by AV_PROBE_QUIET_NS of
+ * silence and a fresh single probe. */
+#define AV_PROBE_RETRY_NS 300000000ull
+#define AV_PROBE_QUIET_NS 300000000ull
 
 struct av_session;
 
@@ -34,12 +41,17 @@ struct av_cam {
      * it, so buffers live in a slot table here, not in a struct hal_bufq */
     struct av_slot slots[AV_BUFFERS_MAX];
     uint32_t n_slots;
+    /* streaming (st.streaming): software-trigger probe, lost control */
+    uint64_t probe_ns;        /* probe in flight since (host monotonic), 0 = none */
+    bool probe_resent;        /* this round sent more than one probe */
+    uint64_t quiet_until;     /* no new probe before this */
+    uint32_t probes;          /* probes sent since start */
+    gint control_lost;        /* set by the heartbeat thread ("control-lost") */
     /* frame counter unwrapping and trigger anchoring */
     bool have_first;
     uint64_t last_raw, unwrapped, seq_base;
-    uint64_t start_ns;        /* acquisition start (host monotonic) */
-    bool cand_valid;          /* anchoring: numbering proposed by the previous frame */
-    uint64_t cand_base;
+    bool want_anchor;         /* the next pulse sent to it is its first: anchor on it */
+    uint64_t anchor_seq, anchor_ts; /* that pulse (0 = not sent yet) */
     int64_t slip_delta;       /* software trigger: disagreement seen between counter and edges */
     uint32_t slip_count;
     uint64_t reanchors;
@@ -250,10 +262,13 @@ static int cam_start(void *ctx)
         if (c->slots[i].state == AV_PENDING)
             push_slot(c, &c->slots[i]);
     c->have_first = false;
-    c->cand_valid = false;
+    c->want_anchor = false;
+    c->anchor_seq = c->anchor_ts = 0;
     c->last_seq_out = 0;
     c->slip_count = 0;
-    c->start_ns = hal_mono_ns();
+    c->probe_ns = c->quiet_until = 0;
+    c->probe_resent = false;
+    c->probes = 0;
     arv_camera_start_acquisition(c->cam, &e);
     if (e) {
         g_clear_object(&c->stream);
@@ -263,7 +278,63 @@ static int cam_start(void *ctx)
         return cam_fail(c, F4D_EIO, "starting the acquisition", e);
     }
     c->st.started = true;
+    /* acquisition start is acknowledged and the stream receives: a free-running
+     * or line-triggered camera streams now; a software-triggered one once a
+     * probe trigger came back (probe_poll) */
+    c->st.streaming = c->st.fmt.trigger != HAL_TRIGGER_SOFTWARE;
     return F4D_OK;
+}
+
+static void send_probe(struct av_cam *c, uint64_t now)
+{
+    GError *e = NULL;
+    arv_camera_software_trigger(c->cam, &e);
+    if (e)
+        cam_fail(c, F4D_EIO, "probe trigger", e);
+    c->probe_resent = c->probe_ns != 0;
+    c->probe_ns = now;
+    c->probes++;
+}
+
+/* Software trigger, started, not streaming yet: collects answers to probe
+ * triggers (frames handed straight back to the stream) and sends the next
+ * probe when due. Never blocks. */
+static void probe_poll(struct av_cam *c)
+{
+    if (!c->st.started || c->st.streaming || g_atomic_int_get(&c->control_lost))
+        return;
+    uint64_t now = hal_mono_ns();
+    ArvBuffer *ab;
+    while ((ab = arv_stream_try_pop_buffer(c->stream)) != NULL) {
+        arv_stream_push_buffer(c->stream, ab); /* ownership goes back with it */
+        if (c->probe_ns && !c->probe_resent) {
+            /* the one probe of this round came back: the camera answers
+             * triggers, and nothing else is outstanding */
+            c->st.streaming = true;
+            c->want_anchor = true;
+            c->probe_ns = 0;
+            return;
+        }
+        c->probe_ns = 0; /* a stray or an ambiguous answer: quiet, then a fresh round */
+        c->quiet_until = now + AV_PROBE_QUIET_NS;
+    }
+    if (c->probe_ns == 0 ? now >= c->quiet_until : now - c->probe_ns >= AV_PROBE_RETRY_NS)
+        send_probe(c, now);
+    if (c->probes && c->probe_ns)
+        hal_cam_fail(&c->st, F4D_ETIMEDOUT, "%u probe trigger%s unanswered (not streaming yet)",
+                     (unsigned)c->probes, c->probes > 1 ? "s" : "");
+}
+
+static bool cam_streaming(void *ctx)
+{
+    struct av_cam *c = ctx;
+    if (g_atomic_int_get(&c->control_lost)) {
+        if (c->st.streaming)
+            hal_cam_fail(&c->st, F4D_ENODEV, "control lost");
+        c->st.streaming = false;
+    }
+    probe_poll(c);
+    return c->st.streaming;
 }
 
 static int cam_stop(void *ctx)
@@ -277,13 +348,19 @@ static int cam_stop(void *ctx)
         g_clear_object(&c->stream); /* drops the stream's references */
         c->st.started = false;
     }
+    c->st.streaming = false;
     for (uint32_t i = 0; i < c->n_slots; i++) {
         struct av_slot *sl = &c->slots[i];
-        if (sl->state == AV_IDLE)
-            continue;
+        if (sl->state != AV_IDLE)
+            hal_cam_abort(&c->st, sl->hb);
+        /* forget the wrapper too: the caller may free or reuse the memory
+         * once it has its buffers back, and a new hal_buffer at the same
+         * address must not find an ArvBuffer around the old data */
+        g_clear_object(&sl->ab);
+        sl->hb = NULL;
         sl->state = AV_IDLE;
-        hal_cam_abort(&c->st, sl->hb);
     }
+    c->n_slots = 0;
     return F4D_OK;
 }
 
@@ -401,6 +478,20 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     int rc = hal_cam_dequeue_begin(&c->st, out);
     if (rc < 0 || *out)
         return rc;
+    if (g_atomic_int_get(&c->control_lost)) {
+        c->st.streaming = false;
+        return hal_cam_fail(&c->st, F4D_ENODEV, "control lost");
+    }
+    if (!c->st.streaming) {
+        /* frames before the probe was answered belong to no pulse */
+        probe_poll(c);
+        if (!c->st.streaming && timeout_us) {
+            hal_sleep_until_mono_ns(hal_mono_ns() + (timeout_us < 2000 ? timeout_us : 2000) * 1000ull);
+            probe_poll(c);
+        }
+        if (!c->st.streaming)
+            return F4D_ETIMEDOUT;
+    }
     ArvBuffer *ab = timeout_us ? arv_stream_timeout_pop_buffer(c->stream, timeout_us)
                                : arv_stream_try_pop_buffer(c->stream);
     if (!ab)
@@ -431,29 +522,17 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     b->device_ts_ns = arv_buffer_get_timestamp(ab);
     b->host_ts_ns = sys && sys <= real && real - sys < mono ? mono - (real - sys) : mono;
     if (!c->have_first && c->s->software_trigger) {
-        /* anchor on the first frame that arrived clearly right after an edge
-         * of this run: the first frames of a stream are often late (the
-         * socket buffer is applied after the first packets) or left over
-         * from a trigger sent before a restart, and belong to no set */
-        uint64_t best = 0, best_ts = 0;
-        clear_edge(c->s, b->host_ts_ns, &best, &best_ts);
-        if (!best || best_ts < c->start_ns || b->host_ts_ns - best_ts >= c->s->period_ns / 4) {
+        /* The camera streamed (its probe came back) before it got any pulse,
+         * and pulses go only to streaming cameras: its first frame that
+         * arrives after the first pulse it was sent answers that pulse.
+         * Anything earlier is left over from probing and belongs to no set. */
+        if (!c->anchor_seq || b->host_ts_ns < c->anchor_ts) {
             push_slot(c, sl);
             return F4D_ETIMEDOUT;
         }
-        /* two frames in a row must agree (a stale frame often comes first,
-         * right before the frame of the same edge) */
-        uint64_t raw = arv_buffer_get_frame_id(ab);
-        uint64_t base = best - raw;
-        if (!c->cand_valid || base != c->cand_base) {
-            c->cand_valid = true;
-            c->cand_base = base;
-            push_slot(c, sl);
-            return F4D_ETIMEDOUT;
-        }
-        uint64_t fid = unwrap(c, raw);
+        uint64_t fid = unwrap(c, arv_buffer_get_frame_id(ab));
         c->have_first = true;
-        c->seq_base = best - fid;
+        c->seq_base = c->anchor_seq - fid;
     }
     uint64_t fid = unwrap(c, arv_buffer_get_frame_id(ab));
     if (!c->have_first) { /* hardware trigger: the counter starts at pulse 1 */
@@ -476,8 +555,8 @@ static void cam_close(void *ctx)
 {
     struct av_cam *c = ctx;
     cam_stop(c);
-    for (uint32_t i = 0; i < c->n_slots; i++)
-        g_clear_object(&c->slots[i].ab);
+    if (c->gige)
+        g_signal_handlers_disconnect_by_data(arv_camera_get_device(c->cam), c);
     g_clear_object(&c->cam);
     c->s->cams[c->index] = NULL;
     free(c);
@@ -495,21 +574,31 @@ static const struct hal_camera_ops av_camera_ops = {
     .dequeue = cam_dequeue,
     .close = cam_close,
     .last_error = cam_last_error,
+    .streaming = cam_streaming,
 };
 
 /* ---- software trigger ---- */
 static void fire_due(struct av_session *s, uint64_t now)
 {
     while (s->armed && now >= s->next_pulse_ns && (s->limit == 0 || s->sent < s->limit)) {
+        /* a pulse goes only to cameras that stream: one that is not (yet)
+         * would lose it, or answer it late with a frame numbered wrongly */
         for (uint32_t i = 0; i < AV_CAMS_MAX; i++) {
             struct av_cam *c = s->cams[i];
-            if (c && c->st.started) {
-                GError *e = NULL;
-                arv_camera_software_trigger(c->cam, &e);
-                if (e) {
-                    snprintf(s->err, sizeof s->err, "camera %.40s: TriggerSoftware: %.160s", c->cfg->id, e->message);
-                    g_error_free(e);
-                }
+            if (!c || !c->st.started)
+                continue;
+            if (!cam_streaming(c))
+                continue;
+            GError *e = NULL;
+            arv_camera_software_trigger(c->cam, &e);
+            if (e) {
+                snprintf(s->err, sizeof s->err, "camera %.40s: TriggerSoftware: %.160s", c->cfg->id, e->message);
+                g_error_free(e);
+            }
+            if (c->want_anchor) {
+                c->want_anchor = false;
+                c->anchor_seq = s->seq + 1;
+                c->anchor_ts = now;
             }
         }
         struct hal_edge ed = {++s->seq, now, 0, true};
@@ -594,6 +683,13 @@ static int av_session_open(const struct hal_board *board, void **session, char *
 
 static void av_session_close(void *session) { free(session); }
 
+/* Emitted by the heartbeat thread when the device stops answering. */
+static void on_control_lost(ArvGvDevice *dev, gpointer user)
+{
+    (void)dev;
+    g_atomic_int_set(&((struct av_cam *)user)->control_lost, 1);
+}
+
 static int av_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
                           struct hal_camera *out, char *err, size_t n)
 {
@@ -624,8 +720,10 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
     c->cam = cam;
     hal_cam_name(&c->st, "aravis camera %.40s (%.40s)", cfg->id, cfg->address);
     c->gige = arv_camera_is_gv_device(cam);
-    if (c->gige)
+    if (c->gige) {
         arv_camera_gv_set_stream_options(cam, ARV_GV_STREAM_OPTION_PACKET_SOCKET_DISABLED);
+        g_signal_connect(arv_camera_get_device(cam), "control-lost", G_CALLBACK(on_control_lost), c);
+    }
     s->cams[index] = c;
     hal_camera_bind(out, &av_camera_ops, c, index);
     return F4D_OK;

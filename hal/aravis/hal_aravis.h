@@ -19,13 +19,23 @@
  * the polling period. With a GPIO trigger (backend "gpiod") the cameras use
  * their hardware line instead.
  *
+ * Streaming (hal_camera_streaming): a free-running or line-triggered camera
+ * streams once acquisition start was acknowledged and its stream exists. A
+ * software-triggered camera streams once a probe trigger came back as a frame
+ * (one probe at a time, resent every 300 ms; an answer to a round with
+ * resends is followed by 300 ms of quiet and a fresh single probe, so no
+ * probe answer is still on its way). Probe frames are handed straight back to
+ * the stream; they also absorb the stream's first, often incomplete, frame.
+ * A GigE camera whose control is lost ("control-lost") stops streaming and
+ * dequeue reports F4D_ENODEV. The software trigger sends a pulse only to
+ * cameras that stream (probing the others instead).
+ *
  * Trigger sequence numbers: a triggered camera exposes once per pulse, so the
  * frame counter (GVSP block id, 16-bit with GigE Vision 1.x: unwrapped here)
  * advances with the pulses. With the software trigger the counter is anchored
- * once two frames in a row each arrived within a quarter period after an edge
- * of this run and agree on the numbering; frames before that are dropped
- * (stream start-up produces late frames and frames of triggers sent before a
- * restart). With a hardware trigger the first frame is pulse 1. A camera that
+ * on the first pulse the camera was sent (it streams by then): its first frame
+ * arriving after that pulse answers it, earlier frames (probe leftovers) are
+ * dropped. With a hardware trigger the first frame is pulse 1. A camera that
  * misses a software trigger is re-anchored once three frames in a row clearly
  * follow other edges than their numbers say (frames renumbered onto a pulse
  * already delivered are dropped). The synchronizer's timestamp window catches

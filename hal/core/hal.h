@@ -139,6 +139,13 @@ struct hal_camera_ops {
     int (*dequeue)(void *ctx, struct hal_buffer **out, uint32_t timeout_us);
     void (*close)(void *ctx);
     const char *(*last_error)(void *ctx);                     /* optional */
+    /* optional: true while the device really streams, i.e. a trigger sent now
+     * produces a frame: set once the backend knows frames flow (e.g. Aravis:
+     * acquisition start acknowledged, stream ready, a probe trigger answered),
+     * false before start, after stop and while the device is disconnected.
+     * It may do a little work to find out (poll, send a probe) and never
+     * blocks. NULL: streaming as soon as start returned. */
+    bool (*streaming)(void *ctx);
 };
 struct hal_camera {
     struct hal_camera_ops ops;
@@ -153,6 +160,11 @@ static inline int hal_camera_enqueue(struct hal_camera *c, struct hal_buffer *b)
 static inline int hal_camera_dequeue(struct hal_camera *c, struct hal_buffer **b, uint32_t timeout_us)
 {
     return c->ops.dequeue(c->ctx, b, timeout_us);
+}
+/* Ask only after start: with no `streaming` op a started camera streams. */
+static inline bool hal_camera_streaming(struct hal_camera *c)
+{
+    return c->ops.streaming ? c->ops.streaming(c->ctx) : true;
 }
 static inline const char *hal_camera_last_error(struct hal_camera *c)
 {

@@ -156,13 +156,13 @@ int hal_cam_fifo_start(struct hal_cam_state *s)
 {
     int rc = hal_cam_check_start(s);
     if (rc == F4D_OK)
-        s->started = true;
+        s->started = s->streaming = true;
     return rc;
 }
 
 void hal_cam_fifo_stop(struct hal_cam_state *s, struct hal_bufq *q)
 {
-    s->started = false;
+    s->started = s->streaming = false;
     struct hal_buffer *b;
     while ((b = hal_bufq_pop(q)) != NULL)
         hal_cam_abort(s, b);

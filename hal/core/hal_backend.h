@@ -61,6 +61,10 @@ struct hal_buffer *hal_bufq_pop(struct hal_bufq *q);
 struct hal_cam_state {
     struct hal_format fmt;    /* valid once configured */
     bool configured, started;
+    /* what hal_camera_ops.streaming reports: set when the device really
+     * delivers (FIFO cameras: at start), cleared by stop and while the
+     * device is gone */
+    bool streaming;
     struct hal_buffer *aborted[HAL_BUFQ_MAX]; /* returned by dequeue before any frame */
     uint32_t n_aborted;
     char name[160];           /* prefix of every message, e.g. "sim camera cam0" */
@@ -99,9 +103,9 @@ int hal_cam_dequeue_begin(struct hal_cam_state *s, struct hal_buffer **out);
 void hal_cam_abort(struct hal_cam_state *s, struct hal_buffer *b);
 
 /* Cameras whose buffers simply wait in a struct hal_bufq (sim, replay): */
-/* start = check and mark started */
+/* start = check and mark started (and streaming) */
 int hal_cam_fifo_start(struct hal_cam_state *s);
-/* stop = mark stopped and abort every queued buffer */
+/* stop = mark stopped (not streaming) and abort every queued buffer */
 void hal_cam_fifo_stop(struct hal_cam_state *s, struct hal_bufq *q);
 /* enqueue = check and append, F4D_EBUSY when the ring is full */
 int hal_cam_fifo_enqueue(struct hal_cam_state *s, struct hal_bufq *q, struct hal_buffer *b);

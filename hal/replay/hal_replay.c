@@ -187,6 +187,8 @@ static int cam_configure(void *ctx, const struct hal_format *f)
 }
 
 static int cam_start(void *ctx) { return hal_cam_fifo_start(&((struct rp_cam *)ctx)->st); }
+/* A take is "streaming" from start to stop (its end shows as F4D_EEOF). */
+static bool cam_streaming(void *ctx) { return ((struct rp_cam *)ctx)->st.streaming; }
 
 static int cam_stop(void *ctx)
 {
@@ -279,6 +281,7 @@ static const struct hal_camera_ops rp_camera_ops = {
     .dequeue = cam_dequeue,
     .close = cam_close,
     .last_error = cam_last_error,
+    .streaming = cam_streaming,
 };
 
 /* ---- trigger ---- */

@@ -38,6 +38,7 @@ struct sim_cam {
     uint64_t frame_id;
     uint64_t disconnected_until;
     uint32_t clock_epoch, delivered_epoch;
+    int start_fail;          /* hal_sim_fail_start: start returns this (<0), 0 = none */
 };
 
 struct sim_world {
@@ -287,7 +288,20 @@ static int cam_configure(void *ctx, const struct hal_format *f)
     return F4D_OK;
 }
 
-static int cam_start(void *ctx) { return hal_cam_fifo_start(&((struct sim_cam *)ctx)->st); }
+static int cam_start(void *ctx)
+{
+    struct sim_cam *c = ctx;
+    if (c->start_fail < 0)
+        return hal_cam_fail(&c->st, c->start_fail, "start failed (injected)");
+    return hal_cam_fifo_start(&c->st);
+}
+
+/* Streams once started, except while disconnected. */
+static bool cam_streaming(void *ctx)
+{
+    struct sim_cam *c = ctx;
+    return c->st.streaming && world_now(c->w) >= c->disconnected_until;
+}
 
 static int cam_stop(void *ctx)
 {
@@ -410,7 +424,25 @@ static const struct hal_camera_ops sim_camera_ops = {
     .dequeue = cam_dequeue,
     .close = cam_close,
     .last_error = cam_last_error,
+    .streaming = cam_streaming,
 };
+
+int hal_sim_fail_start(void *world, uint32_t cam, int rc)
+{
+    struct sim_world *w = world;
+    if (!w || cam >= HAL_RIG_CAMERAS_MAX || !w->cams[cam] || rc > 0)
+        return F4D_EINVAL;
+    w->cams[cam]->start_fail = rc;
+    return F4D_OK;
+}
+
+uint32_t hal_sim_buffers_held(const void *world, uint32_t cam)
+{
+    const struct sim_world *w = world;
+    if (!w || cam >= HAL_RIG_CAMERAS_MAX || !w->cams[cam])
+        return 0;
+    return w->cams[cam]->q.count + w->cams[cam]->st.n_aborted;
+}
 
 /* ---- trigger ops ---- */
 static int trig_arm(void *ctx, const struct hal_pulse_train *p)

@@ -52,6 +52,13 @@ void hal_sim_set_renderer(void *world, hal_sim_render_fn fn, void *user);
 int hal_sim_render_pattern(void *user, uint32_t cam, uint64_t t_ns,
                            const struct hal_format *f, uint8_t *dst);
 
+/* Fault knobs that board files do not carry (tests): camera `cam`'s start
+ * fails with `rc` (<0) from now on, 0 = starts again. F4D_EINVAL if no such camera. */
+int hal_sim_fail_start(void *world, uint32_t cam, int rc);
+/* Caller buffers camera `cam` holds: queued for a frame, or handed back by
+ * stop and not yet dequeued. 0 once the caller took every buffer back. */
+uint32_t hal_sim_buffers_held(const void *world, uint32_t cam);
+
 #define HAL_SIM_STAMP_BYTES 16
 /* Reads the ground-truth stamp of a sim frame; F4D_EINVAL if absent. */
 int hal_sim_stamp_read(const uint8_t *data, size_t n, uint64_t *seq, uint32_t *cam);

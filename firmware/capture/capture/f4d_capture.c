@@ -12,13 +12,67 @@ struct run {
     void *user;
     int set_rc;
     uint32_t requeue_errors;
+    /* buffers each camera holds (queued, or handed back by stop and not yet
+     * dequeued): its arena may be freed only at 0 */
+    uint32_t owned[HAL_RIG_CAMERAS_MAX];
 };
+
+static int enqueue(struct run *r, uint32_t cam, struct hal_buffer *b)
+{
+    int rc = hal_camera_enqueue(&r->rig->cams[cam], b);
+    if (rc == F4D_OK)
+        r->owned[cam]++;
+    return rc;
+}
+
+static int dequeue(struct run *r, uint32_t cam, struct hal_buffer **b)
+{
+    int rc = hal_camera_dequeue(&r->rig->cams[cam], b, 0);
+    if (rc == F4D_OK && r->owned[cam])
+        r->owned[cam]--;
+    return rc;
+}
 
 static void on_release(void *user, struct hal_buffer *b)
 {
     struct run *r = user;
-    if (hal_camera_enqueue(&r->rig->cams[b->camera_index], b) < 0)
+    if (enqueue(r, b->camera_index, b) < 0)
         r->requeue_errors++;
+}
+
+/* Waits (real time, polling) until every camera streams. */
+static int wait_streaming(struct hal_rig *rig, uint64_t timeout_ns, uint64_t *waited_ns, char *err,
+                          size_t errlen)
+{
+    struct hal_clock mono = hal_clock_monotonic();
+    const uint64_t t0 = hal_clock_now(&mono);
+    for (;;) {
+        uint32_t waiting = 0, first = 0;
+        for (uint32_t i = 0; i < rig->n_cams; i++) {
+            if (!hal_camera_streaming(&rig->cams[i]) && waiting++ == 0)
+                first = i;
+        }
+        uint64_t now = hal_clock_now(&mono);
+        *waited_ns = now - t0;
+        if (waiting == 0)
+            return F4D_OK;
+        if (now - t0 >= timeout_ns) {
+            char names[160] = "";
+            size_t n = 0;
+            for (uint32_t i = 0; i < rig->n_cams && n < sizeof names; i++) {
+                if (hal_camera_streaming(&rig->cams[i]))
+                    continue;
+                int w = snprintf(names + n, sizeof names - n, "%s%s", n ? ", " : "", rig->board->cams[i].id);
+                n = w < 0 ? sizeof names : n + (size_t)w;
+            }
+            const char *why = hal_camera_last_error(&rig->cams[first]);
+            return hal_fail(err, errlen, F4D_ETIMEDOUT,
+                            "camera%s %s not streaming %llu ms after start: trigger not armed%s%s",
+                            waiting > 1 ? "s" : "", names, (unsigned long long)(timeout_ns / 1000000u),
+                            why[0] ? "; " : "", why);
+        }
+        hal_clock_sleep_until(&mono, now + 2000000u);
+    }
 }
 
 static void on_sync_set(void *user, const struct hal_set *set)
@@ -54,7 +108,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     const uint32_t nbuf = cfg->buffers_per_cam ? cfg->buffers_per_cam : board->sync.pending_max + 6;
     struct hal_buffer *bufs = calloc((size_t)nbuf * rig->n_cams, sizeof *bufs);
     uint8_t *arena[HAL_RIG_CAMERAS_MAX] = {0};
-    uint32_t started = 0;
+    uint32_t configured = 0; /* cameras [0, configured) were negotiated (and may hold buffers) */
     if (!bufs) {
         rc = hal_fail(err, errlen, F4D_ENOMEM, "capture: out of memory");
         goto out;
@@ -78,6 +132,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
                           hal_camera_last_error(cam));
             goto out;
         }
+        configured = i + 1;
         out->formats[i] = f;
         arena[i] = malloc((size_t)nbuf * f.image_bytes);
         if (!arena[i]) {
@@ -90,17 +145,17 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             b->data = arena[i] + (size_t)k * f.image_bytes;
             b->capacity = f.image_bytes;
             b->camera_index = i;
-            if ((rc = hal_camera_enqueue(cam, b)) < 0) {
+            if ((rc = enqueue(r, i, b)) < 0) {
                 rc = hal_fail(err, errlen, rc, "camera %s: enqueue: %s", cc->id,
                               hal_camera_last_error(cam));
                 goto out;
             }
         }
     }
-    for (; started < rig->n_cams; started++) {
-        if ((rc = hal_camera_start(&rig->cams[started])) < 0) {
-            rc = hal_fail(err, errlen, rc, "camera %s: start: %s", board->cams[started].id,
-                          hal_camera_last_error(&rig->cams[started]));
+    for (uint32_t i = 0; i < rig->n_cams; i++) {
+        if ((rc = hal_camera_start(&rig->cams[i])) < 0) {
+            rc = hal_fail(err, errlen, rc, "camera %s: start: %s", board->cams[i].id,
+                          hal_camera_last_error(&rig->cams[i]));
             goto out;
         }
     }
@@ -108,6 +163,11 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         rc = hal_fail(err, errlen, rc, "capture: the set consumer could not start");
         goto out;
     }
+    /* the first pulse goes out only when every camera can answer it */
+    rc = wait_streaming(rig, cfg->ready_timeout_ns ? cfg->ready_timeout_ns : 5000000000ull,
+                        &out->ready_wait_ns, err, errlen);
+    if (rc < 0)
+        goto out;
     struct hal_pulse_train train = {board->trigger.rate_mhz, board->trigger.pulse_width_us,
                                      cfg->triggers};
     if ((rc = hal_trigger_arm(&rig->trigger, &train)) < 0) {
@@ -124,7 +184,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     const uint64_t t0 = hal_clock_now(clk);
     uint64_t next_progress = t0 + progress_ns;
     uint64_t last_edge = t0;
-    bool armed = true, cam_gone[HAL_RIG_CAMERAS_MAX] = {false};
+    bool armed = true, held = false, cam_gone[HAL_RIG_CAMERAS_MAX] = {false};
     out->t_start_ns = t0;
     rc = F4D_OK;
     for (;;) {
@@ -140,7 +200,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         for (uint32_t i = 0; i < rig->n_cams; i++) {
             for (uint32_t guard = 0; guard < nbuf * 4; guard++) {
                 struct hal_buffer *b = NULL;
-                int d = hal_camera_dequeue(&rig->cams[i], &b, 0);
+                int d = dequeue(r, i, &b);
                 if (d == F4D_OK) {
                     cam_gone[i] = false;
                     out->frames_in++;
@@ -178,9 +238,40 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             armed = false;
             last_edge = now;
         }
+        if (held && want_stop) {
+            held = false;
+            last_edge = now;
+        }
+        if (cfg->hold_while_down && (armed || held)) {
+            /* hold the train while a camera is down, re-arm it for the pulses
+             * still owed once every camera streams again */
+            bool all = true;
+            for (uint32_t i = 0; i < rig->n_cams && all; i++)
+                all = hal_camera_streaming(&rig->cams[i]);
+            if (armed && !all) {
+                hal_trigger_disarm(&rig->trigger);
+                armed = false;
+                held = true;
+                out->holds++;
+            } else if (held && all) {
+                held = false;
+                uint64_t seen = r->sync.c.triggers;
+                if (!cfg->triggers || seen < cfg->triggers) {
+                    train.count = cfg->triggers ? cfg->triggers - seen : 0;
+                    if ((rc = hal_trigger_arm(&rig->trigger, &train)) < 0) {
+                        rc = hal_fail(err, errlen, rc, "trigger: re-arm after a hold failed (%s)",
+                                      rig->trigger.ops.last_error ? rig->trigger.ops.last_error(rig->trigger.ctx)
+                                                                  : "");
+                        break;
+                    }
+                    armed = true;
+                }
+                last_edge = now;
+            }
+        }
         if (armed && hal_trigger_done(&rig->trigger))
             armed = false;
-        if (!armed) {
+        if (!armed && !held) {
             /* drained when nothing more is due (simulated) or after the drain window */
             if (simulated ? hal_clock_next_event(clk) == UINT64_MAX : now - last_edge >= drain_ns)
                 break;
@@ -206,17 +297,29 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     if (rc >= 0 && r->requeue_errors)
         rc = hal_fail(err, errlen, F4D_EIO, "capture: %u buffers could not be queued again",
                       (unsigned)r->requeue_errors);
-out:
-    for (uint32_t i = 0; i < started; i++)
+out:;
+    /* Every negotiated camera is stopped, started or not (a camera that never
+     * started, or failed to, still holds the buffers queued to it), and the
+     * buffers stop hands back are collected before their memory is freed. A
+     * camera that keeps any (a backend bug) keeps its memory too: leaked, never
+     * freed under it. */
+    bool kept = false;
+    for (uint32_t i = 0; i < configured; i++) {
         hal_camera_stop(&rig->cams[i]);
-    /* collect the buffers stop handed back, so none points into freed memory */
-    for (uint32_t i = 0; i < rig->n_cams; i++) {
         struct hal_buffer *b;
-        for (uint32_t k = 0; k < nbuf * 2 && hal_camera_dequeue(&rig->cams[i], &b, 0) == F4D_OK; k++) {
+        for (uint32_t k = 0; k < nbuf * 2 && r->owned[i] && dequeue(r, i, &b) == F4D_OK; k++) {
+        }
+        if (r->owned[i]) {
+            kept = true;
+            if (rc >= 0)
+                rc = hal_fail(err, errlen, F4D_ESTATE, "camera %s: still holds %u buffers after stop (%s)",
+                              board->cams[i].id, (unsigned)r->owned[i], hal_camera_last_error(&rig->cams[i]));
+            continue;
         }
         free(arena[i]);
     }
-    free(bufs);
+    if (!kept)
+        free(bufs);
     free(r);
     return rc;
 }
