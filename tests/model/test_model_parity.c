@@ -256,7 +256,8 @@ static void test_tiny_f32_file_as_int8(void **state)
 }
 
 /* The arena planned for a bigger set serves a smaller one; a larger set is
- * refused by name, and no eval allocates kernel scratch after the first. */
+ * refused by name. Prepare reserves the kernel scratch and freezes the
+ * context: the first Eval, at the largest planned size, runs frozen. */
 static void test_arena_bounds(void **state)
 {
     (void)state;
@@ -271,23 +272,35 @@ static void test_arena_bounds(void **state)
     const struct model_config *c = model_get_config(m);
     assert_int_equal(model_arena_bytes(m), model_plan_bytes(c, MODEL_G_ALL, 2, 42, 70));
     float *img = calloc((size_t)3 * 3 * 42 * 70, sizeof *img);
+    for (size_t i = 0; i < (size_t)3 * 3 * 42 * 70; i++)
+        img[i] = (float)(i % 97) / 97.0f;
     struct model_outputs out;
-    assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
     size_t scratch = fk_ctx_scratch_bytes(ctx);
-    fk_ctx_freeze(ctx, 1);
+    assert_true(scratch > 0);
+    /* frozen by Prepare: growing the scratch is refused */
+    assert_int_equal(fk_ctx_reserve(ctx, 2 * scratch, 0), F4D_ENOMEM);
+    fk_ctx_freeze(ctx, 1); /* (also when Prepare forgot to) */
+    if (model_eval(m, img, 2, 42, 70, &out) != 0)
+        fail_msg("first Eval after Prepare, frozen: %s", model_error(m));
     assert_int_equal(model_eval(m, img, 1, 28, 56, &out), 0);
+    assert_int_equal(model_eval(m, img, 1, 42, 14, &out), 0);
+    assert_int_equal(model_eval(m, img, 2, 14, 70, &out), 0);
     assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
     assert_int_equal(fk_ctx_scratch_bytes(ctx), scratch);
     assert_int_equal(model_eval(m, img, 3, 42, 70, &out), F4D_EINVAL);
-    assert_non_null(strstr(model_error(m), "exceed the arena"));
+    assert_non_null(strstr(model_error(m), "3 views of 70x42 exceed the 2 views of 70x42"));
     assert_int_equal(model_eval(m, img, 1, 42, 71, &out), F4D_EINVAL);
     assert_non_null(strstr(model_error(m), "multiple of the patch"));
-    /* Wider than planned but smaller in total: fits. More patches per view than
-     * planned (the resized pos-embed grid): refused. */
-    assert_int_equal(model_eval(m, img, 1, 28, 84, &out), 0);
+    /* Wider than planned, even when smaller in total: refused (the kernel
+     * scratch reserved at Prepare grows with each dimension). */
+    assert_int_equal(model_eval(m, img, 1, 28, 84, &out), F4D_EINVAL);
+    assert_non_null(strstr(model_error(m), "1 views of 84x28 exceed"));
     assert_int_equal(model_eval(m, img, 1, 42, 126, &out), F4D_EINVAL);
+    assert_int_equal(fk_ctx_scratch_bytes(ctx), scratch);
     free(img);
     model_free(m);
+    /* model_free thaws the context it froze */
+    assert_int_equal(fk_ctx_reserve(ctx, 2 * scratch, 0), F4D_OK);
     fk_ctx_free(ctx);
 }
 
