@@ -73,6 +73,13 @@ int          fk_ctx_status   (const fk_ctx *ctx);   /* code of that error, 0 if 
 int          fk_ctx_reserve  (fk_ctx *ctx, size_t per_thread, size_t shared);
 void         fk_ctx_freeze   (fk_ctx *ctx, int frozen);
 size_t       fk_ctx_scratch_bytes(const fk_ctx *ctx); /* total reserved now  */
+/* Measuring: while on, every kernel that uses scratch reserves what the call
+ * needs (growing the arenas, as unfrozen) and returns F4D_OK WITHOUT computing:
+ * its outputs are left as they were. Kernels without scratch run normally.
+ * A caller runs its per-frame path once at the largest planned sizes with
+ * measuring on, then turns it off and freezes (model_prepare does). Scratch
+ * needs grow monotonically with the problem sizes, so smaller calls fit. */
+void         fk_ctx_measure  (fk_ctx *ctx, int on);
 
 unsigned     fk_cpu_features (void);
 int          fk_isa_supported(enum fk_isa isa);

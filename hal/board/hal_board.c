@@ -1,5 +1,6 @@
 /* hal_board.c: board description files (JSON via cJSON) -> struct hal_board. */
 #include "hal_board.h"
+#include "hal_backend.h"
 
 #include <cjson/cJSON.h>
 #include <errno.h>
@@ -314,6 +315,21 @@ static int parse_root(struct ctx *c, const cJSON *root, struct hal_board *b)
         else if (pol[0])
             return fail(c, "incomplete", "must be \"drop\" or \"mark\"");
         TRY(get_u32(c, s, "pending_max", 1, 64, &b->sync.pending_max));
+        /* every open set holds a buffer of each camera, plus the spares capture
+         * keeps queued: more than a camera's queue holds never enqueues */
+        for (uint32_t k = 0; k < b->n_cams; k++) {
+            const bool usb = strcmp(b->cams[k].backend, "usb") == 0;
+            const uint32_t ring = usb ? HAL_USB_BUFFERS_MAX : HAL_BUFQ_MAX;
+            const uint32_t most = ring - HAL_CAPTURE_SPARE_BUFFERS;
+            if (b->sync.pending_max > most) {
+                char msg[256];
+                snprintf(msg, sizeof msg, "must be at most %u for camera \"%s\" (%s backend: "
+                         "%u buffers per camera, %u kept spare by capture), got %u", most,
+                         b->cams[k].id, usb ? "usb" : b->cams[k].backend, ring,
+                         HAL_CAPTURE_SPARE_BUFFERS, b->sync.pending_max);
+                return fail(c, "pending_max", msg);
+            }
+        }
         pop(c, saved);
     }
     const cJSON *r = get_obj(c, root, "recording", &rc);

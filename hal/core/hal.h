@@ -258,6 +258,12 @@ struct hal_sync_config {
     enum hal_incomplete_policy incomplete;
     uint32_t pending_max;         /* sets open at once (memory bound) */
 };
+/* Capture queues pending_max + HAL_CAPTURE_SPARE_BUFFERS buffers per camera
+ * (firmware/capture/capture/f4d_capture.c), and a camera holds at most
+ * HAL_BUFQ_MAX (64, hal_backend.h), the usb backend HAL_USB_BUFFERS_MAX (32
+ * V4L2 buffers): the board parser bounds pending_max by both. */
+#define HAL_CAPTURE_SPARE_BUFFERS 6u
+#define HAL_USB_BUFFERS_MAX       32u /* USB_BUFFERS_MAX in hal/usb/hal_usb.c */
 /* Simulated faults, each a probability per frame (or per pulse). */
 struct hal_sim_faults {
     double drop, duplicate, late, incomplete;       /* per camera and pulse, exclusive */

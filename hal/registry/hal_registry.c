@@ -1,6 +1,7 @@
 /* hal_registry.c: the one static table of backends, and rig open/close.
- * Optional backends are compiled in when CMake found their library
- * (HAL_HAS_<NAME>); sim and replay are always there. */
+ * Only sim is always there; every other backend, replay included, is
+ * compiled in when its CMake target exists (HAL_HAS_<NAME>, see
+ * CMakeLists.txt; aravis, gpiod and usb only when their library was found). */
 #include "hal_registry.h"
 
 #include <stdio.h>

@@ -64,7 +64,7 @@ int fk__attention_ref(fk_ctx *ctx, const struct fk_attention_desc *a, const floa
     size_t need = ((size_t)nk * (size_t)d + (size_t)d) * sizeof(float) + (size_t)nk * sizeof(double) +
                   (size_t)d * sizeof(double) + 4 * FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
-    if (st)
+    if (st || fk__measuring(ctx))
         return st;
     char *s = fk__scratch(ctx, 0);
     float *kt = (float *)s;

@@ -155,6 +155,12 @@ void fk_ctx_freeze(fk_ctx *ctx, int frozen)
         ctx->frozen = frozen != 0;
 }
 
+void fk_ctx_measure(fk_ctx *ctx, int on)
+{
+    if (ctx)
+        ctx->measuring = on != 0;
+}
+
 size_t fk_ctx_scratch_bytes(const fk_ctx *ctx)
 {
     size_t s = ctx->shared.bytes;

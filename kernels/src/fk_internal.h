@@ -21,6 +21,7 @@ struct fk_ctx {
     enum fk_isa      isa;
     int              threads;
     int              frozen;
+    int              measuring;  /* fk_ctx_measure: reserve, then skip  */
     struct fk_pool  *pool;       /* NULL when threads == 1           */
     struct fk_arena *local;      /* [threads] per-thread scratch      */
     struct fk_arena  shared;
@@ -38,6 +39,9 @@ int   fk__fail(fk_ctx *ctx, int status, const char *func, const char *fmt, ...)
  * when frozen or out of memory). Inside tasks, fk__scratch(ctx, thread) and
  * fk__scratch_shared(ctx) return the 64-byte aligned arenas. */
 int   fk__scratch_reserve(fk_ctx *ctx, size_t per_thread, size_t shared);
+/* True while the context measures (fk_ctx_measure): a kernel returns F4D_OK
+ * right after its fk__scratch_reserve, without computing. */
+static inline int fk__measuring(const fk_ctx *ctx) { return ctx->measuring; }
 static inline void *fk__scratch(fk_ctx *ctx, int thread) { return ctx->local[thread].ptr; }
 static inline void *fk__scratch_shared(fk_ctx *ctx) { return ctx->shared.ptr; }
 

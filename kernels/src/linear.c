@@ -262,13 +262,13 @@ int fk__gemm_ref(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *
                  const struct fk__cdst *c, const struct fk_epilogue *ep)
 {
     int n = L->n, k = L->k;
-    float *row = malloc((size_t)k * sizeof *row);
-    int8_t *qa = malloc((size_t)k);
-    if (!row || !qa) {
-        free(row);
-        free(qa);
-        return FK_FAIL(ctx, F4D_ENOMEM, "cannot allocate a %d-wide row", k);
-    }
+    /* one row of A (and its int8 copy) in the caller's scratch: no malloc per call */
+    size_t row_bytes = fk__round_up((size_t)k * sizeof(float), FK_ALIGN);
+    int st = fk__scratch_reserve(ctx, row_bytes + (size_t)k, 0);
+    if (st != F4D_OK || fk__measuring(ctx))
+        return st;
+    float *row = fk__scratch(ctx, 0);
+    int8_t *qa = (int8_t *)((char *)row + row_bytes);
     for (int r = 0; r < m; r++) {
         fk__asrc_row(a, r, 0, k, row);
         float sa = L->type == FK_W_Q8 ? fk_quantize_row_q8(row, k, qa) : 0;
@@ -297,8 +297,6 @@ int fk__gemm_ref(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *
             *d = ep->accumulate ? *d + v : v;
         }
     }
-    free(row);
-    free(qa);
     return F4D_OK;
 }
 

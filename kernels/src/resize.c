@@ -120,7 +120,7 @@ int fk_resize_bilinear(fk_ctx *ctx, const float *x, int h, int w, int c, float *
     }
     size_t tab = fk__round_up(2 * ((size_t)ho + wo) * sizeof(int32_t), FK_ALIGN);
     st = fk__scratch_reserve(ctx, 0, 2 * tab);
-    if (st != F4D_OK)
+    if (st != F4D_OK || fk__measuring(ctx))
         return st;
     char *s = fk__scratch_shared(ctx);
     int32_t *yi = (int32_t *)s, *xi = yi + 2 * (size_t)ho;
@@ -270,7 +270,7 @@ int fk_resize_bicubic_aa(fk_ctx *ctx, const float *x, int h, int w, int c, float
     size_t tab_h = do_v ? fk__round_up((size_t)ho * (2 * sizeof(int32_t) + kh * sizeof(float)), FK_ALIGN) : 0;
     size_t tmp = do_h && do_v ? (size_t)h * wo * c * sizeof(float) : 0;
     st = fk__scratch_reserve(ctx, 0, tab_w + tab_h + tmp);
-    if (st != F4D_OK)
+    if (st != F4D_OK || fk__measuring(ctx))
         return st;
     char *s = fk__scratch_shared(ctx);
     int avx2 = fk__isa_avx2(ctx->isa);

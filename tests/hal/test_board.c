@@ -90,6 +90,13 @@ static void errors_name_the_key(void **state)
         {"{\"cameras\":[{}],\"sim\":{\"faults\":{\"drop\":2}}}", "sim.faults.drop: must be 0..1"},
         {"{\"cameras\":[{}],\"sim\":{\"realtime\":1}}", "sim.realtime: must be true or false"},
         {"{\"cameras\":[{}],\"sync\":[]}", "sync: must be an object"},
+        /* capture queues pending_max + 6 buffers per camera: a sim / aravis /
+         * replay camera holds 64, a usb camera 32 */
+        {"{\"cameras\":[{}],\"sync\":{\"pending_max\":59}}",
+         "sync.pending_max: must be at most 58 for camera"},
+        {"{\"cameras\":[{}],\"sync\":{\"pending_max\":64}}", "(sim backend: 64 buffers"},
+        {"{\"cameras\":[{},{\"id\":\"u\",\"backend\":\"usb\"}],\"sync\":{\"pending_max\":27}}",
+         "sync.pending_max: must be at most 26 for camera \"u\" (usb backend: 32 buffers"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         struct hal_board b;
@@ -105,9 +112,29 @@ static void errors_name_the_key(void **state)
     assert_non_null(strstr(err, "/nonexistent/board.json"));
 }
 
+/* The largest pending_max capture can enqueue is accepted, per backend. */
+static void pending_max_bound_accepted(void **state)
+{
+    (void)state;
+    static const char *const ok[] = {
+        "{\"cameras\":[{}],\"sync\":{\"pending_max\":58}}",
+        "{\"cameras\":[{\"backend\":\"usb\"}],\"sync\":{\"pending_max\":26}}",
+    };
+    static const uint32_t want[] = { 58, 26 };
+    for (size_t i = 0; i < 2; i++) {
+        struct hal_board b;
+        char err[256] = "";
+        int rc = hal_board_parse(&b, ok[i], strlen(ok[i]), err, sizeof err);
+        if (rc != F4D_OK)
+            fail_msg("%s: %s", ok[i], err);
+        assert_int_equal(b.sync.pending_max, want[i]);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(pending_max_bound_accepted),
         cmocka_unit_test(shipped_boards_load),
         cmocka_unit_test(round_trip),
         cmocka_unit_test(errors_name_the_key),

@@ -4,6 +4,7 @@
  *
  *   test_gguf GGUF_DIR F4D_CONVERT FIXTURE_DIR
  */
+#include <inttypes.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -232,6 +233,7 @@ struct rewrite {
     const char *reshape;     /* tensor whose first dim is doubled      */
     int         depth;       /* forge4d.depth override (0 = keep)      */
     const char *extra;       /* add this F32 [4] tensor                 */
+    int         img_grid;    /* forge4d.img_size = patch_size * this    */
 };
 
 static void rewrite_tiny(const struct rewrite *r)
@@ -244,6 +246,8 @@ static void rewrite_tiny(const struct rewrite *r)
     assert_int_equal(model_config_read(f, &c, err, sizeof err), 0);
     if (r->depth)
         c.depth = r->depth;
+    if (r->img_grid)
+        c.img_size = c.patch_size * r->img_grid;
     gguf_writer *w = gguf_writer_new();
     assert_int_equal(model_config_write(&c, w), 0);
     size_t nt = gguf_tensor_count(f);
@@ -326,6 +330,12 @@ static void test_model_init_validates(void **state)
     expect_init_fails(&(struct rewrite){ .depth = 6 },
                       "missing tensor 'aggregator.frame_blocks.5.norm1.weight'");
     expect_init_fails(&(struct rewrite){ .depth = 4 }, "dpt_layer_idx[3] = 4 out of 0..3");
+    /* an img_size whose pos-embed grid (1 + g*g rows) overflows int: refused by
+     * the config bounds before any size is computed (UBSan saw g*g overflow) */
+    expect_init_fails(&(struct rewrite){ .img_grid = 71428 },
+                      "config: img_size 999992 out of patch_size 14..4096");
+    expect_init_fails(&(struct rewrite){ .img_grid = 293 },
+                      "config: img_size 4102 out of patch_size 14..4096");
     expect_init_fails(&(struct rewrite){ .extra = "aggregator.extra.weight" }, "unknown tensor 'aggregator.extra.weight'");
     expect_init_fails(&(struct rewrite){ .rename_from = "point_head.norm.bias",
                                          .rename_to = "pointhead.norm.bias" },
@@ -365,6 +375,7 @@ static void test_convert_half_inputs(void **state)
         assert_int_equal(gguf_open(path, &f, err, sizeof err), 0);
         assert_int_equal(gguf_tensor_count(f), gguf_tensor_count(ref));
         double worst = 0;
+        size_t n_differ = 0;
         for (size_t i = 0; i < gguf_tensor_count(ref); i++) {
             const struct gguf_tensor *a = gguf_tensor_at(ref, i);
             const struct gguf_tensor *b = gguf_find_tensor(f, a->name);
@@ -375,14 +386,25 @@ static void test_convert_half_inputs(void **state)
             int differs = 0;
             for (uint64_t j = 0; j < a->n_elements; j++) {
                 double d = fabs((double)x[j] - y[j]);
-                assert_true(d <= tol[k] * fabs((double)x[j]) + 1e-7);
-                worst = fmax(worst, fabs(x[j]) > 1e-3 ? d / fabs(x[j]) : 0);
+                /* NaN-aware: a NaN or Inf on either side fails here */
+                if (!(d <= tol[k] * fabs((double)x[j]) + 1e-7))
+                    fail_msg("%s: '%s'[%" PRIu64 "] = %g, f32 file has %g", dts[k], a->name,
+                             j, (double)y[j], (double)x[j]);
+                double rel = fabs(x[j]) > 1e-3 ? d / fabs(x[j]) : 0;
+                if (rel > worst)
+                    worst = rel;
                 differs |= d > 0;
             }
-            (void)differs;
+            /* the fixture tensors are random: each one loses bits in f16 / bf16 */
+            if (!differs)
+                fail_msg("%s: '%s' equals the f32 file exactly: the half-precision "
+                         "checkpoint was not rounded", dts[k], a->name);
+            n_differ += (size_t)differs;
         }
-        printf("  %s checkpoint -> f32 file: worst relative rounding %.3e\n", dts[k], worst);
+        printf("  %s checkpoint -> f32 file: worst relative rounding %.3e, %zu of %zu tensors "
+               "rounded\n", dts[k], worst, n_differ, gguf_tensor_count(ref));
         assert_true(worst > 0); /* the half-precision input really was rounded */
+        assert_int_equal(n_differ, gguf_tensor_count(ref));
         gguf_close(f);
     }
     gguf_close(ref);

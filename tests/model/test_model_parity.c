@@ -20,6 +20,13 @@
 
 static const char *fixture_dir, *gguf_dir;
 
+/* NaN-aware running maximum: once a NaN is seen the result stays NaN, so any
+ * bound check on it (x <= budget) fails; fmax() would silently drop the NaN. */
+static double max_nan(double m, double v)
+{
+    return isnan(m) || isnan(v) ? NAN : (v > m ? v : m);
+}
+
 /* Budgets per precision (f32 from the issue; f16 / int8 measured on these
  * fixtures with margin: f16 ~1e-3, int8 ~2e-2 at the heads, see the report). */
 static const double budget_f32 = 1e-4, budget_f16 = 5e-3, budget_int8 = 8e-2;
@@ -80,14 +87,14 @@ static void compare(struct ck *c, int frame, const float *data, size_t count)
         for (size_t i = 0; i < hw; i++)
             for (size_t k = 0; k < ch; k++) {
                 double r = ref[k * hw + i], d = fabs((double)data[i * ch + k] - r);
-                c->max_diff = isnan(d) ? INFINITY : fmax(c->max_diff, d);
-                c->max_ref = fmax(c->max_ref, fabs(r));
+                c->max_diff = max_nan(c->max_diff, d);
+                c->max_ref = max_nan(c->max_ref, fabs(r));
             }
     } else {
         for (size_t i = 0; i < count; i++) {
             double r = ref[i], d = fabs((double)data[i] - r);
-            c->max_diff = isnan(d) ? INFINITY : fmax(c->max_diff, d);
-            c->max_ref = fmax(c->max_ref, fabs(r));
+            c->max_diff = max_nan(c->max_diff, d);
+            c->max_ref = max_nan(c->max_ref, fabs(r));
         }
     }
     c->seen = 1;
@@ -210,7 +217,8 @@ static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtyp
         printf("  %-10s %-5s S=%d %-22s rel_err %.3e%s\n", cfg, type, S, c->name, e,
                !c->seen ? "  NOT SEEN" : e > budget ? "  OVER BUDGET" : "");
         assert_true(c->seen);
-        worst = fmax(worst, e);
+        assert_true(e <= budget); /* NaN-aware: fails on NaN */
+        worst = max_nan(worst, e);
         free(c->ref);
     }
     printf("  %-10s %-5s S=%d worst %.3e (budget %.0e), arena %zu bytes\n", cfg, type, S, worst,
@@ -256,7 +264,8 @@ static void test_tiny_f32_file_as_int8(void **state)
 }
 
 /* The arena planned for a bigger set serves a smaller one; a larger set is
- * refused by name, and no eval allocates kernel scratch after the first. */
+ * refused by name. Prepare reserves the kernel scratch and freezes the
+ * context: the first Eval, at the largest planned size, runs frozen. */
 static void test_arena_bounds(void **state)
 {
     (void)state;
@@ -271,24 +280,50 @@ static void test_arena_bounds(void **state)
     const struct model_config *c = model_get_config(m);
     assert_int_equal(model_arena_bytes(m), model_plan_bytes(c, MODEL_G_ALL, 2, 42, 70));
     float *img = calloc((size_t)3 * 3 * 42 * 70, sizeof *img);
+    for (size_t i = 0; i < (size_t)3 * 3 * 42 * 70; i++)
+        img[i] = (float)(i % 97) / 97.0f;
     struct model_outputs out;
-    assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
     size_t scratch = fk_ctx_scratch_bytes(ctx);
-    fk_ctx_freeze(ctx, 1);
+    assert_true(scratch > 0);
+    /* frozen by Prepare: growing the scratch is refused */
+    assert_int_equal(fk_ctx_reserve(ctx, 2 * scratch, 0), F4D_ENOMEM);
+    fk_ctx_freeze(ctx, 1); /* (also when Prepare forgot to) */
+    if (model_eval(m, img, 2, 42, 70, &out) != 0)
+        fail_msg("first Eval after Prepare, frozen: %s", model_error(m));
     assert_int_equal(model_eval(m, img, 1, 28, 56, &out), 0);
+    assert_int_equal(model_eval(m, img, 1, 42, 14, &out), 0);
+    assert_int_equal(model_eval(m, img, 2, 14, 70, &out), 0);
     assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
     assert_int_equal(fk_ctx_scratch_bytes(ctx), scratch);
     assert_int_equal(model_eval(m, img, 3, 42, 70, &out), F4D_EINVAL);
-    assert_non_null(strstr(model_error(m), "exceed the arena"));
+    assert_non_null(strstr(model_error(m), "3 views of 70x42 exceed the 2 views of 70x42"));
     assert_int_equal(model_eval(m, img, 1, 42, 71, &out), F4D_EINVAL);
     assert_non_null(strstr(model_error(m), "multiple of the patch"));
-    /* Wider than planned but smaller in total: fits. More patches per view than
-     * planned (the resized pos-embed grid): refused. */
-    assert_int_equal(model_eval(m, img, 1, 28, 84, &out), 0);
+    /* Wider than planned, even when smaller in total: refused (the kernel
+     * scratch reserved at Prepare grows with each dimension). */
+    assert_int_equal(model_eval(m, img, 1, 28, 84, &out), F4D_EINVAL);
+    assert_non_null(strstr(model_error(m), "1 views of 84x28 exceed"));
     assert_int_equal(model_eval(m, img, 1, 42, 126, &out), F4D_EINVAL);
+    assert_int_equal(fk_ctx_scratch_bytes(ctx), scratch);
     free(img);
     model_free(m);
+    /* model_free thaws the context it froze */
+    assert_int_equal(fk_ctx_reserve(ctx, 2 * scratch, 0), F4D_OK);
     fk_ctx_free(ctx);
+}
+
+/* max |a - b| / max |b|; NaN when either array holds a NaN or an Inf, so that
+ * `e <= budget` fails on any non-finite value. */
+static double arr_rel(const float *a, const float *b, size_t n)
+{
+    double md = 0, mr = 0;
+    for (size_t i = 0; i < n; i++) {
+        md = max_nan(md, fabs((double)a[i] - b[i]));
+        mr = max_nan(mr, fabs((double)b[i]));
+    }
+    if (isinf(mr))
+        return NAN;
+    return md / (mr > 0 ? mr : 1);
 }
 
 static double npy_rel(const char *a_path, const char *b_path, int64_t *shape, int *nd)
@@ -312,14 +347,10 @@ static double npy_rel(const char *a_path, const char *b_path, int64_t *shape, in
         same = same && sb[i] == shape[i];
         n *= (size_t)shape[i];
     }
-    double md = 0, mr = 0;
-    for (size_t i = 0; same && i < n; i++) {
-        md = fmax(md, fabs((double)a[i] - b[i]));
-        mr = fmax(mr, fabs((double)b[i]));
-    }
+    double e = same ? arr_rel(a, b, n) : INFINITY;
     free(a);
     free(b);
-    return same ? md / (mr > 0 ? mr : 1) : INFINITY;
+    return e;
 }
 
 /* f4d-infer's files (ctest model/infer_raw, model/infer_png). */
@@ -342,14 +373,82 @@ static void test_infer_outputs(void **state)
     snprintf(a, sizeof a, "%s/infer_png/input.npy", gguf_dir);
     snprintf(b, sizeof b, "%s/prep/batch_crop56.npy", fixture_dir);
     assert_true(npy_rel(a, b, sh, &nd) < 1e-6);
+    /* f4d-infer's depth against this process's own Eval of PIL's batch (the
+     * fixture), same weights and precision: an independent computation of
+     * the same numbers, up to threading order */
+    char err[512];
+    float *batch, *depth;
+    int64_t bsh[NPY_MAX_DIMS];
+    int bnd;
+    snprintf(b, sizeof b, "%s/prep/batch_crop56.npy", fixture_dir);
+    assert_int_equal(npy_load_f32(b, &batch, bsh, &bnd, err, sizeof err), 0);
     snprintf(a, sizeof a, "%s/infer_png/depth.npy", gguf_dir);
-    snprintf(b, sizeof b, "%s/infer_png/depth.npy", gguf_dir);
-    assert_true(npy_rel(a, b, sh, &nd) == 0.0);
+    assert_int_equal(npy_load_f32(a, &depth, sh, &nd, err, sizeof err), 0);
     assert_int_equal(nd, 4);
     assert_int_equal(sh[0], 2);
     assert_int_equal(sh[1], 56);
     assert_int_equal(sh[2], 56);
     assert_int_equal(sh[3], 1);
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+    struct model *m;
+    snprintf(b, sizeof b, "%s/tiny_int8.gguf", gguf_dir);
+    assert_int_equal(model_init(ctx, b, FK_W_Q8, &m, err, sizeof err), 0);
+    assert_int_equal(model_prepare(m, 2, 56, 56), 0);
+    struct model_outputs out;
+    assert_int_equal(model_eval(m, batch, 2, 56, 56, &out), 0);
+    assert_non_null(out.depth);
+    double e = arr_rel(depth, out.depth, (size_t)2 * 56 * 56);
+    double dmax = 0;
+    for (size_t i = 0; i < (size_t)2 * 56 * 56; i++)
+        dmax = max_nan(dmax, fabs((double)out.depth[i]));
+    printf("  f4d-infer png depth vs in-process eval rel_err %.3e (max depth %.3g)\n", e, dmax);
+    assert_true(dmax > 0);   /* a real depth map, not zeros */
+    assert_true(e <= 1e-5);
+    model_free(m);
+    fk_ctx_free(ctx);
+    free(batch);
+    free(depth);
+}
+
+/* The comparison helpers fail on non-finite output (all NaN, one Inf). */
+static void test_compare_fails_on_nan(void **state)
+{
+    (void)state;
+    float ref[16], got[16];
+    for (int i = 0; i < 16; i++) {
+        ref[i] = 1.0f + (float)i;
+        got[i] = NAN;
+    }
+    assert_false(arr_rel(got, ref, 16) <= 1.0);
+    assert_false(arr_rel(ref, got, 16) <= 1.0);
+    memcpy(got, ref, sizeof got);
+    assert_true(arr_rel(got, ref, 16) == 0.0);
+    got[5] = INFINITY;
+    assert_false(arr_rel(got, ref, 16) <= 1.0);
+    ref[5] = INFINITY;
+    assert_false(arr_rel(got, ref, 16) <= 1.0);
+    /* the tap comparison: all-NaN data against a finite fixture */
+    for (int i = 0; i < 16; i++) {
+        ref[i] = 1.0f + (float)i;
+        got[i] = NAN;
+    }
+    struct ck c;
+    memset(&c, 0, sizeof c);
+    c.ref = ref;
+    c.nd = 1;
+    c.shape[0] = 16;
+    compare(&c, -1, got, 16);
+    assert_false(rel(&c) <= budget_int8);
+    got[0] = ref[0];
+    memset(&c, 0, sizeof c);
+    c.ref = ref;
+    c.nd = 1;
+    c.shape[0] = 16;
+    memcpy(got, ref, sizeof got);
+    compare(&c, -1, got, 16);
+    assert_true(rel(&c) == 0.0);
 }
 
 int main(int argc, char **argv)
@@ -361,6 +460,7 @@ int main(int argc, char **argv)
     fixture_dir = argv[1];
     gguf_dir = argv[2];
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_compare_fails_on_nan),
         cmocka_unit_test(test_tiny_f32),
         cmocka_unit_test(test_tiny_conv_f32),
         cmocka_unit_test(test_tiny_f16),

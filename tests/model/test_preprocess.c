@@ -35,6 +35,23 @@ static struct img load_img(const char *name)
     return im;
 }
 
+/* NaN-aware running maximum: once a NaN is seen the result stays NaN, so any
+ * bound check on it (x < tol) fails; fmax() would silently drop the NaN. */
+static double max_nan(double m, double v)
+{
+    return isnan(m) || isnan(v) ? NAN : (v > m ? v : m);
+}
+
+/* Largest |got - ref| in 8-bit steps; NaN when either side has a NaN or an
+ * Inf (|Inf - x| = Inf, Inf - Inf = NaN), so `< tol` fails on them. */
+static double max_err255(const float *got, const float *ref, size_t n)
+{
+    double d = 0;
+    for (size_t i = 0; i < n; i++)
+        d = max_nan(d, fabs((double)got[i] - ref[i]) * 255.0);
+    return d;
+}
+
 /* max |c - ref| in units of 1/255 */
 static double diff255(const char *name, const float *got, int n, int H, int W)
 {
@@ -48,9 +65,7 @@ static double diff255(const char *name, const float *got, int n, int H, int W)
     assert_int_equal(sh[nd - 2], H);
     assert_int_equal(sh[nd - 1], W);
     assert_int_equal(want, (int64_t)n * 3 * H * W);
-    double d = 0;
-    for (int64_t i = 0; i < want; i++)
-        d = fmax(d, fabs((double)got[i] - ref[i]) * 255.0);
+    double d = max_err255(got, ref, (size_t)want);
     free(ref);
     return d;
 }
@@ -181,6 +196,25 @@ static void test_sizes_518(void **s)
     assert_int_equal(prep_output_size(0, 10, PREP_CROP, 518, &ow, &oh), -1);
 }
 
+/* The comparison fails on non-finite output: all NaN, or one Inf. */
+static void test_compare_fails_on_nan(void **state)
+{
+    (void)state;
+    float ref[8], got[8];
+    for (int i = 0; i < 8; i++) {
+        ref[i] = (float)i / 8.0f;
+        got[i] = NAN;
+    }
+    assert_false(max_err255(got, ref, 8) < 0.5);
+    memcpy(got, ref, sizeof got);
+    assert_true(max_err255(got, ref, 8) == 0.0);
+    got[3] = INFINITY;
+    assert_false(max_err255(got, ref, 8) < 0.5);
+    got[3] = ref[3];
+    got[7] = NAN;
+    assert_false(max_err255(got, ref, 8) < 0.5);
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 2) {
@@ -189,6 +223,7 @@ int main(int argc, char **argv)
     }
     fixdir = argv[1];
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_compare_fails_on_nan),
         cmocka_unit_test(test_rgb_crop_pad),
         cmocka_unit_test(test_mono),
         cmocka_unit_test(test_batch_pads_to_largest),

@@ -13,6 +13,13 @@
 
 #include "scene.h"
 
+/* NaN-aware running maximum: once a NaN is seen the result stays NaN, so any
+ * bound check on it (x < tol) fails; fmax() would silently drop the NaN. */
+static double max_nan(double m, double v)
+{
+    return isnan(m) || isnan(v) ? NAN : (v > m ? v : m);
+}
+
 static scene *make(enum scene_preset p, uint64_t seed)
 {
     scene *s = NULL;
@@ -32,7 +39,7 @@ static void test_figure_height_and_counts(void **state)
         assert_int_equal(scene_eval(s, 0.0, 0.0, &f, NULL), 0);
         float zmax = 0;
         for (size_t i = 0; i < f.count; i++)
-            zmax = fmaxf(zmax, f.pos[3 * i + 2]);
+            zmax = (float)max_nan(zmax, f.pos[3 * i + 2]);
         /* the top of the head is the figure's height within a few centimetres */
         assert_true(fabsf(zmax - scene_height(s)) < 0.08f);
         assert_true(f.count > 20000 && f.count < 60000);
@@ -59,9 +66,9 @@ static void test_motion_is_exact_at_any_time(void **state)
             scene_positions(s, t + dt, b);
             double maxd = 0, moved = 0;
             for (size_t i = 0; i < 3 * n; i++) {
-                maxd = fmax(maxd, fabs((double)f.pos[i] + f.motion_bwd[i] - a[i]));
-                maxd = fmax(maxd, fabs((double)f.pos[i] + f.motion_fwd[i] - b[i]));
-                moved = fmax(moved, fabs((double)f.motion_fwd[i]));
+                maxd = max_nan(maxd, fabs((double)f.pos[i] + f.motion_bwd[i] - a[i]));
+                maxd = max_nan(maxd, fabs((double)f.pos[i] + f.motion_fwd[i] - b[i]));
+                moved = max_nan(moved, fabs((double)f.motion_fwd[i]));
             }
             assert_true(maxd < 1e-5);  /* motion = exact displacement (float rounding only) */
             assert_true(moved > 1e-3); /* every preset moves at every time */
@@ -69,7 +76,7 @@ static void test_motion_is_exact_at_any_time(void **state)
             scene_positions(s, t + 1e-5, a);
             double step = 0;
             for (size_t i = 0; i < 3 * n; i++)
-                step = fmax(step, fabs((double)a[i] - f.pos[i]));
+                step = max_nan(step, fabs((double)a[i] - f.pos[i]));
             assert_true(step < 1e-3);
         }
         free(a);
@@ -191,7 +198,7 @@ static double max_step(const scene *s, double t)
     double m = 0;
     for (size_t i = 0; i < f.count; i++) {
         const float *d = f.motion_fwd + 3 * i;
-        m = fmax(m, sqrt((double)d[0] * d[0] + (double)d[1] * d[1] + (double)d[2] * d[2]));
+        m = max_nan(m, sqrt((double)d[0] * d[0] + (double)d[1] * d[1] + (double)d[2] * d[2]));
     }
     splat_frame_free(&f);
     return m;
@@ -203,8 +210,8 @@ static void test_fast_moves_far_per_frame(void **state)
     scene *fast = make(SCENE_FAST, 5), *walk = make(SCENE_WALK, 5);
     double mf = 0, mw = 0;
     for (double t = 0; t < 1.0; t += 0.1) {
-        mf = fmax(mf, max_step(fast, t));
-        mw = fmax(mw, max_step(walk, t));
+        mf = max_nan(mf, max_step(fast, t));
+        mw = max_nan(mw, max_step(walk, t));
     }
     assert_true(mf > 0.15);     /* > 15 cm per 1/30 s */
     assert_true(mf > 2.5 * mw);
@@ -275,7 +282,7 @@ static void test_pixel_flow_matches_gaussian_motion(void **state)
         float gx = cam->fx * (b[0] / b[2] - a[0] / a[2]), gy = cam->fy * (b[1] / b[2] - a[1] / a[2]);
         checked++;
         close += fabsf(gx - flow[2 * p]) < 0.5f && fabsf(gy - flow[2 * p + 1]) < 0.5f;
-        maxflow = fmax(maxflow, fabs(gx) + fabs(gy));
+        maxflow = max_nan(maxflow, fabs(gx) + fabs(gy));
     }
     assert_true(checked > 500);
     assert_true(maxflow > 2.0);               /* `fast` really moves in the image */
@@ -307,9 +314,27 @@ static void test_bad_input_rejected(void **state)
     scene_free(s);
 }
 
+/* The running maxima above are NaN-aware: an all-NaN array fails the bound. */
+static void test_max_nan_fails_on_nan(void **state)
+{
+    (void)state;
+    double m = 0;
+    for (int i = 0; i < 16; i++)
+        m = max_nan(m, NAN);
+    assert_false(m < 1e-5);
+    m = 0;
+    m = max_nan(m, 1.0);
+    m = max_nan(m, NAN);
+    m = max_nan(m, 2.0);
+    assert_false(m < 1e9);
+    assert_false(m > 0.5);
+    assert_true(max_nan(max_nan(0, 3.0), 1.0) == 3.0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_max_nan_fails_on_nan),
         cmocka_unit_test(test_figure_height_and_counts),
         cmocka_unit_test(test_motion_is_exact_at_any_time),
         cmocka_unit_test(test_default_rig),

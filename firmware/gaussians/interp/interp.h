@@ -32,9 +32,10 @@
  * ground truth) may have several and the one nearest to X' is taken.
  * Gaussians that are visible nowhere have no origin and no partner: kept.
  */
-#define INTERP_VISIBLE_TOL 0.10f /* metres */
 #ifndef F4D_INTERP_H
 #define F4D_INTERP_H
+
+#define INTERP_VISIBLE_TOL 0.10f /* metres */
 
 #include "splat.h"
 
@@ -122,9 +123,12 @@ struct budget_stats {
  * below min_opacity and those outside every camera's view, then merges per
  * cell (cells are powers of two times `voxel`, at least one pixel's footprint
  * for sub-pixel Gaussians). A merged Gaussian has the opacity-weighted mean
- * position and colour, the largest opacity, the most opaque member's rotation
- * and per-axis scale sqrt(mean scale² + spread²) so that it covers its
- * members. */
+ * position and colour and the largest opacity; its shape is moment matched:
+ * the covariance is the opacity-weighted mean of the members' covariances
+ * R diag(s²) Rᵀ plus the weighted spread of their centres, and the merged
+ * rotation is that covariance's eigenvector frame (as a quaternion), the
+ * scale the square roots of its eigenvalues, so that it covers its members.
+ * A cell of one Gaussian keeps it unchanged. */
 int  budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                   struct splat_frame *out, struct budget_stats *stats, struct f4d_err *err);
 

@@ -306,7 +306,7 @@ static void prep_task(void *arg, int task, int thread)
 
 /* ---- 2. depth sort and gather ------------------------------------------------ */
 
-/* Stable LSD radix sort of (key, index) pairs, 8 bits per pass, in parallel:
+/* Stable LSD radix sort of (key, index) pairs, SORT_BITS (12) bits per pass, in parallel:
  * each of SORT_TASKS contiguous chunks counts its digits, a prefix over
  * (digit, chunk) gives every chunk its output cursors, the chunks scatter.
  * A pass where every key has the same digit is skipped. */
@@ -360,7 +360,8 @@ static void radix_sort(fk_ctx *ctx, uint32_t *count, uint32_t *key, int32_t *val
                        size_t n)
 {
     /* keys relative to the smallest: depths within a scene span a few
-     * binades, so 3 passes instead of 4 (order is unchanged) */
+     * binades (about 24 key bits), so 2 passes of SORT_BITS instead of 3
+     * (order is unchanged) */
     uint32_t lo = UINT32_MAX, hi = 0;
     for (size_t i = 0; i < n; i++) {
         lo = key[i] < lo ? key[i] : lo;

@@ -352,8 +352,10 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
 {
     *out = NULL;
     gguf_file *f = calloc(1, sizeof *f);
-    if (!f)
+    if (!f) {
+        seterr(err, err_size, "gguf: out of memory opening '%s'", path);
         return F4D_ENOMEM;
+    }
     int fd = open(path, O_RDONLY);
     if (fd < 0) {
         seterr(err, err_size, "gguf: cannot open '%s': %s", path, strerror(errno));

@@ -257,7 +257,7 @@ int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model 
     m->flops = &m->st_flops[0];
     int rc = gguf_open(path, &m->gf, m->err, sizeof m->err);
     if (rc < 0) {
-        rc = rc == F4D_EIO ? F4D_EIO : F4D_EFORMAT;
+        rc = rc == F4D_EIO || rc == F4D_ENOMEM ? rc : F4D_EFORMAT;
         goto fail;
     }
     if ((rc = model_config_read(m->gf, &m->cfg, m->err, sizeof m->err)) < 0)
@@ -411,9 +411,44 @@ static int check_shape(struct model *m, int S, int H, int W)
     const int p = m->cfg.patch_size;
     if (S < 1 || S > MODEL_VIEWS_MAX)
         return model_fail(m, F4D_EINVAL, "model: %d views (1..%d)", S, MODEL_VIEWS_MAX);
-    if (H < p || W < p || H % p || W % p || H > 4096 || W > 4096)
+    if (H < p || W < p || H % p || W % p || H > MODEL_IMG_MAX || W > MODEL_IMG_MAX)
         return model_fail(m, F4D_EINVAL, "model: input %dx%d is not a multiple of the patch "
-                          "size %d (or exceeds 4096)", W, H, p);
+                          "size %d (or exceeds %d)", W, H, p, MODEL_IMG_MAX);
+    return 0;
+}
+
+/* Eval never allocates: the kernels' scratch (GEMM panels, attention groups,
+ * resize tables) is reserved here by one Eval at the largest planned size with
+ * the context measuring (fk_ctx_measure: kernels reserve, then skip the work),
+ * and the context is frozen, so that a later kernel needing more fails with
+ * F4D_ENOMEM instead of allocating. Taps and hooks do not see this pass. */
+static int reserve_kernel_scratch(struct model *m)
+{
+    const size_t n_img = (size_t)m->max_S * 3 * (size_t)m->max_H * (size_t)m->max_W;
+    float *img = calloc(n_img, sizeof *img);
+    if (!img)
+        return model_fail(m, F4D_ENOMEM, "model: out of memory for the %zu-float planning "
+                          "input", n_img);
+    model_tap_fn tap = m->tap;
+    struct model_hooks hooks = m->hooks;
+    m->tap = NULL;
+    memset(&m->hooks, 0, sizeof m->hooks);
+    fk_ctx_freeze(m->ctx, 0);
+    fk_ctx_measure(m->ctx, 1);
+    struct model_outputs out;
+    int rc = model_eval(m, img, m->max_S, m->max_H, m->max_W, &out);
+    fk_ctx_measure(m->ctx, 0);
+    m->tap = tap;
+    m->hooks = hooks;
+    free(img);
+    /* the measuring pass computed nothing: forget its pos-embed grid and stats */
+    m->pe_h = m->pe_w = 0;
+    for (int i = 0; i < ST_COUNT; i++)
+        m->st_sec[i] = m->st_flops[i] = 0;
+    if (rc < 0)
+        return rc;
+    fk_ctx_freeze(m->ctx, 1);
+    m->froze_ctx = 1;
     return 0;
 }
 
@@ -462,6 +497,11 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
         m->head_persist[i] = bump_take(&b, m->head_persist_bytes[i]);
     m->scratch = (float *)(m->arena + persist);
     m->pe_h = m->pe_w = 0;
+    if ((rc = reserve_kernel_scratch(m)) < 0) {
+        free(m->arena);
+        m->arena = NULL;
+        return rc;
+    }
     return 0;
 }
 
@@ -476,6 +516,13 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
         return model_fail(m, F4D_EINVAL, "model: model_eval before model_prepare");
     if ((rc = check_shape(m, S, H, W)) < 0)
         return rc;
+    /* Each dimension within the prepared one: the kernel scratch Prepare
+     * reserved grows with each of them (a wider frame of fewer patches would
+     * need wider resize tables and RoPE spans than were reserved). */
+    if (S > m->max_S || H > m->max_H || W > m->max_W)
+        return model_fail(m, F4D_EINVAL, "model: %d views of %dx%d exceed the %d views of "
+                          "%dx%d (max) planned by model_prepare", S, W, H, m->max_S, m->max_W,
+                          m->max_H);
     /* Fits when every part of this frame set's plan fits the prepared one. */
     const int p = m->cfg.patch_size;
     const size_t P1 = (size_t)(1 + m->cfg.num_register_tokens + (H / p) * (W / p));
@@ -537,6 +584,8 @@ void model_free(struct model *m)
     for (int i = 0; i < m->n_heads; i++)
         m->head_ops[i]->free(m->head[i]);
     model_aggregator_free(m);
+    if (m->froze_ctx)
+        fk_ctx_freeze(m->ctx, 0);
     free(m->arena);
     gguf_close(m->gf);
     free(m);

@@ -8,6 +8,10 @@
  *   Prepare  model_prepare: plans ONE arena for the largest frame set it will
  *            see (views x height x width) and allocates it. model_arena_bytes
  *            reports its size; model_plan_bytes gives it without weights.
+ *            It also reserves the kernel scratch every Eval up to that size
+ *            needs (a measuring pass, fk_ctx_measure) and FREEZES the context
+ *            (fk_ctx_freeze) until model_free: other users of the same fk_ctx
+ *            then get F4D_ENOMEM rather than a scratch allocation.
  *   Eval     model_eval: runs the network; it never allocates and never logs.
  *
  *     fk_ctx *ctx;  struct model *m;  struct model_outputs out;  char err[256];
@@ -52,6 +56,10 @@
 #define MODEL_POSE_DIM    9
 #define MODEL_NAME_MAX    96
 #define MODEL_DPT_HIDDEN2 32   /* output_conv2.0 width, fixed in VGGT        */
+/* Upper bounds of the config (model_config_check): every buffer size derived
+ * from them fits size_t products and int element counts of the kernels. */
+#define MODEL_IMG_MAX     4096 /* img_size and input height / width          */
+#define MODEL_DIM_MAX     8192 /* embed_dim, dpt_features, dpt_out_channels  */
 
 enum model_patch_embed { MODEL_PATCH_DINO = 0, MODEL_PATCH_CONV = 1 };
 
@@ -179,6 +187,7 @@ int   model_init        (fk_ctx *ctx, const char *path, enum fk_wtype wtype,
 /* Adds a head after the built-in ones; before model_prepare. */
 int   model_register_head(struct model *m, const struct model_head_ops *ops);
 int   model_prepare     (struct model *m, int max_views, int max_h, int max_w);
+/* S <= max_views, H <= max_h, W <= max_w of model_prepare, else F4D_EINVAL. */
 int   model_eval        (struct model *m, const float *images, int S, int H, int W,
                          struct model_outputs *out);
 void  model_free        (struct model *m);

@@ -23,7 +23,7 @@ int model_aggregator_load(struct model *m)
         m->patch_packed = 1;
         if ((rc = model_load_f32(m, "aggregator.patch_embed.cls_token", (size_t)C, &m->cls)) < 0 ||
             (rc = model_load_f32(m, "aggregator.patch_embed.pos_embed",
-                                 (size_t)(1 + g * g) * C, &m->pos_embed)) < 0)
+                                 ((size_t)g * (size_t)g + 1) * (size_t)C, &m->pos_embed)) < 0)
             return rc;
         if (R > 0 && (rc = model_load_f32(m, "aggregator.patch_embed.register_tokens",
                                           (size_t)R * C, &m->dino_reg)) < 0)
@@ -71,10 +71,12 @@ void model_aggregator_free(struct model *m)
         fk_conv2d_free(&m->patch);
     for (int i = 0; m->dino && i < m->cfg.dino_depth; i++)
         model_free_block(&m->dino[i]);
-    for (int i = 0; m->frame && i < m->cfg.depth; i++) {
+    /* Either array may be NULL when Init ran out of memory allocating it;
+     * blocks not loaded yet are zero (calloc), which model_free_block takes. */
+    for (int i = 0; m->frame && i < m->cfg.depth; i++)
         model_free_block(&m->frame[i]);
+    for (int i = 0; m->global && i < m->cfg.depth; i++)
         model_free_block(&m->global[i]);
-    }
     free(m->dino);
     free(m->frame);
     free(m->global);

@@ -37,14 +37,19 @@ int model_config_check(const struct model_config *c, char *err, size_t n)
 {
     if (c->patch_size < 1 || c->patch_size > 64)
         return fail(err, n, "config: patch_size %d out of 1..64", c->patch_size);
-    if (c->img_size < c->patch_size || c->img_size % c->patch_size)
+    /* img_size sizes the DINO pos-embed table, 1 + (img_size / patch_size)^2
+     * rows: bounded like the input frames (model_prepare takes <= 4096). */
+    if (c->img_size < c->patch_size || c->img_size > MODEL_IMG_MAX)
+        return fail(err, n, "config: img_size %d out of patch_size %d..%d", c->img_size,
+                    c->patch_size, MODEL_IMG_MAX);
+    if (c->img_size % c->patch_size)
         return fail(err, n, "config: img_size %d is not a multiple of patch_size %d",
                     c->img_size, c->patch_size);
-    if (c->embed_dim < 4 || c->embed_dim > 8192)
-        return fail(err, n, "config: embed_dim %d out of 4..8192", c->embed_dim);
+    if (c->embed_dim < 4 || c->embed_dim > MODEL_DIM_MAX)
+        return fail(err, n, "config: embed_dim %d out of 4..%d", c->embed_dim, MODEL_DIM_MAX);
     if (c->depth < 1 || c->depth > MODEL_LAYERS_MAX)
         return fail(err, n, "config: depth %d out of 1..%d", c->depth, MODEL_LAYERS_MAX);
-    if (c->num_heads < 1 || c->embed_dim % c->num_heads || (c->embed_dim / c->num_heads) % 4)
+    if (c->num_heads < 1 || c->num_heads > c->embed_dim || c->embed_dim % c->num_heads || (c->embed_dim / c->num_heads) % 4)
         return fail(err, n, "config: num_heads %d must divide embed_dim %d into head dims "
                     "that are multiples of 4 (RoPE)", c->num_heads, c->embed_dim);
     if (!(c->mlp_ratio > 0.0f) || c->mlp_ratio > 16.0f || model_mlp_hidden(c, c->embed_dim) < 1)
@@ -58,7 +63,8 @@ int model_config_check(const struct model_config *c, char *err, size_t n)
         if (c->dino_depth < 1 || c->dino_depth > MODEL_LAYERS_MAX)
             return fail(err, n, "config: dino_depth %d out of 1..%d", c->dino_depth,
                         MODEL_LAYERS_MAX);
-        if (c->dino_num_heads < 1 || c->embed_dim % c->dino_num_heads ||
+        if (c->dino_num_heads < 1 || c->dino_num_heads > c->embed_dim ||
+            c->embed_dim % c->dino_num_heads ||
             (c->embed_dim / c->dino_num_heads) % 2)
             return fail(err, n, "config: dino_num_heads %d does not divide embed_dim %d",
                         c->dino_num_heads, c->embed_dim);
@@ -67,18 +73,19 @@ int model_config_check(const struct model_config *c, char *err, size_t n)
     if (c->camera_trunk_depth < 1 || c->camera_trunk_depth > MODEL_LAYERS_MAX)
         return fail(err, n, "config: camera_trunk_depth %d out of 1..%d",
                     c->camera_trunk_depth, MODEL_LAYERS_MAX);
-    if (c->camera_num_heads < 1 || d2 % c->camera_num_heads || (d2 / c->camera_num_heads) % 2)
+    if (c->camera_num_heads < 1 || c->camera_num_heads > d2 || d2 % c->camera_num_heads || (d2 / c->camera_num_heads) % 2)
         return fail(err, n, "config: camera_num_heads %d does not divide 2*embed_dim %d",
                     c->camera_num_heads, d2);
     if (c->camera_iters < 1 || c->camera_iters > 16)
         return fail(err, n, "config: camera_iters %d out of 1..16", c->camera_iters);
-    if (c->dpt_features < 4 || c->dpt_features % 8)
-        return fail(err, n, "config: dpt_features %d must be a multiple of 8 (>= 8)",
-                    c->dpt_features);
+    if (c->dpt_features < 8 || c->dpt_features > MODEL_DIM_MAX || c->dpt_features % 8)
+        return fail(err, n, "config: dpt_features %d must be a multiple of 8 in 8..%d",
+                    c->dpt_features, MODEL_DIM_MAX);
     for (int i = 0; i < 4; i++) {
-        if (c->dpt_out_channels[i] < 4 || c->dpt_out_channels[i] % 4)
-            return fail(err, n, "config: dpt_out_channels[%d] = %d must be a positive "
-                        "multiple of 4", i, c->dpt_out_channels[i]);
+        if (c->dpt_out_channels[i] < 4 || c->dpt_out_channels[i] > MODEL_DIM_MAX ||
+            c->dpt_out_channels[i] % 4)
+            return fail(err, n, "config: dpt_out_channels[%d] = %d must be a multiple of 4 "
+                        "in 4..%d", i, c->dpt_out_channels[i], MODEL_DIM_MAX);
         if (c->dpt_layer_idx[i] < 0 || c->dpt_layer_idx[i] >= c->depth)
             return fail(err, n, "config: dpt_layer_idx[%d] = %d out of 0..%d", i,
                         c->dpt_layer_idx[i], c->depth - 1);

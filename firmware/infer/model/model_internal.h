@@ -80,6 +80,7 @@ struct model {
     float              *head_persist[MODEL_HEADS_MAX];
     size_t              head_persist_bytes[MODEL_HEADS_MAX];
     float              *scratch;
+    int                 froze_ctx;          /* model_prepare froze m->ctx */
 
     model_tap_fn        tap;
     void               *tap_user;

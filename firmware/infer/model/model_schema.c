@@ -123,7 +123,7 @@ int model_schema_foreach(const struct model_config *c, unsigned groups, model_te
             put(&e, MODEL_T_F32, 0, 4, S4(C, 3, p, p), "aggregator.patch_embed.patch_embed.proj.weight");
             put(&e, MODEL_T_F32, 0, 1, S1(C), "aggregator.patch_embed.patch_embed.proj.bias");
             put(&e, MODEL_T_F32, 0, 3, S3(1, 1, C), "aggregator.patch_embed.cls_token");
-            put(&e, MODEL_T_F32, 0, 3, S3(1, 1 + g * g, C), "aggregator.patch_embed.pos_embed");
+            put(&e, MODEL_T_F32, 0, 3, S3(1, (int64_t)g * g + 1, C), "aggregator.patch_embed.pos_embed");
             if (R > 0)
                 put(&e, MODEL_T_F32, 0, 3, S3(1, R, C), "aggregator.patch_embed.register_tokens");
             put(&e, MODEL_T_UNUSED, 0, 2, S2(1, C), "aggregator.patch_embed.mask_token");

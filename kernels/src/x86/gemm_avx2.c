@@ -501,8 +501,14 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
         mc = 144;
     if (mc < MR)
         mc = MR;
+    /* Scratch is laid out for this mc, which does not depend on m: the need is
+     * the same for every row count, so one measured at any size covers all
+     * (fk_ctx_measure); mc below never exceeds it (it only shrinks, or becomes
+     * 4 * MR). */
+    int threads = ctx->threads;
+    const int mc_scratch = threads > 1 && mc < 4 * MR ? 4 * MR : mc;
     /* Enough tasks for both threads: shrink mc, then split the panels. */
-    int threads = ctx->threads, m_pad = (int)fk__round_up((size_t)m, MR);
+    int m_pad = (int)fk__round_up((size_t)m, MR);
     if (threads > 1 && m_pad < 4 * threads * mc) {
         int want = (int)fk__round_up((size_t)((m_pad + 4 * threads - 1) / (4 * threads)), MR);
         mc = want < 4 * MR && m_pad >= 4 * MR ? 4 * MR : (want < mc ? want : mc);
@@ -528,7 +534,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
     j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
 
-    size_t mcp = fk__round_up((size_t)mc, MR);
+    size_t mcp = fk__round_up((size_t)mc_scratch, MR);
     size_t bytes_a = j.direct ? 0 : fk__round_up(mcp * a_row + 8 * sizeof(float), FK_ALIGN); /* + transpose spill */
     j.off_c = bytes_a;
     j.off_b = j.off_c + fk__round_up(mcp * NR * (q8 ? 1 : PG) * 4, FK_ALIGN);
@@ -540,7 +546,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.off_zero = j.off_sa + fk__round_up(q8 ? mcp * 4 : 0, FK_ALIGN);
     size_t need = j.off_zero + (q8 ? 0 : (size_t)k * 4) + FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
-    if (st)
+    if (st || fk__measuring(ctx))
         return st;
     if (!q8)
         for (int t = 0; t < ctx->threads; t++)

@@ -1,0 +1,175 @@
+/* test_model_alloc.c - the model's memory behaviour, through a malloc seam:
+ * this binary links with -Wl,--wrap for malloc, calloc, realloc,
+ * posix_memalign and aligned_alloc, so every allocation of the statically
+ * linked model, GGUF reader and kernels goes through the counters below.
+ *
+ *   - out of memory at every allocation of Init and Prepare in turn: each one
+ *     fails cleanly with F4D_ENOMEM and a message (no crash, no leak: ASan);
+ *   - Eval never allocates once Prepare has run (any ISA, any planned size).
+ *
+ *   test_model_alloc GGUF_DIR
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <cmocka.h>
+
+#include "fk_ctx.h"
+#include "model.h"
+
+void *__real_malloc(size_t n);
+void *__real_calloc(size_t k, size_t n);
+void *__real_realloc(void *p, size_t n);
+int   __real_posix_memalign(void **p, size_t a, size_t n);
+void *__real_aligned_alloc(size_t a, size_t n);
+void *__wrap_malloc(size_t n);
+void *__wrap_calloc(size_t k, size_t n);
+void *__wrap_realloc(void *p, size_t n);
+int   __wrap_posix_memalign(void **p, size_t a, size_t n);
+void *__wrap_aligned_alloc(size_t a, size_t n);
+
+static long n_allocs;     /* allocations since the last reset          */
+static long fail_at = -1; /* index of the allocation to fail (-1: none) */
+static int  injected;     /* the armed failure happened                */
+
+/* 1 when this allocation is the one to fail. */
+static int fail_now(void)
+{
+    long i = n_allocs++;
+    if (i == fail_at) {
+        injected = 1;
+        return 1;
+    }
+    return 0;
+}
+
+void *__wrap_malloc(size_t n) { return fail_now() ? NULL : __real_malloc(n); }
+void *__wrap_calloc(size_t k, size_t n) { return fail_now() ? NULL : __real_calloc(k, n); }
+void *__wrap_realloc(void *p, size_t n) { return fail_now() ? NULL : __real_realloc(p, n); }
+void *__wrap_aligned_alloc(size_t a, size_t n)
+{
+    return fail_now() ? NULL : __real_aligned_alloc(a, n);
+}
+int __wrap_posix_memalign(void **p, size_t a, size_t n)
+{
+    return fail_now() ? 12 /* ENOMEM */ : __real_posix_memalign(p, a, n);
+}
+
+static const char *gguf_dir;
+
+/* Init + Prepare with allocation `k` failing; returns the status. */
+static int init_prepare(fk_ctx *ctx, const char *path, enum fk_wtype wt, long k, char *err,
+                        size_t en)
+{
+    struct model *m = NULL;
+    n_allocs = 0;
+    injected = 0;
+    fail_at = k;
+    err[0] = 0;
+    int rc = model_init(ctx, path, wt, &m, err, en);
+    if (rc == 0) {
+        assert_non_null(m);
+        rc = model_prepare(m, 2, 42, 70);
+        if (rc < 0)
+            snprintf(err, en, "%s", model_error(m));
+    } else {
+        assert_null(m);
+    }
+    fail_at = -1;
+    model_free(m);
+    return rc;
+}
+
+static void oom_sweep(const char *file, enum fk_wtype wt, enum fk_isa isa)
+{
+    char path[1024], err[512];
+    snprintf(path, sizeof path, "%s/%s", gguf_dir, file);
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = isa, .threads = 1 };
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+    long k;
+    for (k = 0;; k++) {
+        int rc = init_prepare(ctx, path, wt, k, err, sizeof err);
+        if (!injected) {
+            /* past the last allocation: everything succeeds */
+            if (rc != 0)
+                print_error("%s without a failure: rc %d '%s'\n", file, rc, err);
+            assert_int_equal(rc, 0);
+            break;
+        }
+        if (rc != F4D_ENOMEM || !err[0])
+            print_error("%s, allocation %ld failing: rc %d '%s'\n", file, k, rc, err);
+        assert_int_equal(rc, F4D_ENOMEM);
+        assert_true(err[0] != 0);
+        /* the context is left unfrozen and usable after a failed Prepare */
+        assert_int_equal(fk_ctx_reserve(ctx, 64, 64), F4D_OK);
+    }
+    printf("  %s (%s): out of memory at each of %ld allocations fails cleanly\n", file,
+           fk_isa_name(isa), k);
+    assert_true(k > 50);
+    fk_ctx_free(ctx);
+}
+
+static void test_init_prepare_oom(void **state)
+{
+    (void)state;
+    oom_sweep("tiny_f32.gguf", FK_W_F32, FK_ISA_AUTO);
+    oom_sweep("tiny_int8.gguf", FK_W_Q8, FK_ISA_AUTO);
+    oom_sweep("tiny_conv_f16.gguf", FK_W_F16, FK_ISA_REF);
+}
+
+/* After Prepare, no Eval up to the planned size allocates: not the first one
+ * (kernel scratch reserved by Prepare), not on the scalar ISA (whose GEMM
+ * used to malloc a row per call). */
+static void test_eval_never_allocates(void **state)
+{
+    (void)state;
+    static const enum fk_isa isas[2] = { FK_ISA_AUTO, FK_ISA_REF };
+    static const char *files[2] = { "tiny_f32.gguf", "tiny_int8.gguf" };
+    static const enum fk_wtype wts[2] = { FK_W_F32, FK_W_Q8 };
+    char path[1024], err[512];
+    for (int i = 0; i < 2; i++)
+        for (int f = 0; f < 2; f++) {
+            fk_ctx *ctx;
+            struct fk_ctx_config cc = { .isa = isas[i], .threads = 2 };
+            assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+            snprintf(path, sizeof path, "%s/%s", gguf_dir, files[f]);
+            struct model *m;
+            assert_int_equal(model_init(ctx, path, wts[f], &m, err, sizeof err), 0);
+            assert_int_equal(model_prepare(m, 2, 42, 70), 0);
+            float *img = calloc((size_t)2 * 3 * 42 * 70, sizeof *img);
+            assert_non_null(img);
+            for (size_t j = 0; j < (size_t)2 * 3 * 42 * 70; j++)
+                img[j] = (float)(j % 251) / 251.0f;
+            struct model_outputs out;
+            n_allocs = 0;
+            assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
+            assert_int_equal(model_eval(m, img, 1, 28, 56, &out), 0);
+            assert_int_equal(model_eval(m, img, 2, 14, 70, &out), 0);
+            assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
+            if (n_allocs)
+                print_error("%s on %s: Eval made %ld allocations\n", files[f],
+                            fk_isa_name(isas[i]), n_allocs);
+            assert_int_equal(n_allocs, 0);
+            free(img);
+            model_free(m);
+            fk_ctx_free(ctx);
+        }
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 2) {
+        fprintf(stderr, "usage: %s GGUF_DIR\n", argv[0]);
+        return 2;
+    }
+    gguf_dir = argv[1];
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_init_prepare_oom),
+        cmocka_unit_test(test_eval_never_allocates),
+    };
+    return cmocka_run_group_tests_name("/model/alloc", tests, NULL, NULL);
+}
