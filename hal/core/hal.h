@@ -263,7 +263,7 @@ struct hal_sync_config {
  * HAL_BUFQ_MAX (64, hal_backend.h), the usb backend HAL_USB_BUFFERS_MAX (32
  * V4L2 buffers): the board parser bounds pending_max by both. */
 #define HAL_CAPTURE_SPARE_BUFFERS 6u
-#define HAL_USB_BUFFERS_MAX       32u /* USB_BUFFERS_MAX in hal/usb/hal_usb.c */
+#define HAL_USB_BUFFERS_MAX       32u /* the usb backend's V4L2 buffer slots */
 /* Simulated faults, each a probability per frame (or per pulse). */
 struct hal_sim_faults {
     double drop, duplicate, late, incomplete;       /* per camera and pulse, exclusive */

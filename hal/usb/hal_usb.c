@@ -14,7 +14,7 @@
 #include <sys/ioctl.h>
 #include <unistd.h>
 
-#define USB_BUFFERS_MAX 32
+#define USB_BUFFERS_MAX HAL_USB_BUFFERS_MAX /* the board parser bounds pending_max by it */
 
 struct usb_session;
 

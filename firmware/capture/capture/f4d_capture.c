@@ -105,7 +105,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         free(r);
         return hal_fail(err, errlen, rc, "capture: bad sync settings in board \"%s\"", board->name);
     }
-    const uint32_t nbuf = cfg->buffers_per_cam ? cfg->buffers_per_cam : board->sync.pending_max + 6;
+    const uint32_t nbuf = cfg->buffers_per_cam ? cfg->buffers_per_cam : board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS;
     struct hal_buffer *bufs = calloc((size_t)nbuf * rig->n_cams, sizeof *bufs);
     uint8_t *arena[HAL_RIG_CAMERAS_MAX] = {0};
     uint32_t configured = 0; /* cameras [0, configured) were negotiated (and may hold buffers) */
