@@ -33,10 +33,10 @@ static void to_rgb(const struct f4d_take_frame *f, uint8_t *dst, size_t dst_stri
     }
 }
 
-int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, char *err, size_t errlen)
+int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, struct f4d_err *err)
 {
     struct f4d_take_reader *r;
-    int rc = f4d_take_open(&r, dir, err, errlen);
+    int rc = f4d_take_open(&r, dir, err);
     if (rc < 0)
         return rc;
     const struct f4d_take_info *info = f4d_take_get_info(r);
@@ -51,12 +51,12 @@ int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, cha
     }
     if (index >= n) {
         f4d_take_reader_close(r);
-        return hal_fail(err, errlen, F4D_EINVAL, "sheet: take %s has %llu sets, no set %llu", dir,
+        return f4d_fail(err, F4D_EINVAL, "sheet: take %s has %llu sets, no set %llu", dir,
                         (unsigned long long)n, (unsigned long long)index);
     }
     if ((rc = f4d_take_read(r, index, &s)) < 0) {
         f4d_take_reader_close(r);
-        return hal_fail(err, errlen, rc, "sheet: set %llu of %s is corrupt", (unsigned long long)index, dir);
+        return f4d_fail(err, rc, "sheet: set %llu of %s is corrupt", (unsigned long long)index, dir);
     }
     uint32_t cw = 0, ch = 0;
     for (uint32_t c = 0; c < info->n_cams; c++) {
@@ -71,7 +71,7 @@ int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, cha
     uint8_t *img = malloc((size_t)W * H * 3);
     if (!img) {
         f4d_take_reader_close(r);
-        return hal_fail(err, errlen, F4D_ENOMEM, "sheet: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "sheet: out of memory");
     }
     memset(img, 24, (size_t)W * H * 3);
     for (uint32_t c = 0; c < info->n_cams; c++) {
@@ -93,6 +93,6 @@ int f4d_contact_sheet(const char *dir, uint64_t index, const char *png_path, cha
     int ok = png_image_write_to_file(&pi, png_path, 0, img, (png_int_32)(W * 3), NULL);
     free(img);
     if (!ok)
-        return hal_fail(err, errlen, F4D_EIO, "sheet: cannot write %s: %s", png_path, pi.message);
+        return f4d_fail(err, F4D_EIO, "sheet: cannot write %s: %s", png_path, pi.message);
     return F4D_OK;
 }

@@ -58,7 +58,7 @@ struct rec_ctx {
     bool sim, quiet, tty;
     uint64_t mixed_sets;
     uint64_t wall_t0;
-    char err[512];
+    struct f4d_err err;
 };
 
 static uint64_t wall_ns(void)
@@ -82,7 +82,7 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
         snprintf(info.cam_ids[i], sizeof info.cam_ids[i], "%.31s", c->board->cams[i].id);
     }
     char *js = hal_board_to_json(c->board);
-    int rc = f4d_take_create(&c->w, c->dir, &info, js, c->board->durability_ms, c->err, sizeof c->err);
+    int rc = f4d_take_create(&c->w, c->dir, &info, js, c->board->durability_ms, &c->err);
     free(js);
     return rc;
 }
@@ -114,7 +114,7 @@ static int rec_set(void *user, const struct hal_set *set)
         return 0;
     int rc = f4d_take_append(c->w, set);
     if (rc < 0)
-        snprintf(c->err, sizeof c->err, "take %s: write failed (disk full?)", c->dir);
+        f4d_fail(&c->err, rc, "take %s: write failed (disk full?)", c->dir);
     return rc;
 }
 
@@ -176,21 +176,21 @@ static int write_stats(const char *path, const struct f4d_capture_stats *st, uin
 static int run_capture(const struct hal_board *board, const char *dir, uint64_t frames, double seconds,
                        const char *stats_path, bool quiet)
 {
-    char err[512] = "";
+    struct f4d_err err = {0};
     struct hal_rig rig;
-    if (hal_rig_open(&rig, board, err, sizeof err) < 0) {
-        fprintf(stderr, "forge4d: %s\n", err);
+    if (hal_rig_open(&rig, board, &err) < 0) {
+        fprintf(stderr, "forge4d: %s\n", err.msg);
         return 1;
     }
-    struct rec_ctx c = {board, dir, NULL, false, quiet, isatty(2) != 0, 0, wall_ns(), ""};
+    struct rec_ctx c = {board, dir, NULL, false, quiet, isatty(2) != 0, 0, wall_ns(), {0}};
     void *world = hal_rig_session(&rig, "sim");
     c.sim = world != NULL;
     struct f4d_simscene *scene = NULL;
     if (world && strcmp(board->sim.scene, "pattern") != 0) {
         /* the synthetic 4D scene at each trigger time, through the scene's rig */
         if (f4d_simscene_new(&scene, board->sim.scene, board->sim.seed, board->n_cams, board->cams[0].width,
-                             board->cams[0].height, err, sizeof err) < 0) {
-            fprintf(stderr, "forge4d: %s\n", err);
+                             board->cams[0].height, &err) < 0) {
+            fprintf(stderr, "forge4d: %s\n", err.msg);
             hal_rig_close(&rig);
             return 1;
         }
@@ -201,16 +201,16 @@ static int run_capture(const struct hal_board *board, const char *dir, uint64_t 
     cfg.duration_ns = (uint64_t)(seconds * 1e9);
     cfg.on_ready = rec_ready;
     struct f4d_capture_stats st;
-    int rc = f4d_capture_run(&rig, &cfg, rec_set, rec_progress, &c, &g_stop, &st, err, sizeof err);
+    int rc = f4d_capture_run(&rig, &cfg, rec_set, rec_progress, &c, &g_stop, &st, &err);
     if (!quiet && c.tty)
         fputc('\n', stderr);
     int status = 0;
     if (rc < 0) {
-        fprintf(stderr, "forge4d: %s%s%s\n", err, c.err[0] ? ": " : "", c.err);
+        fprintf(stderr, "forge4d: %s%s%s\n", err.msg, c.err.msg[0] ? ": " : "", c.err.msg);
         status = 1;
     }
-    if (c.w && f4d_take_close(c.w, err, sizeof err) < 0) {
-        fprintf(stderr, "forge4d: %s\n", err);
+    if (c.w && f4d_take_close(c.w, &err) < 0) {
+        fprintf(stderr, "forge4d: %s\n", err.msg);
         status = 1;
     }
     struct hal_sim_injected inj;
@@ -274,17 +274,17 @@ static int cmd_record(int argc, char **argv)
         return usage();
     }
     struct hal_board board;
-    char err[512];
-    if (hal_board_load(&board, board_path, err, sizeof err) < 0) {
-        fprintf(stderr, "forge4d: %s\n", err);
+    struct f4d_err err = {0};
+    if (hal_board_load(&board, board_path, &err) < 0) {
+        fprintf(stderr, "forge4d: %s\n", err.msg);
         return 1;
     }
     if (fast)
         board.sim.realtime = false;
     int rc = run_capture(&board, out, frames, seconds, stats, quiet);
     if (rc == 0 && sheet) {
-        if (f4d_contact_sheet(out, UINT64_MAX, sheet, err, sizeof err) < 0) {
-            fprintf(stderr, "forge4d: %s\n", err);
+        if (f4d_contact_sheet(out, UINT64_MAX, sheet, &err) < 0) {
+            fprintf(stderr, "forge4d: %s\n", err.msg);
             return 1;
         }
         if (!quiet)
@@ -306,9 +306,9 @@ static int cmd_verify(int argc, char **argv)
     if (!dir)
         return usage();
     struct f4d_take_report rep;
-    char err[512];
-    if (f4d_take_verify(dir, repair, &rep, err, sizeof err) < 0) {
-        fprintf(stderr, "forge4d: %s\n", err);
+    struct f4d_err err = {0};
+    if (f4d_take_verify(dir, repair, &rep, &err) < 0) {
+        fprintf(stderr, "forge4d: %s\n", err.msg);
         return 1;
     }
     if (json) {
@@ -339,9 +339,9 @@ static int cmd_sheet(int argc, char **argv)
     }
     if (!dir || !out)
         return usage();
-    char err[512];
-    if (f4d_contact_sheet(dir, set, out, err, sizeof err) < 0) {
-        fprintf(stderr, "forge4d: %s\n", err);
+    struct f4d_err err = {0};
+    if (f4d_contact_sheet(dir, set, out, &err) < 0) {
+        fprintf(stderr, "forge4d: %s\n", err.msg);
         return 1;
     }
     return 0;
@@ -360,9 +360,9 @@ static int cmd_replay(int argc, char **argv)
     if (!dir)
         return usage();
     struct hal_board board;
-    char err[512];
-    if (hal_replay_board(&board, dir, !fast, err, sizeof err) < 0) {
-        fprintf(stderr, "forge4d: %s\n", err);
+    struct f4d_err err = {0};
+    if (hal_replay_board(&board, dir, !fast, &err) < 0) {
+        fprintf(stderr, "forge4d: %s\n", err.msg);
         return 1;
     }
     return run_capture(&board, NULL, 0, 0, stats, false);

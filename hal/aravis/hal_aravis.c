@@ -68,7 +68,7 @@ struct av_session {
     struct hal_edgeq edges; /* full: later edges are not reported */
     struct hal_edge log[AV_EDGE_LOG]; /* recent edges, for anchoring first frames */
     uint32_t log_n;
-    char err[256];
+    struct f4d_err err;
 };
 
 static uint64_t realtime_ns(void)
@@ -562,7 +562,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct av_cam *)ctx)->st.err; }
+static const char *cam_last_error(void *ctx) { return ((struct av_cam *)ctx)->st.err.msg; }
 
 static const struct hal_camera_ops av_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -592,7 +592,7 @@ static void fire_due(struct av_session *s, uint64_t now)
             GError *e = NULL;
             arv_camera_software_trigger(c->cam, &e);
             if (e) {
-                snprintf(s->err, sizeof s->err, "camera %.40s: TriggerSoftware: %.160s", c->cfg->id, e->message);
+                f4d_fail(&s->err, F4D_EIO, "camera %.40s: TriggerSoftware: %.160s", c->cfg->id, e->message);
                 g_error_free(e);
             }
             if (c->want_anchor) {
@@ -615,7 +615,7 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct av_session *s = ctx;
     if (p->rate_mhz == 0 || p->rate_mhz > 1000000u)
-        return hal_fail(s->err, sizeof s->err, F4D_EINVAL, "aravis trigger: rate %u mHz out of range",
+        return f4d_fail(&s->err, F4D_EINVAL, "aravis trigger: rate %u mHz out of range",
                         (unsigned)p->rate_mhz);
     s->period_ns = 1000000000000ull / p->rate_mhz;
     s->next_pulse_ns = hal_mono_ns() + s->period_ns;
@@ -657,7 +657,7 @@ static void trig_close(void *ctx)
     s->trig_open = false;
 }
 
-static const char *trig_last_error(void *ctx) { return ((struct av_session *)ctx)->err; }
+static const char *trig_last_error(void *ctx) { return ((struct av_session *)ctx)->err.msg; }
 
 static const struct hal_trigger_ops av_trigger_ops = {
     .api_version = HAL_API_VERSION,
@@ -670,11 +670,11 @@ static const struct hal_trigger_ops av_trigger_ops = {
 };
 
 /* ---- backend ---- */
-static int av_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+static int av_session_open(const struct hal_board *board, void **session, struct f4d_err *err)
 {
     struct av_session *s = calloc(1, sizeof *s);
     if (!s)
-        return hal_fail(err, n, F4D_ENOMEM, "aravis: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "aravis: out of memory");
     s->board = board;
     s->software_trigger = strcmp(board->trigger.backend, "aravis") == 0;
     *session = s;
@@ -691,19 +691,19 @@ static void on_control_lost(ArvGvDevice *dev, gpointer user)
 }
 
 static int av_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
-                          struct hal_camera *out, char *err, size_t n)
+                          struct hal_camera *out, struct f4d_err *err)
 {
     struct av_session *s = session;
     if (!cfg->address[0])
-        return hal_fail(err, n, F4D_EINVAL,
+        return f4d_fail(err, F4D_EINVAL,
                         "aravis camera %s: no address (an IP or device id); discovery is never used",
                         cfg->id);
     if (index >= AV_CAMS_MAX || s->cams[index])
-        return hal_fail(err, n, F4D_EBUSY, "aravis camera %s: index in use", cfg->id);
+        return f4d_fail(err, F4D_EBUSY, "aravis camera %s: index in use", cfg->id);
     GError *e = NULL;
     ArvCamera *cam = arv_camera_new(cfg->address, &e);
     if (!cam) {
-        int rc = hal_fail(err, n, F4D_ENODEV, "aravis camera %s: cannot open %s: %s", cfg->id,
+        int rc = f4d_fail(err, F4D_ENODEV, "aravis camera %s: cannot open %s: %s", cfg->id,
                           cfg->address, e ? e->message : "unknown error");
         if (e)
             g_error_free(e);
@@ -712,7 +712,7 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
     struct av_cam *c = calloc(1, sizeof *c);
     if (!c) {
         g_object_unref(cam);
-        return hal_fail(err, n, F4D_ENOMEM, "aravis: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "aravis: out of memory");
     }
     c->s = s;
     c->index = index;
@@ -730,11 +730,11 @@ static int av_camera_open(void *session, const struct hal_camera_config *cfg, ui
 }
 
 static int av_trigger_open(void *session, const struct hal_trigger_config *cfg,
-                           struct hal_trigger *out, char *err, size_t n)
+                           struct hal_trigger *out, struct f4d_err *err)
 {
     (void)cfg;
     struct av_session *s = session;
-    return hal_trigger_claim(&s->trig_open, out, &av_trigger_ops, s, "aravis trigger", err, n);
+    return hal_trigger_claim(&s->trig_open, out, &av_trigger_ops, s, "aravis trigger", err);
 }
 
 const struct hal_backend hal_aravis_backend = {

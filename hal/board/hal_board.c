@@ -11,14 +11,13 @@
 
 /* Parsing context: the JSON path of the object being read, for messages. */
 struct ctx {
-    char *err;
-    size_t errlen;
+    struct f4d_err *err;
     char path[96];
 };
 
 static int fail(struct ctx *c, const char *key, const char *what)
 {
-    return hal_fail(c->err, c->errlen, F4D_EINVAL, "board: %s%s%s: %s", c->path, c->path[0] ? "." : "",
+    return f4d_fail(c->err, F4D_EINVAL, "board: %s%s%s: %s", c->path, c->path[0] ? "." : "",
                     key, what);
 }
 
@@ -366,48 +365,45 @@ static int parse_root(struct ctx *c, const cJSON *root, struct hal_board *b)
     return 0;
 }
 
-int hal_board_parse(struct hal_board *b, const char *json, size_t len, char *err, size_t errlen)
+int hal_board_parse(struct hal_board *b, const char *json, size_t len, struct f4d_err *err)
 {
     hal_board_defaults(b);
     b->sim.realtime = true;
-    struct ctx c = {err, errlen, ""};
+    struct ctx c = {err, ""};
     cJSON *root = cJSON_ParseWithLength(json, len);
     if (!root) {
         const char *at = cJSON_GetErrorPtr();
         size_t off = (at && at >= json && at <= json + len) ? (size_t)(at - json) : 0;
-        return hal_fail(err, errlen, F4D_EINVAL, "board: not valid JSON (near byte %zu)", off);
+        return f4d_fail(err, F4D_EINVAL, "board: not valid JSON (near byte %zu)", off);
     }
     int rc = parse_root(&c, root, b);
     cJSON_Delete(root);
     return rc;
 }
 
-int hal_board_load(struct hal_board *b, const char *path, char *err, size_t errlen)
+int hal_board_load(struct hal_board *b, const char *path, struct f4d_err *err)
 {
     FILE *f = fopen(path, "rb");
     if (!f)
-        return hal_fail(err, errlen, F4D_EIO, "board %s: cannot open: %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "board %s: cannot open: %s", path, strerror(errno));
     enum { MAX = 1 << 20 };
     char *buf = malloc(MAX);
     if (!buf) {
         fclose(f);
-        return hal_fail(err, errlen, F4D_ENOMEM, "board %s: out of memory", path);
+        return f4d_fail(err, F4D_ENOMEM, "board %s: out of memory", path);
     }
     size_t n = fread(buf, 1, MAX, f);
     int rd_err = ferror(f);
     fclose(f);
     int rc;
     if (rd_err)
-        rc = hal_fail(err, errlen, F4D_EIO, "board %s: read error", path);
+        rc = f4d_fail(err, F4D_EIO, "board %s: read error", path);
     else if (n == MAX)
-        rc = hal_fail(err, errlen, F4D_EINVAL, "board %s: larger than 1 MiB", path);
+        rc = f4d_fail(err, F4D_EINVAL, "board %s: larger than 1 MiB", path);
     else {
-        rc = hal_board_parse(b, buf, n, err, errlen);
-        if (rc < 0 && err && errlen) {
-            char tmp[256];
-            snprintf(tmp, sizeof tmp, "%s", err);
-            snprintf(err, errlen, "%s: %s", path, tmp);
-        }
+        rc = hal_board_parse(b, buf, n, err);
+        if (rc < 0)
+            f4d_err_prefix(err, "%s", path);
     }
     free(buf);
     return rc;

@@ -2,8 +2,8 @@
  * `struct hal_board` (hal.h). Read once at start; the result is plain data.
  *
  *     struct hal_board b;
- *     char err[256];
- *     if (hal_board_load(&b, "board/sim-4cam.json", err, sizeof err) < 0)
+ *     struct f4d_err err = {0};
+ *     if (hal_board_load(&b, "board/sim-4cam.json", &err) < 0)
  *         fprintf(stderr, "%s\n", err);   // e.g. "cameras[2].width: must be 16..65535, got 0"
  *
  * Format (every key optional except "cameras"; unknown keys are errors, so a
@@ -32,9 +32,9 @@
 #include "hal.h"
 
 /* Parses `len` bytes of JSON. On error returns <0 and names the key in err. */
-int hal_board_parse(struct hal_board *b, const char *json, size_t len, char *err, size_t errlen);
+int hal_board_parse(struct hal_board *b, const char *json, size_t len, struct f4d_err *err);
 /* Reads and parses a file (at most 1 MiB). */
-int hal_board_load(struct hal_board *b, const char *path, char *err, size_t errlen);
+int hal_board_load(struct hal_board *b, const char *path, struct f4d_err *err);
 /* Writes the board as JSON (the format above) into a malloc'd string; NULL on OOM. */
 char *hal_board_to_json(const struct hal_board *b);
 

@@ -9,8 +9,8 @@
  *
  *     struct hal_board board;            // filled by hal_board_load() (hal/board)
  *     struct hal_rig rig;
- *     char err[256];
- *     if (hal_rig_open(&rig, &board, err, sizeof err) < 0) { puts(err); ... }
+ *     struct f4d_err err = {0};
+ *     if (hal_rig_open(&rig, &board, &err) < 0) { puts(err); ... }
  *     struct hal_format f = { .pixfmt = HAL_PIXFMT_RGB8, .width = 518, .height = 518, ... };
  *     int v = hal_camera_validate(&rig.cams[0], &f);   // HAL_FORMAT_ADJUSTED: f was changed
  *     hal_camera_configure(&rig.cams[0], &f);
@@ -302,13 +302,13 @@ struct hal_backend {
     const char *name;
     /* optional: false when the backend is compiled in but cannot run (no library) */
     bool (*is_available)(void);
-    int (*session_open)(const struct hal_board *board, void **session, char *err, size_t errlen);
+    int (*session_open)(const struct hal_board *board, void **session, struct f4d_err *err);
     void (*session_close)(void *session);
     /* optional (a backend may offer only cameras or only triggers) */
     int (*camera_open)(void *session, const struct hal_camera_config *cfg, uint32_t index,
-                       struct hal_camera *out, char *err, size_t errlen);
+                       struct hal_camera *out, struct f4d_err *err);
     int (*trigger_open)(void *session, const struct hal_trigger_config *cfg,
-                        struct hal_trigger *out, char *err, size_t errlen);
+                        struct hal_trigger *out, struct f4d_err *err);
     /* optional: the clock the backend's timestamps live in (simulated worlds) */
     int (*clock_get)(void *session, struct hal_clock *out);
 };
@@ -325,11 +325,5 @@ struct hal_rig {
     void *session[4];
 };
 
-/* snprintf into err (if non-NULL) and return rc: `return hal_fail(err, n, F4D_EINVAL, "...")`. */
-int hal_fail(char *err, size_t errlen, int rc, const char *fmt, ...)
-#if defined(__GNUC__)
-    __attribute__((format(printf, 4, 5)))
-#endif
-    ;
 
 #endif /* F4D_HAL_H */

@@ -44,10 +44,10 @@ void hal_camera_bind(struct hal_camera *out, const struct hal_camera_ops *ops, v
 }
 
 int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_trigger_ops *ops, void *ctx,
-                      const char *who, char *err, size_t errlen)
+                      const char *who, struct f4d_err *err)
 {
     if (*taken)
-        return hal_fail(err, errlen, F4D_EBUSY, "%s already open", who);
+        return f4d_fail(err, F4D_EBUSY, "%s already open", who);
     *taken = true;
     out->ops = *ops;
     out->ctx = ctx;
@@ -94,12 +94,13 @@ void hal_cam_name(struct hal_cam_state *s, const char *fmt, ...)
 int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
 {
     /* name is shorter than err, so the prefix always fits */
-    int n = snprintf(s->err, sizeof s->err, "%s: ", s->name);
-    if (n < 0 || (size_t)n >= sizeof s->err)
+    s->err.code = rc;
+    int n = snprintf(s->err.msg, sizeof s->err.msg, "%s: ", s->name);
+    if (n < 0 || (size_t)n >= sizeof s->err.msg)
         return rc;
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(s->err + n, sizeof s->err - (size_t)n, fmt, ap);
+    vsnprintf(s->err.msg + n, sizeof s->err.msg - (size_t)n, fmt, ap);
     va_end(ap);
     return rc;
 }

@@ -25,7 +25,7 @@ void hal_camera_bind(struct hal_camera *out, const struct hal_camera_ops *ops, v
 /* A session's one trigger: F4D_EBUSY ("<who> already open" in err) when
  * *taken, else marks it taken and fills `out`. */
 int hal_trigger_claim(bool *taken, struct hal_trigger *out, const struct hal_trigger_ops *ops, void *ctx,
-                      const char *who, char *err, size_t errlen);
+                      const char *who, struct f4d_err *err);
 /* A clock whose time lives in `ctx` (a simulated or replayed world). */
 void hal_clock_bind(struct hal_clock *out, uint64_t (*now_ns)(void *), void (*sleep_until_ns)(void *, uint64_t),
                     uint64_t (*next_event_ns)(void *), void *ctx);
@@ -68,7 +68,7 @@ struct hal_cam_state {
     struct hal_buffer *aborted[HAL_BUFQ_MAX]; /* returned by dequeue before any frame */
     uint32_t n_aborted;
     char name[160];           /* prefix of every message, e.g. "sim camera cam0" */
-    char err[256];            /* last_error(): "<name>: <what>" */
+    struct f4d_err err;       /* last_error(): "<name>: <what>" */
 };
 
 /* Sets the message prefix (printf), once when the camera is opened. */

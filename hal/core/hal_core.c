@@ -67,16 +67,6 @@ int hal_format_finish(struct hal_format *f)
     return F4D_OK;
 }
 
-int hal_fail(char *err, size_t errlen, int rc, const char *fmt, ...)
-{
-    if (err && errlen) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err, errlen, fmt, ap);
-        va_end(ap);
-    }
-    return rc;
-}
 
 /* ---- monotonic clock ---- */
 static uint64_t mono_now(void *ctx)

@@ -18,7 +18,7 @@ struct gp_trigger {
     bool armed;
     uint64_t period_ns, width_ns, next_pulse_ns, sent, limit, seq;
     struct hal_edgeq edges; /* full: the oldest is lost */
-    char err[256];
+    struct f4d_err err;
 };
 
 static void push_edge(struct gp_trigger *g, uint64_t ts)
@@ -33,11 +33,11 @@ static int fire_due(struct gp_trigger *g)
     while (g->armed && now >= g->next_pulse_ns && (g->limit == 0 || g->sent < g->limit)) {
         uint64_t t = hal_mono_ns();
         if (gpiod_line_set_value(g->out, 1) < 0)
-            return hal_fail(g->err, sizeof g->err, F4D_EIO, "gpiod: line %u: set high: %s", (unsigned)g->out_line,
+            return f4d_fail(&g->err, F4D_EIO, "gpiod: line %u: set high: %s", (unsigned)g->out_line,
                             strerror(errno));
         hal_sleep_until_mono_ns(t + g->width_ns);
         if (gpiod_line_set_value(g->out, 0) < 0)
-            return hal_fail(g->err, sizeof g->err, F4D_EIO, "gpiod: line %u: set low: %s", (unsigned)g->out_line,
+            return f4d_fail(&g->err, F4D_EIO, "gpiod: line %u: set low: %s", (unsigned)g->out_line,
                             strerror(errno));
         g->sent++;
         if (!g->strobe)
@@ -56,14 +56,14 @@ static int read_strobes(struct gp_trigger *g, uint64_t timeout_ns)
     while (rc > 0) {
         struct gpiod_line_event ev;
         if (gpiod_line_event_read(g->strobe, &ev) < 0)
-            return hal_fail(g->err, sizeof g->err, F4D_EIO, "gpiod: strobe line: read: %s", strerror(errno));
+            return f4d_fail(&g->err, F4D_EIO, "gpiod: strobe line: read: %s", strerror(errno));
         if (ev.event_type == GPIOD_LINE_EVENT_RISING_EDGE)
             push_edge(g, (uint64_t)ev.ts.tv_sec * 1000000000u + (uint64_t)ev.ts.tv_nsec);
         struct timespec zero = {0, 0};
         rc = gpiod_line_event_wait(g->strobe, &zero);
     }
     if (rc < 0)
-        return hal_fail(g->err, sizeof g->err, F4D_EIO, "gpiod: strobe line: wait: %s", strerror(errno));
+        return f4d_fail(&g->err, F4D_EIO, "gpiod: strobe line: wait: %s", strerror(errno));
     return F4D_OK;
 }
 
@@ -71,11 +71,11 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct gp_trigger *g = ctx;
     if (p->rate_mhz == 0 || p->rate_mhz > 10000000u)
-        return hal_fail(g->err, sizeof g->err, F4D_EINVAL, "gpiod: rate %u mHz out of range", (unsigned)p->rate_mhz);
+        return f4d_fail(&g->err, F4D_EINVAL, "gpiod: rate %u mHz out of range", (unsigned)p->rate_mhz);
     g->period_ns = 1000000000000ull / p->rate_mhz;
     g->width_ns = (uint64_t)p->width_us * 1000u;
     if (g->width_ns == 0 || g->width_ns >= g->period_ns)
-        return hal_fail(g->err, sizeof g->err, F4D_EINVAL, "gpiod: pulse width %u us must be > 0 and < the period",
+        return f4d_fail(&g->err, F4D_EINVAL, "gpiod: pulse width %u us must be > 0 and < the period",
                         (unsigned)p->width_us);
     g->next_pulse_ns = hal_mono_ns() + g->period_ns;
     g->limit = p->count ? g->sent + p->count : 0;
@@ -132,7 +132,7 @@ static void trig_close(void *ctx)
     free(g);
 }
 
-static const char *trig_last_error(void *ctx) { return ((struct gp_trigger *)ctx)->err; }
+static const char *trig_last_error(void *ctx) { return ((struct gp_trigger *)ctx)->err.msg; }
 
 static const struct hal_trigger_ops gp_trigger_ops = {
     .api_version = HAL_API_VERSION,
@@ -144,34 +144,33 @@ static const struct hal_trigger_ops gp_trigger_ops = {
     .last_error = trig_last_error,
 };
 
-static int gp_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+static int gp_session_open(const struct hal_board *board, void **session, struct f4d_err *err)
 {
     (void)board;
     (void)err;
-    (void)n;
     *session = NULL; /* nothing shared: each trigger owns its chip */
     return F4D_OK;
 }
 
 static int gp_trigger_open(void *session, const struct hal_trigger_config *cfg,
-                           struct hal_trigger *out, char *err, size_t n)
+                           struct hal_trigger *out, struct f4d_err *err)
 {
     (void)session;
     if (!cfg->chip[0])
-        return hal_fail(err, n, F4D_EINVAL, "gpiod: the board names no GPIO chip (trigger.chip)");
+        return f4d_fail(err, F4D_EINVAL, "gpiod: the board names no GPIO chip (trigger.chip)");
     if (cfg->line < 0)
-        return hal_fail(err, n, F4D_EINVAL, "gpiod: chip %s: trigger line %d is invalid", cfg->chip,
+        return f4d_fail(err, F4D_EINVAL, "gpiod: chip %s: trigger line %d is invalid", cfg->chip,
                         (int)cfg->line);
     struct gp_trigger *g = calloc(1, sizeof *g);
     if (!g)
-        return hal_fail(err, n, F4D_ENOMEM, "gpiod: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "gpiod: out of memory");
     g->out_line = (uint32_t)cfg->line;
     errno = 0;
     g->chip = gpiod_chip_open_lookup(cfg->chip);
     int rc;
     if (!g->chip) {
         int e = errno;
-        rc = hal_fail(err, n, e == ENOENT ? F4D_ENODEV : F4D_EIO, "gpiod: cannot open GPIO chip \"%s\": %s",
+        rc = f4d_fail(err, e == ENOENT ? F4D_ENODEV : F4D_EIO, "gpiod: cannot open GPIO chip \"%s\": %s",
                       cfg->chip, strerror(e ? e : ENODEV));
         goto fail;
     }
@@ -179,7 +178,7 @@ static int gp_trigger_open(void *session, const struct hal_trigger_config *cfg,
     if (!g->out || gpiod_line_request_output(g->out, GP_CONSUMER, 0) < 0) {
         int e = errno;
         g->out = NULL;
-        rc = hal_fail(err, n, F4D_EIO, "gpiod: chip %s: cannot drive line %d: %s", cfg->chip,
+        rc = f4d_fail(err, F4D_EIO, "gpiod: chip %s: cannot drive line %d: %s", cfg->chip,
                       (int)cfg->line, strerror(e));
         goto fail;
     }
@@ -188,7 +187,7 @@ static int gp_trigger_open(void *session, const struct hal_trigger_config *cfg,
         if (!g->strobe || gpiod_line_request_rising_edge_events(g->strobe, GP_CONSUMER) < 0) {
             int e = errno;
             g->strobe = NULL;
-            rc = hal_fail(err, n, F4D_EIO, "gpiod: chip %s: cannot watch strobe line %d: %s", cfg->chip,
+            rc = f4d_fail(err, F4D_EIO, "gpiod: chip %s: cannot watch strobe line %d: %s", cfg->chip,
                           (int)cfg->strobe_line, strerror(e));
             goto fail;
         }

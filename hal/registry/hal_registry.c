@@ -54,7 +54,7 @@ const struct hal_backend *hal_backend_find(const char *name)
 
 /* Finds or opens the session of `name` in the rig. */
 static int rig_session(struct hal_rig *rig, const char *name, const struct hal_backend **be,
-                       void **session, char *err, size_t errlen)
+                       void **session, struct f4d_err *err)
 {
     for (uint32_t i = 0; i < rig->n_sessions; i++)
         if (strcmp(rig->session_backend[i]->name, name) == 0) {
@@ -64,17 +64,17 @@ static int rig_session(struct hal_rig *rig, const char *name, const struct hal_b
         }
     const struct hal_backend *b = hal_backend_find(name);
     if (!b)
-        return hal_fail(err, errlen, F4D_ENOTSUP,
+        return f4d_fail(err, F4D_ENOTSUP,
                         "backend \"%s\" is not compiled into this build", name);
     if (b->api_version != HAL_API_VERSION)
-        return hal_fail(err, errlen, F4D_ENOTSUP, "backend \"%s\" has api_version %u, want %u",
+        return f4d_fail(err, F4D_ENOTSUP, "backend \"%s\" has api_version %u, want %u",
                         name, (unsigned)b->api_version, (unsigned)HAL_API_VERSION);
     if (b->is_available && !b->is_available())
-        return hal_fail(err, errlen, F4D_ENODEV, "backend \"%s\" is not available here", name);
+        return f4d_fail(err, F4D_ENODEV, "backend \"%s\" is not available here", name);
     if (rig->n_sessions >= sizeof rig->session / sizeof rig->session[0])
-        return hal_fail(err, errlen, F4D_EINVAL, "too many backends in one board");
+        return f4d_fail(err, F4D_EINVAL, "too many backends in one board");
     void *s = NULL;
-    int rc = b->session_open(rig->board, &s, err, errlen);
+    int rc = b->session_open(rig->board, &s, err);
     if (rc < 0)
         return rc;
     rig->session_backend[rig->n_sessions] = b;
@@ -84,49 +84,49 @@ static int rig_session(struct hal_rig *rig, const char *name, const struct hal_b
     return F4D_OK;
 }
 
-int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, size_t errlen)
+int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, struct f4d_err *err)
 {
     memset(rig, 0, sizeof *rig);
     rig->board = board;
     rig->clock = hal_clock_monotonic();
     if (board->n_cams == 0 || board->n_cams > HAL_RIG_CAMERAS_MAX)
-        return hal_fail(err, errlen, F4D_EINVAL, "board \"%s\" has %u cameras (want 1..%d)",
+        return f4d_fail(err, F4D_EINVAL, "board \"%s\" has %u cameras (want 1..%d)",
                         board->name, (unsigned)board->n_cams, HAL_RIG_CAMERAS_MAX);
     const struct hal_backend *be;
     void *s;
     /* The trigger first: its backend owns the rig clock. */
-    int rc = rig_session(rig, board->trigger.backend, &be, &s, err, errlen);
+    int rc = rig_session(rig, board->trigger.backend, &be, &s, err);
     if (rc < 0)
         goto fail;
     if (!be->trigger_open) {
-        rc = hal_fail(err, errlen, F4D_ENOTSUP, "backend \"%s\" has no trigger", be->name);
+        rc = f4d_fail(err, F4D_ENOTSUP, "backend \"%s\" has no trigger", be->name);
         goto fail;
     }
     if (be->clock_get && (rc = be->clock_get(s, &rig->clock)) < 0)
         goto fail;
-    rc = be->trigger_open(s, &board->trigger, &rig->trigger, err, errlen);
+    rc = be->trigger_open(s, &board->trigger, &rig->trigger, err);
     if (rc < 0)
         goto fail;
     if (rig->trigger.ops.api_version != HAL_API_VERSION) {
-        rc = hal_fail(err, errlen, F4D_ENOTSUP, "trigger ops api_version mismatch");
+        rc = f4d_fail(err, F4D_ENOTSUP, "trigger ops api_version mismatch");
         goto fail;
     }
     for (uint32_t i = 0; i < board->n_cams; i++) {
         const struct hal_camera_config *cc = &board->cams[i];
-        rc = rig_session(rig, cc->backend, &be, &s, err, errlen);
+        rc = rig_session(rig, cc->backend, &be, &s, err);
         if (rc < 0)
             goto fail;
         if (!be->camera_open) {
-            rc = hal_fail(err, errlen, F4D_ENOTSUP, "backend \"%s\" has no cameras", be->name);
+            rc = f4d_fail(err, F4D_ENOTSUP, "backend \"%s\" has no cameras", be->name);
             goto fail;
         }
-        rc = be->camera_open(s, cc, i, &rig->cams[i], err, errlen);
+        rc = be->camera_open(s, cc, i, &rig->cams[i], err);
         if (rc < 0)
             goto fail;
         rig->cams[i].index = i;
         rig->n_cams = i + 1;
         if (rig->cams[i].ops.api_version != HAL_API_VERSION) {
-            rc = hal_fail(err, errlen, F4D_ENOTSUP, "camera %s: ops api_version mismatch", cc->id);
+            rc = f4d_fail(err, F4D_ENOTSUP, "camera %s: ops api_version mismatch", cc->id);
             goto fail;
         }
     }

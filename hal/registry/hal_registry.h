@@ -1,8 +1,8 @@
 /* hal_registry.h: the one static table of backends compiled into this build,
  * and the rig: every camera and the trigger of a board, opened through it.
  *
- *     struct hal_rig rig; char err[256];
- *     if (hal_rig_open(&rig, &board, err, sizeof err) < 0) puts(err);
+ *     struct hal_rig rig; struct f4d_err err = {0};
+ *     if (hal_rig_open(&rig, &board, &err) < 0) puts(err);
  *     ... hal_camera_start(&rig.cams[0]) ...
  *     hal_rig_close(&rig);
  *
@@ -21,7 +21,7 @@ uint32_t hal_backend_count(void);
 const struct hal_backend *hal_backend_at(uint32_t i);
 
 /* Opens every camera and the trigger of `board` through the registry. */
-int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, char *err, size_t errlen);
+int hal_rig_open(struct hal_rig *rig, const struct hal_board *board, struct f4d_err *err);
 void hal_rig_close(struct hal_rig *rig);
 /* The session of the named backend inside an open rig, or NULL. */
 void *hal_rig_session(const struct hal_rig *rig, const char *backend);

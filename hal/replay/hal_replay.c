@@ -42,7 +42,7 @@ struct rp_world {
     struct hal_edgeq edges; /* limit RP_EDGES_MAX */
     struct rp_cam *cams[HAL_RIG_CAMERAS_MAX];
     struct f4d_take_set cur;
-    char err[256];
+    struct f4d_err err;
 };
 
 /* Rig time at which a set is "triggered": its edge, else its earliest frame. */
@@ -269,7 +269,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct rp_cam *)ctx)->st.err; }
+static const char *cam_last_error(void *ctx) { return ((struct rp_cam *)ctx)->st.err.msg; }
 
 static const struct hal_camera_ops rp_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -317,7 +317,7 @@ static bool trig_done(void *ctx)
     return w->next_set >= w->n_sets;
 }
 static void trig_close(void *ctx) { ((struct rp_world *)ctx)->trig_open = false; }
-static const char *trig_last_error(void *ctx) { return ((struct rp_world *)ctx)->err; }
+static const char *trig_last_error(void *ctx) { return ((struct rp_world *)ctx)->err.msg; }
 
 static const struct hal_trigger_ops rp_trigger_ops = {
     .api_version = HAL_API_VERSION,
@@ -330,28 +330,28 @@ static const struct hal_trigger_ops rp_trigger_ops = {
 };
 
 /* ---- backend ---- */
-static int rp_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+static int rp_session_open(const struct hal_board *board, void **session, struct f4d_err *err)
 {
     const char *dir = NULL;
     for (uint32_t i = 0; i < board->n_cams; i++) {
         if (strcmp(board->cams[i].backend, "replay") != 0)
             continue;
         if (dir && strcmp(dir, board->cams[i].address) != 0)
-            return hal_fail(err, n, F4D_EINVAL, "replay: all replay cameras must play the same take");
+            return f4d_fail(err, F4D_EINVAL, "replay: all replay cameras must play the same take");
         dir = board->cams[i].address;
     }
     if (!dir || !dir[0])
-        return hal_fail(err, n, F4D_EINVAL, "replay: no camera names a take directory (address)");
+        return f4d_fail(err, F4D_EINVAL, "replay: no camera names a take directory (address)");
     struct rp_world *w = calloc(1, sizeof *w);
     if (!w)
-        return hal_fail(err, n, F4D_ENOMEM, "replay: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "replay: out of memory");
     snprintf(w->dir, sizeof w->dir, "%s", dir);
-    int rc = f4d_take_open(&w->take, dir, err, n);
+    int rc = f4d_take_open(&w->take, dir, err);
     if (rc < 0) {
         free(w);
         return rc;
     }
-    if ((rc = f4d_take_open(&w->frames, dir, err, n)) < 0) {
+    if ((rc = f4d_take_open(&w->frames, dir, err)) < 0) {
         f4d_take_reader_close(w->take);
         free(w);
         return rc;
@@ -383,18 +383,18 @@ static void rp_session_close(void *s)
 }
 
 static int rp_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
-                          struct hal_camera *out, char *err, size_t n)
+                          struct hal_camera *out, struct f4d_err *err)
 {
     struct rp_world *w = session;
     const struct f4d_take_info *info = f4d_take_get_info(w->take);
     if (index >= info->n_cams)
-        return hal_fail(err, n, F4D_ENODEV, "replay camera %s: take %s has only %u cameras", cfg->id,
+        return f4d_fail(err, F4D_ENODEV, "replay camera %s: take %s has only %u cameras", cfg->id,
                         w->dir, (unsigned)info->n_cams);
     if (w->cams[index])
-        return hal_fail(err, n, F4D_EBUSY, "replay camera %u already open", (unsigned)index);
+        return f4d_fail(err, F4D_EBUSY, "replay camera %u already open", (unsigned)index);
     struct rp_cam *c = calloc(1, sizeof *c);
     if (!c)
-        return hal_fail(err, n, F4D_ENOMEM, "replay: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "replay: out of memory");
     c->w = w;
     c->index = index;
     hal_cam_name(&c->st, "replay camera %u", (unsigned)index);
@@ -404,11 +404,11 @@ static int rp_camera_open(void *session, const struct hal_camera_config *cfg, ui
 }
 
 static int rp_trigger_open(void *session, const struct hal_trigger_config *cfg,
-                           struct hal_trigger *out, char *err, size_t n)
+                           struct hal_trigger *out, struct f4d_err *err)
 {
     (void)cfg;
     struct rp_world *w = session;
-    return hal_trigger_claim(&w->trig_open, out, &rp_trigger_ops, w, "replay trigger", err, n);
+    return hal_trigger_claim(&w->trig_open, out, &rp_trigger_ops, w, "replay trigger", err);
 }
 
 static int rp_clock_get(void *session, struct hal_clock *out)
@@ -432,10 +432,10 @@ uint64_t hal_replay_corrupt_sets(const void *session)
     return session ? ((const struct rp_world *)session)->corrupt : 0;
 }
 
-int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, char *err, size_t errlen)
+int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, struct f4d_err *err)
 {
     struct f4d_take_reader *r;
-    int rc = f4d_take_open(&r, dir, err, errlen);
+    int rc = f4d_take_open(&r, dir, err);
     if (rc < 0)
         return rc;
     const struct f4d_take_info *info = f4d_take_get_info(r);
@@ -451,7 +451,7 @@ int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, char *
         snprintf(c->id, sizeof c->id, "%s", info->cam_ids[i][0] ? info->cam_ids[i] : "replay");
         if (strlen(dir) >= sizeof c->address) {
             f4d_take_reader_close(r);
-            return hal_fail(err, errlen, F4D_EINVAL, "replay: take path too long");
+            return f4d_fail(err, F4D_EINVAL, "replay: take path too long");
         }
         snprintf(c->address, sizeof c->address, "%s", dir);
         c->width = info->formats[i].width;

@@ -20,7 +20,7 @@
 #include "hal.h"
 
 /* A board that replays every camera of the take in `dir`. */
-int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, char *err, size_t errlen);
+int hal_replay_board(struct hal_board *b, const char *dir, bool realtime, struct f4d_err *err);
 /* Sets that failed their CRC during playback (skipped). */
 uint64_t hal_replay_corrupt_sets(const void *session);
 

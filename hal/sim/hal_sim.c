@@ -59,7 +59,7 @@ struct sim_world {
     struct hal_sim_injected inj;
     hal_sim_render_fn render;
     void *render_user;
-    char err[256];
+    struct f4d_err err;
 };
 
 /* ---- deterministic random numbers (splitmix64) ---- */
@@ -412,7 +412,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct sim_cam *)ctx)->st.err; }
+static const char *cam_last_error(void *ctx) { return ((struct sim_cam *)ctx)->st.err.msg; }
 
 static const struct hal_camera_ops sim_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -449,13 +449,13 @@ static int trig_arm(void *ctx, const struct hal_pulse_train *p)
 {
     struct sim_world *w = ctx;
     if (p->rate_mhz == 0 || p->rate_mhz > 10000000u)
-        return hal_fail(w->err, sizeof w->err, F4D_EINVAL, "sim trigger: rate %u mHz out of range",
+        return f4d_fail(&w->err, F4D_EINVAL, "sim trigger: rate %u mHz out of range",
                         (unsigned)p->rate_mhz);
     world_now(w);
     w->period_ns = 1000000000000ull / p->rate_mhz;
     w->width_ns = (uint64_t)p->width_us * 1000u;
     if (w->width_ns >= w->period_ns)
-        return hal_fail(w->err, sizeof w->err, F4D_EINVAL, "sim trigger: pulse width %u us >= period",
+        return f4d_fail(&w->err, F4D_EINVAL, "sim trigger: pulse width %u us >= period",
                         (unsigned)p->width_us);
     w->next_pulse_ns = w->clk.now + w->period_ns;
     w->scheduled_limit = w->inj.pulses_scheduled + p->count;
@@ -499,7 +499,7 @@ static void trig_close(void *ctx)
     w->trig_open = false;
 }
 
-static const char *trig_last_error(void *ctx) { return ((struct sim_world *)ctx)->err; }
+static const char *trig_last_error(void *ctx) { return ((struct sim_world *)ctx)->err.msg; }
 
 static const struct hal_trigger_ops sim_trigger_ops = {
     .api_version = HAL_API_VERSION,
@@ -512,19 +512,19 @@ static const struct hal_trigger_ops sim_trigger_ops = {
 };
 
 /* ---- backend ---- */
-static int sim_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+static int sim_session_open(const struct hal_board *board, void **session, struct f4d_err *err)
 {
     const struct hal_sim_faults *f = &board->sim.faults;
     double sum = f->drop + f->duplicate + f->late + f->incomplete;
     if (f->drop < 0 || f->duplicate < 0 || f->late < 0 || f->incomplete < 0 || sum > 1.0 ||
         f->trigger_missing < 0 || f->trigger_missing > 1 || f->trigger_extra < 0 ||
         f->trigger_extra > 1 || f->disconnect < 0 || f->disconnect > 1)
-        return hal_fail(err, n, F4D_EINVAL,
+        return f4d_fail(err, F4D_EINVAL,
                         "sim faults: probabilities must be in [0,1] and drop+duplicate+late+incomplete <= 1 (got %.3f)",
                         sum);
     struct sim_world *w = calloc(1, sizeof *w);
     if (!w)
-        return hal_fail(err, n, F4D_ENOMEM, "sim: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "sim: out of memory");
     w->board = board;
     w->cfg = board->sim;
     w->rng = board->sim.seed ^ 0x5EEDF4D0ull;
@@ -538,14 +538,14 @@ static int sim_session_open(const struct hal_board *board, void **session, char 
 static void sim_session_close(void *s) { free(s); }
 
 static int sim_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
-                           struct hal_camera *out, char *err, size_t n)
+                           struct hal_camera *out, struct f4d_err *err)
 {
     struct sim_world *w = session;
     if (index >= HAL_RIG_CAMERAS_MAX || w->cams[index])
-        return hal_fail(err, n, F4D_EBUSY, "sim camera %s: index %u already open", cfg->id, (unsigned)index);
+        return f4d_fail(err, F4D_EBUSY, "sim camera %s: index %u already open", cfg->id, (unsigned)index);
     struct sim_cam *c = calloc(1, sizeof *c);
     if (!c)
-        return hal_fail(err, n, F4D_ENOMEM, "sim camera %s: out of memory", cfg->id);
+        return f4d_fail(err, F4D_ENOMEM, "sim camera %s: out of memory", cfg->id);
     c->w = w;
     c->index = index;
     c->cfg = cfg;
@@ -566,11 +566,11 @@ static int sim_camera_open(void *session, const struct hal_camera_config *cfg, u
 }
 
 static int sim_trigger_open(void *session, const struct hal_trigger_config *cfg,
-                            struct hal_trigger *out, char *err, size_t n)
+                            struct hal_trigger *out, struct f4d_err *err)
 {
     (void)cfg;
     struct sim_world *w = session;
-    return hal_trigger_claim(&w->trig_open, out, &sim_trigger_ops, w, "sim trigger", err, n);
+    return hal_trigger_claim(&w->trig_open, out, &sim_trigger_ops, w, "sim trigger", err);
 }
 
 static int sim_clock_get(void *session, struct hal_clock *out)

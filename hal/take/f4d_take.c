@@ -161,19 +161,19 @@ static int sync_now(struct f4d_take_writer *w)
 }
 
 int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct f4d_take_info *info,
-                    const char *board_json, uint32_t durability_ms, char *err, size_t errlen)
+                    const char *board_json, uint32_t durability_ms, struct f4d_err *err)
 {
     *out = NULL;
     if (!info || info->n_cams == 0 || info->n_cams > HAL_RIG_CAMERAS_MAX || durability_ms == 0)
-        return hal_fail(err, errlen, F4D_EINVAL, "take %s: bad take info", dir);
+        return f4d_fail(err, F4D_EINVAL, "take %s: bad take info", dir);
     if (mkdir_p(dir) < 0)
-        return hal_fail(err, errlen, F4D_EIO, "take %s: cannot create directory: %s", dir, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "take %s: cannot create directory: %s", dir, strerror(errno));
     char path[HAL_PATH_MAX + 32];
     if (path_join(path, sizeof path, dir, F4D_TAKE_FILE) < 0 || strlen(dir) >= HAL_PATH_MAX)
-        return hal_fail(err, errlen, F4D_EINVAL, "take %s: path too long", dir);
+        return f4d_fail(err, F4D_EINVAL, "take %s: path too long", dir);
     struct f4d_take_writer *w = calloc(1, sizeof *w);
     if (!w)
-        return hal_fail(err, errlen, F4D_ENOMEM, "take %s: out of memory", dir);
+        return f4d_fail(err, F4D_ENOMEM, "take %s: out of memory", dir);
     w->idx_fd = -1;
     snprintf(w->dir, sizeof w->dir, "%s", dir);
     w->info = *info;
@@ -183,14 +183,14 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     if (w->fd < 0) {
         int e = errno;
         free(w);
-        return hal_fail(err, errlen, F4D_EIO, "take %s: cannot create %s: %s", dir, F4D_TAKE_FILE,
+        return f4d_fail(err, F4D_EIO, "take %s: cannot create %s: %s", dir, F4D_TAKE_FILE,
                         strerror(e));
     }
     path_join(path, sizeof path, dir, F4D_TAKE_INDEX);
     w->idx_fd = open(path, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
     int rc = F4D_OK;
     if (w->idx_fd < 0) {
-        rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot create index: %s", dir, strerror(errno));
+        rc = f4d_fail(err, F4D_EIO, "take %s: cannot create index: %s", dir, strerror(errno));
         goto fail;
     }
     uint8_t ih[8];
@@ -198,14 +198,14 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     put32(ih + 4, 1);
     struct iovec iv = {ih, 8};
     if (write_all(w->idx_fd, &iv, 1) < 0) {
-        rc = hal_fail(err, errlen, F4D_EIO, "take %s: index write: %s", dir, strerror(errno));
+        rc = f4d_fail(err, F4D_EIO, "take %s: index write: %s", dir, strerror(errno));
         goto fail;
     }
     if (board_json) {
         path_join(path, sizeof path, dir, F4D_TAKE_BOARD);
         FILE *f = fopen(path, "w");
         if (!f || fputs(board_json, f) < 0 || fclose(f) != 0) {
-            rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot write board.json", dir);
+            rc = f4d_fail(err, F4D_EIO, "take %s: cannot write board.json", dir);
             goto fail;
         }
     }
@@ -232,7 +232,7 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     put32(p + len, crc(0, p, len));
     struct iovec io = {buf, HDR_BYTES + len + 4};
     if (write_all(w->fd, &io, 1) < 0 || fdatasync(w->fd) < 0) {
-        rc = hal_fail(err, errlen, F4D_EIO, "take %s: write: %s", dir, strerror(errno));
+        rc = f4d_fail(err, F4D_EIO, "take %s: write: %s", dir, strerror(errno));
         goto fail;
     }
     fsync_dir(dir);
@@ -335,7 +335,7 @@ uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w) { return w->dura
 uint64_t f4d_take_bytes_written(const struct f4d_take_writer *w) { return w->offset; }
 uint64_t f4d_take_sets_written(const struct f4d_take_writer *w) { return w->sets; }
 
-int f4d_take_close(struct f4d_take_writer *w, char *err, size_t errlen)
+int f4d_take_close(struct f4d_take_writer *w, struct f4d_err *err)
 {
     int rc = F4D_OK;
     if (!w->failed) {
@@ -345,13 +345,13 @@ int f4d_take_close(struct f4d_take_writer *w, char *err, size_t errlen)
         put32(buf + HDR_BYTES + 8, crc(0, buf + HDR_BYTES, 8));
         struct iovec io = {buf, sizeof buf};
         if (write_all(w->fd, &io, 1) < 0 || sync_now(w) < 0 || fsync(w->idx_fd) < 0)
-            rc = hal_fail(err, errlen, F4D_EIO, "take %s: closing: %s", w->dir, strerror(errno));
+            rc = f4d_fail(err, F4D_EIO, "take %s: closing: %s", w->dir, strerror(errno));
     } else {
-        rc = hal_fail(err, errlen, F4D_EIO, "take %s: an earlier write failed", w->dir);
+        rc = f4d_fail(err, F4D_EIO, "take %s: an earlier write failed", w->dir);
     }
     close(w->idx_fd);
     if (close(w->fd) < 0 && rc == F4D_OK)
-        rc = hal_fail(err, errlen, F4D_EIO, "take %s: close: %s", w->dir, strerror(errno));
+        rc = f4d_fail(err, F4D_EIO, "take %s: close: %s", w->dir, strerror(errno));
     free(w);
     return rc;
 }
@@ -598,19 +598,19 @@ struct f4d_take_reader {
     uint64_t n_sets;
 };
 
-static int open_take_file(const char *dir, int *fd, uint64_t *size, char *err, size_t errlen, int flags)
+static int open_take_file(const char *dir, int *fd, uint64_t *size, struct f4d_err *err, int flags)
 {
     char path[HAL_PATH_MAX + 32];
     if (path_join(path, sizeof path, dir, F4D_TAKE_FILE) < 0)
-        return hal_fail(err, errlen, F4D_EINVAL, "take %s: path too long", dir);
+        return f4d_fail(err, F4D_EINVAL, "take %s: path too long", dir);
     *fd = open(path, flags | O_CLOEXEC);
     if (*fd < 0)
-        return hal_fail(err, errlen, F4D_EIO, "take %s: cannot open %s: %s", dir, F4D_TAKE_FILE,
+        return f4d_fail(err, F4D_EIO, "take %s: cannot open %s: %s", dir, F4D_TAKE_FILE,
                         strerror(errno));
     struct stat st;
     if (fstat(*fd, &st) < 0) {
         close(*fd);
-        return hal_fail(err, errlen, F4D_EIO, "take %s: stat: %s", dir, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "take %s: stat: %s", dir, strerror(errno));
     }
     *size = (uint64_t)st.st_size;
     return F4D_OK;
@@ -658,13 +658,13 @@ out:
     return rc;
 }
 
-int f4d_take_open(struct f4d_take_reader **out, const char *dir, char *err, size_t errlen)
+int f4d_take_open(struct f4d_take_reader **out, const char *dir, struct f4d_err *err)
 {
     *out = NULL;
     struct f4d_take_reader *r = calloc(1, sizeof *r);
     if (!r)
-        return hal_fail(err, errlen, F4D_ENOMEM, "take %s: out of memory", dir);
-    int rc = open_take_file(dir, &r->s.fd, &r->s.size, err, errlen, O_RDONLY);
+        return f4d_fail(err, F4D_ENOMEM, "take %s: out of memory", dir);
+    int rc = open_take_file(dir, &r->s.fd, &r->s.size, err, O_RDONLY);
     if (rc < 0) {
         free(r);
         return rc;
@@ -678,9 +678,9 @@ int f4d_take_open(struct f4d_take_reader **out, const char *dir, char *err, size
     struct scan_result res;
     rc = scan_all(&r->s, &res);
     if (rc == F4D_OK && !res.have_info)
-        rc = hal_fail(err, errlen, F4D_ECORRUPT, "take %s: no valid take header record", dir);
+        rc = f4d_fail(err, F4D_ECORRUPT, "take %s: no valid take header record", dir);
     else if (rc < 0)
-        rc = hal_fail(err, errlen, rc, "take %s: scan failed (%s)", dir, f4d_status_name(rc));
+        rc = f4d_fail(err, rc, "take %s: scan failed (%s)", dir, f4d_status_name(rc));
     if (rc < 0) {
         free(res.sets);
         f4d_take_reader_close(r);
@@ -759,33 +759,32 @@ static int write_index(const char *dir, const struct scan_result *res, struct sc
     return rc;
 }
 
-int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, char *err,
-                    size_t errlen)
+int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, struct f4d_err *err)
 {
     memset(rep, 0, sizeof *rep);
     uint64_t indexed = 0;
     {
         /* how many sets the existing index lists (what a reader saw before repair) */
         struct f4d_take_reader probe = {0};
-        if (open_take_file(dir, &probe.s.fd, &probe.s.size, err, errlen, O_RDONLY) < 0)
-            return hal_fail(err, errlen, F4D_EIO, "take %s: cannot open %s", dir, F4D_TAKE_FILE);
+        if (open_take_file(dir, &probe.s.fd, &probe.s.size, err, O_RDONLY) < 0)
+            return f4d_fail(err, F4D_EIO, "take %s: cannot open %s", dir, F4D_TAKE_FILE);
         if (load_index(dir, &probe) == 0)
             indexed = probe.n_sets;
         free(probe.sets);
         close(probe.s.fd);
     }
     struct scanner s = {0};
-    int rc = open_take_file(dir, &s.fd, &s.size, err, errlen, repair ? O_RDWR : O_RDONLY);
+    int rc = open_take_file(dir, &s.fd, &s.size, err, repair ? O_RDWR : O_RDONLY);
     if (rc < 0)
         return rc;
     struct scan_result res;
     rc = scan_all(&s, &res);
     if (rc < 0) {
-        rc = hal_fail(err, errlen, rc, "take %s: scan failed (%s)", dir, f4d_status_name(rc));
+        rc = f4d_fail(err, rc, "take %s: scan failed (%s)", dir, f4d_status_name(rc));
         goto out;
     }
     if (!res.have_info) {
-        rc = hal_fail(err, errlen, F4D_ECORRUPT, "take %s: no valid take header record", dir);
+        rc = f4d_fail(err, F4D_ECORRUPT, "take %s: no valid take header record", dir);
         goto out;
     }
     rep->sets = res.n_sets;
@@ -796,14 +795,14 @@ int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, c
     bool index_ok = indexed == res.n_sets && rep->truncated_bytes == 0;
     if (repair) {
         if (rep->truncated_bytes && (ftruncate(s.fd, (off_t)res.valid_end) < 0 || fsync(s.fd) < 0)) {
-            rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot truncate the torn tail: %s", dir,
+            rc = f4d_fail(err, F4D_EIO, "take %s: cannot truncate the torn tail: %s", dir,
                           strerror(errno));
             goto out;
         }
         s.size = res.valid_end;
         if (!index_ok) {
             if (write_index(dir, &res, &s) < 0) {
-                rc = hal_fail(err, errlen, F4D_EIO, "take %s: cannot rewrite the index", dir);
+                rc = f4d_fail(err, F4D_EIO, "take %s: cannot rewrite the index", dir);
                 goto out;
             }
             rep->index_rebuilt = true;

@@ -70,7 +70,7 @@ struct f4d_take_set {
 /* ---- writer ---- */
 struct f4d_take_writer;
 int f4d_take_create(struct f4d_take_writer **w, const char *dir, const struct f4d_take_info *info,
-                    const char *board_json, uint32_t durability_ms, char *err, size_t errlen);
+                    const char *board_json, uint32_t durability_ms, struct f4d_err *err);
 /* Appends one set (frames as the synchronizer holds them). */
 int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set);
 /* Sets known to be on stable storage (fdatasync returned after them). */
@@ -78,12 +78,12 @@ uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w);
 uint64_t f4d_take_bytes_written(const struct f4d_take_writer *w);
 uint64_t f4d_take_sets_written(const struct f4d_take_writer *w);
 /* Writes the end record, syncs, closes. Frees w even on error. */
-int f4d_take_close(struct f4d_take_writer *w, char *err, size_t errlen);
+int f4d_take_close(struct f4d_take_writer *w, struct f4d_err *err);
 
 /* ---- reader ---- */
 struct f4d_take_reader;
 /* Opens a take; uses take.idx when it is consistent, else scans take.f4t. */
-int f4d_take_open(struct f4d_take_reader **r, const char *dir, char *err, size_t errlen);
+int f4d_take_open(struct f4d_take_reader **r, const char *dir, struct f4d_err *err);
 const struct f4d_take_info *f4d_take_get_info(const struct f4d_take_reader *r);
 uint64_t f4d_take_count(const struct f4d_take_reader *r);
 /* Reads set i; frame data stays valid until the next read. F4D_ECORRUPT on a bad CRC. */
@@ -100,7 +100,6 @@ struct f4d_take_report {
     bool index_rebuilt;
 };
 /* Scans take.f4t. With `repair`, truncates a torn tail and rewrites take.idx. */
-int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, char *err,
-                    size_t errlen);
+int f4d_take_verify(const char *dir, bool repair, struct f4d_take_report *rep, struct f4d_err *err);
 
 #endif

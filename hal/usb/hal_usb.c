@@ -320,7 +320,7 @@ static void cam_close(void *ctx)
     free(c);
 }
 
-static const char *cam_last_error(void *ctx) { return ((struct usb_cam *)ctx)->st.err; }
+static const char *cam_last_error(void *ctx) { return ((struct usb_cam *)ctx)->st.err.msg; }
 
 static const struct hal_camera_ops usb_camera_ops = {
     .api_version = HAL_API_VERSION,
@@ -395,11 +395,11 @@ static const struct hal_trigger_ops usb_trigger_ops = {
 };
 
 /* ---- backend ---- */
-static int usb_session_open(const struct hal_board *board, void **session, char *err, size_t n)
+static int usb_session_open(const struct hal_board *board, void **session, struct f4d_err *err)
 {
     struct usb_session *s = calloc(1, sizeof *s);
     if (!s)
-        return hal_fail(err, n, F4D_ENOMEM, "usb: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "usb: out of memory");
     s->board = board;
     *session = s;
     return F4D_OK;
@@ -408,32 +408,32 @@ static int usb_session_open(const struct hal_board *board, void **session, char 
 static void usb_session_close(void *s) { free(s); }
 
 static int usb_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
-                           struct hal_camera *out, char *err, size_t n)
+                           struct hal_camera *out, struct f4d_err *err)
 {
     if (!cfg->address[0])
-        return hal_fail(err, n, F4D_EINVAL, "usb camera %s: no device node (address)", cfg->id);
+        return f4d_fail(err, F4D_EINVAL, "usb camera %s: no device node (address)", cfg->id);
     int fd = open(cfg->address, O_RDWR | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
-        return hal_fail(err, n, errno == ENOENT ? F4D_ENODEV : F4D_EIO, "usb camera %s: cannot open %s: %s",
+        return f4d_fail(err, errno == ENOENT ? F4D_ENODEV : F4D_EIO, "usb camera %s: cannot open %s: %s",
                         cfg->id, cfg->address, strerror(errno));
     struct v4l2_capability cap;
     memset(&cap, 0, sizeof cap);
     if (xioctl(fd, VIDIOC_QUERYCAP, &cap) < 0) {
         int e = errno;
         close(fd);
-        return hal_fail(err, n, F4D_ENODEV, "usb camera %s: %s is not a V4L2 device (VIDIOC_QUERYCAP: %s)",
+        return f4d_fail(err, F4D_ENODEV, "usb camera %s: %s is not a V4L2 device (VIDIOC_QUERYCAP: %s)",
                         cfg->id, cfg->address, strerror(e));
     }
     uint32_t caps = (cap.capabilities & V4L2_CAP_DEVICE_CAPS) ? cap.device_caps : cap.capabilities;
     if (!(caps & V4L2_CAP_VIDEO_CAPTURE) || !(caps & V4L2_CAP_STREAMING)) {
         close(fd);
-        return hal_fail(err, n, F4D_ENOTSUP, "usb camera %s: %s (%.32s) cannot stream video capture",
+        return f4d_fail(err, F4D_ENOTSUP, "usb camera %s: %s (%.32s) cannot stream video capture",
                         cfg->id, cfg->address, (const char *)cap.card);
     }
     struct usb_cam *c = calloc(1, sizeof *c);
     if (!c) {
         close(fd);
-        return hal_fail(err, n, F4D_ENOMEM, "usb: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "usb: out of memory");
     }
     c->s = session;
     c->index = index;
@@ -445,11 +445,11 @@ static int usb_camera_open(void *session, const struct hal_camera_config *cfg, u
 }
 
 static int usb_trigger_open(void *session, const struct hal_trigger_config *cfg,
-                            struct hal_trigger *out, char *err, size_t n)
+                            struct hal_trigger *out, struct f4d_err *err)
 {
     (void)cfg;
     struct usb_session *s = session;
-    return hal_trigger_claim(&s->trig_open, out, &usb_trigger_ops, s, "usb tick trigger", err, n);
+    return hal_trigger_claim(&s->trig_open, out, &usb_trigger_ops, s, "usb tick trigger", err);
 }
 
 const struct hal_backend hal_usb_backend = {

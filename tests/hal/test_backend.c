@@ -40,27 +40,27 @@ static void cam_state_rules_and_messages(void **state)
     hal_cam_name(&s, "test camera %s", "cam0");
 
     assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), F4D_ESTATE);
-    assert_string_equal(s.err, "test camera cam0: enqueue before configure");
+    assert_string_equal(s.err.msg, "test camera cam0: enqueue before configure");
     assert_int_equal(hal_cam_fifo_start(&s), F4D_ESTATE);
-    assert_string_equal(s.err, "test camera cam0: start before configure");
+    assert_string_equal(s.err.msg, "test camera cam0: start before configure");
     assert_int_equal(hal_cam_dequeue_begin(&s, &out), F4D_ESTATE);
     assert_null(out);
-    assert_string_equal(s.err, "test camera cam0: dequeue while stopped");
+    assert_string_equal(s.err.msg, "test camera cam0: dequeue while stopped");
 
     assert_int_equal(hal_cam_check_validated(&s, F4D_EIO), F4D_EIO);
     assert_int_equal(hal_cam_check_validated(&s, HAL_FORMAT_ADJUSTED), F4D_EINVAL);
-    assert_string_equal(s.err, "test camera cam0: format does not validate unchanged");
+    assert_string_equal(s.err.msg, "test camera cam0: format does not validate unchanged");
     assert_int_equal(hal_cam_check_validated(&s, HAL_FORMAT_VALID), F4D_OK);
 
     s.configured = true;
     s.fmt.image_bytes = sizeof px + 1;
     assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), F4D_EINVAL);
-    assert_string_equal(s.err, "test camera cam0: buffer smaller than the image");
+    assert_string_equal(s.err.msg, "test camera cam0: buffer smaller than the image");
     s.fmt.image_bytes = sizeof px;
     assert_int_equal(hal_cam_fifo_enqueue(&s, &q, &b), F4D_OK);
     assert_int_equal(hal_cam_fifo_start(&s), F4D_OK);
     assert_int_equal(hal_cam_check_configure(&s), F4D_ESTATE);
-    assert_string_equal(s.err, "test camera cam0: configure while started");
+    assert_string_equal(s.err.msg, "test camera cam0: configure while started");
     assert_int_equal(hal_cam_dequeue_begin(&s, &out), F4D_OK);
     assert_null(out); /* started, nothing aborted: the backend goes on */
 
@@ -80,7 +80,7 @@ static void cam_state_rules_and_messages(void **state)
     assert_int_equal(s.n_aborted, HAL_BUFQ_MAX);
 
     assert_int_equal(hal_cam_fail(&s, F4D_EIO, "%s: %d", "VIDIOC_X", 5), F4D_EIO);
-    assert_string_equal(s.err, "test camera cam0: VIDIOC_X: 5");
+    assert_string_equal(s.err.msg, "test camera cam0: VIDIOC_X: 5");
 }
 
 static void edgeq_drop_newest_or_oldest(void **state)
@@ -116,12 +116,12 @@ static void trigger_claim_once(void **state)
     bool taken = false;
     int ctx;
     struct hal_trigger t;
-    char err[64] = "";
-    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", err, sizeof err), F4D_OK);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", &err), F4D_OK);
     assert_true(taken);
     assert_ptr_equal(t.ctx, &ctx);
-    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", err, sizeof err), F4D_EBUSY);
-    assert_string_equal(err, "x trigger already open");
+    assert_int_equal(hal_trigger_claim(&taken, &t, &ops, &ctx, "x trigger", &err), F4D_EBUSY);
+    assert_string_equal(err.msg, "x trigger already open");
 }
 
 static void world_clock_jumps_when_not_realtime(void **state)

@@ -16,30 +16,31 @@ static void shipped_boards_load(void **state)
     (void)state;
     const char *names[] = {"sim-4cam", "sim-4cam-faulty", "gige-4cam", "usb-2cam"};
     for (int i = 0; i < 4; i++) {
-        char path[512], err[256] = "";
+        char path[512];
+        struct f4d_err err = {0};
         struct hal_board b;
         snprintf(path, sizeof path, "%s/%s.json", F4D_BOARD_DIR, names[i]);
-        int rc = hal_board_load(&b, path, err, sizeof err);
+        int rc = hal_board_load(&b, path, &err);
         if (rc < 0)
             fail_msg("%s: %s", path, err);
         assert_string_equal(b.name, names[i]);
     }
     struct hal_board b;
-    char err[256];
-    assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/sim-4cam.json", err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/sim-4cam.json", &err), 0);
     assert_int_equal(b.n_cams, 4);
     assert_int_equal(b.cams[3].width, 518);
     assert_int_equal(b.cams[3].height, 518);
     assert_int_equal(b.trigger.rate_mhz, 30000);
     assert_string_equal(b.cams[0].backend, "sim");
     assert_true(b.cams[0].intrinsics.known);
-    assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/sim-4cam-faulty.json", err, sizeof err), 0);
+    assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/sim-4cam-faulty.json", &err), 0);
     assert_true(b.sim.faults.drop > 0 && b.sim.faults.duplicate > 0 && b.sim.faults.late > 0 &&
                 b.sim.faults.incomplete > 0 && b.sim.faults.trigger_missing > 0 &&
                 b.sim.faults.trigger_extra > 0 && b.sim.faults.disconnect > 0 &&
                 b.sim.faults.jitter_us > 0 && b.sim.faults.clock_offset_ms > 0 &&
                 b.sim.faults.clock_drift_ppm > 0);
-    assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/gige-4cam.json", err, sizeof err), 0);
+    assert_int_equal(hal_board_load(&b, F4D_BOARD_DIR "/gige-4cam.json", &err), 0);
     assert_string_equal(b.cams[2].backend, "aravis");
     assert_string_equal(b.trigger.backend, "gpiod");
     assert_int_equal(b.cams[0].packet_size, 8192);
@@ -49,11 +50,11 @@ static void round_trip(void **state)
 {
     (void)state;
     struct hal_board a, b;
-    char err[256];
-    assert_int_equal(hal_board_load(&a, F4D_BOARD_DIR "/sim-4cam-faulty.json", err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(&a, F4D_BOARD_DIR "/sim-4cam-faulty.json", &err), 0);
     char *js = hal_board_to_json(&a);
     assert_non_null(js);
-    int rc = hal_board_parse(&b, js, strlen(js), err, sizeof err);
+    int rc = hal_board_parse(&b, js, strlen(js), &err);
     if (rc < 0)
         fail_msg("%s", err);
     free(js);
@@ -100,16 +101,16 @@ static void errors_name_the_key(void **state)
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         struct hal_board b;
-        char err[256] = "";
-        int rc = hal_board_parse(&b, cases[i].json, strlen(cases[i].json), err, sizeof err);
-        if (rc != F4D_EINVAL || !strstr(err, cases[i].want))
+        struct f4d_err err = {0};
+        int rc = hal_board_parse(&b, cases[i].json, strlen(cases[i].json), &err);
+        if (rc != F4D_EINVAL || !strstr(err.msg, cases[i].want))
             fail_msg("case %zu (%s): rc %d, message \"%s\", want \"%s\"", i, cases[i].json, rc, err,
                      cases[i].want);
     }
     struct hal_board b;
-    char err[256] = "";
-    assert_int_equal(hal_board_load(&b, "/nonexistent/board.json", err, sizeof err), F4D_EIO);
-    assert_non_null(strstr(err, "/nonexistent/board.json"));
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(&b, "/nonexistent/board.json", &err), F4D_EIO);
+    assert_non_null(strstr(err.msg, "/nonexistent/board.json"));
 }
 
 /* The largest pending_max capture can enqueue is accepted, per backend. */
@@ -123,8 +124,8 @@ static void pending_max_bound_accepted(void **state)
     static const uint32_t want[] = { 58, 26 };
     for (size_t i = 0; i < 2; i++) {
         struct hal_board b;
-        char err[256] = "";
-        int rc = hal_board_parse(&b, ok[i], strlen(ok[i]), err, sizeof err);
+        struct f4d_err err = {0};
+        int rc = hal_board_parse(&b, ok[i], strlen(ok[i]), &err);
         if (rc != F4D_OK)
             fail_msg("%s: %s", ok[i], err);
         assert_int_equal(b.sync.pending_max, want[i]);

@@ -25,8 +25,8 @@
 
 static void sim_board(struct hal_board *b)
 {
-    char err[256];
-    assert_int_equal(hal_board_load(b, F4D_BOARD_DIR "/sim-4cam.json", err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(b, F4D_BOARD_DIR "/sim-4cam.json", &err), 0);
     b->sim.realtime = false;
     memset(&b->sim.faults, 0, sizeof b->sim.faults);
     for (uint32_t i = 0; i < b->n_cams; i++) {
@@ -59,21 +59,21 @@ static void start_failure_frees_nothing_queued(void **state)
     struct hal_board board;
     sim_board(&board);
     struct hal_rig rig;
-    char err[256];
-    assert_int_equal(hal_rig_open(&rig, &board, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &board, &err), 0);
     assert_int_equal(hal_sim_fail_start(hal_rig_session(&rig, "sim"), 2, F4D_EIO), F4D_OK);
     uint64_t sets = 0;
     struct f4d_capture_config cfg = {.triggers = 10};
     struct f4d_capture_stats st;
-    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, &st, err, sizeof err);
-    printf("[ start failure ] rc %d: %s\n", rc, err);
+    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, &st, &err);
+    printf("[ start failure ] rc %d: %s\n", rc, err.msg);
     assert_int_equal(rc, F4D_EIO);
-    assert_non_null(strstr(err, "cam2"));
+    assert_non_null(strstr(err.msg, "cam2"));
     assert_int_equal(sets, 0);
     assert_no_buffer_held(&rig);
     /* the cameras are usable again: a second capture, with camera 2 fixed */
     assert_int_equal(hal_sim_fail_start(hal_rig_session(&rig, "sim"), 2, 0), F4D_OK);
-    assert_int_equal(f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, &st, err, sizeof err), 0);
+    assert_int_equal(f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, &st, &err), 0);
     assert_int_equal(st.sync.sets_complete, 10);
     assert_no_buffer_held(&rig);
     hal_rig_close(&rig);
@@ -91,16 +91,16 @@ static void camera_never_streaming_is_named(void **state)
     struct hal_board board;
     sim_board(&board);
     struct hal_rig rig;
-    char err[256];
-    assert_int_equal(hal_rig_open(&rig, &board, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &board, &err), 0);
     rig.cams[3].ops.streaming = never_streams;
     uint64_t sets = 0;
     struct f4d_capture_config cfg = {.triggers = 10, .ready_timeout_ns = 50000000ull};
     struct f4d_capture_stats st;
-    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, &st, err, sizeof err);
-    printf("[ never streaming ] rc %d: %s\n", rc, err);
+    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, &st, &err);
+    printf("[ never streaming ] rc %d: %s\n", rc, err.msg);
     assert_int_equal(rc, F4D_ETIMEDOUT);
-    assert_non_null(strstr(err, "camera cam3 not streaming"));
+    assert_non_null(strstr(err.msg, "camera cam3 not streaming"));
     struct hal_sim_injected inj;
     assert_int_equal(hal_sim_injected_get(hal_rig_session(&rig, "sim"), &inj), 0);
     assert_int_equal(inj.pulses_scheduled, 0); /* the trigger was never armed */
@@ -115,11 +115,11 @@ static void run_disconnects(bool hold, struct hal_sim_injected *inj, struct f4d_
     board.sim.faults.disconnect = 0.002;
     board.sim.faults.disconnect_ms = 200;
     struct hal_rig rig;
-    char err[256];
-    assert_int_equal(hal_rig_open(&rig, &board, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &board, &err), 0);
     uint64_t sets = 0;
     struct f4d_capture_config cfg = {.triggers = 3000, .hold_while_down = hold};
-    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, st, err, sizeof err);
+    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &sets, NULL, st, &err);
     if (rc < 0)
         fail_msg("capture: %s", err);
     assert_int_equal(hal_sim_injected_get(hal_rig_session(&rig, "sim"), inj), 0);

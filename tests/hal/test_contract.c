@@ -220,8 +220,8 @@ static void contract_sets(struct fixture *fx, struct hal_rig *rig)
     struct set_check chk = {fx, 0, 0, 0, 0, 0};
     struct f4d_capture_config cfg = {.triggers = fx->triggers};
     struct f4d_capture_stats st;
-    char err[256];
-    int rc = f4d_capture_run(rig, &cfg, check_set, NULL, &chk, NULL, &st, err, sizeof err);
+    struct f4d_err err = {0};
+    int rc = f4d_capture_run(rig, &cfg, check_set, NULL, &chk, NULL, &st, &err);
     if (rc < 0)
         fail_msg("%s: capture: %s", fx->name, err);
     printf("[ %s ] %u cameras: %llu sets, %llu complete, %llu mixed; frames dropped %llu, "
@@ -246,8 +246,8 @@ static void contract_sets(struct fixture *fx, struct hal_rig *rig)
 static void run_contract(struct fixture *fx)
 {
     struct hal_rig rig;
-    char err[256];
-    int rc = hal_rig_open(&rig, &fx->board, err, sizeof err);
+    struct f4d_err err = {0};
+    int rc = hal_rig_open(&rig, &fx->board, &err);
     if (rc < 0)
         fail_msg("%s: rig: %s", fx->name, err);
     contract_single_camera(fx, &rig);
@@ -259,10 +259,10 @@ static void run_contract(struct fixture *fx)
 /* ---- backends ---- */
 static void sim_fixture(struct fixture *fx)
 {
-    char err[256];
+    struct f4d_err err = {0};
     memset(fx, 0, sizeof *fx);
     fx->name = "sim";
-    assert_int_equal(hal_board_load(&fx->board, F4D_BOARD_DIR "/sim-4cam.json", err, sizeof err), 0);
+    assert_int_equal(hal_board_load(&fx->board, F4D_BOARD_DIR "/sim-4cam.json", &err), 0);
     fx->board.sim.realtime = false;
     for (uint32_t i = 0; i < fx->board.n_cams; i++) {
         fx->board.cams[i].width = 64;
@@ -293,9 +293,10 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
     struct f4d_take_info info = {.n_cams = r->fx->board.n_cams, .rate_mhz = r->fx->board.trigger.rate_mhz};
     for (uint32_t i = 0; i < info.n_cams; i++)
         info.formats[i] = st->formats[i];
-    char dir[300], err[256];
+    char dir[300];
+    struct f4d_err err = {0};
     snprintf(dir, sizeof dir, "%s/take", tmp_root);
-    return f4d_take_create(&r->w, dir, &info, NULL, 100, err, sizeof err);
+    return f4d_take_create(&r->w, dir, &info, NULL, 100, &err);
 }
 
 static int rec_set(void *user, const struct hal_set *set)
@@ -310,13 +311,13 @@ static void contract_replay(void **state)
     struct fixture src;
     sim_fixture(&src);
     struct hal_rig rig;
-    char err[256];
-    assert_int_equal(hal_rig_open(&rig, &src.board, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &src.board, &err), 0);
     struct recording rec = {&src, NULL};
     struct f4d_capture_config cfg = {.triggers = 260, .on_ready = rec_ready};
     struct f4d_capture_stats st;
-    assert_int_equal(f4d_capture_run(&rig, &cfg, rec_set, NULL, &rec, NULL, &st, err, sizeof err), 0);
-    assert_int_equal(f4d_take_close(rec.w, err, sizeof err), 0);
+    assert_int_equal(f4d_capture_run(&rig, &cfg, rec_set, NULL, &rec, NULL, &st, &err), 0);
+    assert_int_equal(f4d_take_close(rec.w, &err), 0);
     hal_rig_close(&rig);
 
     struct fixture fx;
@@ -324,7 +325,7 @@ static void contract_replay(void **state)
     fx.name = "replay";
     char dir[300];
     snprintf(dir, sizeof dir, "%s/take", tmp_root);
-    assert_int_equal(hal_replay_board(&fx.board, dir, false, err, sizeof err), 0);
+    assert_int_equal(hal_replay_board(&fx.board, dir, false, &err), 0);
     fx.triggers = 0; /* the take decides */
     fx.min_complete = 200; /* 260 recorded, 20 consumed by the stream test */
     fx.dequeue_timeout_us = 5000;

@@ -68,10 +68,10 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
         info.formats[i] = st->formats[i];
         snprintf(info.cam_ids[i], sizeof info.cam_ids[i], "cam%u", (unsigned)i);
     }
-    char err[256];
-    int rc = f4d_take_create(&r->w, r->dir, &info, "{}", r->durability_ms, err, sizeof err);
+    struct f4d_err err = {0};
+    int rc = f4d_take_create(&r->w, r->dir, &info, "{}", r->durability_ms, &err);
     if (rc < 0)
-        fprintf(stderr, "%s\n", err);
+        fprintf(stderr, "%s\n", err.msg);
     return rc;
 }
 
@@ -91,8 +91,8 @@ static int rec_set(void *user, const struct hal_set *set)
 
 static void sim_board(struct hal_board *b, uint32_t w, uint32_t h)
 {
-    char err[256];
-    assert_int_equal(hal_board_load(b, F4D_BOARD_DIR "/sim-4cam.json", err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(b, F4D_BOARD_DIR "/sim-4cam.json", &err), 0);
     b->sim.realtime = false;
     for (uint32_t i = 0; i < b->n_cams; i++) {
         b->cams[i].width = w;
@@ -105,13 +105,13 @@ static void record(const char *dir, uint64_t triggers)
     struct hal_board b;
     sim_board(&b, 32, 32);
     struct hal_rig rig;
-    char err[256];
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &b, &err), 0);
     struct rec r = {NULL, &b, dir, 50, NULL, 0};
     struct f4d_capture_config cfg = {.triggers = triggers, .on_ready = rec_ready};
     struct f4d_capture_stats st;
-    assert_int_equal(f4d_capture_run(&rig, &cfg, rec_set, NULL, &r, NULL, &st, err, sizeof err), 0);
-    assert_int_equal(f4d_take_close(r.w, err, sizeof err), 0);
+    assert_int_equal(f4d_capture_run(&rig, &cfg, rec_set, NULL, &r, NULL, &st, &err), 0);
+    assert_int_equal(f4d_take_close(r.w, &err), 0);
     hal_rig_close(&rig);
 }
 
@@ -134,8 +134,8 @@ static void round_trip(void **state)
     snprintf(dir, sizeof dir, "%s/rt/parents/made", tmp_root); /* mkdir -p */
     record(dir, 20);
     struct f4d_take_reader *r;
-    char err[256];
-    assert_int_equal(f4d_take_open(&r, dir, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(f4d_take_open(&r, dir, &err), 0);
     assert_int_equal(f4d_take_count(r), 20);
     assert_int_equal(f4d_take_get_info(r)->n_cams, 4);
     for (uint64_t i = 0; i < 20; i++) {
@@ -156,7 +156,7 @@ static void round_trip(void **state)
     assert_int_equal(f4d_take_read(r, 20, &(struct f4d_take_set){0}), F4D_EINVAL);
     f4d_take_reader_close(r);
     struct f4d_take_report rep;
-    assert_int_equal(f4d_take_verify(dir, true, &rep, err, sizeof err), 0);
+    assert_int_equal(f4d_take_verify(dir, true, &rep, &err), 0);
     assert_int_equal(rep.sets, 20);
     assert_int_equal(rep.corrupt, 0);
     assert_int_equal(rep.repaired, 0);
@@ -166,8 +166,8 @@ static void round_trip(void **state)
     /* an existing take is never overwritten */
     struct f4d_take_writer *w;
     struct f4d_take_info info = {.n_cams = 1};
-    assert_int_equal(f4d_take_create(&w, dir, &info, NULL, 10, err, sizeof err), F4D_EIO);
-    assert_non_null(strstr(err, "take.f4t"));
+    assert_int_equal(f4d_take_create(&w, dir, &info, NULL, 10, &err), F4D_EIO);
+    assert_non_null(strstr(err.msg, "take.f4t"));
 }
 
 static void flip_byte(const char *path, off_t off)
@@ -194,12 +194,12 @@ static void crc_catches_corruption(void **state)
     off_t set_bytes = (size - 28 - info_bytes) / 10;
     assert_int_equal(info_bytes + 10 * set_bytes + 28, size);
     struct f4d_take_reader *r;
-    char err[256];
-    assert_int_equal(f4d_take_open(&r, dir, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(f4d_take_open(&r, dir, &err), 0);
     f4d_take_reader_close(r);
     /* corrupt one pixel deep inside set 5 */
     flip_byte(path, info_bytes + 5 * set_bytes + set_bytes / 2);
-    assert_int_equal(f4d_take_open(&r, dir, err, sizeof err), 0);
+    assert_int_equal(f4d_take_open(&r, dir, &err), 0);
     int bad = 0;
     for (uint64_t i = 0; i < f4d_take_count(r); i++) {
         struct f4d_take_set s;
@@ -210,14 +210,14 @@ static void crc_catches_corruption(void **state)
     f4d_take_reader_close(r);
     assert_int_equal(bad, 1);
     struct f4d_take_report rep;
-    assert_int_equal(f4d_take_verify(dir, true, &rep, err, sizeof err), 0);
+    assert_int_equal(f4d_take_verify(dir, true, &rep, &err), 0);
     assert_int_equal(rep.sets, 9);
     assert_int_equal(rep.corrupt, 1);
     assert_int_equal(rep.truncated_bytes, 0);
     assert_true(rep.clean_end);
     /* a damaged record header: the scan resynchronises on the next record */
     flip_byte(path, info_bytes + 8 * set_bytes + 9); /* set 8's length field */
-    assert_int_equal(f4d_take_verify(dir, false, &rep, err, sizeof err), 0);
+    assert_int_equal(f4d_take_verify(dir, false, &rep, &err), 0);
     assert_int_equal(rep.sets, 8);
     assert_int_equal(rep.corrupt, 2);
     assert_true(rep.clean_end);
@@ -237,19 +237,19 @@ static void torn_tail_and_lost_index(void **state)
     assert_int_equal(truncate(path, size - 28 - set_bytes / 2), 0);
     assert_int_equal(unlink(idx), 0);
     struct f4d_take_reader *r;
-    char err[256];
-    assert_int_equal(f4d_take_open(&r, dir, err, sizeof err), 0); /* scans without an index */
+    struct f4d_err err = {0};
+    assert_int_equal(f4d_take_open(&r, dir, &err), 0); /* scans without an index */
     assert_int_equal(f4d_take_count(r), 11);
     f4d_take_reader_close(r);
     struct f4d_take_report rep;
-    assert_int_equal(f4d_take_verify(dir, true, &rep, err, sizeof err), 0);
+    assert_int_equal(f4d_take_verify(dir, true, &rep, &err), 0);
     assert_int_equal(rep.sets, 11);
     assert_int_equal(rep.repaired, 11);
     assert_true(rep.truncated_bytes > 0);
     assert_false(rep.clean_end);
     assert_true(rep.index_rebuilt);
     /* idempotent: a second verify finds nothing to do */
-    assert_int_equal(f4d_take_verify(dir, true, &rep, err, sizeof err), 0);
+    assert_int_equal(f4d_take_verify(dir, true, &rep, &err), 0);
     assert_int_equal(rep.sets, 11);
     assert_int_equal(rep.repaired, 0);
     assert_int_equal(rep.truncated_bytes, 0);
@@ -262,8 +262,8 @@ static void torn_tail_and_lost_index(void **state)
     FILE *f = fopen(path, "w");
     fputs("this is not a take", f);
     fclose(f);
-    assert_int_equal(f4d_take_verify(gdir, true, &rep, err, sizeof err), F4D_ECORRUPT);
-    assert_non_null(strstr(err, "no valid take header"));
+    assert_int_equal(f4d_take_verify(gdir, true, &rep, &err), F4D_ECORRUPT);
+    assert_non_null(strstr(err.msg, "no valid take header"));
 }
 
 /* The recorder is SIGKILLed at random points; verify must recover every set
@@ -290,13 +290,13 @@ static void killed_at_random_points(void **state)
             /* simulated clock: the child is always rendering or writing, so kills
              * land inside writes; the writer's durability window is wall time */
             struct hal_rig rig;
-            char err[256];
-            if (hal_rig_open(&rig, &b, err, sizeof err) < 0)
+            struct f4d_err err = {0};
+            if (hal_rig_open(&rig, &b, &err) < 0)
                 _exit(2);
             struct rec r = {NULL, &b, dir, durability_ms, sh, SHARED};
             struct f4d_capture_config cfg = {.on_ready = rec_ready};
             struct f4d_capture_stats st;
-            f4d_capture_run(&rig, &cfg, rec_set, NULL, &r, NULL, &st, err, sizeof err);
+            f4d_capture_run(&rig, &cfg, rec_set, NULL, &r, NULL, &st, &err);
             _exit(3); /* never reached: runs until killed */
         }
         rng = rng * 6364136223846793005ull + 1442695040888963407ull;
@@ -313,8 +313,8 @@ static void killed_at_random_points(void **state)
             if (sh[i + 1] + (uint64_t)durability_ms * 1000000u + 50000000u < t_kill)
                 old_enough = i;
         struct f4d_take_report rep;
-        char err[256];
-        int rc = f4d_take_verify(dir, true, &rep, err, sizeof err);
+        struct f4d_err err = {0};
+        int rc = f4d_take_verify(dir, true, &rep, &err);
         if (rc < 0 && appended == 0) { /* killed before the header was durable */
             munmap((void *)sh, SHARED * sizeof(uint64_t));
             continue;
@@ -332,7 +332,7 @@ static void killed_at_random_points(void **state)
         total_recovered += rep.sets;
         /* what verify recovered reads back, in order, with good CRCs */
         struct f4d_take_reader *r;
-        assert_int_equal(f4d_take_open(&r, dir, err, sizeof err), 0);
+        assert_int_equal(f4d_take_open(&r, dir, &err), 0);
         assert_int_equal(f4d_take_count(r), rep.sets);
         for (uint64_t i = 0; i < rep.sets; i++) {
             struct f4d_take_set s;

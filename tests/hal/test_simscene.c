@@ -14,8 +14,8 @@ static void renders_the_scene_over_time(void **state)
 {
     (void)state;
     struct f4d_simscene *ss;
-    char err[256];
-    assert_int_equal(f4d_simscene_new(&ss, "walk", 1, 4, 64, 48, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(f4d_simscene_new(&ss, "walk", 1, 4, 64, 48, &err), 0);
     struct hal_format f = {HAL_PIXFMT_RGB8, 64, 48, 0, 30000, HAL_TRIGGER_HARDWARE, 1000, 0};
     assert_int_equal(hal_format_finish(&f), 0);
     uint8_t *a = malloc(f.image_bytes), *b = malloc(f.image_bytes), *c = malloc(f.image_bytes);
@@ -42,8 +42,8 @@ static void renders_the_scene_over_time(void **state)
     free(b);
     free(c);
     f4d_simscene_free(ss);
-    assert_int_equal(f4d_simscene_new(&ss, "moonwalk", 1, 4, 64, 48, err, sizeof err), F4D_EINVAL);
-    assert_non_null(strstr(err, "moonwalk"));
+    assert_int_equal(f4d_simscene_new(&ss, "moonwalk", 1, 4, 64, 48, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "moonwalk"));
 }
 
 int main(void)

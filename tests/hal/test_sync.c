@@ -184,8 +184,8 @@ static void sync_fault_injection_10k(void **state)
 {
     (void)state;
     struct hal_board board;
-    char err[256];
-    assert_int_equal(hal_board_load(&board, F4D_BOARD_DIR "/sim-4cam-faulty.json", err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(&board, F4D_BOARD_DIR "/sim-4cam-faulty.json", &err), 0);
     board.sim.realtime = false;
     for (uint32_t i = 0; i < board.n_cams; i++) {
         board.cams[i].width = 32;
@@ -193,11 +193,11 @@ static void sync_fault_injection_10k(void **state)
         board.cams[i].pixfmt = HAL_PIXFMT_MONO8;
     }
     struct hal_rig rig;
-    assert_int_equal(hal_rig_open(&rig, &board, err, sizeof err), 0);
+    assert_int_equal(hal_rig_open(&rig, &board, &err), 0);
     struct truth t = {0};
     struct f4d_capture_stats st;
     struct f4d_capture_config cfg = {.triggers = 10000};
-    int rc = f4d_capture_run(&rig, &cfg, check_set, NULL, &t, NULL, &st, err, sizeof err);
+    int rc = f4d_capture_run(&rig, &cfg, check_set, NULL, &t, NULL, &st, &err);
     if (rc < 0)
         fail_msg("capture: %s", err);
     struct hal_sim_injected inj;

@@ -117,20 +117,20 @@ static int run_once(int run, uint32_t *lost_first5)
     struct hal_board board;
     board_4cam(&board);
     struct hal_rig rig;
-    char err[256];
+    struct f4d_err err = {0};
     int lost = -1;
-    if (hal_rig_open(&rig, &board, err, sizeof err) < 0) {
-        fprintf(stderr, "test_trigger_arm: rig: %s\n", err);
+    if (hal_rig_open(&rig, &board, &err) < 0) {
+        fprintf(stderr, "test_trigger_arm: rig: %s\n", err.msg);
         goto out;
     }
     static struct seen seen;
     memset(&seen, 0, sizeof seen);
     struct f4d_capture_config cfg = {.triggers = TRIGGERS};
     struct f4d_capture_stats st;
-    int rc = f4d_capture_run(&rig, &cfg, on_set, NULL, &seen, NULL, &st, err, sizeof err);
+    int rc = f4d_capture_run(&rig, &cfg, on_set, NULL, &seen, NULL, &st, &err);
     hal_rig_close(&rig);
     if (rc < 0) {
-        fprintf(stderr, "test_trigger_arm: capture: %s\n", err);
+        fprintf(stderr, "test_trigger_arm: capture: %s\n", err.msg);
         goto out;
     }
     lost = 0;

@@ -227,8 +227,8 @@ static int teardown(void **state)
 
 static void usb_board(struct hal_board *b, const char *dev)
 {
-    char err[256];
-    assert_int_equal(hal_board_load(b, F4D_BOARD_DIR "/usb-2cam.json", err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(hal_board_load(b, F4D_BOARD_DIR "/usb-2cam.json", &err), 0);
     b->n_cams = 1;
     snprintf(b->cams[0].address, sizeof b->cams[0].address, "%s", dev);
 }
@@ -238,16 +238,16 @@ static void open_failures(void **state)
     (void)state;
     struct hal_board b;
     struct hal_rig rig;
-    char err[256];
+    struct f4d_err err = {0};
     usb_board(&b, "/dev/video77");
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), F4D_ENODEV);
-    assert_non_null(strstr(err, "/dev/video77"));
+    assert_int_equal(hal_rig_open(&rig, &b, &err), F4D_ENODEV);
+    assert_non_null(strstr(err.msg, "/dev/video77"));
     usb_board(&b, "/dev/null");
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), F4D_ENODEV);
-    assert_non_null(strstr(err, "not a V4L2 device"));
+    assert_int_equal(hal_rig_open(&rig, &b, &err), F4D_ENODEV);
+    assert_non_null(strstr(err.msg, "not a V4L2 device"));
     usb_board(&b, "");
-    assert_int_equal(hal_rig_open(&rig, &b, err, sizeof err), F4D_EINVAL);
-    assert_non_null(strstr(err, "no device node"));
+    assert_int_equal(hal_rig_open(&rig, &b, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "no device node"));
 }
 
 struct sets {
@@ -278,9 +278,9 @@ static void negotiate_and_stream(void **state)
         skip();
     struct hal_board b;
     struct hal_rig rig;
-    char err[256];
+    struct f4d_err err = {0};
     usb_board(&b, "/dev/video0");
-    if (hal_rig_open(&rig, &b, err, sizeof err) < 0)
+    if (hal_rig_open(&rig, &b, &err) < 0)
         fail_msg("%s", err);
     struct hal_camera *cam = &rig.cams[0];
     /* the driver snaps 1000x700 RGB to 640x480 YUYV; a UVC camera runs free */
@@ -300,12 +300,12 @@ static void negotiate_and_stream(void **state)
     hal_rig_close(&rig);
 
     /* the capture loop over the whole path: tick trigger, USERPTR DQBUF, synchronizer */
-    if (hal_rig_open(&rig, &b, err, sizeof err) < 0)
+    if (hal_rig_open(&rig, &b, &err) < 0)
         fail_msg("%s", err);
     struct f4d_capture_config cfg = {.triggers = 30, .buffers_per_cam = 4};
     struct f4d_capture_stats st;
     struct sets k = {0, 0, 0};
-    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &k, NULL, &st, err, sizeof err);
+    int rc = f4d_capture_run(&rig, &cfg, count_set, NULL, &k, NULL, &st, &err);
     if (rc < 0)
         fail_msg("capture: %s", err);
     hal_rig_close(&rig);

@@ -74,8 +74,8 @@ static int on_ready(void *u, const struct f4d_capture_stats *st)
     struct f4d_take_info info = {.n_cams = r->board->n_cams, .rate_mhz = r->board->trigger.rate_mhz};
     for (uint32_t i = 0; i < info.n_cams; i++)
         info.formats[i] = st->formats[i];
-    char err[256];
-    return f4d_take_create(&r->w, r->dir, &info, NULL, 250, err, sizeof err);
+    struct f4d_err err = {0};
+    return f4d_take_create(&r->w, r->dir, &info, NULL, 250, &err);
 }
 
 static int on_set(void *u, const struct hal_set *set)
@@ -104,9 +104,9 @@ static double bench_capture(const struct hal_board *board, uint64_t sets, const 
                             double *mb_s)
 {
     struct hal_rig rig;
-    char err[256];
-    if (hal_rig_open(&rig, board, err, sizeof err) < 0) {
-        fprintf(stderr, "f4d-bench hal: %s\n", err);
+    struct f4d_err err = {0};
+    if (hal_rig_open(&rig, board, &err) < 0) {
+        fprintf(stderr, "f4d-bench hal: %s\n", err.msg);
         return -1;
     }
     char path[600];
@@ -124,11 +124,11 @@ static double bench_capture(const struct hal_board *board, uint64_t sets, const 
     struct f4d_capture_config cfg = {.triggers = sets, .on_ready = on_ready};
     struct f4d_capture_stats st;
     double t0 = bench_now();
-    int rc = f4d_capture_run(&rig, &cfg, on_set, NULL, &r, NULL, &st, err, sizeof err);
+    int rc = f4d_capture_run(&rig, &cfg, on_set, NULL, &r, NULL, &st, &err);
     uint64_t bytes = r.bytes;
     if (r.w) {
         bytes = f4d_take_bytes_written(r.w);
-        f4d_take_close(r.w, err, sizeof err);
+        f4d_take_close(r.w, &err);
     }
     if (r.raw_fd >= 0) {
         fdatasync(r.raw_fd);

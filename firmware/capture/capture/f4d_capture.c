@@ -41,8 +41,7 @@ static void on_release(void *user, struct hal_buffer *b)
 }
 
 /* Waits (real time, polling) until every camera streams. */
-static int wait_streaming(struct hal_rig *rig, uint64_t timeout_ns, uint64_t *waited_ns, char *err,
-                          size_t errlen)
+static int wait_streaming(struct hal_rig *rig, uint64_t timeout_ns, uint64_t *waited_ns, struct f4d_err *err)
 {
     struct hal_clock mono = hal_clock_monotonic();
     const uint64_t t0 = hal_clock_now(&mono);
@@ -66,7 +65,7 @@ static int wait_streaming(struct hal_rig *rig, uint64_t timeout_ns, uint64_t *wa
                 n = w < 0 ? sizeof names : n + (size_t)w;
             }
             const char *why = hal_camera_last_error(&rig->cams[first]);
-            return hal_fail(err, errlen, F4D_ETIMEDOUT,
+            return f4d_fail(err, F4D_ETIMEDOUT,
                             "camera%s %s not streaming %llu ms after start: trigger not armed%s%s",
                             waiting > 1 ? "s" : "", names, (unsigned long long)(timeout_ns / 1000000u),
                             why[0] ? "; " : "", why);
@@ -87,14 +86,13 @@ static void on_sync_set(void *user, const struct hal_set *set)
 
 int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
                     f4d_capture_set_fn on_set, f4d_capture_progress_fn on_progress, void *user,
-                    volatile sig_atomic_t *stop, struct f4d_capture_stats *out, char *err,
-                    size_t errlen)
+                    volatile sig_atomic_t *stop, struct f4d_capture_stats *out, struct f4d_err *err)
 {
     const struct hal_board *board = rig->board;
     memset(out, 0, sizeof *out);
     struct run *r = calloc(1, sizeof *r);
     if (!r)
-        return hal_fail(err, errlen, F4D_ENOMEM, "capture: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "capture: out of memory");
     r->rig = rig;
     r->on_set = on_set;
     r->user = user;
@@ -103,14 +101,14 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     int rc = f4d_sync_init(&r->sync, &sc, on_sync_set, on_release, r);
     if (rc < 0) {
         free(r);
-        return hal_fail(err, errlen, rc, "capture: bad sync settings in board \"%s\"", board->name);
+        return f4d_fail(err, rc, "capture: bad sync settings in board \"%s\"", board->name);
     }
     const uint32_t nbuf = cfg->buffers_per_cam ? cfg->buffers_per_cam : board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS;
     struct hal_buffer *bufs = calloc((size_t)nbuf * rig->n_cams, sizeof *bufs);
     uint8_t *arena[HAL_RIG_CAMERAS_MAX] = {0};
     uint32_t configured = 0; /* cameras [0, configured) were negotiated (and may hold buffers) */
     if (!bufs) {
-        rc = hal_fail(err, errlen, F4D_ENOMEM, "capture: out of memory");
+        rc = f4d_fail(err, F4D_ENOMEM, "capture: out of memory");
         goto out;
     }
     /* Negotiate: the board's wish, adjusted once by the device, then fixed. */
@@ -123,12 +121,12 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         if (rc == HAL_FORMAT_ADJUSTED)
             rc = hal_camera_validate(cam, &f);
         if (rc != HAL_FORMAT_VALID) {
-            rc = hal_fail(err, errlen, rc < 0 ? rc : F4D_EINVAL,
+            rc = f4d_fail(err, rc < 0 ? rc : F4D_EINVAL,
                           "camera %s: no usable format (%s)", cc->id, hal_camera_last_error(cam));
             goto out;
         }
         if ((rc = hal_camera_configure(cam, &f)) < 0) {
-            rc = hal_fail(err, errlen, rc, "camera %s: configure: %s", cc->id,
+            rc = f4d_fail(err, rc, "camera %s: configure: %s", cc->id,
                           hal_camera_last_error(cam));
             goto out;
         }
@@ -136,7 +134,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         out->formats[i] = f;
         arena[i] = malloc((size_t)nbuf * f.image_bytes);
         if (!arena[i]) {
-            rc = hal_fail(err, errlen, F4D_ENOMEM, "camera %s: cannot allocate %u buffers of %zu bytes",
+            rc = f4d_fail(err, F4D_ENOMEM, "camera %s: cannot allocate %u buffers of %zu bytes",
                           cc->id, (unsigned)nbuf, f.image_bytes);
             goto out;
         }
@@ -146,7 +144,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             b->capacity = f.image_bytes;
             b->camera_index = i;
             if ((rc = enqueue(r, i, b)) < 0) {
-                rc = hal_fail(err, errlen, rc, "camera %s: enqueue: %s", cc->id,
+                rc = f4d_fail(err, rc, "camera %s: enqueue: %s", cc->id,
                               hal_camera_last_error(cam));
                 goto out;
             }
@@ -154,24 +152,24 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     }
     for (uint32_t i = 0; i < rig->n_cams; i++) {
         if ((rc = hal_camera_start(&rig->cams[i])) < 0) {
-            rc = hal_fail(err, errlen, rc, "camera %s: start: %s", board->cams[i].id,
+            rc = f4d_fail(err, rc, "camera %s: start: %s", board->cams[i].id,
                           hal_camera_last_error(&rig->cams[i]));
             goto out;
         }
     }
     if (cfg->on_ready && (rc = cfg->on_ready(user, out)) < 0) {
-        rc = hal_fail(err, errlen, rc, "capture: the set consumer could not start");
+        rc = f4d_fail(err, rc, "capture: the set consumer could not start");
         goto out;
     }
     /* the first pulse goes out only when every camera can answer it */
     rc = wait_streaming(rig, cfg->ready_timeout_ns ? cfg->ready_timeout_ns : 5000000000ull,
-                        &out->ready_wait_ns, err, errlen);
+                        &out->ready_wait_ns, err);
     if (rc < 0)
         goto out;
     struct hal_pulse_train train = {board->trigger.rate_mhz, board->trigger.pulse_width_us,
                                      cfg->triggers};
     if ((rc = hal_trigger_arm(&rig->trigger, &train)) < 0) {
-        rc = hal_fail(err, errlen, rc, "trigger: arm failed (%s)",
+        rc = f4d_fail(err, rc, "trigger: arm failed (%s)",
                       rig->trigger.ops.last_error ? rig->trigger.ops.last_error(rig->trigger.ctx) : "");
         goto out;
     }
@@ -223,7 +221,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
         }
         f4d_sync_advance(&r->sync, now);
         if (r->set_rc < 0) {
-            rc = hal_fail(err, errlen, r->set_rc, "capture stopped: the set consumer failed");
+            rc = f4d_fail(err, r->set_rc, "capture stopped: the set consumer failed");
             break;
         }
         if (on_progress && now >= next_progress) {
@@ -259,7 +257,7 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
                 if (!cfg->triggers || seen < cfg->triggers) {
                     train.count = cfg->triggers ? cfg->triggers - seen : 0;
                     if ((rc = hal_trigger_arm(&rig->trigger, &train)) < 0) {
-                        rc = hal_fail(err, errlen, rc, "trigger: re-arm after a hold failed (%s)",
+                        rc = f4d_fail(err, rc, "trigger: re-arm after a hold failed (%s)",
                                       rig->trigger.ops.last_error ? rig->trigger.ops.last_error(rig->trigger.ctx)
                                                                   : "");
                         break;
@@ -293,9 +291,9 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
     out->sync = r->sync.c;
     out->t_end_ns = hal_clock_now(clk);
     if (rc >= 0 && r->set_rc < 0)
-        rc = hal_fail(err, errlen, r->set_rc, "capture stopped: the set consumer failed");
+        rc = f4d_fail(err, r->set_rc, "capture stopped: the set consumer failed");
     if (rc >= 0 && r->requeue_errors)
-        rc = hal_fail(err, errlen, F4D_EIO, "capture: %u buffers could not be queued again",
+        rc = f4d_fail(err, F4D_EIO, "capture: %u buffers could not be queued again",
                       (unsigned)r->requeue_errors);
 out:;
     /* Every negotiated camera is stopped, started or not (a camera that never
@@ -312,7 +310,7 @@ out:;
         if (r->owned[i]) {
             kept = true;
             if (rc >= 0)
-                rc = hal_fail(err, errlen, F4D_ESTATE, "camera %s: still holds %u buffers after stop (%s)",
+                rc = f4d_fail(err, F4D_ESTATE, "camera %s: still holds %u buffers after stop (%s)",
                               board->cams[i].id, (unsigned)r->owned[i], hal_camera_last_error(&rig->cams[i]));
             continue;
         }

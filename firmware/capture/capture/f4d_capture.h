@@ -78,7 +78,6 @@ typedef void (*f4d_capture_progress_fn)(void *user, const struct f4d_capture_sta
 
 int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
                     f4d_capture_set_fn on_set, f4d_capture_progress_fn on_progress, void *user,
-                    volatile sig_atomic_t *stop, struct f4d_capture_stats *out, char *err,
-                    size_t errlen);
+                    volatile sig_atomic_t *stop, struct f4d_capture_stats *out, struct f4d_err *err);
 
 #endif

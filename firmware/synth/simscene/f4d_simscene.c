@@ -20,32 +20,32 @@ struct f4d_simscene {
 };
 
 int f4d_simscene_new(struct f4d_simscene **out, const char *preset, uint64_t seed, uint32_t views,
-                     uint32_t width, uint32_t height, char *err, size_t errlen)
+                     uint32_t width, uint32_t height, struct f4d_err *err)
 {
     *out = NULL;
     struct f4d_err se;
     memset(&se, 0, sizeof se);
     int p = scene_preset_from_name(preset, &se);
     if (p < 0)
-        return hal_fail(err, errlen, F4D_EINVAL, "sim scene: %s", se.msg);
+        return f4d_fail(err, F4D_EINVAL, "sim scene: %s", se.msg);
     if (views < 1 || views > 8 || width < 16 || height < 16)
-        return hal_fail(err, errlen, F4D_EINVAL, "sim scene: %u views of %ux%u (want 1..8 views, >= 16x16)",
+        return f4d_fail(err, F4D_EINVAL, "sim scene: %u views of %ux%u (want 1..8 views, >= 16x16)",
                         (unsigned)views, (unsigned)width, (unsigned)height);
     struct f4d_simscene *ss = calloc(1, sizeof *ss);
     if (!ss)
-        return hal_fail(err, errlen, F4D_ENOMEM, "sim scene: out of memory");
+        return f4d_fail(err, F4D_ENOMEM, "sim scene: out of memory");
     ss->width = width;
     ss->height = height;
     ss->rgb = malloc((size_t)width * height * 3 * sizeof *ss->rgb);
     struct fk_ctx_config cfg = {.isa = FK_ISA_AUTO, .threads = 0};
     if (!ss->rgb || fk_ctx_new(&cfg, &ss->ctx) != F4D_OK) {
         f4d_simscene_free(ss);
-        return hal_fail(err, errlen, F4D_ENOMEM, "sim scene: cannot create the compute context");
+        return f4d_fail(err, F4D_ENOMEM, "sim scene: cannot create the compute context");
     }
     if (scene_new((enum scene_preset)p, seed, 0, &ss->sc, &se) < 0 ||
         splat_renderer_new(ss->ctx, (int)width, (int)height, &ss->r, &se) < 0) {
         f4d_simscene_free(ss);
-        return hal_fail(err, errlen, F4D_EINVAL, "sim scene %s: %s", preset, se.msg);
+        return f4d_fail(err, F4D_EINVAL, "sim scene %s: %s", preset, se.msg);
     }
     scene_default_rig(ss->sc, (int)views, (int)width, (int)height, &ss->rig);
     *out = ss;

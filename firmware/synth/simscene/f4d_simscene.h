@@ -28,7 +28,7 @@ struct f4d_simscene;
 
 /* views: cameras of the rig (1..8); width/height: every view's size. */
 int f4d_simscene_new(struct f4d_simscene **out, const char *preset, uint64_t seed, uint32_t views,
-                     uint32_t width, uint32_t height, char *err, size_t errlen);
+                     uint32_t width, uint32_t height, struct f4d_err *err);
 /* A hal_sim_render_fn: user is the f4d_simscene. */
 int f4d_simscene_render(void *user, uint32_t cam, uint64_t t_ns, const struct hal_format *f,
                         uint8_t *dst);

@@ -12,15 +12,14 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     struct hal_board b;
-    char err[256];
-    err[0] = 0;
-    int rc = hal_board_parse(&b, (const char *)data, size, err, sizeof err);
-    if (rc < 0 && err[0] == 0)
+    struct f4d_err err = {0};
+    int rc = hal_board_parse(&b, (const char *)data, size, &err);
+    if (rc < 0 && err.msg[0] == 0)
         __builtin_trap(); /* every failure must say why */
     if (rc == 0) {
         char *js = hal_board_to_json(&b);
         struct hal_board b2;
-        if (js && hal_board_parse(&b2, js, strlen(js), err, sizeof err) != 0)
+        if (js && hal_board_parse(&b2, js, strlen(js), &err) != 0)
             __builtin_trap(); /* what we write, we read back */
         free(js);
     }

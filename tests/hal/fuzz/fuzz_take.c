@@ -31,10 +31,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     snprintf(path, sizeof path, "%s/" F4D_TAKE_INDEX, dir);
     unlink(path);
     struct f4d_take_report rep;
-    char err[256];
-    int rc = f4d_take_verify(dir, true, &rep, err, sizeof err);
+    struct f4d_err err = {0};
+    int rc = f4d_take_verify(dir, true, &rep, &err);
     struct f4d_take_reader *r;
-    if (f4d_take_open(&r, dir, err, sizeof err) == 0) {
+    if (f4d_take_open(&r, dir, &err) == 0) {
         uint64_t n = f4d_take_count(r);
         if (rc == 0 && n != rep.sets)
             __builtin_trap(); /* the rebuilt index and a scan must agree */
