@@ -368,8 +368,20 @@ static int cmd_replay(int argc, char **argv)
     return run_capture(&board, NULL, 0, 0, stats, false);
 }
 
+/* A broken internal invariant is a bug: say so plainly, and point at verify,
+ * which recovers every set the take writer had appended before the abort. */
+static void on_invariant(const char *file, int line, const char *expr)
+{
+    fprintf(stderr, "forge4d: internal error at %s:%d (%s); please report it. "
+                    "A take being recorded is recoverable with `forge4d verify DIR`.\n",
+            file, line, expr);
+    fflush(stderr);
+    abort();
+}
+
 int main(int argc, char **argv)
 {
+    f4d_set_abort_hook(on_invariant);
     if (argc < 2)
         return usage();
     struct sigaction sa;

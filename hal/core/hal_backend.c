@@ -75,6 +75,7 @@ bool hal_bufq_push(struct hal_bufq *q, struct hal_buffer *b)
 
 struct hal_buffer *hal_bufq_pop(struct hal_bufq *q)
 {
+    F4D_ASSERT(q->count <= HAL_BUFQ_MAX && q->head < HAL_BUFQ_MAX);
     if (q->count == 0)
         return NULL;
     struct hal_buffer *b = q->ring[q->head];
@@ -207,6 +208,7 @@ bool hal_edgeq_push_overwrite(struct hal_edgeq *q, const struct hal_edge *e)
 
 uint32_t hal_edgeq_pop(struct hal_edgeq *q, struct hal_edge *out, uint32_t max)
 {
+    F4D_ASSERT(q->count <= HAL_EDGEQ_MAX && q->head < HAL_EDGEQ_MAX);
     uint32_t n = 0;
     while (n < max && q->count) {
         out[n++] = q->ring[q->head];

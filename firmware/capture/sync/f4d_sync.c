@@ -49,11 +49,13 @@ int f4d_sync_init(struct f4d_sync *s, const struct f4d_sync_config *cfg, f4d_syn
 
 static struct f4d_sync_slot *slot_at(struct f4d_sync *s, uint32_t i)
 {
+    F4D_ASSERT(i < s->s_count || i == s->s_count); /* the open slots, or the next one */
     return &s->slots[(s->s_head + i) % F4D_SYNC_PENDING_MAX];
 }
 
 static void close_oldest(struct f4d_sync *s)
 {
+    F4D_ASSERT(s->s_count > 0);
     struct f4d_sync_slot *sl = slot_at(s, 0);
     struct hal_set *set = &sl->set;
     const uint32_t all = all_mask(s);
