@@ -208,10 +208,10 @@ struct hal_intrinsics {
     double fx, fy, cx, cy;
 };
 struct hal_camera_config {
-    char backend[16];             /* "sim", "aravis", "usb", "replay" */
+    char backend[16];             /* "sim", "aravis", "usb", "libcamera", "replay" */
     char id[HAL_NAME_MAX];        /* human name, e.g. "cam0" */
     char serial[HAL_NAME_MAX];
-    char address[HAL_PATH_MAX];   /* IP (aravis), /dev/videoN (usb), take dir (replay) */
+    char address[HAL_PATH_MAX];   /* IP (aravis), /dev/videoN or usb:VID:PID (usb), camera id (libcamera), take dir (replay) */
     uint32_t width, height;
     enum hal_pixfmt pixfmt;
     int32_t trigger_line;         /* camera input line, -1 = none */
