@@ -30,7 +30,17 @@
 #define F4D_HAL_USB_H
 
 #include "hal.h"
+#include "hal_usb_hotplug.h"
 
 extern const struct hal_backend hal_usb_backend;
+
+/* The session's hotplug event source (tests put a fake one in place of the
+ * libusb monitor; session = hal_rig_session(&rig, "usb")). */
+int hal_usb_session_set_events(void *session, struct hal_usb_event_source src);
+/* Why the session has no libusb monitor ("" when it has one). */
+const char *hal_usb_session_hotplug_error(void *session);
+/* The reconnect state of a usb camera (reconnect counts), NULL if the camera
+ * is not a usb camera or its node has no USB device in sysfs. */
+const struct hal_usb_link *hal_usb_camera_link(const struct hal_camera *cam);
 
 #endif
