@@ -2,8 +2,9 @@
  *
  * Cameras, triggers and clocks are small vtables held by value next to a
  * backend context (`{ops, ctx}`); every ops struct starts with `api_version`,
- * checked when the backend is opened. Backends (sim, replay, aravis, gpiod, usb)
- * are listed in one static table (hal_registry.c), selected at compile time.
+ * checked when the backend is opened. Backends (sim, replay, aravis, gpiod, usb,
+ * libcamera) are listed in one static table (hal_registry.c), selected at
+ * compile time.
  *
  * Usage (the normal path goes through a rig, i.e. every device of a board):
  *

@@ -28,9 +28,10 @@
  *
  * 3. The libusb monitor (hal_usb_hotplug.c): libusb_init, a check of
  *    LIBUSB_CAP_HAS_HOTPLUG, libusb_hotplug_register_callback for any
- *    device (arrived + left). No thread: hal_usb_hotplug_poll() runs
+ *    device (arrived + left). No thread of ours: the source's poll() runs
  *    libusb_handle_events_timeout_completed() in the caller's thread (the
- *    camera's dequeue path), the callback copies each event into a fixed
+ *    camera's dequeue path; libusb's own udev monitor thread only queues
+ *    what it sees), the callback copies each event into a fixed
  *    ring (64, no allocation; when full, newer events are counted and
  *    dropped), and the serial of an arrived device is read from sysfs
  *    (/sys/bus/usb/devices/<bus>-<devpath>/serial) after the callback.
