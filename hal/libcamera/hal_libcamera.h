@@ -30,9 +30,15 @@
  * umockdev, and the node libusb hotplug reopens); this backend is for CSI
  * sensors, which need libcamera's pipeline handlers and ISP.
  *
- * Exercised here: manager start/stop (0 cameras on this machine), refcounted
- * double start/stop, camera lookup failures. Not exercised: any real
- * streaming path (no camera, and libcamera 0.0.3 has no virtual pipeline).
+ * Exercised here: the real shim's CameraManager start/stop (0 cameras on
+ * this machine), refcounted double start/stop and restart, camera lookup
+ * failures through the registry (tests/hal/test_libcamera.c); the C camera
+ * ops (format mapping, state rules, caller-buffer FIFO and copy, sequence
+ * unwrap, stop -> ABORTED, disconnect -> F4D_ENODEV) over a fake shim
+ * (tests/hal/test_libcamera_ops.c). Not exercised: the shim's camera half
+ * (configure, FrameBufferAllocator, mmap, requests, SensorTimestamp) against
+ * a real camera: there is none here, and libcamera 0.0.3 has no virtual
+ * pipeline handler (vimc needs a kernel driver).
  */
 #ifndef F4D_HAL_LIBCAMERA_H
 #define F4D_HAL_LIBCAMERA_H
