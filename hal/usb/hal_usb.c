@@ -184,6 +184,8 @@ static int wait_device(struct usb_cam *c, uint64_t deadline, struct hal_buffer *
             return hal_cam_dequeue_begin(&c->st, out);
         if (!c->gone)
             return 1;
+        if (!c->s->hub.src.ops) /* no hotplug events: nothing will bring it back */
+            return hal_cam_fail(&c->st, F4D_ENODEV, "device gone (no hotplug: %.100s)", c->s->hp_err);
         uint64_t now = hal_mono_ns();
         if (now >= deadline)
             return hal_cam_fail(&c->st, F4D_ENODEV, "device gone (waiting for it to come back)");
