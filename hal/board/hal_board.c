@@ -137,7 +137,7 @@ static void pop(struct ctx *c, size_t saved) { c->path[saved] = 0; }
 static int parse_backend(struct ctx *c, const cJSON *o, char *out, size_t cap, bool camera)
 {
     TRY(get_str(c, o, "backend", out, cap));
-    static const char *const cams[] = {"sim", "aravis", "usb", "replay", NULL};
+    static const char *const cams[] = {"sim", "aravis", "usb", "libcamera", "replay", NULL};
     static const char *const trigs[] = {"sim", "gpiod", "aravis", "usb", "replay", NULL};
     const char *const *ok = camera ? cams : trigs;
     for (size_t i = 0; ok[i]; i++)

@@ -2,8 +2,9 @@
  *
  * Cameras, triggers and clocks are small vtables held by value next to a
  * backend context (`{ops, ctx}`); every ops struct starts with `api_version`,
- * checked when the backend is opened. Backends (sim, replay, aravis, gpiod, usb)
- * are listed in one static table (hal_registry.c), selected at compile time.
+ * checked when the backend is opened. Backends (sim, replay, aravis, gpiod, usb,
+ * libcamera) are listed in one static table (hal_registry.c), selected at
+ * compile time.
  *
  * Usage (the normal path goes through a rig, i.e. every device of a board):
  *
@@ -220,10 +221,10 @@ struct hal_intrinsics {
     double fx, fy, cx, cy;
 };
 struct hal_camera_config {
-    char backend[16];             /* "sim", "aravis", "usb", "replay" */
+    char backend[16];             /* "sim", "aravis", "usb", "libcamera", "replay" */
     char id[HAL_NAME_MAX];        /* human name, e.g. "cam0" */
     char serial[HAL_NAME_MAX];
-    char address[HAL_PATH_MAX];   /* IP (aravis), /dev/videoN (usb), take dir (replay) */
+    char address[HAL_PATH_MAX];   /* IP (aravis), /dev/videoN or usb:VID:PID (usb), camera id (libcamera), take dir (replay) */
     uint32_t width, height;
     enum hal_pixfmt pixfmt;
     int32_t trigger_line;         /* camera input line, -1 = none */

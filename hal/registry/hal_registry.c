@@ -20,6 +20,9 @@ extern const struct hal_backend hal_gpiod_backend;
 #if HAL_HAS_USB
 extern const struct hal_backend hal_usb_backend;
 #endif
+#if HAL_HAS_LIBCAMERA
+extern const struct hal_backend hal_libcamera_backend;
+#endif
 
 static const struct hal_backend *const backends[] = {
     &hal_sim_backend,
@@ -34,6 +37,9 @@ static const struct hal_backend *const backends[] = {
 #endif
 #if HAL_HAS_USB
     &hal_usb_backend,
+#endif
+#if HAL_HAS_LIBCAMERA
+    &hal_libcamera_backend,
 #endif
 };
 

@@ -3,6 +3,7 @@
 #include "hal_usb.h"
 
 #include "hal_backend.h"
+#include "hal_usb_hotplug.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -31,6 +32,12 @@ struct usb_cam {
     uint32_t n_slots;
     uint64_t seq_hi, last_seq32; /* unwrapping the 32-bit V4L2 sequence */
     bool have_seq;
+    /* hotplug: the USB device behind the node, and the reconnect state */
+    bool hotplug;                /* the node has a USB parent in sysfs */
+    bool gone;                   /* the device left: fd closed, waiting for it */
+    bool clock_reset;            /* flag the first frame after a reopen */
+    char node[HAL_PATH_MAX];     /* the node in use now */
+    struct hal_usb_link link;
 };
 
 struct usb_session {
@@ -38,6 +45,9 @@ struct usb_session {
     bool trig_open, armed;
     uint64_t period_ns, first_tick_ns, next_tick_ns, sent, limit, seq;
     struct hal_edgeq edges; /* full: later ticks are not reported */
+    struct hal_usb_hotplug *hp; /* libusb monitor, NULL when unavailable */
+    struct hal_usb_hub hub;     /* pumps hp (or a test's source) into the cameras */
+    struct f4d_err hp_err;       /* why there is no monitor */
 };
 
 static int xioctl(int fd, unsigned long req, void *arg)
@@ -92,6 +102,96 @@ static struct v4l2_format capture_format(const struct hal_format *f)
     vf.fmt.pix.pixelformat = to_fourcc(f->pixfmt);
     vf.fmt.pix.field = V4L2_FIELD_NONE;
     return vf;
+}
+
+/* ---- hotplug: the reconnect logic's view of a camera ---- */
+static int stream_on(struct usb_cam *c);
+
+static void dev_drop(void *cam)
+{
+    struct usb_cam *c = cam;
+    if (c->fd >= 0)
+        close(c->fd); /* the driver's buffers die with the device */
+    c->fd = -1;
+    c->gone = true;
+    for (uint32_t i = 0; i < c->n_slots; i++) {
+        if (c->queued[i])
+            hal_cam_abort(&c->st, c->slots[i]);
+        c->queued[i] = false;
+    }
+    char id[160];
+    hal_usb_id_format(&c->link.have, id, sizeof id);
+    errno = 0;
+    hal_cam_fail(&c->st, F4D_ENODEV, "device %s left (waiting for it to come back)", id);
+}
+
+static int dev_find_node(void *cam, const struct hal_usb_id *dev, char *node, size_t cap)
+{
+    (void)cam;
+    return hal_usb_sysfs_find_node(dev, node, cap, NULL);
+}
+
+static int dev_reopen(void *cam, const char *node)
+{
+    struct usb_cam *c = cam;
+    errno = 0;
+    int fd = open(node, O_RDWR | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
+        return cam_fail(c, F4D_ENODEV, "reopen");
+    c->fd = fd;
+    snprintf(c->node, sizeof c->node, "%s", node);
+    int rc = F4D_OK;
+    if (c->st.configured) {
+        struct v4l2_format vf = capture_format(&c->st.fmt);
+        if (xioctl(fd, VIDIOC_S_FMT, &vf) < 0 || vf.fmt.pix.width != c->st.fmt.width ||
+            vf.fmt.pix.height != c->st.fmt.height || from_fourcc(vf.fmt.pix.pixelformat) != c->st.fmt.pixfmt)
+            rc = cam_fail(c, F4D_EIO, "reopen: VIDIOC_S_FMT (format not taken again)");
+        if (rc == F4D_OK && c->st.fmt.rate_mhz) {
+            struct v4l2_streamparm sp;
+            memset(&sp, 0, sizeof sp);
+            sp.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+            sp.parm.capture.timeperframe.numerator = 1000;
+            sp.parm.capture.timeperframe.denominator = c->st.fmt.rate_mhz;
+            xioctl(fd, VIDIOC_S_PARM, &sp); /* best effort, as at configure */
+        }
+    }
+    if (rc == F4D_OK && c->st.started && c->n_slots)
+        rc = stream_on(c);
+    if (rc < 0) {
+        close(fd);
+        c->fd = -1;
+        return rc; /* queued[] still marks our buffers: QBUF on the next try */
+    }
+    c->gone = false;
+    c->clock_reset = true;
+    return F4D_OK;
+}
+
+static const struct hal_usb_dev_ops usb_dev_ops = {
+    .find_node = dev_find_node,
+    .reopen = dev_reopen,
+    .drop = dev_drop,
+};
+
+/* Pumps hotplug events; while the device is gone, hands back its aborted
+ * buffers, then waits for it until `deadline`. Returns 1 when the device is
+ * there (go on with DQBUF), else what dequeue returns. */
+static int wait_device(struct usb_cam *c, uint64_t deadline, struct hal_buffer **out)
+{
+    hal_usb_hub_pump(&c->s->hub, 0);
+    for (;;) {
+        if (c->st.n_aborted)
+            return hal_cam_dequeue_begin(&c->st, out);
+        if (!c->gone)
+            return 1;
+        if (!c->s->hub.src.ops) /* no hotplug events: nothing will bring it back */
+            return hal_cam_fail(&c->st, F4D_ENODEV, "device gone (no hotplug: %.100s)", c->s->hp_err.msg);
+        uint64_t now = hal_mono_ns();
+        if (now >= deadline)
+            return hal_cam_fail(&c->st, F4D_ENODEV, "device gone (waiting for it to come back)");
+        uint64_t left_us = (deadline - now) / 1000u;
+        hal_usb_hub_pump(&c->s->hub, left_us > 100000u ? 100000u : (uint32_t)left_us);
+    }
 }
 
 /* ---- camera ---- */
@@ -162,17 +262,10 @@ static int qbuf(struct usb_cam *c, uint32_t i)
     return F4D_OK;
 }
 
-static int cam_start(void *ctx)
+/* REQBUFS for every slot, QBUF the queued ones, STREAMON (start and reopen). */
+static int stream_on(struct usb_cam *c)
 {
-    struct usb_cam *c = ctx;
-    errno = 0;
-    int rc = hal_cam_check_start(&c->st);
-    if (rc < 0)
-        return rc;
-    if (c->st.started)
-        return F4D_OK;
-    if (c->n_slots == 0)
-        return cam_fail(c, F4D_ESTATE, "start with no buffer queued");
+    int rc;
     struct v4l2_requestbuffers rb;
     memset(&rb, 0, sizeof rb);
     rb.count = c->n_slots;
@@ -185,6 +278,8 @@ static int cam_start(void *ctx)
         return cam_fail(c, F4D_ENOMEM, "the driver accepted fewer buffers than queued");
     }
     for (uint32_t i = 0; i < c->n_slots; i++) {
+        if (!c->queued[i])
+            continue;
         rc = qbuf(c, i);
         if (rc < 0)
             return rc;
@@ -193,6 +288,24 @@ static int cam_start(void *ctx)
     if (xioctl(c->fd, VIDIOC_STREAMON, &type) < 0)
         return cam_fail(c, F4D_EIO, "VIDIOC_STREAMON");
     c->have_seq = false;
+    return F4D_OK;
+}
+
+static int cam_start(void *ctx)
+{
+    struct usb_cam *c = ctx;
+    errno = 0;
+    int rc = hal_cam_check_start(&c->st);
+    if (rc < 0)
+        return rc;
+    if (c->st.started)
+        return F4D_OK;
+    if (c->n_slots == 0)
+        return cam_fail(c, F4D_ESTATE, "start with no buffer queued");
+    if (c->gone)
+        return hal_cam_fail(&c->st, F4D_ENODEV, "device gone (waiting for it to come back)");
+    if ((rc = stream_on(c)) < 0)
+        return rc;
     c->st.started = true;
     return F4D_OK;
 }
@@ -200,7 +313,7 @@ static int cam_start(void *ctx)
 static int cam_stop(void *ctx)
 {
     struct usb_cam *c = ctx;
-    if (c->st.started) {
+    if (c->st.started && !c->gone) {
         int type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
         xioctl(c->fd, VIDIOC_STREAMOFF, &type); /* also dequeues everything in the driver */
         struct v4l2_requestbuffers rb;
@@ -208,10 +321,12 @@ static int cam_stop(void *ctx)
         rb.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
         rb.memory = V4L2_MEMORY_USERPTR;
         xioctl(c->fd, VIDIOC_REQBUFS, &rb);
-        c->st.started = false;
     }
+    c->st.started = false;
+    /* only buffers the camera holds: those the caller holds stay the caller's */
     for (uint32_t i = 0; i < c->n_slots; i++) {
-        hal_cam_abort(&c->st, c->slots[i]);
+        if (c->queued[i])
+            hal_cam_abort(&c->st, c->slots[i]);
         c->queued[i] = false;
     }
     c->n_slots = 0; /* the next start requests buffers again */
@@ -230,7 +345,8 @@ static int cam_enqueue(void *ctx, struct hal_buffer *b)
             continue;
         if (c->queued[i])
             return cam_fail(c, F4D_EBUSY, "buffer is already queued");
-        return c->st.started ? qbuf(c, i) : (c->queued[i] = true, F4D_OK);
+        /* device gone: kept queued, QBUF again when it comes back */
+        return c->st.started && !c->gone ? qbuf(c, i) : (c->queued[i] = true, F4D_OK);
     }
     if (c->st.started)
         return cam_fail(c, F4D_ESTATE, "a new buffer while streaming (V4L2 fixes the set at start)");
@@ -257,6 +373,8 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
     if (rc < 0 || *out)
         return rc;
     uint64_t deadline = hal_mono_ns() + (uint64_t)timeout_us * 1000u;
+    if (c->hotplug && (rc = wait_device(c, deadline, out)) != 1)
+        return rc;
     for (;;) {
         struct v4l2_buffer vb;
         memset(&vb, 0, sizeof vb);
@@ -289,7 +407,8 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             b->bytes_used = vb.bytesused <= b->capacity ? vb.bytesused : b->capacity;
             if (b->status == HAL_FRAME_OK && b->bytes_used < c->st.fmt.stride * (size_t)c->st.fmt.height)
                 b->status = HAL_FRAME_MISSING_PACKETS;
-            b->flags = 0;
+            b->flags = c->clock_reset ? HAL_FRAME_FLAG_CLOCK_RESET : 0;
+            c->clock_reset = false;
             b->camera_index = c->index;
             b->format = c->st.fmt;
             b->device_ts_ns = ts;
@@ -298,6 +417,13 @@ static int cam_dequeue(void *ctx, struct hal_buffer **out, uint32_t timeout_us)
             b->trigger_seq = seq;
             *out = b;
             return F4D_OK;
+        }
+        if (errno == ENODEV && c->hotplug) {
+            /* unplugged: the buffers come back ABORTED, then F4D_ENODEV until it is back */
+            hal_usb_link_lost(&c->link);
+            if ((rc = wait_device(c, deadline, out)) != 1)
+                return rc;
+            continue;
         }
         if (errno != EAGAIN)
             return cam_fail(c, errno == ENODEV ? F4D_ENODEV : F4D_EIO, "VIDIOC_DQBUF");
@@ -316,7 +442,10 @@ static void cam_close(void *ctx)
 {
     struct usb_cam *c = ctx;
     cam_stop(c);
-    close(c->fd);
+    if (c->hotplug)
+        hal_usb_hub_remove(&c->s->hub, &c->link);
+    if (c->fd >= 0)
+        close(c->fd);
     free(c);
 }
 
@@ -401,21 +530,70 @@ static int usb_session_open(const struct hal_board *board, void **session, struc
     if (!s)
         return f4d_fail(err, F4D_ENOMEM, "usb: out of memory");
     s->board = board;
+    /* hotplug is best effort: without it a camera that leaves stays gone */
+    if (hal_usb_hotplug_open(&s->hp, &s->hp_err) == F4D_OK)
+        s->hub.src = hal_usb_hotplug_source(s->hp);
     *session = s;
     return F4D_OK;
 }
 
-static void usb_session_close(void *s) { free(s); }
+static void usb_session_close(void *session)
+{
+    struct usb_session *s = session;
+    hal_usb_hotplug_close(s->hp);
+    free(s);
+}
+
+int hal_usb_session_set_events(void *session, struct hal_usb_event_source src)
+{
+    struct usb_session *s = session;
+    if (!s)
+        return F4D_EINVAL;
+    s->hub.src = src;
+    return F4D_OK;
+}
+
+const char *hal_usb_session_hotplug_error(void *session)
+{
+    struct usb_session *s = session;
+    return s && !s->hp ? s->hp_err.msg : "";
+}
+
+const struct hal_usb_link *hal_usb_camera_link(const struct hal_camera *cam)
+{
+    if (cam->ops.dequeue != cam_dequeue)
+        return NULL;
+    const struct usb_cam *c = cam->ctx;
+    return c->hotplug ? &c->link : NULL;
+}
 
 static int usb_camera_open(void *session, const struct hal_camera_config *cfg, uint32_t index,
                            struct hal_camera *out, struct f4d_err *err)
 {
     if (!cfg->address[0])
         return f4d_fail(err, F4D_EINVAL, "usb camera %s: no device node (address)", cfg->id);
-    int fd = open(cfg->address, O_RDWR | O_NONBLOCK | O_CLOEXEC);
+    /* the address is a node (/dev/video0) or a USB device (usb:VID:PID[@BUS-PORTS] + serial) */
+    struct usb_session *s = session;
+    struct hal_usb_id want, have;
+    char node[HAL_PATH_MAX];
+    bool by_id = strncmp(cfg->address, "usb:", 4) == 0;
+    if (by_id) {
+        if (hal_usb_id_parse(cfg->address, &want) < 0)
+            return f4d_fail(err, F4D_EINVAL, "usb camera %s: address \"%s\" is not usb:VVVV:PPPP[@BUS-PORTS]",
+                            cfg->id, cfg->address);
+        snprintf(want.serial, sizeof want.serial, "%s", cfg->serial);
+        if (hal_usb_sysfs_find_node(&want, node, sizeof node, &have) < 0) {
+            char id[160];
+            hal_usb_id_format(&want, id, sizeof id);
+            return f4d_fail(err, F4D_ENODEV, "usb camera %s: no V4L2 node for USB device %s", cfg->id, id);
+        }
+    } else {
+        snprintf(node, sizeof node, "%s", cfg->address);
+    }
+    int fd = open(node, O_RDWR | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
         return f4d_fail(err, errno == ENOENT ? F4D_ENODEV : F4D_EIO, "usb camera %s: cannot open %s: %s",
-                        cfg->id, cfg->address, strerror(errno));
+                        cfg->id, node, strerror(errno));
     struct v4l2_capability cap;
     memset(&cap, 0, sizeof cap);
     if (xioctl(fd, VIDIOC_QUERYCAP, &cap) < 0) {
@@ -439,6 +617,22 @@ static int usb_camera_open(void *session, const struct hal_camera_config *cfg, u
     c->index = index;
     c->cfg = cfg;
     c->fd = fd;
+    snprintf(c->node, sizeof c->node, "%s", node);
+    /* hotplug needs to know which USB device this is: sysfs, when the node has a USB parent */
+    if (by_id || hal_usb_sysfs_identify(node, &have) == F4D_OK) {
+        if (!by_id) { /* this very device: by serial, else by the port it sits on */
+            memset(&want, 0, sizeof want);
+            want.vid = have.vid;
+            want.pid = have.pid;
+            snprintf(want.serial, sizeof want.serial, "%s", cfg->serial[0] ? cfg->serial : have.serial);
+            if (!want.serial[0]) {
+                want.bus = have.bus;
+                snprintf(want.port_path, sizeof want.port_path, "%s", have.port_path);
+            }
+        }
+        hal_usb_link_init(&c->link, &want, &have, &usb_dev_ops, c);
+        c->hotplug = hal_usb_hub_add(&s->hub, &c->link);
+    }
     hal_cam_name(&c->st, "usb camera %.40s (%.80s)", cfg->id, cfg->address);
     hal_camera_bind(out, &usb_camera_ops, c, index);
     return F4D_OK;

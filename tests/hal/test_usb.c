@@ -18,10 +18,12 @@
 #include <string.h>
 #include <time.h>
 #include <umockdev.h>
+#include <unistd.h>
 
 #include "f4d_capture.h"
 #include "hal_board.h"
 #include "hal_registry.h"
+#include "hal_usb.h"
 
 /* ---- the fake UVC camera: 640x480 or 320x240, YUYV only ---- */
 struct fake_cam {
@@ -36,6 +38,7 @@ struct fake_cam {
     uint32_t sequence;
     uint64_t frame_period_ns, next_frame_ns;
     uint32_t ioctls;
+    bool unplugged; /* every ioctl fails ENODEV, as on a node whose device left */
 };
 
 static uint64_t mono_ns(void)
@@ -78,7 +81,11 @@ static gboolean on_ioctl(UMockdevIoctlBase *h, UMockdevIoctlClient *client, gpoi
     int err = 0;
     g_mutex_lock(&f->lock);
     f->ioctls++;
+    if (f->unplugged)
+        req = 0, res = -1, err = ENODEV;
     switch (req) {
+    case 0:
+        break;
     case VIDIOC_QUERYCAP: {
         struct v4l2_capability *c = d;
         memset(c, 0, sizeof *c);
@@ -181,6 +188,8 @@ struct env {
     UMockdevIoctlBase *handler;
     struct fake_cam fake;
     bool mocked;
+    struct fake_cam fake2;          /* the USB camera that is unplugged and replugged */
+    UMockdevIoctlBase *handler2;
 };
 
 static int setup(void **state)
@@ -217,6 +226,8 @@ static int setup(void **state)
 static int teardown(void **state)
 {
     struct env *e = *state;
+    if (e->handler2)
+        g_object_unref(e->handler2);
     if (e->tb) {
         umockdev_testbed_detach_ioctl(e->tb, "/dev/video0", NULL);
         g_object_unref(e->handler);
@@ -318,11 +329,260 @@ static void negotiate_and_stream(void **state)
     assert_int_equal(st.dequeue_errors, 0);
 }
 
+
+/* ---- hotplug: a USB camera (sysfs: usb device -> interface -> video4linux
+ * node, all in the umockdev testbed) unplugged and replugged mid-stream. The
+ * events come from a fake source injected into the session (the libusb
+ * monitor itself is tested in test_usb_hotplug.c). ---- */
+struct script_src {
+    struct hal_usb_event q[8];
+    uint32_t head, count;
+};
+
+static int script_poll(void *ctx, struct hal_usb_event *out, uint32_t max, uint32_t timeout_us)
+{
+    (void)timeout_us;
+    struct script_src *q = ctx;
+    uint32_t n = 0;
+    while (n < max && q->head < q->count)
+        out[n++] = q->q[q->head++];
+    return (int)n;
+}
+static const struct hal_usb_event_source_ops script_ops = {.poll = script_poll};
+
+static void script_post(struct script_src *q, enum hal_usb_event_kind k, uint8_t devnum)
+{
+    struct hal_usb_event *e = &q->q[q->count++];
+    memset(e, 0, sizeof *e);
+    e->kind = k;
+    e->dev.vid = 0x046d;
+    e->dev.pid = 0x0825;
+    e->dev.bus = 1;
+    e->dev.devnum = devnum;
+    snprintf(e->dev.port_path, sizeof e->dev.port_path, "3");
+    if (k == HAL_USB_ARRIVED)
+        snprintf(e->dev.serial, sizeof e->dev.serial, "A1");
+}
+
+struct usbdev {
+    gchar *usb, *intf, *v4l;
+    char node[32];
+};
+
+/* Plugs 046d:0825 serial A1 into bus 1 port 3 as device `devnum`, with its
+ * capture node videoN (and a metadata node video<N+1>, index 1). */
+static void plug(struct env *e, struct usbdev *d, const char *devnum, unsigned video)
+{
+    char name[16], devname[32], meta[16], metadev[32];
+    snprintf(name, sizeof name, "video%u", video);
+    snprintf(devname, sizeof devname, "/dev/video%u", video);
+    snprintf(meta, sizeof meta, "video%u", video + 1);
+    snprintf(metadev, sizeof metadev, "/dev/video%u", video + 1);
+    d->usb = umockdev_testbed_add_device(e->tb, "usb", "1-3", NULL, "busnum", "1", "devnum", devnum, "devpath", "3",
+                                         "idVendor", "046d", "idProduct", "0825", "serial", "A1", NULL, "DEVTYPE",
+                                         "usb_device", NULL);
+    assert_non_null(d->usb);
+    d->intf = umockdev_testbed_add_device(e->tb, "usb", "1-3:1.0", d->usb, "bInterfaceClass", "0e", NULL, "DEVTYPE",
+                                          "usb_interface", NULL);
+    assert_non_null(d->intf);
+    /* the nodes through the record format: N: makes the /dev node, and L: the
+     * "device" link to the parent (the USB interface) that the kernel gives every
+     * class device (umockdev_testbed_add_device makes neither) */
+    for (int k = 1; k >= 0; k--) {
+        char rec[512];
+        snprintf(rec, sizeof rec,
+                 "P: /devices/1-3/1-3:1.0/%s\nN: %s\nL: device=..\nE: DEVNAME=%s\nE: SUBSYSTEM=video4linux\n"
+                 "A: index=%d\nA: name=F4D fake UVC (USB)\n",
+                 k ? meta : name, k ? meta : name, k ? metadev : devname, k);
+        GError *gerr = NULL;
+        if (!umockdev_testbed_add_from_string(e->tb, rec, &gerr))
+            fail_msg("umockdev: %s", gerr ? gerr->message : "?");
+    }
+    d->v4l = g_strdup_printf("/sys/devices/1-3/1-3:1.0/%s", name);
+    snprintf(d->node, sizeof d->node, "%s", devname);
+    GError *err = NULL;
+    if (!umockdev_testbed_attach_ioctl(e->tb, d->node, e->handler2, &err))
+        fail_msg("umockdev attach %s: %s", d->node, err ? err->message : "?");
+    g_mutex_lock(&e->fake2.lock);
+    e->fake2.unplugged = false;
+    e->fake2.streaming = false;
+    e->fake2.n_req = 0;
+    e->fake2.sequence = 0; /* a fresh device counts from 0 */
+    g_mutex_unlock(&e->fake2.lock);
+}
+
+static void unplug(struct env *e, struct usbdev *d)
+{
+    umockdev_testbed_detach_ioctl(e->tb, d->node, NULL);
+    umockdev_testbed_remove_device(e->tb, d->usb); /* the interface and nodes with it */
+    /* umockdev 0.17 leaves the children's bus/class links behind: a replug on
+     * the same port would collide with them (and it keeps its /dev nodes
+     * registered: each plug below uses new node numbers) */
+    const char *root = umockdev_testbed_get_root_dir(e->tb);
+    static const char *const links[] = {"/sys/bus/usb/devices/1-3", "/sys/bus/usb/devices/1-3:1.0"};
+    for (size_t i = 0; i < sizeof links / sizeof links[0]; i++) {
+        char *p = g_strconcat(root, links[i], NULL);
+        unlink(p);
+        g_free(p);
+    }
+    for (unsigned v = 0; v < 16; v++) { /* dangling class links of the removed nodes */
+        char *p = g_strdup_printf("%s/sys/class/video4linux/video%u", root, v);
+        char *dev = g_strdup_printf("%s/sys/class/video4linux/video%u/name", root, v);
+        if (g_file_test(p, G_FILE_TEST_IS_SYMLINK) && !g_file_test(dev, G_FILE_TEST_EXISTS))
+            unlink(p);
+        g_free(dev);
+        g_free(p);
+    }
+    g_free(d->usb);
+    g_free(d->intf);
+    g_free(d->v4l);
+    memset(d, 0, sizeof *d);
+}
+
+/* Dequeues until a frame; every ABORTED buffer is counted and queued again
+ * (as the capture loop does); returns the frame or NULL (rc in *rc). */
+static struct hal_buffer *next_frame(struct hal_camera *cam, uint32_t timeout_us, int *rc, uint32_t *aborted)
+{
+    for (;;) {
+        struct hal_buffer *b = NULL;
+        *rc = hal_camera_dequeue(cam, &b, timeout_us);
+        if (*rc < 0)
+            return NULL;
+        if (b->status != HAL_FRAME_ABORTED)
+            return b;
+        (*aborted)++;
+        assert_int_equal(hal_camera_enqueue(cam, b), F4D_OK);
+    }
+}
+
+static void unplug_replug_stream(void **state)
+{
+    struct env *e = *state;
+    if (!e->mocked)
+        skip();
+    g_mutex_init(&e->fake2.lock);
+    e->handler2 = umockdev_ioctl_base_new();
+    g_signal_connect(e->handler2, "handle-ioctl", G_CALLBACK(on_ioctl), &e->fake2);
+    struct usbdev d;
+    plug(e, &d, "4", 4);
+
+    /* the board names the USB device, not the node: sysfs maps it to /dev/video4 */
+    struct hal_board b;
+    struct hal_rig rig;
+    struct f4d_err err = {0};
+    usb_board(&b, "usb:046d:0825");
+    snprintf(b.cams[0].serial, sizeof b.cams[0].serial, "B9");
+    assert_int_equal(hal_rig_open(&rig, &b, &err), F4D_ENODEV); /* wrong serial */
+    assert_non_null(strstr(err.msg, "046d:0825 serial B9"));
+    snprintf(b.cams[0].serial, sizeof b.cams[0].serial, "A1");
+    if (hal_rig_open(&rig, &b, &err) < 0)
+        fail_msg("%s", err);
+    struct script_src q;
+    memset(&q, 0, sizeof q);
+    struct hal_usb_event_source src = {&script_ops, &q};
+    assert_int_equal(hal_usb_session_set_events(hal_rig_session(&rig, "usb"), src), F4D_OK);
+    struct hal_camera *cam = &rig.cams[0];
+    const struct hal_usb_link *link = hal_usb_camera_link(cam);
+    assert_non_null(link);
+    assert_int_equal(link->have.devnum, 4);
+    assert_string_equal(link->have.serial, "A1");
+    assert_string_equal(link->have.port_path, "3");
+
+    struct hal_format f = {HAL_PIXFMT_YUYV, 640, 480, 0, 100000, HAL_TRIGGER_FREE_RUN, 1000, 0};
+    hal_camera_validate(cam, &f); /* fills stride and image_bytes */
+    assert_int_equal(hal_camera_validate(cam, &f), HAL_FORMAT_VALID);
+    assert_int_equal(hal_camera_configure(cam, &f), F4D_OK);
+    static uint8_t mem[4][640 * 480 * 2];
+    struct hal_buffer bufs[4];
+    memset(bufs, 0, sizeof bufs);
+    for (int i = 0; i < 4; i++) {
+        bufs[i].data = mem[i];
+        bufs[i].capacity = sizeof mem[i];
+        assert_int_equal(hal_camera_enqueue(cam, &bufs[i]), F4D_OK);
+    }
+    /* the usb host-tick trigger gives free-running frames their sequence */
+    struct hal_pulse_train train = {100000, 1000, 0};
+    assert_int_equal(hal_trigger_arm(&rig.trigger, &train), F4D_OK);
+    assert_int_equal(hal_camera_start(cam), F4D_OK);
+    int rc;
+    uint32_t aborted = 0;
+    for (int i = 0; i < 3; i++) {
+        struct hal_buffer *fr = next_frame(cam, 500000, &rc, &aborted);
+        if (!fr)
+            fail_msg("frame %d: %d %s", i, rc, hal_camera_last_error(cam));
+        assert_int_equal(fr->status, HAL_FRAME_OK);
+        assert_int_equal(fr->data[0], (uint8_t)fr->frame_id);
+        assert_int_equal(hal_camera_enqueue(cam, fr), F4D_OK);
+    }
+
+    /* 1: unplugged, libusb reports it: the 4 queued buffers come back ABORTED, then ENODEV */
+    g_mutex_lock(&e->fake2.lock);
+    e->fake2.unplugged = true;
+    g_mutex_unlock(&e->fake2.lock);
+    script_post(&q, HAL_USB_LEFT, 4);
+    assert_null(next_frame(cam, 0, &rc, &aborted));
+    assert_int_equal(rc, F4D_ENODEV);
+    assert_int_equal(aborted, 4);
+    assert_non_null(strstr(hal_camera_last_error(cam), "waiting for it to come back"));
+    assert_int_equal(link->state, HAL_USB_LINK_WAITING);
+    unplug(e, &d);
+    assert_null(next_frame(cam, 20000, &rc, &aborted)); /* waits, still gone */
+    assert_int_equal(rc, F4D_ENODEV);
+
+    /* replugged: new device number, new node; reopened, format and buffers back */
+    plug(e, &d, "5", 6);
+    script_post(&q, HAL_USB_ARRIVED, 5);
+    struct hal_buffer *fr = next_frame(cam, 500000, &rc, &aborted);
+    if (!fr)
+        fail_msg("after replug: %d %s", rc, hal_camera_last_error(cam));
+    assert_int_equal(fr->status, HAL_FRAME_OK);
+    assert_true(fr->flags & HAL_FRAME_FLAG_CLOCK_RESET);
+    assert_int_equal(fr->format.width, 640);
+    assert_true(fr->frame_id < 3); /* the fresh device counts from 0 again */
+    assert_int_equal(fr->data[0], (uint8_t)fr->frame_id);
+    assert_int_equal(link->reconnects, 1);
+    assert_int_equal(link->have.devnum, 5);
+    assert_int_equal(e->fake2.width, 640); /* S_FMT applied again */
+    assert_int_equal(hal_camera_enqueue(cam, fr), F4D_OK);
+    for (int i = 0; i < 3; i++) {
+        fr = next_frame(cam, 500000, &rc, &aborted);
+        assert_non_null(fr);
+        assert_int_equal(fr->flags, 0);
+        assert_int_equal(hal_camera_enqueue(cam, fr), F4D_OK);
+    }
+
+    /* 2: the node fails ENODEV before any event: the same path, started by DQBUF */
+    aborted = 0;
+    g_mutex_lock(&e->fake2.lock);
+    e->fake2.unplugged = true;
+    g_mutex_unlock(&e->fake2.lock);
+    assert_null(next_frame(cam, 0, &rc, &aborted));
+    assert_int_equal(rc, F4D_ENODEV);
+    assert_int_equal(aborted, 4);
+    assert_int_equal(link->losses, 2);
+    script_post(&q, HAL_USB_LEFT, 5); /* the late event changes nothing */
+    unplug(e, &d);
+    plug(e, &d, "6", 8);
+    script_post(&q, HAL_USB_ARRIVED, 6);
+    fr = next_frame(cam, 500000, &rc, &aborted);
+    if (!fr)
+        fail_msg("after second replug: %d %s", rc, hal_camera_last_error(cam));
+    assert_int_equal(link->reconnects, 2);
+    assert_int_equal(link->losses, 2);
+    assert_int_equal(hal_camera_enqueue(cam, fr), F4D_OK);
+    printf("[ usb ] hotplug: %u reconnects, %u losses, now on %s\n", link->reconnects, link->losses, d.node);
+    hal_trigger_disarm(&rig.trigger);
+    hal_camera_stop(cam);
+    hal_rig_close(&rig);
+    unplug(e, &d);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(open_failures),
         cmocka_unit_test(negotiate_and_stream),
+        cmocka_unit_test(unplug_replug_stream),
     };
     return cmocka_run_group_tests_name("hal/usb", tests, setup, teardown);
 }
