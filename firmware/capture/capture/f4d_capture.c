@@ -199,6 +199,13 @@ int f4d_capture_run(struct hal_rig *rig, const struct f4d_capture_config *cfg,
             for (uint32_t guard = 0; guard < nbuf * 4; guard++) {
                 struct hal_buffer *b = NULL;
                 int d = dequeue(r, i, &b);
+                if (d == F4D_OK && b->status == HAL_FRAME_ABORTED) {
+                    /* handed back unfilled (a camera lost and reopened): not a
+                     * frame, so it goes straight back to the camera */
+                    if (enqueue(r, i, b) < 0)
+                        r->requeue_errors++;
+                    continue;
+                }
                 if (d == F4D_OK) {
                     cam_gone[i] = false;
                     out->frames_in++;
