@@ -84,7 +84,10 @@ void   fk_linear_free    (struct fk_linear *L);
 
 /* Quantize one fp32 row the way fk_linear_pack does for weights and the
  * forward pass does for activations (reference): returns the scale amax/127,
- * 0 for a zero row, NaN (codes all 0) when the row holds Inf or NaN. */
+ * 0 for a zero row, NaN (codes all 0) when the row holds Inf or NaN. A row
+ * with amax below FK_Q8_AMAX_MIN counts as zero: 127 / amax would overflow
+ * to Inf (and w * Inf to NaN codes) for amax < 127 / FLT_MAX ~ 3.7e-37. */
+#define FK_Q8_AMAX_MIN 1e-30f
 float  fk_quantize_row_q8(const float *w, int k, int8_t *q);
 
 /* y = epilogue(x W^T + b). m == 0 is a no-op. ld* are in elements and must be

@@ -20,9 +20,9 @@ float fk_quantize_row_q8(const float *w, int k, int8_t *q)
         if (a > amax)
             amax = a;
     }
-    if (amax == 0 || poison != 0) {
+    if (amax < FK_Q8_AMAX_MIN || poison != 0) {
         memset(q, 0, (size_t)k);
-        return amax == 0 && poison == 0 ? 0.0f : NAN;
+        return poison == 0 ? 0.0f : NAN;
     }
     float inv = 127.0f / amax;
     for (int i = 0; i < k; i++) {

@@ -252,6 +252,202 @@ static void test_budget(void **state)
     splat_frame_free(&out);
 }
 
+/* ---- the merged Gaussian's shape (budget_prune's moment matching) -------- */
+
+struct gauss {
+    float pos[3], scale[3], rot[4], opacity;
+};
+
+static void quat_to_mat(const float q[4], double R[9])
+{
+    double n = sqrt((double)q[0] * q[0] + (double)q[1] * q[1] + (double)q[2] * q[2] + (double)q[3] * q[3]);
+    double w = q[0] / n, x = q[1] / n, y = q[2] / n, z = q[3] / n;
+    R[0] = 1 - 2 * (y * y + z * z); R[1] = 2 * (x * y - w * z);     R[2] = 2 * (x * z + w * y);
+    R[3] = 2 * (x * y + w * z);     R[4] = 1 - 2 * (x * x + z * z); R[5] = 2 * (y * z - w * x);
+    R[6] = 2 * (x * z - w * y);     R[7] = 2 * (y * z + w * x);     R[8] = 1 - 2 * (x * x + y * y);
+}
+
+/* Sigma = R diag(s^2) R^T, row-major. */
+static void covariance(const float q[4], const float s[3], double C[9])
+{
+    double R[9];
+    quat_to_mat(q, R);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double acc = 0;
+            for (int m = 0; m < 3; m++)
+                acc += R[3 * r + m] * (double)s[m] * s[m] * R[3 * c + m];
+            C[3 * r + c] = acc;
+        }
+}
+
+/* The unit quaternion of `deg` degrees about axis (ax, ay, az). */
+static void axis_angle(float q[4], double deg, double ax, double ay, double az)
+{
+    double n = sqrt(ax * ax + ay * ay + az * az), h = 0.5 * deg * M_PI / 180.0;
+    q[0] = (float)cos(h);
+    q[1] = (float)(sin(h) * ax / n);
+    q[2] = (float)(sin(h) * ay / n);
+    q[3] = (float)(sin(h) * az / n);
+}
+
+/* Runs budget_prune on two Gaussians that share one (1 m) cell and returns
+ * the single merged Gaussian. */
+static void merge_two(const struct gauss *a, const struct gauss *b, struct gauss *m)
+{
+    struct splat_rig rig;
+    small_rig(&rig);
+    struct splat_frame f = { 0 }, out = { 0 };
+    assert_int_equal(splat_frame_resize(&f, 2, 0, NULL), 0);
+    const struct gauss *g[2] = { a, b };
+    for (int i = 0; i < 2; i++) {
+        memcpy(f.pos + 3 * i, g[i]->pos, sizeof g[i]->pos);
+        memcpy(f.scale + 3 * i, g[i]->scale, sizeof g[i]->scale);
+        memcpy(f.rot + 4 * i, g[i]->rot, sizeof g[i]->rot);
+        f.opacity[i] = g[i]->opacity;
+        f.rgb[3 * i] = f.rgb[3 * i + 1] = f.rgb[3 * i + 2] = 0.5f;
+    }
+    struct budget_config cfg = budget_config_default();
+    cfg.voxel = 1.0f;
+    struct budget_stats st;
+    struct f4d_err err = { 0 };
+    if (budget_prune(&f, &rig, &cfg, &out, &st, &err) < 0)
+        fail_msg("budget_prune: %s", err.msg);
+    assert_int_equal(st.merged, 1);
+    assert_int_equal(out.count, 1);
+    memcpy(m->pos, out.pos, sizeof m->pos);
+    memcpy(m->scale, out.scale, sizeof m->scale);
+    memcpy(m->rot, out.rot, sizeof m->rot);
+    m->opacity = out.opacity[0];
+    splat_frame_free(&f);
+    splat_frame_free(&out);
+}
+
+/* NaN-aware: |got - want| <= rel * scale for every entry (a NaN fails). */
+static void expect_cov(const double got[9], const double want[9], double rel, const char *what)
+{
+    double mag = 0;
+    for (int i = 0; i < 9; i++)
+        mag = fmax(mag, fabs(want[i]));
+    for (int i = 0; i < 9; i++)
+        if (!(fabs(got[i] - want[i]) <= rel * mag))
+            fail_msg("%s: covariance[%d][%d] = %.9g, expected %.9g (tolerance %.3g)", what,
+                     i / 3, i % 3, got[i], want[i], rel * mag);
+}
+
+static void expect_unit_quat(const float q[4], const char *what)
+{
+    double n = sqrt((double)q[0] * q[0] + (double)q[1] * q[1] + (double)q[2] * q[2] + (double)q[3] * q[3]);
+    if (!(fabs(n - 1.0) <= 1e-6))
+        fail_msg("%s: quaternion (%g, %g, %g, %g) has norm %.9g", what, (double)q[0], (double)q[1],
+                 (double)q[2], (double)q[3], n);
+}
+
+/* |<q1, q2>| = 1: the same rotation (q and -q are one rotation). */
+static void expect_same_rotation(const float q1[4], const float q2[4], const char *what)
+{
+    double d = fabs((double)q1[0] * q2[0] + (double)q1[1] * q2[1] + (double)q1[2] * q2[2] + (double)q1[3] * q2[3]);
+    if (!(fabs(d - 1.0) <= 1e-6))
+        fail_msg("%s: rotation (%g, %g, %g, %g), expected +-(%g, %g, %g, %g)", what, (double)q1[0],
+                 (double)q1[1], (double)q1[2], (double)q1[3], (double)q2[0], (double)q2[1], (double)q2[2],
+                 (double)q2[3]);
+}
+
+/* Two identical Gaussians: the merge is the Gaussian itself, rotation (up to
+ * the quaternion's sign) and scales included. */
+static void test_merge_identical_keeps_shape(void **state)
+{
+    (void)state;
+    struct gauss g = { { 0.2f, 0.3f, 0.4f }, { 0.02f, 0.05f, 0.09f }, { 0 }, 0.7f }, m;
+    axis_angle(g.rot, 35.0, 1, 2, 3);
+    merge_two(&g, &g, &m);
+    double want[9], got[9];
+    covariance(g.rot, g.scale, want);
+    covariance(m.rot, m.scale, got);
+    expect_cov(got, want, 1e-5, "identical pair");
+    expect_unit_quat(m.rot, "identical pair");
+    for (int c = 0; c < 3; c++) {
+        if (!(fabs(m.pos[c] - g.pos[c]) <= 1e-6))
+            fail_msg("identical pair: mean[%d] = %g, expected %g", c, (double)m.pos[c], (double)g.pos[c]);
+        if (!(fabs(m.scale[c] - g.scale[c]) <= 1e-5 * g.scale[c]))
+            fail_msg("identical pair: scale[%d] = %.9g, expected %.9g", c, (double)m.scale[c],
+                     (double)g.scale[c]);
+    }
+    expect_same_rotation(m.rot, g.rot, "identical pair");
+    assert_true(m.opacity == g.opacity);
+}
+
+/* Axis-aligned members with different scales and offset means: the merged
+ * covariance is the weighted mean of diag(s_i^2) plus the weighted spread of
+ * the means, w1 w2 / W^2 d d^T (weights: opacity + 1e-6, as budget_prune). */
+static void test_merge_offset_pair_covariance(void **state)
+{
+    (void)state;
+    struct gauss a = { { 0.10f, 0.20f, 0.30f }, { 0.02f, 0.03f, 0.04f }, { 1, 0, 0, 0 }, 0.8f };
+    struct gauss b = { { 0.16f, 0.17f, 0.32f }, { 0.05f, 0.01f, 0.02f }, { 1, 0, 0, 0 }, 0.4f };
+    struct gauss m;
+    merge_two(&a, &b, &m);
+    double w1 = (double)a.opacity + 1e-6, w2 = (double)b.opacity + 1e-6, W = w1 + w2;
+    double want[9], got[9], d[3];
+    for (int c = 0; c < 3; c++)
+        d[c] = (double)b.pos[c] - a.pos[c];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            want[3 * r + c] = (r == c ? (w1 * a.scale[r] * a.scale[r] + w2 * b.scale[r] * b.scale[r]) / W : 0) +
+                              w1 * w2 / (W * W) * d[r] * d[c];
+    covariance(m.rot, m.scale, got);
+    expect_cov(got, want, 1e-5, "offset pair");
+    expect_unit_quat(m.rot, "offset pair");
+    for (int c = 0; c < 3; c++) {
+        double mu = (w1 * a.pos[c] + w2 * b.pos[c]) / W;
+        if (!(fabs(m.pos[c] - mu) <= 1e-6))
+            fail_msg("offset pair: mean[%d] = %.9g, expected %.9g", c, (double)m.pos[c], mu);
+    }
+    assert_true(m.opacity == a.opacity);
+    /* the spread is off-axis: the merged frame is not the members' (identity) */
+    if (!(fabs(fabs((double)m.rot[0]) - 1.0) > 1e-3))
+        fail_msg("offset pair: merged rotation is the identity, the spread along d is lost");
+}
+
+/* Rotated members (same rotation, different scales, offset along their own
+ * long axis): the merged long axis is the rotated one, not a world axis. */
+static void test_merge_rotated_pair(void **state)
+{
+    (void)state;
+    struct gauss a = { { 0.3f, 0.3f, 0.3f }, { 0.08f, 0.02f, 0.03f }, { 0 }, 0.6f }, b, m;
+    axis_angle(a.rot, 50.0, 0.2, -0.4, 1.0);
+    b = a;
+    b.scale[0] = 0.06f; b.scale[1] = 0.025f; b.scale[2] = 0.02f;
+    double R[9];
+    quat_to_mat(a.rot, R);
+    for (int c = 0; c < 3; c++)
+        b.pos[c] = a.pos[c] + 0.05f * (float)R[3 * c]; /* along the members' local x */
+    merge_two(&a, &b, &m);
+    double C1[9], C2[9], want[9], got[9], d[3];
+    covariance(a.rot, a.scale, C1);
+    covariance(b.rot, b.scale, C2);
+    double w1 = (double)a.opacity + 1e-6, w2 = (double)b.opacity + 1e-6, W = w1 + w2;
+    for (int c = 0; c < 3; c++)
+        d[c] = (double)b.pos[c] - a.pos[c];
+    for (int i = 0; i < 9; i++)
+        want[i] = (w1 * C1[i] + w2 * C2[i]) / W + w1 * w2 / (W * W) * d[i / 3] * d[i % 3];
+    covariance(m.rot, m.scale, got);
+    expect_cov(got, want, 1e-5, "rotated pair");
+    expect_unit_quat(m.rot, "rotated pair");
+    /* the merged axis of the largest scale is the members' local x */
+    int k = 0;
+    for (int c = 1; c < 3; c++)
+        if (m.scale[c] > m.scale[k])
+            k = c;
+    double Rm[9];
+    quat_to_mat(m.rot, Rm);
+    double dot = fabs(Rm[k] * R[0] + Rm[3 + k] * R[3] + Rm[6 + k] * R[6]);
+    if (!(dot >= 1.0 - 1e-5))
+        fail_msg("rotated pair: merged long axis . members' x = %.9g (expected 1)", dot);
+    if (!(fabs(fabs((double)m.rot[0]) - 1.0) > 1e-2))
+        fail_msg("rotated pair: merged rotation is the identity");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -259,6 +455,9 @@ int main(void)
         cmocka_unit_test(test_dual_consistency_pairs),
         cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
         cmocka_unit_test(test_budget),
+        cmocka_unit_test(test_merge_identical_keeps_shape),
+        cmocka_unit_test(test_merge_offset_pair_covariance),
+        cmocka_unit_test(test_merge_rotated_pair),
     };
     return cmocka_run_group_tests_name("interp", tests, NULL, NULL);
 }

@@ -252,6 +252,54 @@ static void test_nonfinite_rows(void **state)
     problem_free(&p);
 }
 
+/* Rows whose largest magnitude is tiny (below FK_Q8_AMAX_MIN, e.g. the
+ * subnormal weights the GGUF fuzzer wrote): 127 / amax overflowed to Inf and
+ * 0 * Inf gave NaN codes (a float-to-int8 conversion of NaN: undefined). Such
+ * a row now quantizes as a zero row, on every ISA. */
+static void test_tiny_rows(void **state)
+{
+    (void)state;
+    static const float tiny[6] = { 1e-38f, 0.0f, -3e-38f, 1e-44f, -0.0f, 2.5e-37f };
+    int8_t q[6];
+    memset(q, 0x55, sizeof q);
+    float s = fk_quantize_row_q8(tiny, 6, q);
+    if (!(s == 0.0f))
+        fail_msg("tiny row: scale %g, expected 0 (a zero row)", (double)s);
+    for (int i = 0; i < 6; i++)
+        assert_int_equal(q[i], 0);
+    /* just above the threshold: still quantized, codes within +-127 */
+    const float small[3] = { 2e-30f, -1e-30f, 0.0f };
+    s = fk_quantize_row_q8(small, 3, q);
+    assert_true(s > 0.0f && isfinite(s));
+    assert_int_equal(q[0], 127);
+    assert_int_equal(q[2], 0);
+    /* every ISA: a tiny weight row and a tiny activation row give the bias */
+    enum fk_isa all[5] = { FK_ISA_REF };
+    int n_isa = 1 + test_isas(all + 1);
+    struct problem p;
+    problem_make(&p, 5, 9, 24, 11);
+    for (int i = 0; i < p.k; i++) {
+        p.w[3 * p.k + i] = tiny[i % 6];   /* weight row 3 */
+        p.x[1 * p.k + i] = tiny[(i + 1) % 6]; /* activation row 1 */
+    }
+    for (int a = 0; a < n_isa; a++) {
+        fk_ctx *ctx = test_ctx(all[a], 1);
+        float *y = run(ctx, &p, FK_W_Q8, NULL);
+        for (int i = 0; i < p.m; i++)
+            for (int j = 0; j < p.n; j++) {
+                float v = y[i * p.n + j];
+                if (!isfinite(v))
+                    fail_msg("%s: y[%d][%d] = %g", fk_isa_name(all[a]), i, j, (double)v);
+                if ((i == 1 || j == 3) && !(fabsf(v - p.b[j]) <= 1e-6f))
+                    fail_msg("%s: y[%d][%d] = %g, expected the bias %g", fk_isa_name(all[a]), i, j,
+                             (double)v, (double)p.b[j]);
+            }
+        free(y);
+        fk_ctx_free(ctx);
+    }
+    problem_free(&p);
+}
+
 static void test_bad_input(void **state)
 {
     (void)state;
@@ -337,6 +385,7 @@ int main(void)
         cmocka_unit_test(test_epilogues),
         cmocka_unit_test(test_int8_exact_accumulation),
         cmocka_unit_test(test_nonfinite_rows),
+        cmocka_unit_test(test_tiny_rows),
         cmocka_unit_test(test_f16_source_and_q8_import),
         cmocka_unit_test(test_bad_input),
     };

@@ -225,6 +225,191 @@ static void test_corruptions_named(void **state)
     free(q);
 }
 
+/* general.alignment below 8 could place an F32 / I64 tensor on an address
+ * that is not a multiple of its element size (UB when read as float): refused,
+ * as are alignments above a page, which a mapping cannot honour. */
+static void test_alignment_range(void **state)
+{
+    (void)state;
+    write_small(tmp_path);
+    size_t n;
+    unsigned char *p = slurp(tmp_path, &n), *q = malloc(n);
+    size_t al = find(p, n, "general.alignment") + 17 + 4;
+    static const uint32_t bad[] = { 1, 2, 4, 8192, 65536 };
+    char want[96];
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        memcpy(q, p, n);
+        memcpy(q + al, &bad[i], 4);
+        snprintf(want, sizeof want, "'general.alignment' = %u out of 8..4096", bad[i]);
+        expect_bad(q, n, want);
+    }
+    /* 8 is accepted, and every tensor then sits on an 8-byte boundary */
+    memcpy(q, p, n);
+    memcpy(q + al, &(uint32_t){ 8 }, 4);
+    spit(tmp_path, q, n);
+    char err[512];
+    gguf_file *f;
+    assert_int_equal(gguf_open(tmp_path, &f, err, sizeof err), 0);
+    assert_int_equal(gguf_alignment(f), 8);
+    for (size_t i = 0; i < gguf_tensor_count(f); i++)
+        assert_int_equal((uintptr_t)gguf_tensor_at(f, i)->data % 8, 0);
+    gguf_close(f);
+    free(p);
+    free(q);
+}
+
+/* The committed fuzzer findings (tests/model/fuzz/seeds/) stay refused. */
+static void test_fuzz_seeds_refused(void **state)
+{
+    (void)state;
+    static const struct { const char *file, *msg; } seeds[] = {
+        { "align1_f32.gguf", "'general.alignment' = 1 out of 8..4096" },
+    };
+    for (size_t i = 0; i < sizeof seeds / sizeof seeds[0]; i++) {
+        char path[1200], err[512] = "";
+        snprintf(path, sizeof path, "%s/../fuzz/seeds/%s", fix_dir, seeds[i].file);
+        gguf_file *f = NULL;
+        int rc = gguf_open(path, &f, err, sizeof err);
+        if (rc != F4D_EFORMAT || !strstr(err, seeds[i].msg))
+            fail_msg("%s: rc %d '%s', expected F4D_EFORMAT '%s'", seeds[i].file, rc, err,
+                     seeds[i].msg);
+        assert_null(f);
+    }
+}
+
+/* ---- gguf_open_memory: the same parser over a caller's buffer ------------- */
+
+/* A copy of p[0..n) in a buffer of exactly n bytes aligned to GGUF_MAX_ALIGN. */
+static unsigned char *aligned_copy(const unsigned char *p, size_t n)
+{
+    void *b = NULL;
+    assert_int_equal(posix_memalign(&b, GGUF_MAX_ALIGN, n ? n : 1), 0);
+    if (n)
+        memcpy(b, p, n);
+    return b;
+}
+
+static void same_file(gguf_file *a, gguf_file *b)
+{
+    assert_int_equal(gguf_alignment(a), gguf_alignment(b));
+    assert_int_equal(gguf_file_size(a), gguf_file_size(b));
+    assert_int_equal(gguf_key_count(a), gguf_key_count(b));
+    for (size_t i = 0; i < gguf_key_count(a); i++) {
+        const char *k = gguf_key_name(a, i);
+        assert_string_equal(k, gguf_key_name(b, i));
+        assert_int_equal(gguf_key_type(a, k), gguf_key_type(b, k));
+        int64_t va = 0, vb = 0;
+        assert_int_equal(gguf_get_int(a, k, &va), gguf_get_int(b, k, &vb));
+        assert_true(va == vb);
+    }
+    assert_int_equal(gguf_tensor_count(a), gguf_tensor_count(b));
+    for (size_t i = 0; i < gguf_tensor_count(a); i++) {
+        const struct gguf_tensor *x = gguf_tensor_at(a, i), *y = gguf_tensor_at(b, i);
+        assert_string_equal(x->name, y->name);
+        assert_int_equal(x->n_dims, y->n_dims);
+        assert_memory_equal(x->ne, y->ne, sizeof x->ne);
+        assert_int_equal(x->type, y->type);
+        assert_int_equal(x->offset, y->offset);
+        assert_int_equal(x->nbytes, y->nbytes);
+        assert_memory_equal(x->data, y->data, x->nbytes);
+        assert_ptr_equal(gguf_find_tensor(b, x->name), y);
+    }
+}
+
+static void test_open_memory_matches_open(void **state)
+{
+    (void)state;
+    char path[1100], err[512];
+    write_small(tmp_path);
+    const char *files[2] = { tmp_path, path };
+    snprintf(path, sizeof path, "%s/tiny_int8.gguf", gguf_dir);
+    for (int k = 0; k < 2; k++) {
+        size_t n;
+        unsigned char *p = slurp(files[k], &n), *b = aligned_copy(p, n);
+        gguf_file *a, *m;
+        assert_int_equal(gguf_open(files[k], &a, err, sizeof err), 0);
+        assert_int_equal(gguf_open_memory(b, n, &m, err, sizeof err), 0);
+        same_file(a, m);
+        /* zero copy: tensors point into the caller's buffer */
+        const struct gguf_tensor *t = gguf_tensor_at(m, 0);
+        assert_true((const unsigned char *)t->data >= b &&
+                    (const unsigned char *)t->data + t->nbytes <= b + n);
+        if (k == 1) {
+            /* the model's Init on either gives the same packed model */
+            fk_ctx *ctx;
+            struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
+            assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+            struct model *ma, *mm;
+            assert_int_equal(model_init(ctx, files[k], FK_W_Q8, &ma, err, sizeof err), 0);
+            assert_int_equal(model_init_gguf(ctx, m, FK_W_Q8, &mm, err, sizeof err), 0);
+            assert_int_equal(model_weight_bytes(ma), model_weight_bytes(mm));
+            assert_memory_equal(model_get_config(ma), model_get_config(mm),
+                                sizeof(struct model_config));
+            model_free(mm);   /* borrows m: m stays open */
+            model_free(ma);
+            assert_ptr_equal(gguf_find_tensor(m, t->name), t);
+            fk_ctx_free(ctx);
+        }
+        gguf_close(a);
+        gguf_close(m);
+        free(b);
+        free(p);
+    }
+}
+
+static void expect_bad_memory(const unsigned char *p, size_t n, int code, const char *what)
+{
+    unsigned char *b = aligned_copy(p, n);
+    char err[512] = "";
+    gguf_file *f = (gguf_file *)1;
+    int rc = gguf_open_memory(b, n, &f, err, sizeof err);
+    if (rc != code || (what && !strstr(err, what)) || !err[0])
+        fail_msg("memory: expected %s '%s', got rc %d '%s'", f4d_status_name(code),
+                 what ? what : "", rc, err);
+    assert_null(f);
+    free(b);
+}
+
+static void test_open_memory_refuses(void **state)
+{
+    (void)state;
+    write_small(tmp_path);
+    size_t n;
+    unsigned char *p = slurp(tmp_path, &n);
+    /* every truncation: F4D_EFORMAT with a message (ASan sees any read past
+     * the end of the exactly sized buffer) */
+    for (size_t k = 0; k < n - 24; k++)
+        expect_bad_memory(p, k, F4D_EFORMAT, "gguf: ");
+    expect_bad_memory(p, 10, F4D_EFORMAT, "too small");
+    /* garbage: random bytes, then random bytes behind a valid magic/version */
+    unsigned char *g = malloc(n);
+    uint32_t x = 12345;
+    for (int round = 0; round < 64; round++) {
+        for (size_t i = 0; i < n; i++) {
+            x = x * 1664525u + 1013904223u;
+            g[i] = (unsigned char)(x >> 24);
+        }
+        if (round & 1)
+            memcpy(g, p, 8);
+        expect_bad_memory(g, n, F4D_EFORMAT, "gguf: ");
+    }
+    free(g);
+    /* a buffer not on the file's alignment (32): refused as an argument */
+    void *vb = NULL;
+    assert_int_equal(posix_memalign(&vb, GGUF_MAX_ALIGN, n + 8), 0);
+    unsigned char *b = vb;
+    memcpy(b + 8, p, n);
+    char err[512] = "";
+    gguf_file *f;
+    assert_int_equal(gguf_open_memory(b + 8, n, &f, err, sizeof err), F4D_EINVAL);
+    assert_non_null(strstr(err, "not aligned to general.alignment 32"));
+    assert_null(f);
+    free(b);
+    assert_int_equal(gguf_open_memory(NULL, 100, &f, err, sizeof err), F4D_EINVAL);
+    assert_non_null(strstr(err, "NULL"));
+    free(p);
+}
+
 /* ---- model Init against modified copies of the tiny weight file ---------- */
 
 struct rewrite {
@@ -485,6 +670,10 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_roundtrip),
         cmocka_unit_test(test_every_truncation_fails),
         cmocka_unit_test(test_corruptions_named),
+        cmocka_unit_test(test_alignment_range),
+        cmocka_unit_test(test_fuzz_seeds_refused),
+        cmocka_unit_test(test_open_memory_matches_open),
+        cmocka_unit_test(test_open_memory_refuses),
         cmocka_unit_test(test_model_init_validates),
         cmocka_unit_test(test_model_prepare_refuses_unknown_group),
         cmocka_unit_test(test_convert_refuses),

@@ -20,8 +20,9 @@ struct gguf_kv {
 };
 
 struct gguf_file {
-    uint8_t            *map;
+    const uint8_t      *map;       /* the file's bytes: our mapping or the caller's */
     size_t              size;
+    int                 mapped;    /* map is ours to munmap (gguf_open)        */
     uint32_t            align;
     size_t              n_kv, n_t;
     struct gguf_kv     *kv;
@@ -156,22 +157,29 @@ static int skip_value(struct cursor *c, uint32_t t, const char *key, char *err, 
     return 0;
 }
 
-static int cmp_names(const void *a, const void *b, const struct gguf_tensor *t)
+typedef int (*idx_cmp)(size_t a, size_t b, const struct gguf_tensor *t);
+
+static int cmp_names(size_t a, size_t b, const struct gguf_tensor *t)
 {
-    return strcmp(t[*(const size_t *)a].name, t[*(const size_t *)b].name);
+    return strcmp(t[a].name, t[b].name);
+}
+
+static int cmp_offsets(size_t a, size_t b, const struct gguf_tensor *t)
+{
+    return t[a].offset < t[b].offset ? -1 : t[a].offset > t[b].offset;
 }
 
 /* qsort has no context argument in C11: sort indices with a small merge sort. */
-static void sort_idx(size_t *v, size_t *tmp, size_t n, const struct gguf_tensor *t)
+static void sort_idx(size_t *v, size_t *tmp, size_t n, const struct gguf_tensor *t, idx_cmp cmp)
 {
     if (n < 2)
         return;
     size_t h = n / 2;
-    sort_idx(v, tmp, h, t);
-    sort_idx(v + h, tmp, n - h, t);
+    sort_idx(v, tmp, h, t, cmp);
+    sort_idx(v + h, tmp, n - h, t, cmp);
     size_t i = 0, j = h, k = 0;
     while (i < h && j < n)
-        tmp[k++] = cmp_names(&v[j], &v[i], t) < 0 ? v[j++] : v[i++];
+        tmp[k++] = cmp(v[j], v[i], t) < 0 ? v[j++] : v[i++];
     while (i < h)
         tmp[k++] = v[i++];
     while (j < n)
@@ -253,8 +261,15 @@ static int parse(gguf_file *f, char *err, size_t en)
                 return F4D_EFORMAT;
             }
             memcpy(&a, kv->val, 4);
-            if (a == 0 || (a & (a - 1)) || a > 65536) {
+            if (a == 0 || (a & (a - 1))) {
                 seterr(err, en, "gguf: key 'general.alignment' = %u is not a power of two", a);
+                return F4D_EFORMAT;
+            }
+            /* Every tensor is then aligned to its element size (<= 8), and the
+             * alignment holds in memory too: mappings start on a page. */
+            if (a < GGUF_MIN_ALIGN || a > GGUF_MAX_ALIGN) {
+                seterr(err, en, "gguf: key 'general.alignment' = %u out of %u..%u", a,
+                       GGUF_MIN_ALIGN, GGUF_MAX_ALIGN);
                 return F4D_EFORMAT;
             }
             f->align = a;
@@ -325,26 +340,55 @@ static int parse(gguf_file *f, char *err, size_t en)
         t->data = f->map + data_start + t->offset;
         f->sorted[i] = i;
     }
-    size_t *tmp = malloc((f->n_t ? f->n_t : 1) * sizeof *tmp);
+    size_t *tmp = malloc((f->n_t ? f->n_t : 1) * 2 * sizeof *tmp);
     if (!tmp)
         return F4D_ENOMEM;
-    sort_idx(f->sorted, tmp, f->n_t, f->t);
-    free(tmp);
+    size_t *by_off = tmp + (f->n_t ? f->n_t : 1);
+    sort_idx(f->sorted, tmp, f->n_t, f->t, cmp_names);
     for (size_t i = 1; i < f->n_t; i++)
         if (!strcmp(f->t[f->sorted[i]].name, f->t[f->sorted[i - 1]].name)) {
             seterr(err, en, "gguf: duplicate tensor '%s'", f->t[f->sorted[i]].name);
+            free(tmp);
             return F4D_EFORMAT;
         }
-    /* Overlap check: O(n^2) over a few thousand tensors is cheap at load. */
+    /* Overlap check in O(n log n): in offset order, a tensor overlaps an
+     * earlier one iff it starts before the furthest end seen so far. */
     for (size_t i = 0; i < f->n_t; i++)
-        for (size_t j = i + 1; j < f->n_t; j++) {
-            const struct gguf_tensor *a = &f->t[i], *b = &f->t[j];
-            if (a->nbytes && b->nbytes && a->offset < b->offset + b->nbytes &&
-                b->offset < a->offset + a->nbytes) {
-                seterr(err, en, "gguf: tensors '%s' and '%s' overlap", a->name, b->name);
-                return F4D_EFORMAT;
-            }
+        by_off[i] = i;
+    sort_idx(by_off, tmp, f->n_t, f->t, cmp_offsets);
+    size_t far = 0; /* index of the tensor reaching furthest so far */
+    for (size_t i = 1; i < f->n_t; i++) {
+        const struct gguf_tensor *a = &f->t[by_off[far]], *b = &f->t[by_off[i]];
+        if (b->offset < a->offset + a->nbytes) {
+            seterr(err, en, "gguf: tensors '%s' and '%s' overlap", a->name, b->name);
+            free(tmp);
+            return F4D_EFORMAT;
         }
+        far = i; /* no overlap: b ends after a, since it starts after a's end */
+    }
+    free(tmp);
+    return F4D_OK;
+}
+
+/* The checks shared by both entry points; f->map and f->size are set. On
+ * failure f is closed. */
+static int open_parsed(gguf_file *f, gguf_file **out, const char *what, char *err,
+                       size_t err_size)
+{
+    int rc = parse(f, err, err_size);
+    if (rc == F4D_OK && ((uintptr_t)f->map % f->align)) {
+        /* Only a caller's buffer can be misaligned (mappings start on a page). */
+        seterr(err, err_size, "gguf: %s: buffer at %p is not aligned to general.alignment %u",
+               what, (const void *)f->map, f->align);
+        rc = F4D_EINVAL;
+    }
+    if (rc < 0) {
+        if (rc == F4D_ENOMEM)
+            seterr(err, err_size, "gguf: out of memory reading %s", what);
+        gguf_close(f);
+        return rc;
+    }
+    *out = f;
     return F4D_OK;
 }
 
@@ -363,7 +407,7 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
         return F4D_EIO;
     }
     struct stat st;
-    if (fstat(fd, &st) < 0 || st.st_size < 24) {
+    if (fstat(fd, &st) < 0 || st.st_size < GGUF_MIN_SIZE) {
         seterr(err, err_size, "gguf: '%s' is too small to be a GGUF file", path);
         close(fd);
         free(f);
@@ -378,15 +422,32 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
         return F4D_EIO;
     }
     f->map = m;
-    int rc = parse(f, err, err_size);
-    if (rc < 0) {
-        if (rc == F4D_ENOMEM)
-            seterr(err, err_size, "gguf: out of memory reading '%s'", path);
-        gguf_close(f);
-        return rc;
+    f->mapped = 1;
+    char what[300];
+    snprintf(what, sizeof what, "'%s'", path);
+    return open_parsed(f, out, what, err, err_size);
+}
+
+int gguf_open_memory(const void *data, size_t size, gguf_file **out, char *err, size_t err_size)
+{
+    *out = NULL;
+    if (!data && size) {
+        seterr(err, err_size, "gguf: memory buffer is NULL");
+        return F4D_EINVAL;
     }
-    *out = f;
-    return F4D_OK;
+    if (size < GGUF_MIN_SIZE) {
+        seterr(err, err_size, "gguf: memory buffer of %zu bytes is too small to be a GGUF file",
+               size);
+        return F4D_EFORMAT;
+    }
+    gguf_file *f = calloc(1, sizeof *f);
+    if (!f) {
+        seterr(err, err_size, "gguf: out of memory opening a memory buffer");
+        return F4D_ENOMEM;
+    }
+    f->map = data;
+    f->size = size;
+    return open_parsed(f, out, "memory buffer", err, err_size);
 }
 
 void gguf_close(gguf_file *f)
@@ -400,8 +461,8 @@ void gguf_close(gguf_file *f)
     free(f->kv);
     free(f->t);
     free(f->sorted);
-    if (f->map)
-        munmap(f->map, f->size);
+    if (f->map && f->mapped)
+        munmap((void *)(uintptr_t)f->map, f->size);
     free(f);
 }
 

@@ -16,7 +16,7 @@
  *
  * The reader treats the file as untrusted: gguf_open checks the magic, version,
  * every count and string length against the bytes left, value types, the
- * alignment key, tensor dims (1..4, non-zero, no size overflow), tensor types,
+ * alignment key (a power of two in GGUF_MIN_ALIGN..GGUF_MAX_ALIGN), tensor dims (1..4, non-zero, no size overflow), tensor types,
  * alignment and bounds of every tensor, duplicate names and overlapping data.
  * Every failure returns a negative code and a message naming the key or tensor.
  * Tensor data stays in the read-only mapping (zero copy).
@@ -37,6 +37,13 @@
 #define GGUF_MAGIC          0x46554747u /* "GGUF" read as little-endian u32 */
 #define GGUF_VERSION        3u
 #define GGUF_DEFAULT_ALIGN  32u
+/* general.alignment must be a power of two in GGUF_MIN_ALIGN..GGUF_MAX_ALIGN:
+ * at least 8 (the GGUF spec's "multiple of 8"), so that every tensor's data is
+ * aligned to its element size; at most 4096, the smallest page size, so that
+ * the alignment also holds in memory for a mapping (which starts on a page). */
+#define GGUF_MIN_ALIGN      8u
+#define GGUF_MAX_ALIGN      4096u
+#define GGUF_MIN_SIZE       24          /* magic, version, two counts          */
 #define GGUF_MAX_DIMS       4
 #define GGUF_NAME_MAX       256         /* longest accepted key or tensor name */
 
@@ -69,6 +76,13 @@ typedef struct gguf_file gguf_file;
 
 /* Reader. err receives the message when gguf_open fails. */
 int          gguf_open        (const char *path, gguf_file **out, char *err, size_t err_size);
+/* The same reader and checks over bytes already in memory (no copy): `data`
+ * must stay valid and unchanged until gguf_close, and be aligned to the file's
+ * general.alignment (aligned_alloc(GGUF_MAX_ALIGN, ...) always is), else
+ * F4D_EINVAL. Malformed bytes give F4D_EFORMAT with the same message as
+ * gguf_open would. */
+int          gguf_open_memory (const void *data, size_t size, gguf_file **out, char *err,
+                               size_t err_size);
 void         gguf_close       (gguf_file *f);
 const char * gguf_error       (const gguf_file *f);   /* last getter failure */
 uint32_t     gguf_alignment   (const gguf_file *f);

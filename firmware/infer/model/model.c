@@ -239,56 +239,90 @@ int model_load_convt(struct model *m, struct fk_conv_transpose2d *c, const char 
 
 static int name_extra(struct model *m);
 
-int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model **out,
-               char *err, size_t err_size)
+/* Init on an open file: m->gf is set (owned or borrowed). */
+static int init_file(struct model *m)
 {
-    *out = NULL;
+    int rc;
+    if ((rc = model_config_read(m->gf, &m->cfg, m->err, sizeof m->err)) < 0)
+        return rc;
+    for (size_t i = 0; i < gguf_tensor_count(m->gf); i++)
+        m->groups |= model_group_of(gguf_tensor_at(m->gf, i)->name);
+    if (!(m->groups & MODEL_G_AGGREGATOR))
+        return model_fail(m, F4D_EFORMAT, "model: the weight file has no aggregator.* tensors");
+    struct check_ctx cc = { m, 0 };
+    if ((rc = model_schema_foreach(&m->cfg, m->groups, check_tensor, &cc)) < 0)
+        return rc;
+    size_t in_groups = 0;
+    for (size_t i = 0; i < gguf_tensor_count(m->gf); i++)
+        in_groups += model_group_of(gguf_tensor_at(m->gf, i)->name) != 0;
+    if (in_groups != cc.n_schema)
+        return name_extra(m);
+    if ((rc = model_aggregator_load(m)) < 0)
+        return rc;
+    for (size_t i = 0; i < sizeof builtin_heads / sizeof builtin_heads[0]; i++)
+        if ((rc = model_register_head(m, builtin_heads[i])) < 0)
+            return rc;
+    return 0;
+}
+
+static struct model *model_new(fk_ctx *ctx, enum fk_wtype wtype, char *err, size_t err_size,
+                               int *rc)
+{
     if (wtype != FK_W_F32 && wtype != FK_W_F16 && wtype != FK_W_Q8) {
         snprintf(err, err_size, "model: unknown weight precision %d", (int)wtype);
-        return F4D_EINVAL;
+        *rc = F4D_EINVAL;
+        return NULL;
     }
     struct model *m = calloc(1, sizeof *m);
     if (!m) {
         snprintf(err, err_size, "model: out of memory");
-        return F4D_ENOMEM;
+        *rc = F4D_ENOMEM;
+        return NULL;
     }
     m->ctx = ctx;
     m->wtype = wtype;
     m->flops = &m->st_flops[0];
-    int rc = gguf_open(path, &m->gf, m->err, sizeof m->err);
-    if (rc < 0) {
-        rc = rc == F4D_EIO || rc == F4D_ENOMEM ? rc : F4D_EFORMAT;
-        goto fail;
+    return m;
+}
+
+static int init_done(struct model *m, int rc, struct model **out, char *err, size_t err_size)
+{
+    if (rc >= 0) {
+        *out = m;
+        return 0;
     }
-    if ((rc = model_config_read(m->gf, &m->cfg, m->err, sizeof m->err)) < 0)
-        goto fail;
-    for (size_t i = 0; i < gguf_tensor_count(m->gf); i++)
-        m->groups |= model_group_of(gguf_tensor_at(m->gf, i)->name);
-    if (!(m->groups & MODEL_G_AGGREGATOR)) {
-        rc = model_fail(m, F4D_EFORMAT, "model: '%s' has no aggregator.* tensors", path);
-        goto fail;
-    }
-    struct check_ctx cc = { m, 0 };
-    if ((rc = model_schema_foreach(&m->cfg, m->groups, check_tensor, &cc)) < 0)
-        goto fail;
-    size_t in_groups = 0;
-    for (size_t i = 0; i < gguf_tensor_count(m->gf); i++)
-        in_groups += model_group_of(gguf_tensor_at(m->gf, i)->name) != 0;
-    if (in_groups != cc.n_schema) {
-        rc = name_extra(m);
-        goto fail;
-    }
-    if ((rc = model_aggregator_load(m)) < 0)
-        goto fail;
-    for (size_t i = 0; i < sizeof builtin_heads / sizeof builtin_heads[0]; i++)
-        if ((rc = model_register_head(m, builtin_heads[i])) < 0)
-            goto fail;
-    *out = m;
-    return 0;
-fail:
     snprintf(err, err_size, "%s", m->err);
     model_free(m);
-    return rc < 0 ? rc : F4D_EFORMAT;
+    return rc;
+}
+
+int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model **out,
+               char *err, size_t err_size)
+{
+    *out = NULL;
+    int rc;
+    struct model *m = model_new(ctx, wtype, err, err_size, &rc);
+    if (!m)
+        return rc;
+    m->owns_gf = 1;
+    rc = gguf_open(path, &m->gf, m->err, sizeof m->err);
+    if (rc < 0)
+        rc = rc == F4D_EIO || rc == F4D_ENOMEM ? rc : F4D_EFORMAT;
+    else
+        rc = init_file(m);
+    return init_done(m, rc, out, err, err_size);
+}
+
+int model_init_gguf(fk_ctx *ctx, gguf_file *gf, enum fk_wtype wtype, struct model **out,
+                    char *err, size_t err_size)
+{
+    *out = NULL;
+    int rc;
+    struct model *m = model_new(ctx, wtype, err, err_size, &rc);
+    if (!m)
+        return rc;
+    m->gf = gf;
+    return init_done(m, init_file(m), out, err, err_size);
 }
 
 int model_register_head(struct model *m, const struct model_head_ops *ops)
@@ -587,7 +621,8 @@ void model_free(struct model *m)
     if (m->froze_ctx)
         fk_ctx_freeze(m->ctx, 0);
     free(m->arena);
-    gguf_close(m->gf);
+    if (m->owns_gf)
+        gguf_close(m->gf);
     free(m);
 }
 

@@ -114,6 +114,10 @@ typedef int (*model_tensor_fn)(void *user, const struct model_tensor_info *t);
 /* Calls fn for every tensor of the groups, in a fixed order; stops on fn < 0. */
 int         model_schema_foreach(const struct model_config *c, unsigned groups,
                                  model_tensor_fn fn, void *user);
+/* Bytes of every tensor of the groups at f32 (what Init unpacks at most, per
+ * tensor class; int8 scales not counted). The config must pass
+ * model_config_check, which keeps every shape and the sum far from overflow. */
+uint64_t    model_schema_bytes(const struct model_config *c, unsigned groups);
 /* Group of a tensor name by its prefix (0 when none matches). */
 unsigned    model_group_of(const char *name);
 const char *model_group_prefix(unsigned group);
@@ -183,6 +187,11 @@ struct model_head_ops {
 };
 
 int   model_init        (fk_ctx *ctx, const char *path, enum fk_wtype wtype,
+                         struct model **out, char *err, size_t err_size);
+/* The same Init on a file already open (e.g. gguf_open_memory). The model
+ * borrows `gf` (its weights point into the file): gf must stay open until
+ * model_free, which does not close it. */
+int   model_init_gguf   (fk_ctx *ctx, gguf_file *gf, enum fk_wtype wtype,
                          struct model **out, char *err, size_t err_size);
 /* Adds a head after the built-in ones; before model_prepare. */
 int   model_register_head(struct model *m, const struct model_head_ops *ops);

@@ -50,6 +50,7 @@ enum model_stage_id {
 struct model {
     fk_ctx             *ctx;
     gguf_file          *gf;
+    int                 owns_gf;           /* model_init opened it: closed by model_free */
     enum fk_wtype       wtype;
     struct model_config cfg;
     char                err[512];

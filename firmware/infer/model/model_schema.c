@@ -193,3 +193,21 @@ const char *model_group_prefix(unsigned group)
             return groups_tab[i].prefix;
     return "";
 }
+
+static int add_bytes(void *user, const struct model_tensor_info *t)
+{
+    uint64_t *sum = user, n = 1;
+    if (t->tclass == MODEL_T_UNUSED)
+        return 0;
+    for (int d = 0; d < t->n_dims; d++)
+        n *= (uint64_t)t->shape[d];
+    *sum += n * sizeof(float);
+    return 0;
+}
+
+uint64_t model_schema_bytes(const struct model_config *c, unsigned groups)
+{
+    uint64_t sum = 0;
+    model_schema_foreach(c, groups, add_bytes, &sum);
+    return sum;
+}

@@ -198,9 +198,9 @@ static float quantize_row(const float *x, int k, int8_t *q)
         if (a > am)
             am = a;
     }
-    if (am == 0 || pz != 0) {
+    if (am < FK_Q8_AMAX_MIN || pz != 0) {
         memset(q, 0, (size_t)k);
-        return am == 0 && pz == 0 ? 0.0f : NAN;
+        return pz == 0 ? 0.0f : NAN;
     }
     float invs = 127.0f / am;
     __m256 inv = _mm256_set1_ps(invs);
