@@ -77,15 +77,15 @@ static void spit(const char *path, const unsigned char *p, size_t n)
 /* Opens a modified copy and expects failure whose message contains `what`. */
 static void expect_bad(const unsigned char *p, size_t n, const char *what)
 {
-    char err[512] = "";
+    struct f4d_err err = {0};
     gguf_file *f = NULL;
     spit(tmp_path, p, n);
-    int rc = gguf_open(tmp_path, &f, err, sizeof err);
-    if (rc == 0 || !strstr(err, what))
-        print_error("expected failure with '%s', got rc %d '%s'\n", what, rc, err);
+    int rc = gguf_open(tmp_path, &f, &err);
+    if (rc == 0 || !strstr(err.msg, what))
+        print_error("expected failure with '%s', got rc %d '%s'\n", what, rc, err.msg);
     assert_true(rc < 0);
     assert_null(f);
-    assert_non_null(strstr(err, what));
+    assert_non_null(strstr(err.msg, what));
 }
 
 static size_t find(const unsigned char *p, size_t n, const char *s)
@@ -102,9 +102,9 @@ static void test_roundtrip(void **state)
 {
     (void)state;
     write_small(tmp_path);
-    char err[256];
+    struct f4d_err err = {0};
     gguf_file *f;
-    assert_int_equal(gguf_open(tmp_path, &f, err, sizeof err), 0);
+    assert_int_equal(gguf_open(tmp_path, &f, &err), 0);
     int64_t v;
     double d;
     const char *s;
@@ -151,17 +151,17 @@ static void test_every_truncation_fails(void **state)
     unsigned char *p = slurp(tmp_path, &n);
     for (size_t k = 0; k < n - 1; k++) {
         /* the final tensor's padding is not data: cutting only padding is fine */
-        char err[512];
+        struct f4d_err err = {0};
         gguf_file *f = NULL;
         spit(tmp_path, p, k);
-        int rc = gguf_open(tmp_path, &f, err, sizeof err);
+        int rc = gguf_open(tmp_path, &f, &err);
         if (rc == 0) {
             /* only acceptable when every tensor still fits */
             assert_true(k >= n - 24);
             gguf_close(f);
         } else {
             assert_null(f);
-            assert_true(strlen(err) > 0);
+            assert_true(strlen(err.msg) > 0);
         }
     }
     free(p);
@@ -247,9 +247,9 @@ static void test_alignment_range(void **state)
     memcpy(q, p, n);
     memcpy(q + al, &(uint32_t){ 8 }, 4);
     spit(tmp_path, q, n);
-    char err[512];
+    struct f4d_err err = {0};
     gguf_file *f;
-    assert_int_equal(gguf_open(tmp_path, &f, err, sizeof err), 0);
+    assert_int_equal(gguf_open(tmp_path, &f, &err), 0);
     assert_int_equal(gguf_alignment(f), 8);
     for (size_t i = 0; i < gguf_tensor_count(f); i++)
         assert_int_equal((uintptr_t)gguf_tensor_at(f, i)->data % 8, 0);
@@ -266,11 +266,12 @@ static void test_fuzz_seeds_refused(void **state)
         { "align1_f32.gguf", "'general.alignment' = 1 out of 8..4096" },
     };
     for (size_t i = 0; i < sizeof seeds / sizeof seeds[0]; i++) {
-        char path[1200], err[512] = "";
+        char path[1200];
+        struct f4d_err err = {0};
         snprintf(path, sizeof path, "%s/../fuzz/seeds/%s", fix_dir, seeds[i].file);
         gguf_file *f = NULL;
-        int rc = gguf_open(path, &f, err, sizeof err);
-        if (rc != F4D_EFORMAT || !strstr(err, seeds[i].msg))
+        int rc = gguf_open(path, &f, &err);
+        if (rc != F4D_EFORMAT || !strstr(err.msg, seeds[i].msg))
             fail_msg("%s: rc %d '%s', expected F4D_EFORMAT '%s'", seeds[i].file, rc, err,
                      seeds[i].msg);
         assert_null(f);
@@ -319,7 +320,8 @@ static void same_file(gguf_file *a, gguf_file *b)
 static void test_open_memory_matches_open(void **state)
 {
     (void)state;
-    char path[1100], err[512];
+    char path[1100];
+    struct f4d_err err = {0};
     write_small(tmp_path);
     const char *files[2] = { tmp_path, path };
     snprintf(path, sizeof path, "%s/tiny_int8.gguf", gguf_dir);
@@ -327,8 +329,8 @@ static void test_open_memory_matches_open(void **state)
         size_t n;
         unsigned char *p = slurp(files[k], &n), *b = aligned_copy(p, n);
         gguf_file *a, *m;
-        assert_int_equal(gguf_open(files[k], &a, err, sizeof err), 0);
-        assert_int_equal(gguf_open_memory(b, n, &m, err, sizeof err), 0);
+        assert_int_equal(gguf_open(files[k], &a, &err), 0);
+        assert_int_equal(gguf_open_memory(b, n, &m, &err), 0);
         same_file(a, m);
         /* zero copy: tensors point into the caller's buffer */
         const struct gguf_tensor *t = gguf_tensor_at(m, 0);
@@ -340,8 +342,8 @@ static void test_open_memory_matches_open(void **state)
             struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
             assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
             struct model *ma, *mm;
-            assert_int_equal(model_init(ctx, files[k], FK_W_Q8, &ma, err, sizeof err), 0);
-            assert_int_equal(model_init_gguf(ctx, m, FK_W_Q8, &mm, err, sizeof err), 0);
+            assert_int_equal(model_init(ctx, files[k], FK_W_Q8, &ma, &err), 0);
+            assert_int_equal(model_init_gguf(ctx, m, FK_W_Q8, &mm, &err), 0);
             assert_int_equal(model_weight_bytes(ma), model_weight_bytes(mm));
             assert_memory_equal(model_get_config(ma), model_get_config(mm),
                                 sizeof(struct model_config));
@@ -360,10 +362,10 @@ static void test_open_memory_matches_open(void **state)
 static void expect_bad_memory(const unsigned char *p, size_t n, int code, const char *what)
 {
     unsigned char *b = aligned_copy(p, n);
-    char err[512] = "";
+    struct f4d_err err = {0};
     gguf_file *f = (gguf_file *)1;
-    int rc = gguf_open_memory(b, n, &f, err, sizeof err);
-    if (rc != code || (what && !strstr(err, what)) || !err[0])
+    int rc = gguf_open_memory(b, n, &f, &err);
+    if (rc != code || (what && !strstr(err.msg, what)) || !err.msg[0])
         fail_msg("memory: expected %s '%s', got rc %d '%s'", f4d_status_name(code),
                  what ? what : "", rc, err);
     assert_null(f);
@@ -399,14 +401,14 @@ static void test_open_memory_refuses(void **state)
     assert_int_equal(posix_memalign(&vb, GGUF_MAX_ALIGN, n + 8), 0);
     unsigned char *b = vb;
     memcpy(b + 8, p, n);
-    char err[512] = "";
+    struct f4d_err err = {0};
     gguf_file *f;
-    assert_int_equal(gguf_open_memory(b + 8, n, &f, err, sizeof err), F4D_EINVAL);
-    assert_non_null(strstr(err, "not aligned to general.alignment 32"));
+    assert_int_equal(gguf_open_memory(b + 8, n, &f, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "not aligned to general.alignment 32"));
     assert_null(f);
     free(b);
-    assert_int_equal(gguf_open_memory(NULL, 100, &f, err, sizeof err), F4D_EINVAL);
-    assert_non_null(strstr(err, "NULL"));
+    assert_int_equal(gguf_open_memory(NULL, 100, &f, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "NULL"));
     free(p);
 }
 
@@ -423,12 +425,13 @@ struct rewrite {
 
 static void rewrite_tiny(const struct rewrite *r)
 {
-    char path[1024], err[512];
+    char path[1024];
+    struct f4d_err err = {0};
     snprintf(path, sizeof path, "%s/tiny_f16.gguf", gguf_dir);
     gguf_file *f;
-    assert_int_equal(gguf_open(path, &f, err, sizeof err), 0);
+    assert_int_equal(gguf_open(path, &f, &err), 0);
     struct model_config c;
-    assert_int_equal(model_config_read(f, &c, err, sizeof err), 0);
+    assert_int_equal(model_config_read(f, &c, &err), 0);
     if (r->depth)
         c.depth = r->depth;
     if (r->img_grid)
@@ -483,13 +486,13 @@ static void expect_init_fails(const struct rewrite *r, const char *what)
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m = NULL;
-    char err[512] = "";
-    int rc = model_init(ctx, tmp_path, FK_W_F32, &m, err, sizeof err);
-    if (rc == 0 || !strstr(err, what))
-        print_error("expected '%s', got rc %d '%s'\n", what, rc, err);
+    struct f4d_err err = {0};
+    int rc = model_init(ctx, tmp_path, FK_W_F32, &m, &err);
+    if (rc == 0 || !strstr(err.msg, what))
+        print_error("expected '%s', got rc %d '%s'\n", what, rc, err.msg);
     assert_true(rc < 0);
     assert_null(m);
-    assert_non_null(strstr(err, what));
+    assert_non_null(strstr(err.msg, what));
     fk_ctx_free(ctx);
 }
 
@@ -503,8 +506,8 @@ static void test_model_init_validates(void **state)
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m;
-    char err[512];
-    assert_int_equal(model_init(ctx, tmp_path, FK_W_F16, &m, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(model_init(ctx, tmp_path, FK_W_F16, &m, &err), 0);
     model_free(m);
     fk_ctx_free(ctx);
 
@@ -537,8 +540,8 @@ static void test_model_prepare_refuses_unknown_group(void **state)
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m = NULL;
-    char err[512];
-    assert_int_equal(model_init(ctx, tmp_path, FK_W_F32, &m, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(model_init(ctx, tmp_path, FK_W_F32, &m, &err), 0);
     assert_int_equal(model_prepare(m, 1, 42, 70), F4D_EFORMAT);
     assert_non_null(strstr(model_error(m), "unknown tensor 'gaussian_head.norm.weight'"));
     model_free(m);
@@ -551,13 +554,14 @@ static void test_convert_half_inputs(void **state)
     (void)state;
     static const char *dts[2] = { "f16", "bf16" };
     static const double tol[2] = { 1.0 / 2048, 1.0 / 256 };
-    char path[1100], err[512];
+    char path[1100];
+    struct f4d_err err = {0};
     gguf_file *ref, *f;
     snprintf(path, sizeof path, "%s/tiny_conv_f32.gguf", gguf_dir);
-    assert_int_equal(gguf_open(path, &ref, err, sizeof err), 0);
+    assert_int_equal(gguf_open(path, &ref, &err), 0);
     for (int k = 0; k < 2; k++) {
         snprintf(path, sizeof path, "%s/tiny_conv_from_%s.gguf", gguf_dir, dts[k]);
-        assert_int_equal(gguf_open(path, &f, err, sizeof err), 0);
+        assert_int_equal(gguf_open(path, &f, &err), 0);
         assert_int_equal(gguf_tensor_count(f), gguf_tensor_count(ref));
         double worst = 0;
         size_t n_differ = 0;

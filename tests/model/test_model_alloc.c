@@ -61,20 +61,19 @@ int __wrap_posix_memalign(void **p, size_t a, size_t n)
 static const char *gguf_dir;
 
 /* Init + Prepare with allocation `k` failing; returns the status. */
-static int init_prepare(fk_ctx *ctx, const char *path, enum fk_wtype wt, long k, char *err,
-                        size_t en)
+static int init_prepare(fk_ctx *ctx, const char *path, enum fk_wtype wt, long k, struct f4d_err *err)
 {
     struct model *m = NULL;
     n_allocs = 0;
     injected = 0;
     fail_at = k;
-    err[0] = 0;
-    int rc = model_init(ctx, path, wt, &m, err, en);
+    err->msg[0] = 0;
+    int rc = model_init(ctx, path, wt, &m, err);
     if (rc == 0) {
         assert_non_null(m);
         rc = model_prepare(m, 2, 42, 70);
         if (rc < 0)
-            snprintf(err, en, "%s", model_error(m));
+            f4d_fail(err, rc, "%s", model_error(m));
     } else {
         assert_null(m);
     }
@@ -85,25 +84,26 @@ static int init_prepare(fk_ctx *ctx, const char *path, enum fk_wtype wt, long k,
 
 static void oom_sweep(const char *file, enum fk_wtype wt, enum fk_isa isa)
 {
-    char path[1024], err[512];
+    char path[1024];
+    struct f4d_err err = {0};
     snprintf(path, sizeof path, "%s/%s", gguf_dir, file);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = isa, .threads = 1 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     long k;
     for (k = 0;; k++) {
-        int rc = init_prepare(ctx, path, wt, k, err, sizeof err);
+        int rc = init_prepare(ctx, path, wt, k, &err);
         if (!injected) {
             /* past the last allocation: everything succeeds */
             if (rc != 0)
-                print_error("%s without a failure: rc %d '%s'\n", file, rc, err);
+                print_error("%s without a failure: rc %d '%s'\n", file, rc, err.msg);
             assert_int_equal(rc, 0);
             break;
         }
-        if (rc != F4D_ENOMEM || !err[0])
-            print_error("%s, allocation %ld failing: rc %d '%s'\n", file, k, rc, err);
+        if (rc != F4D_ENOMEM || !err.msg[0])
+            print_error("%s, allocation %ld failing: rc %d '%s'\n", file, k, rc, err.msg);
         assert_int_equal(rc, F4D_ENOMEM);
-        assert_true(err[0] != 0);
+        assert_true(err.msg[0] != 0);
         /* the context is left unfrozen and usable after a failed Prepare */
         assert_int_equal(fk_ctx_reserve(ctx, 64, 64), F4D_OK);
     }
@@ -130,7 +130,8 @@ static void test_eval_never_allocates(void **state)
     static const enum fk_isa isas[2] = { FK_ISA_AUTO, FK_ISA_REF };
     static const char *files[2] = { "tiny_f32.gguf", "tiny_int8.gguf" };
     static const enum fk_wtype wts[2] = { FK_W_F32, FK_W_Q8 };
-    char path[1024], err[512];
+    char path[1024];
+    struct f4d_err err = {0};
     for (int i = 0; i < 2; i++)
         for (int f = 0; f < 2; f++) {
             fk_ctx *ctx;
@@ -138,7 +139,7 @@ static void test_eval_never_allocates(void **state)
             assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
             snprintf(path, sizeof path, "%s/%s", gguf_dir, files[f]);
             struct model *m;
-            assert_int_equal(model_init(ctx, path, wts[f], &m, err, sizeof err), 0);
+            assert_int_equal(model_init(ctx, path, wts[f], &m, &err), 0);
             assert_int_equal(model_prepare(m, 2, 42, 70), 0);
             float *img = calloc((size_t)2 * 3 * 42 * 70, sizeof *img);
             assert_non_null(img);

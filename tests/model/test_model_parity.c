@@ -51,12 +51,13 @@ struct run {
 
 static struct ck *ck_add(struct run *r, const char *dir, const char *name, int nchw)
 {
-    char path[2200], err[256];
+    char path[2200];
+    struct f4d_err err = {0};
     snprintf(path, sizeof path, "%s/%s.npy", dir, name);
     struct ck *c = &r->ck[r->n];
     memset(c, 0, sizeof *c);
-    if (npy_load_f32(path, &c->ref, c->shape, &c->nd, err, sizeof err) < 0) {
-        print_error("%s\n", err);
+    if (npy_load_f32(path, &c->ref, c->shape, &c->nd, &err) < 0) {
+        print_error("%s\n", err.msg);
         return NULL;
     }
     snprintf(c->name, sizeof c->name, "%s", name);
@@ -141,16 +142,17 @@ static double rel(const struct ck *c)
 static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtype wt,
                           double budget, int prep_S, int prep_H, int prep_W)
 {
-    char dir[1024], path[2200], err[512];
+    char dir[1024], path[2200];
+    struct f4d_err err = {0};
     snprintf(dir, sizeof dir, "%s/%s/s%d", fixture_dir, cfg, S);
     snprintf(path, sizeof path, "%s/%s_%s.gguf", gguf_dir, cfg, type);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m = NULL;
-    int rc = model_init(ctx, path, wt, &m, err, sizeof err);
+    int rc = model_init(ctx, path, wt, &m, &err);
     if (rc < 0)
-        print_error("%s\n", err);
+        print_error("%s\n", err.msg);
     assert_int_equal(rc, 0);
     const struct model_config *mc = model_get_config(m);
     rc = model_prepare(m, prep_S, prep_H, prep_W);
@@ -164,7 +166,7 @@ static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtyp
     int64_t ish[NPY_MAX_DIMS];
     int ind;
     snprintf(path, sizeof path, "%s/input.npy", dir);
-    assert_int_equal(npy_load_f32(path, &img, ish, &ind, err, sizeof err), 0);
+    assert_int_equal(npy_load_f32(path, &img, ish, &ind, &err), 0);
     assert_int_equal(ind, 4);
     assert_int_equal(ish[0], S);
     const int H = (int)ish[2], W = (int)ish[3];
@@ -269,13 +271,14 @@ static void test_tiny_f32_file_as_int8(void **state)
 static void test_arena_bounds(void **state)
 {
     (void)state;
-    char path[1024], err[512];
+    char path[1024];
+    struct f4d_err err = {0};
     snprintf(path, sizeof path, "%s/tiny_f32.gguf", gguf_dir);
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m;
-    assert_int_equal(model_init(ctx, path, FK_W_F32, &m, err, sizeof err), 0);
+    assert_int_equal(model_init(ctx, path, FK_W_F32, &m, &err), 0);
     assert_int_equal(model_prepare(m, 2, 42, 70), 0);
     const struct model_config *c = model_get_config(m);
     assert_int_equal(model_arena_bytes(m), model_plan_bytes(c, MODEL_G_ALL, 2, 42, 70));
@@ -328,16 +331,16 @@ static double arr_rel(const float *a, const float *b, size_t n)
 
 static double npy_rel(const char *a_path, const char *b_path, int64_t *shape, int *nd)
 {
-    char err[256];
+    struct f4d_err err = {0};
     float *a, *b;
     int64_t sb[NPY_MAX_DIMS];
     int nb;
-    if (npy_load_f32(a_path, &a, shape, nd, err, sizeof err) < 0) {
-        print_error("%s\n", err);
+    if (npy_load_f32(a_path, &a, shape, nd, &err) < 0) {
+        print_error("%s\n", err.msg);
         return INFINITY;
     }
-    if (npy_load_f32(b_path, &b, sb, &nb, err, sizeof err) < 0) {
-        print_error("%s\n", err);
+    if (npy_load_f32(b_path, &b, sb, &nb, &err) < 0) {
+        print_error("%s\n", err.msg);
         free(a);
         return INFINITY;
     }
@@ -376,14 +379,14 @@ static void test_infer_outputs(void **state)
     /* f4d-infer's depth against this process's own Eval of PIL's batch (the
      * fixture), same weights and precision: an independent computation of
      * the same numbers, up to threading order */
-    char err[512];
+    struct f4d_err err = {0};
     float *batch, *depth;
     int64_t bsh[NPY_MAX_DIMS];
     int bnd;
     snprintf(b, sizeof b, "%s/prep/batch_crop56.npy", fixture_dir);
-    assert_int_equal(npy_load_f32(b, &batch, bsh, &bnd, err, sizeof err), 0);
+    assert_int_equal(npy_load_f32(b, &batch, bsh, &bnd, &err), 0);
     snprintf(a, sizeof a, "%s/infer_png/depth.npy", gguf_dir);
-    assert_int_equal(npy_load_f32(a, &depth, sh, &nd, err, sizeof err), 0);
+    assert_int_equal(npy_load_f32(a, &depth, sh, &nd, &err), 0);
     assert_int_equal(nd, 4);
     assert_int_equal(sh[0], 2);
     assert_int_equal(sh[1], 56);
@@ -394,7 +397,7 @@ static void test_infer_outputs(void **state)
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     struct model *m;
     snprintf(b, sizeof b, "%s/tiny_int8.gguf", gguf_dir);
-    assert_int_equal(model_init(ctx, b, FK_W_Q8, &m, err, sizeof err), 0);
+    assert_int_equal(model_init(ctx, b, FK_W_Q8, &m, &err), 0);
     assert_int_equal(model_prepare(m, 2, 56, 56), 0);
     struct model_outputs out;
     assert_int_equal(model_eval(m, batch, 2, 56, 56, &out), 0);

@@ -21,12 +21,13 @@ struct img {
 
 static struct img load_img(const char *name)
 {
-    char path[1024], err[256];
+    char path[1024];
+    struct f4d_err err = {0};
     float *a;
     int64_t sh[NPY_MAX_DIMS];
     int nd;
     snprintf(path, sizeof path, "%s/prep/%s.npy", fixdir, name);
-    assert_int_equal(npy_load_f32(path, &a, sh, &nd, err, sizeof err), 0);
+    assert_int_equal(npy_load_f32(path, &a, sh, &nd, &err), 0);
     assert_int_equal(nd, 3);
     struct img im = { malloc((size_t)(sh[0] * sh[1] * sh[2])), (int)sh[1], (int)sh[0], (int)sh[2] };
     for (int64_t i = 0; i < sh[0] * sh[1] * sh[2]; i++)
@@ -55,12 +56,13 @@ static double max_err255(const float *got, const float *ref, size_t n)
 /* max |c - ref| in units of 1/255 */
 static double diff255(const char *name, const float *got, int n, int H, int W)
 {
-    char path[1024], err[256];
+    char path[1024];
+    struct f4d_err err = {0};
     float *ref;
     int64_t sh[NPY_MAX_DIMS];
     int nd;
     snprintf(path, sizeof path, "%s/prep/%s.npy", fixdir, name);
-    assert_int_equal(npy_load_f32(path, &ref, sh, &nd, err, sizeof err), 0);
+    assert_int_equal(npy_load_f32(path, &ref, sh, &nd, &err), 0);
     int64_t want = n > 1 ? sh[0] * sh[1] * sh[2] * sh[3] : sh[0] * sh[1] * sh[2];
     assert_int_equal(sh[nd - 2], H);
     assert_int_equal(sh[nd - 1], W);
@@ -81,9 +83,10 @@ static void check_case(const char *img_name, int mono)
             struct prep_image pi = { im.px, im.w, im.h, (size_t)im.w * im.c,
                                      mono ? PREP_PIXFMT_MONO8 : PREP_PIXFMT_RGB8 };
             int ow, oh;
-            char err[256], name[128];
+            char name[128];
+            struct f4d_err err = {0};
             assert_int_equal(prep_image(&pi, (enum prep_mode)mode, target, scratch, sb, out, &ow,
-                                        &oh, err, sizeof err), 0);
+                                        &oh, &err), 0);
             snprintf(name, sizeof name, "%s_%s%d", img_name, mode ? "pad" : "crop", target);
             double d = diff255(name, out, 1, oh, ow);
             printf("  %-24s %dx%d max diff %.3g / 255\n", name, ow, oh, d);
@@ -123,14 +126,14 @@ static void test_batch_pads_to_largest(void **s)
     void *scratch = malloc(sb);
     float *out = malloc((size_t)2 * 3 * 56 * 56 * sizeof *out);
     int H, W;
-    char err[256];
-    assert_int_equal(prep_batch(ims, 2, PREP_CROP, 56, scratch, sb, out, &H, &W, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(prep_batch(ims, 2, PREP_CROP, 56, scratch, sb, out, &H, &W, &err), 0);
     assert_int_equal(H, 56);
     assert_int_equal(W, 56);
     assert_true(diff255("batch_crop56", out, 2, H, W) < 1e-3);
     /* too little scratch is refused by name */
-    assert_int_equal(prep_batch(ims, 2, PREP_CROP, 56, scratch, 100, out, &H, &W, err, sizeof err), -1);
-    assert_non_null(strstr(err, "scratch"));
+    assert_int_equal(prep_batch(ims, 2, PREP_CROP, 56, scratch, 100, out, &H, &W, &err), -1);
+    assert_non_null(strstr(err.msg, "scratch"));
     free(scratch);
     free(out);
     free(a.px);
@@ -166,14 +169,14 @@ static void test_bayer(void **s)
     void *scratch = malloc(sb);
     float o1[3 * 28 * 28], o2[3 * 28 * 28];
     int ow, oh;
-    char err[256];
-    assert_int_equal(prep_image(&bi, PREP_PAD, 28, scratch, sb, o1, &ow, &oh, err, sizeof err), 0);
-    assert_int_equal(prep_image(&ri, PREP_PAD, 28, scratch, sb, o2, &ow, &oh, err, sizeof err), 0);
+    struct f4d_err err = {0};
+    assert_int_equal(prep_image(&bi, PREP_PAD, 28, scratch, sb, o1, &ow, &oh, &err), 0);
+    assert_int_equal(prep_image(&ri, PREP_PAD, 28, scratch, sb, o2, &ow, &oh, &err), 0);
     assert_memory_equal(o1, o2, sizeof o1);
     /* unknown formats are refused */
     struct prep_image bad = { flat, W, H, W * 3, 5 };
-    assert_int_equal(prep_image(&bad, PREP_PAD, 28, scratch, sb, o1, &ow, &oh, err, sizeof err), -1);
-    assert_non_null(strstr(err, "pixel format"));
+    assert_int_equal(prep_image(&bad, PREP_PAD, 28, scratch, sb, o1, &ow, &oh, &err), -1);
+    assert_non_null(strstr(err.msg, "pixel format"));
     free(scratch);
 }
 

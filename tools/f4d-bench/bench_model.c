@@ -138,11 +138,11 @@ struct result {
 static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int H, int W,
                      int reps, int layer, struct result *r)
 {
-    char err[512];
+    struct f4d_err err = {0};
     struct model *m;
     memset(r, 0, sizeof *r);
-    if (model_init(ctx, path, wt, &m, err, sizeof err) < 0) {
-        fprintf(stderr, "f4d-bench model: %s\n", err);
+    if (model_init(ctx, path, wt, &m, &err) < 0) {
+        fprintf(stderr, "f4d-bench model: %s\n", err.msg);
         return -1;
     }
     float *img = malloc((size_t)S * 3 * H * W * sizeof *img);

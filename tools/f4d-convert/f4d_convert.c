@@ -434,11 +434,11 @@ int main(int argc, char **argv)
     }
     struct model_config cfg;
     model_config_default(&cfg);
-    char err[512];
+    struct f4d_err err = {0};
     if (cfg_path && read_config(cfg_path, &cfg) < 0)
         return 1;
-    if (model_config_check(&cfg, err, sizeof err) < 0) {
-        fprintf(stderr, "f4d-convert: %s\n", err);
+    if (model_config_check(&cfg, &err) < 0) {
+        fprintf(stderr, "f4d-convert: %s\n", err.msg);
         return 1;
     }
     struct st_file st;

@@ -73,12 +73,13 @@ static uint8_t *load_png(const char *path, int *w, int *h)
 static int save(const char *dir, const char *name, const float *data, const int64_t *shape,
                 int nd)
 {
-    char path[4096], err[512];
+    char path[4096];
+    struct f4d_err err = {0};
     if (!data)
         return 0;
     snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-    if (npy_save_f32(path, data, shape, nd, err, sizeof err) < 0) {
-        fprintf(stderr, "f4d-infer: %s\n", err);
+    if (npy_save_f32(path, data, shape, nd, &err) < 0) {
+        fprintf(stderr, "f4d-infer: %s\n", err.msg);
         return -1;
     }
     return 0;
@@ -157,12 +158,12 @@ int main(int argc, char **argv)
 
     int rc = 1, S = 0, H = 0, W = 0;
     float *input = NULL;
-    char err[512];
+    struct f4d_err err = {0};
     if (raw) {
         int64_t sh[NPY_MAX_DIMS];
         int nd;
-        if (npy_load_f32(raw, &input, sh, &nd, err, sizeof err) < 0) {
-            fprintf(stderr, "f4d-infer: %s\n", err);
+        if (npy_load_f32(raw, &input, sh, &nd, &err) < 0) {
+            fprintf(stderr, "f4d-infer: %s\n", err.msg);
             return 1;
         }
         if (nd != 4 || sh[1] != 3 || sh[0] < 1 || sh[0] > MODEL_VIEWS_MAX) {
@@ -197,9 +198,8 @@ int main(int argc, char **argv)
         void *scratch = ok ? malloc(sb) : NULL;
         input = ok ? malloc((size_t)n_img * 3 * target * target * sizeof *input) : NULL;
         if (ok && (!scratch || !input ||
-                   prep_batch(ims, n_img, mode, target, scratch, sb, input, &H, &W, err,
-                              sizeof err) < 0)) {
-            fprintf(stderr, "f4d-infer: %s\n", err);
+                   prep_batch(ims, n_img, mode, target, scratch, sb, input, &H, &W, &err) < 0)) {
+            fprintf(stderr, "f4d-infer: %s\n", err.msg);
             ok = 0;
         }
         for (int i = 0; i < n_img; i++)
@@ -220,8 +220,8 @@ int main(int argc, char **argv)
         goto done;
     }
     double t0 = now();
-    if (model_init(ctx, weights, wt, &m, err, sizeof err) < 0) {
-        fprintf(stderr, "f4d-infer: %s\n", err);
+    if (model_init(ctx, weights, wt, &m, &err) < 0) {
+        fprintf(stderr, "f4d-infer: %s\n", err.msg);
         goto done;
     }
     if (model_prepare(m, S, H, W) < 0) {

@@ -28,18 +28,10 @@ struct gguf_file {
     struct gguf_kv     *kv;
     struct gguf_tensor *t;
     size_t             *sorted;    /* tensor indices sorted by name */
-    char                err[512];
+    struct f4d_err      err;       /* the last getter's failure        */
+    char                str[256];  /* gguf_get_str's copy, valid until the next call */
 };
 
-static void seterr(char *buf, size_t n, const char *fmt, ...)
-{
-    va_list ap;
-    if (!buf || !n)
-        return;
-    va_start(ap, fmt);
-    vsnprintf(buf, n, fmt, ap);
-    va_end(ap);
-}
 
 size_t gguf_type_size(uint32_t type)
 {
@@ -103,21 +95,18 @@ static int skip(struct cursor *c, uint64_t n)
 }
 
 /* Reads a GGUF string into a fresh NUL-terminated copy. */
-static int rd_str(struct cursor *c, char **out, const char *what, char *err, size_t en)
+static int rd_str(struct cursor *c, char **out, const char *what, struct f4d_err *err)
 {
     uint64_t len;
     if (rd(c, &len, 8) < 0) {
-        seterr(err, en, "gguf: truncated length of %s at byte %zu", what, c->pos);
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: truncated length of %s at byte %zu", what, c->pos);
     }
     if (len > c->size - c->pos) {
-        seterr(err, en, "gguf: %s length %" PRIu64 " runs past the end of the file", what, len);
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: %s length %" PRIu64 " runs past the end of the file", what, len);
     }
     if (len == 0 || len >= GGUF_NAME_MAX) {
-        seterr(err, en, "gguf: %s length %" PRIu64 " out of range 1..%d", what, len,
+        return f4d_fail(err, F4D_EFORMAT, "gguf: %s length %" PRIu64 " out of range 1..%d", what, len,
                GGUF_NAME_MAX - 1);
-        return F4D_EFORMAT;
     }
     char *s = malloc((size_t)len + 1);
     if (!s)
@@ -126,7 +115,7 @@ static int rd_str(struct cursor *c, char **out, const char *what, char *err, siz
     s[len] = 0;
     c->pos += (size_t)len;
     if (memchr(s, 0, (size_t)len)) {
-        seterr(err, en, "gguf: %s contains a NUL byte", what);
+        f4d_fail(err, F4D_EFORMAT, "gguf: %s contains a NUL byte", what);
         free(s);
         return F4D_EFORMAT;
     }
@@ -135,24 +124,21 @@ static int rd_str(struct cursor *c, char **out, const char *what, char *err, siz
 }
 
 /* Skips one value of type t, checking its bounds. */
-static int skip_value(struct cursor *c, uint32_t t, const char *key, char *err, size_t en)
+static int skip_value(struct cursor *c, uint32_t t, const char *key, struct f4d_err *err)
 {
     if (t == GGUF_V_STRING) {
         uint64_t len;
         if (rd(c, &len, 8) < 0 || skip(c, len) < 0) {
-            seterr(err, en, "gguf: key '%s': string value runs past the end of the file", key);
-            return F4D_EFORMAT;
+            return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': string value runs past the end of the file", key);
         }
         return 0;
     }
     size_t sz = vtype_size(t);
     if (!sz) {
-        seterr(err, en, "gguf: key '%s': unknown value type %u", key, t);
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': unknown value type %u", key, t);
     }
     if (skip(c, sz) < 0) {
-        seterr(err, en, "gguf: key '%s': value runs past the end of the file", key);
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': value runs past the end of the file", key);
     }
     return 0;
 }
@@ -187,28 +173,24 @@ static void sort_idx(size_t *v, size_t *tmp, size_t n, const struct gguf_tensor 
     memcpy(v, tmp, n * sizeof *v);
 }
 
-static int parse(gguf_file *f, char *err, size_t en)
+static int parse(gguf_file *f, struct f4d_err *err)
 {
     struct cursor c = { f->map, 0, f->size };
     uint32_t magic = 0, version = 0;
     uint64_t n_t, n_kv;
     if (rd(&c, &magic, 4) < 0 || magic != GGUF_MAGIC) {
-        seterr(err, en, "gguf: bad magic (not a GGUF file)");
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: bad magic (not a GGUF file)");
     }
     if (rd(&c, &version, 4) < 0 || version != GGUF_VERSION) {
-        seterr(err, en, "gguf: unsupported version %u (need %u)", version, GGUF_VERSION);
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: unsupported version %u (need %u)", version, GGUF_VERSION);
     }
     if (rd(&c, &n_t, 8) < 0 || rd(&c, &n_kv, 8) < 0) {
-        seterr(err, en, "gguf: truncated header");
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: truncated header");
     }
     /* Each key needs >= 13 bytes and each tensor info >= 29: bound the counts. */
     if (n_kv > f->size / 13 || n_t > f->size / 29) {
-        seterr(err, en, "gguf: %" PRIu64 " keys / %" PRIu64 " tensors cannot fit in %zu bytes",
+        return f4d_fail(err, F4D_EFORMAT, "gguf: %" PRIu64 " keys / %" PRIu64 " tensors cannot fit in %zu bytes",
                n_kv, n_t, f->size);
-        return F4D_EFORMAT;
     }
     f->kv = calloc(n_kv ? n_kv : 1, sizeof *f->kv);
     f->t = calloc(n_t ? n_t : 1, sizeof *f->t);
@@ -218,59 +200,51 @@ static int parse(gguf_file *f, char *err, size_t en)
     f->align = GGUF_DEFAULT_ALIGN;
     for (uint64_t i = 0; i < n_kv; i++) {
         struct gguf_kv *kv = &f->kv[i];
-        int rc = rd_str(&c, &kv->key, "key name", err, en);
+        int rc = rd_str(&c, &kv->key, "key name", err);
         if (rc < 0)
             return rc;
         f->n_kv = (size_t)i + 1;
         for (uint64_t j = 0; j < i; j++)
             if (!strcmp(f->kv[j].key, kv->key)) {
-                seterr(err, en, "gguf: duplicate key '%s'", kv->key);
-                return F4D_EFORMAT;
+                return f4d_fail(err, F4D_EFORMAT, "gguf: duplicate key '%s'", kv->key);
             }
         if (rd(&c, &kv->type, 4) < 0) {
-            seterr(err, en, "gguf: key '%s': truncated type", kv->key);
-            return F4D_EFORMAT;
+            return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': truncated type", kv->key);
         }
         if (kv->type == GGUF_V_ARRAY) {
             if (rd(&c, &kv->arr_type, 4) < 0 || rd(&c, &kv->arr_n, 8) < 0) {
-                seterr(err, en, "gguf: key '%s': truncated array header", kv->key);
-                return F4D_EFORMAT;
+                return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': truncated array header", kv->key);
             }
             if (kv->arr_type == GGUF_V_ARRAY) {
-                seterr(err, en, "gguf: key '%s': nested arrays are not supported", kv->key);
-                return F4D_EFORMAT;
+                return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': nested arrays are not supported", kv->key);
             }
             if (kv->arr_n > c.size - c.pos) {
-                seterr(err, en, "gguf: key '%s': array of %" PRIu64 " runs past the end",
+                return f4d_fail(err, F4D_EFORMAT, "gguf: key '%s': array of %" PRIu64 " runs past the end",
                        kv->key, kv->arr_n);
-                return F4D_EFORMAT;
             }
             kv->val = c.p + c.pos;
             for (uint64_t j = 0; j < kv->arr_n; j++)
-                if ((rc = skip_value(&c, kv->arr_type, kv->key, err, en)) < 0)
+                if ((rc = skip_value(&c, kv->arr_type, kv->key, err)) < 0)
                     return rc;
         } else {
             kv->val = c.p + c.pos;
-            if ((rc = skip_value(&c, kv->type, kv->key, err, en)) < 0)
+            if ((rc = skip_value(&c, kv->type, kv->key, err)) < 0)
                 return rc;
         }
         if (!strcmp(kv->key, "general.alignment")) {
             uint32_t a;
             if (kv->type != GGUF_V_UINT32) {
-                seterr(err, en, "gguf: key 'general.alignment' must be uint32");
-                return F4D_EFORMAT;
+                return f4d_fail(err, F4D_EFORMAT, "gguf: key 'general.alignment' must be uint32");
             }
             memcpy(&a, kv->val, 4);
             if (a == 0 || (a & (a - 1))) {
-                seterr(err, en, "gguf: key 'general.alignment' = %u is not a power of two", a);
-                return F4D_EFORMAT;
+                return f4d_fail(err, F4D_EFORMAT, "gguf: key 'general.alignment' = %u is not a power of two", a);
             }
             /* Every tensor is then aligned to its element size (<= 8), and the
              * alignment holds in memory too: mappings start on a page. */
             if (a < GGUF_MIN_ALIGN || a > GGUF_MAX_ALIGN) {
-                seterr(err, en, "gguf: key 'general.alignment' = %u out of %u..%u", a,
+                return f4d_fail(err, F4D_EFORMAT, "gguf: key 'general.alignment' = %u out of %u..%u", a,
                        GGUF_MIN_ALIGN, GGUF_MAX_ALIGN);
-                return F4D_EFORMAT;
             }
             f->align = a;
         }
@@ -278,64 +252,55 @@ static int parse(gguf_file *f, char *err, size_t en)
     for (uint64_t i = 0; i < n_t; i++) {
         struct gguf_tensor *t = &f->t[i];
         char *name = NULL;
-        int rc = rd_str(&c, &name, "tensor name", err, en);
+        int rc = rd_str(&c, &name, "tensor name", err);
         if (rc < 0)
             return rc;
         t->name = name;
         f->n_t = (size_t)i + 1;
         if (rd(&c, &t->n_dims, 4) < 0) {
-            seterr(err, en, "gguf: tensor '%s': truncated info", name);
-            return F4D_EFORMAT;
+            return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': truncated info", name);
         }
         if (t->n_dims < 1 || t->n_dims > GGUF_MAX_DIMS) {
-            seterr(err, en, "gguf: tensor '%s': %u dims (1..%d allowed)", name, t->n_dims,
+            return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': %u dims (1..%d allowed)", name, t->n_dims,
                    GGUF_MAX_DIMS);
-            return F4D_EFORMAT;
         }
         uint64_t n = 1;
         for (uint32_t d = 0; d < GGUF_MAX_DIMS; d++)
             t->ne[d] = 1;
         for (uint32_t d = 0; d < t->n_dims; d++) {
             if (rd(&c, &t->ne[d], 8) < 0) {
-                seterr(err, en, "gguf: tensor '%s': truncated dims", name);
-                return F4D_EFORMAT;
+                return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': truncated dims", name);
             }
             if (t->ne[d] == 0 || t->ne[d] > (UINT64_C(1) << 40) / n) {
-                seterr(err, en, "gguf: tensor '%s': dim %u = %" PRIu64 " is zero or too large",
+                return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': dim %u = %" PRIu64 " is zero or too large",
                        name, d, t->ne[d]);
-                return F4D_EFORMAT;
             }
             n *= t->ne[d];
         }
         t->n_elements = n;
         if (rd(&c, &t->type, 4) < 0 || rd(&c, &t->offset, 8) < 0) {
-            seterr(err, en, "gguf: tensor '%s': truncated info", name);
-            return F4D_EFORMAT;
+            return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': truncated info", name);
         }
         size_t es = gguf_type_size(t->type);
         if (!es) {
-            seterr(err, en, "gguf: tensor '%s': unsupported type %u", name, t->type);
-            return F4D_EFORMAT;
+            return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': unsupported type %u", name, t->type);
         }
         t->nbytes = (size_t)(n * es);
         if (t->offset % f->align) {
-            seterr(err, en, "gguf: tensor '%s': offset %" PRIu64 " not aligned to %u", name,
+            return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': offset %" PRIu64 " not aligned to %u", name,
                    t->offset, f->align);
-            return F4D_EFORMAT;
         }
     }
     size_t data_start = (c.pos + f->align - 1) / f->align * f->align;
     if (data_start > f->size) {
-        seterr(err, en, "gguf: data section starts past the end of the file");
-        return F4D_EFORMAT;
+        return f4d_fail(err, F4D_EFORMAT, "gguf: data section starts past the end of the file");
     }
     size_t data_size = f->size - data_start;
     for (size_t i = 0; i < f->n_t; i++) {
         struct gguf_tensor *t = &f->t[i];
         if (t->offset > data_size || t->nbytes > data_size - t->offset) {
-            seterr(err, en, "gguf: tensor '%s': bytes [%" PRIu64 ", +%zu) past the data end %zu",
+            return f4d_fail(err, F4D_EFORMAT, "gguf: tensor '%s': bytes [%" PRIu64 ", +%zu) past the data end %zu",
                    t->name, t->offset, t->nbytes, data_size);
-            return F4D_EFORMAT;
         }
         t->data = f->map + data_start + t->offset;
         f->sorted[i] = i;
@@ -347,7 +312,7 @@ static int parse(gguf_file *f, char *err, size_t en)
     sort_idx(f->sorted, tmp, f->n_t, f->t, cmp_names);
     for (size_t i = 1; i < f->n_t; i++)
         if (!strcmp(f->t[f->sorted[i]].name, f->t[f->sorted[i - 1]].name)) {
-            seterr(err, en, "gguf: duplicate tensor '%s'", f->t[f->sorted[i]].name);
+            f4d_fail(err, F4D_EFORMAT, "gguf: duplicate tensor '%s'", f->t[f->sorted[i]].name);
             free(tmp);
             return F4D_EFORMAT;
         }
@@ -360,7 +325,7 @@ static int parse(gguf_file *f, char *err, size_t en)
     for (size_t i = 1; i < f->n_t; i++) {
         const struct gguf_tensor *a = &f->t[by_off[far]], *b = &f->t[by_off[i]];
         if (b->offset < a->offset + a->nbytes) {
-            seterr(err, en, "gguf: tensors '%s' and '%s' overlap", a->name, b->name);
+            f4d_fail(err, F4D_EFORMAT, "gguf: tensors '%s' and '%s' overlap", a->name, b->name);
             free(tmp);
             return F4D_EFORMAT;
         }
@@ -372,19 +337,18 @@ static int parse(gguf_file *f, char *err, size_t en)
 
 /* The checks shared by both entry points; f->map and f->size are set. On
  * failure f is closed. */
-static int open_parsed(gguf_file *f, gguf_file **out, const char *what, char *err,
-                       size_t err_size)
+static int open_parsed(gguf_file *f, gguf_file **out, const char *what, struct f4d_err *err)
 {
-    int rc = parse(f, err, err_size);
+    int rc = parse(f, err);
     if (rc == F4D_OK && ((uintptr_t)f->map % f->align)) {
         /* Only a caller's buffer can be misaligned (mappings start on a page). */
-        seterr(err, err_size, "gguf: %s: buffer at %p is not aligned to general.alignment %u",
+        f4d_fail(err, F4D_EINVAL, "gguf: %s: buffer at %p is not aligned to general.alignment %u",
                what, (const void *)f->map, f->align);
         rc = F4D_EINVAL;
     }
     if (rc < 0) {
         if (rc == F4D_ENOMEM)
-            seterr(err, err_size, "gguf: out of memory reading %s", what);
+            f4d_fail(err, F4D_ENOMEM, "gguf: out of memory reading %s", what);
         gguf_close(f);
         return rc;
     }
@@ -392,23 +356,22 @@ static int open_parsed(gguf_file *f, gguf_file **out, const char *what, char *er
     return F4D_OK;
 }
 
-int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
+int gguf_open(const char *path, gguf_file **out, struct f4d_err *err)
 {
     *out = NULL;
     gguf_file *f = calloc(1, sizeof *f);
     if (!f) {
-        seterr(err, err_size, "gguf: out of memory opening '%s'", path);
-        return F4D_ENOMEM;
+        return f4d_fail(err, F4D_ENOMEM, "gguf: out of memory opening '%s'", path);
     }
     int fd = open(path, O_RDONLY);
     if (fd < 0) {
-        seterr(err, err_size, "gguf: cannot open '%s': %s", path, strerror(errno));
+        f4d_fail(err, F4D_EIO, "gguf: cannot open '%s': %s", path, strerror(errno));
         free(f);
         return F4D_EIO;
     }
     struct stat st;
     if (fstat(fd, &st) < 0 || st.st_size < GGUF_MIN_SIZE) {
-        seterr(err, err_size, "gguf: '%s' is too small to be a GGUF file", path);
+        f4d_fail(err, F4D_EFORMAT, "gguf: '%s' is too small to be a GGUF file", path);
         close(fd);
         free(f);
         return F4D_EFORMAT;
@@ -417,7 +380,7 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
     void *m = mmap(NULL, f->size, PROT_READ, MAP_PRIVATE, fd, 0);
     close(fd);
     if (m == MAP_FAILED) {
-        seterr(err, err_size, "gguf: cannot mmap '%s': %s", path, strerror(errno));
+        f4d_fail(err, F4D_EIO, "gguf: cannot mmap '%s': %s", path, strerror(errno));
         free(f);
         return F4D_EIO;
     }
@@ -425,29 +388,26 @@ int gguf_open(const char *path, gguf_file **out, char *err, size_t err_size)
     f->mapped = 1;
     char what[300];
     snprintf(what, sizeof what, "'%s'", path);
-    return open_parsed(f, out, what, err, err_size);
+    return open_parsed(f, out, what, err);
 }
 
-int gguf_open_memory(const void *data, size_t size, gguf_file **out, char *err, size_t err_size)
+int gguf_open_memory(const void *data, size_t size, gguf_file **out, struct f4d_err *err)
 {
     *out = NULL;
     if (!data && size) {
-        seterr(err, err_size, "gguf: memory buffer is NULL");
-        return F4D_EINVAL;
+        return f4d_fail(err, F4D_EINVAL, "gguf: memory buffer is NULL");
     }
     if (size < GGUF_MIN_SIZE) {
-        seterr(err, err_size, "gguf: memory buffer of %zu bytes is too small to be a GGUF file",
+        return f4d_fail(err, F4D_EFORMAT, "gguf: memory buffer of %zu bytes is too small to be a GGUF file",
                size);
-        return F4D_EFORMAT;
     }
     gguf_file *f = calloc(1, sizeof *f);
     if (!f) {
-        seterr(err, err_size, "gguf: out of memory opening a memory buffer");
-        return F4D_ENOMEM;
+        return f4d_fail(err, F4D_ENOMEM, "gguf: out of memory opening a memory buffer");
     }
     f->map = data;
     f->size = size;
-    return open_parsed(f, out, "memory buffer", err, err_size);
+    return open_parsed(f, out, "memory buffer", err);
 }
 
 void gguf_close(gguf_file *f)
@@ -466,7 +426,7 @@ void gguf_close(gguf_file *f)
     free(f);
 }
 
-const char *gguf_error(const gguf_file *f) { return f->err; }
+const char *gguf_error(const gguf_file *f) { return f->err.msg; }
 uint32_t gguf_alignment(const gguf_file *f) { return f->align; }
 size_t gguf_file_size(const gguf_file *f) { return f->size; }
 size_t gguf_key_count(const gguf_file *f) { return f->n_kv; }
@@ -520,13 +480,12 @@ int gguf_get_int(gguf_file *f, const char *key, int64_t *v)
 {
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
-        seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return F4D_ENOENT;
+        return f4d_fail(&f->err, F4D_ENOENT, "gguf: missing key '%s'", key);
     }
     int rc = int_at(kv->val, kv->type, v);
     if (rc < 0)
-        seterr(f->err, sizeof f->err, "gguf: key '%s' is not an integer in int64 range (type %u)",
-               key, kv->type);
+        f4d_fail(&f->err, rc, "gguf: key '%s' is not an integer in int64 range (type %u)",
+                 key, kv->type);
     return rc;
 }
 
@@ -534,8 +493,7 @@ int gguf_get_float(gguf_file *f, const char *key, double *v)
 {
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
-        seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return F4D_ENOENT;
+        return f4d_fail(&f->err, F4D_ENOENT, "gguf: missing key '%s'", key);
     }
     if (kv->type == GGUF_V_FLOAT32) {
         float x;
@@ -544,8 +502,7 @@ int gguf_get_float(gguf_file *f, const char *key, double *v)
     } else if (kv->type == GGUF_V_FLOAT64) {
         memcpy(v, kv->val, 8);
     } else {
-        seterr(f->err, sizeof f->err, "gguf: key '%s' is not a float (type %u)", key, kv->type);
-        return F4D_ETYPE;
+        return f4d_fail(&f->err, F4D_ETYPE, "gguf: key '%s' is not a float (type %u)", key, kv->type);
     }
     return 0;
 }
@@ -557,32 +514,26 @@ int gguf_get_str(gguf_file *f, const char *key, const char **v)
     static const char empty[] = "";
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
-        seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return F4D_ENOENT;
+        return f4d_fail(&f->err, F4D_ENOENT, "gguf: missing key '%s'", key);
     }
     if (kv->type != GGUF_V_STRING) {
-        seterr(f->err, sizeof f->err, "gguf: key '%s' is not a string (type %u)", key, kv->type);
-        return F4D_ETYPE;
+        return f4d_fail(&f->err, F4D_ETYPE, "gguf: key '%s' is not a string (type %u)", key, kv->type);
     }
     uint64_t len;
     memcpy(&len, kv->val, 8);
-    if (len >= sizeof f->err / 2) {
-        seterr(f->err, sizeof f->err, "gguf: key '%s': string too long", key);
-        return F4D_EFORMAT;
+    if (len >= sizeof f->str) {
+        return f4d_fail(&f->err, F4D_EFORMAT, "gguf: key '%s': string too long", key);
     }
     if (len == 0) {
         *v = empty;
         return 0;
     }
-    /* Stored in the upper half of the error buffer: valid until the next getter. */
-    char *s = f->err + sizeof f->err / 2;
+    char *s = f->str;
     memcpy(s, kv->val + 8, (size_t)len);
     s[len] = 0;
     if (strlen(s) != len) {
-        seterr(f->err, sizeof f->err / 2, "gguf: key '%s': string contains NUL", key);
-        return F4D_EFORMAT;
+        return f4d_fail(&f->err, F4D_EFORMAT, "gguf: key '%s': string contains NUL", key);
     }
-    f->err[0] = 0;
     *v = s;
     return 0;
 }
@@ -591,24 +542,20 @@ int gguf_get_int_array(gguf_file *f, const char *key, int64_t *v, size_t cap, si
 {
     const struct gguf_kv *kv = find_kv(f, key);
     if (!kv) {
-        seterr(f->err, sizeof f->err, "gguf: missing key '%s'", key);
-        return F4D_ENOENT;
+        return f4d_fail(&f->err, F4D_ENOENT, "gguf: missing key '%s'", key);
     }
     size_t es = vtype_size(kv->arr_type);
     if (kv->type != GGUF_V_ARRAY || kv->arr_type == GGUF_V_FLOAT32 ||
         kv->arr_type == GGUF_V_FLOAT64 || !es) {
-        seterr(f->err, sizeof f->err, "gguf: key '%s' is not an integer array", key);
-        return F4D_ETYPE;
+        return f4d_fail(&f->err, F4D_ETYPE, "gguf: key '%s' is not an integer array", key);
     }
     if (kv->arr_n > cap) {
-        seterr(f->err, sizeof f->err, "gguf: key '%s' has %" PRIu64 " entries (at most %zu)",
+        return f4d_fail(&f->err, F4D_EFORMAT, "gguf: key '%s' has %" PRIu64 " entries (at most %zu)",
                key, kv->arr_n, cap);
-        return F4D_EFORMAT;
     }
     for (size_t i = 0; i < kv->arr_n; i++)
         if (int_at(kv->val + i * es, kv->arr_type, &v[i]) < 0) {
-            seterr(f->err, sizeof f->err, "gguf: key '%s'[%zu] out of range", key, i);
-            return F4D_EFORMAT;
+            return f4d_fail(&f->err, F4D_EFORMAT, "gguf: key '%s'[%zu] out of range", key, i);
         }
     *n = (size_t)kv->arr_n;
     return 0;
@@ -635,13 +582,11 @@ int gguf_expect_tensor(gguf_file *f, const char *name, uint32_t type, int n_dims
 {
     const struct gguf_tensor *t = gguf_find_tensor(f, name);
     if (!t) {
-        seterr(f->err, sizeof f->err, "gguf: missing tensor '%s'", name);
-        return F4D_ENOENT;
+        return f4d_fail(&f->err, F4D_ENOENT, "gguf: missing tensor '%s'", name);
     }
     if (t->type != type) {
-        seterr(f->err, sizeof f->err, "gguf: tensor '%s' has type %s, expected %s", name,
+        return f4d_fail(&f->err, F4D_ETYPE, "gguf: tensor '%s' has type %s, expected %s", name,
                gguf_type_name(t->type), gguf_type_name(type));
-        return F4D_ETYPE;
     }
     int ok = (int)t->n_dims == n_dims;
     for (int d = 0; ok && d < n_dims; d++)
@@ -654,9 +599,8 @@ int gguf_expect_tensor(gguf_file *f, const char *name, uint32_t type, int n_dims
         for (int d = 0; d < n_dims; d++)
             snprintf(want + strlen(want), sizeof want - strlen(want), "%s%" PRId64, d ? "," : "",
                      shape[d]);
-        seterr(f->err, sizeof f->err, "gguf: tensor '%s' has shape [%s], expected [%s]", name,
+        return f4d_fail(&f->err, F4D_EFORMAT, "gguf: tensor '%s' has shape [%s], expected [%s]", name,
                got, want);
-        return F4D_EFORMAT;
     }
     *out = t;
     return 0;
@@ -679,7 +623,7 @@ struct gguf_writer {
     FILE       *fp;
     char       *path, *tmp;
     int         failed;
-    char        err[512];
+    struct f4d_err err;
 };
 
 static int wput(gguf_writer *w, struct wbuf *b, const void *src, size_t n)
@@ -690,7 +634,7 @@ static int wput(gguf_writer *w, struct wbuf *b, const void *src, size_t n)
             cap *= 2;
         uint8_t *p = realloc(b->p, cap);
         if (!p) {
-            seterr(w->err, sizeof w->err, "gguf writer: out of memory");
+            f4d_fail(&w->err, F4D_ENOMEM, "gguf writer: out of memory");
             w->failed = 1;
             return F4D_ENOMEM;
         }
@@ -736,14 +680,13 @@ void gguf_writer_free(gguf_writer *w)
     free(w);
 }
 
-const char *gguf_writer_error(const gguf_writer *w) { return w->err; }
+const char *gguf_writer_error(const gguf_writer *w) { return w->err.msg; }
 
 static int key_ok(gguf_writer *w, const char *key)
 {
     if (!key || !*key || strlen(key) >= GGUF_NAME_MAX || w->fp) {
-        seterr(w->err, sizeof w->err, "gguf writer: bad key '%s' or header already written",
+        return f4d_fail(&w->err, F4D_EINVAL, "gguf writer: bad key '%s' or header already written",
                key ? key : "(null)");
-        return F4D_EINVAL;
     }
     return 0;
 }
@@ -753,8 +696,7 @@ static int put_int(gguf_writer *w, struct wbuf *b, enum gguf_vtype t, int64_t v)
     uint8_t buf[8];
     size_t n = vtype_size(t);
     if (!n || t == GGUF_V_FLOAT32 || t == GGUF_V_FLOAT64 || t == GGUF_V_STRING) {
-        seterr(w->err, sizeof w->err, "gguf writer: type %d is not an integer type", (int)t);
-        return F4D_EINVAL;
+        return f4d_fail(&w->err, F4D_EINVAL, "gguf writer: type %d is not an integer type", (int)t);
     }
     /* Little-endian truncation to the chosen width (x86/ARM hosts). */
     uint64_t u = (uint64_t)v;
@@ -812,15 +754,15 @@ int gguf_writer_add_tensor(gguf_writer *w, const char *name, uint32_t type, int 
 {
     size_t es = gguf_type_size(type);
     if (key_ok(w, name) < 0 || !es || n_dims < 1 || n_dims > GGUF_MAX_DIMS) {
-        seterr(w->err, sizeof w->err, "gguf writer: tensor '%s': bad type or dims", name);
-        return w->failed = 1, F4D_EINVAL;
+        w->failed = 1;
+        return f4d_fail(&w->err, F4D_EINVAL, "gguf writer: tensor '%s': bad type or dims", name);
     }
     uint64_t n = 1;
     for (int d = 0; d < n_dims; d++) {
         if (shape[d] <= 0) {
-            seterr(w->err, sizeof w->err, "gguf writer: tensor '%s': dim %d is %" PRId64, name,
+            w->failed = 1;
+            return f4d_fail(&w->err, F4D_EINVAL, "gguf writer: tensor '%s': dim %d is %" PRId64, name,
                    d, shape[d]);
-            return w->failed = 1, F4D_EINVAL;
         }
         n *= (uint64_t)shape[d];
     }
@@ -850,7 +792,7 @@ int gguf_writer_add_tensor(gguf_writer *w, const char *name, uint32_t type, int 
 static int wfile(gguf_writer *w, const void *p, size_t n)
 {
     if (n && fwrite(p, 1, n, w->fp) != n) {
-        seterr(w->err, sizeof w->err, "gguf writer: write to '%s' failed: %s", w->tmp,
+        f4d_fail(&w->err, F4D_EIO, "gguf writer: write to '%s' failed: %s", w->tmp,
                strerror(errno));
         w->failed = 1;
         return F4D_EIO;
@@ -881,9 +823,8 @@ int gguf_writer_begin(gguf_writer *w, const char *path)
     snprintf(w->tmp, n + 5, "%s.tmp", path);
     w->fp = fopen(w->tmp, "wb");
     if (!w->fp) {
-        seterr(w->err, sizeof w->err, "gguf writer: cannot create '%s': %s", w->tmp,
+        return f4d_fail(&w->err, F4D_EIO, "gguf writer: cannot create '%s': %s", w->tmp,
                strerror(errno));
-        return F4D_EIO;
     }
     uint32_t magic = GGUF_MAGIC, ver = GGUF_VERSION;
     if (wfile(w, &magic, 4) < 0 || wfile(w, &ver, 4) < 0 || wfile(w, &w->n_t, 8) < 0 ||
@@ -896,7 +837,7 @@ int gguf_writer_begin(gguf_writer *w, const char *path)
 int gguf_writer_write(gguf_writer *w, const void *data, size_t nbytes)
 {
     if (!w->fp || w->failed || w->written_t >= w->n_t || nbytes != w->sizes[w->written_t]) {
-        seterr(w->err, sizeof w->err, "gguf writer: tensor %" PRIu64 " written out of order or "
+        f4d_fail(&w->err, F4D_EINVAL, "gguf writer: tensor %" PRIu64 " written out of order or "
                "with %zu bytes", w->written_t, nbytes);
         w->failed = 1;
         return F4D_EINVAL;
@@ -910,15 +851,14 @@ int gguf_writer_write(gguf_writer *w, const void *data, size_t nbytes)
 int gguf_writer_finish(gguf_writer *w)
 {
     if (!w->fp || w->failed || w->written_t != w->n_t) {
-        seterr(w->err, sizeof w->err, "gguf writer: %" PRIu64 " of %" PRIu64
+        return f4d_fail(&w->err, F4D_EINVAL, "gguf writer: %" PRIu64 " of %" PRIu64
                " tensors written", w->written_t, w->n_t);
-        return F4D_EINVAL;
     }
     int bad = fflush(w->fp) != 0 || fsync(fileno(w->fp)) != 0;
     bad |= fclose(w->fp) != 0;
     w->fp = NULL;
     if (bad || rename(w->tmp, w->path) != 0) {
-        seterr(w->err, sizeof w->err, "gguf writer: cannot finish '%s': %s", w->path,
+        f4d_fail(&w->err, F4D_EIO, "gguf writer: cannot finish '%s': %s", w->path,
                strerror(errno));
         remove(w->tmp);
         return F4D_EIO;

@@ -6,9 +6,9 @@
  * offset) and a data section aligned to `general.alignment` (default 32) in
  * which every tensor starts on an aligned offset. Everything is little-endian.
  *
- *     char err[256];
+ *     struct f4d_err err = {0};
  *     gguf_file *f;
- *     if (gguf_open("w.gguf", &f, err, sizeof err) < 0) { puts(err); ... }
+ *     if (gguf_open("w.gguf", &f, &err) < 0) { puts(err); ... }
  *     int64_t depth;
  *     if (gguf_get_int(f, "forge4d.depth", &depth) < 0) puts(gguf_error(f));
  *     const struct gguf_tensor *t = gguf_find_tensor(f, "aggregator.camera_token");
@@ -75,14 +75,13 @@ struct gguf_tensor {
 typedef struct gguf_file gguf_file;
 
 /* Reader. err receives the message when gguf_open fails. */
-int          gguf_open        (const char *path, gguf_file **out, char *err, size_t err_size);
+int          gguf_open        (const char *path, gguf_file **out, struct f4d_err *err);
 /* The same reader and checks over bytes already in memory (no copy): `data`
  * must stay valid and unchanged until gguf_close, and be aligned to the file's
  * general.alignment (aligned_alloc(GGUF_MAX_ALIGN, ...) always is), else
  * F4D_EINVAL. Malformed bytes give F4D_EFORMAT with the same message as
  * gguf_open would. */
-int          gguf_open_memory (const void *data, size_t size, gguf_file **out, char *err,
-                               size_t err_size);
+int          gguf_open_memory (const void *data, size_t size, gguf_file **out, struct f4d_err *err);
 void         gguf_close       (gguf_file *f);
 const char * gguf_error       (const gguf_file *f);   /* last getter failure */
 uint32_t     gguf_alignment   (const gguf_file *f);

@@ -17,8 +17,9 @@ int model_fail(struct model *m, int rc, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(m->err, sizeof m->err, fmt, ap);
+    vsnprintf(m->err.msg, sizeof m->err.msg, fmt, ap);
     va_end(ap);
+    m->err.code = rc;
     return rc;
 }
 
@@ -243,7 +244,7 @@ static int name_extra(struct model *m);
 static int init_file(struct model *m)
 {
     int rc;
-    if ((rc = model_config_read(m->gf, &m->cfg, m->err, sizeof m->err)) < 0)
+    if ((rc = model_config_read(m->gf, &m->cfg, &m->err)) < 0)
         return rc;
     for (size_t i = 0; i < gguf_tensor_count(m->gf); i++)
         m->groups |= model_group_of(gguf_tensor_at(m->gf, i)->name);
@@ -265,18 +266,16 @@ static int init_file(struct model *m)
     return 0;
 }
 
-static struct model *model_new(fk_ctx *ctx, enum fk_wtype wtype, char *err, size_t err_size,
+static struct model *model_new(fk_ctx *ctx, enum fk_wtype wtype, struct f4d_err *err,
                                int *rc)
 {
     if (wtype != FK_W_F32 && wtype != FK_W_F16 && wtype != FK_W_Q8) {
-        snprintf(err, err_size, "model: unknown weight precision %d", (int)wtype);
-        *rc = F4D_EINVAL;
+        *rc = f4d_fail(err, F4D_EINVAL, "model: unknown weight precision %d", (int)wtype);
         return NULL;
     }
     struct model *m = calloc(1, sizeof *m);
     if (!m) {
-        snprintf(err, err_size, "model: out of memory");
-        *rc = F4D_ENOMEM;
+        *rc = f4d_fail(err, F4D_ENOMEM, "model: out of memory");
         return NULL;
     }
     m->ctx = ctx;
@@ -285,44 +284,45 @@ static struct model *model_new(fk_ctx *ctx, enum fk_wtype wtype, char *err, size
     return m;
 }
 
-static int init_done(struct model *m, int rc, struct model **out, char *err, size_t err_size)
+static int init_done(struct model *m, int rc, struct model **out, struct f4d_err *err)
 {
     if (rc >= 0) {
         *out = m;
         return 0;
     }
-    snprintf(err, err_size, "%s", m->err);
+    if (err)
+        *err = m->err;
     model_free(m);
     return rc;
 }
 
 int model_init(fk_ctx *ctx, const char *path, enum fk_wtype wtype, struct model **out,
-               char *err, size_t err_size)
+               struct f4d_err *err)
 {
     *out = NULL;
     int rc;
-    struct model *m = model_new(ctx, wtype, err, err_size, &rc);
+    struct model *m = model_new(ctx, wtype, err, &rc);
     if (!m)
         return rc;
     m->owns_gf = 1;
-    rc = gguf_open(path, &m->gf, m->err, sizeof m->err);
+    rc = gguf_open(path, &m->gf, &m->err);
     if (rc < 0)
         rc = rc == F4D_EIO || rc == F4D_ENOMEM ? rc : F4D_EFORMAT;
     else
         rc = init_file(m);
-    return init_done(m, rc, out, err, err_size);
+    return init_done(m, rc, out, err);
 }
 
 int model_init_gguf(fk_ctx *ctx, gguf_file *gf, enum fk_wtype wtype, struct model **out,
-                    char *err, size_t err_size)
+                    struct f4d_err *err)
 {
     *out = NULL;
     int rc;
-    struct model *m = model_new(ctx, wtype, err, err_size, &rc);
+    struct model *m = model_new(ctx, wtype, err, &rc);
     if (!m)
         return rc;
     m->gf = gf;
-    return init_done(m, init_file(m), out, err, err_size);
+    return init_done(m, init_file(m), out, err);
 }
 
 int model_register_head(struct model *m, const struct model_head_ops *ops)
@@ -339,7 +339,7 @@ int model_register_head(struct model *m, const struct model_head_ops *ops)
     void *h = NULL;
     int rc = ops->init(m, &h);
     if (rc < 0) {
-        if (!m->err[0])
+        if (!m->err.msg[0])
             model_fail(m, rc, "model: head '%s' failed to load", ops->prefix);
         return rc;
     }
@@ -626,7 +626,7 @@ void model_free(struct model *m)
     free(m);
 }
 
-const char *model_error(const struct model *m) { return m->err; }
+const char *model_error(const struct model *m) { return m->err.msg; }
 const struct model_config *model_get_config(const struct model *m) { return &m->cfg; }
 fk_ctx *model_ctx(struct model *m) { return m->ctx; }
 enum fk_wtype model_wtype(const struct model *m) { return m->wtype; }

@@ -14,9 +14,9 @@
  *            then get F4D_ENOMEM rather than a scratch allocation.
  *   Eval     model_eval: runs the network; it never allocates and never logs.
  *
- *     fk_ctx *ctx;  struct model *m;  struct model_outputs out;  char err[256];
+ *     fk_ctx *ctx;  struct model *m;  struct model_outputs out;  struct f4d_err err = {0};
  *     fk_ctx_new(&(struct fk_ctx_config){ .threads = 0 }, &ctx);
- *     if (model_init(ctx, "vggt.gguf", FK_W_F32, &m, err, sizeof err) < 0) puts(err);
+ *     if (model_init(ctx, "vggt.gguf", FK_W_F32, &m, &err) < 0) puts(err);
  *     model_prepare(m, 4, 518, 518);                 // arena for up to 4 views
  *     model_eval(m, images, 4, 392, 518, &out);      // images [S,3,H,W] in [0,1]
  *     ... out.depth[(s * H + y) * W + x] ...
@@ -77,8 +77,8 @@ struct model_config {
 
 void model_config_default(struct model_config *c);
 /* Range and divisibility checks; the message names the field. */
-int  model_config_check  (const struct model_config *c, char *err, size_t err_size);
-int  model_config_read   (gguf_file *f, struct model_config *c, char *err, size_t err_size);
+int  model_config_check  (const struct model_config *c, struct f4d_err *err);
+int  model_config_read   (gguf_file *f, struct model_config *c, struct f4d_err *err);
 int  model_config_write  (const struct model_config *c, gguf_writer *w);
 int  model_mlp_hidden    (const struct model_config *c, int dim);  /* int(dim * ratio) */
 
@@ -187,12 +187,12 @@ struct model_head_ops {
 };
 
 int   model_init        (fk_ctx *ctx, const char *path, enum fk_wtype wtype,
-                         struct model **out, char *err, size_t err_size);
+                         struct model **out, struct f4d_err *err);
 /* The same Init on a file already open (e.g. gguf_open_memory). The model
  * borrows `gf` (its weights point into the file): gf must stay open until
  * model_free, which does not close it. */
 int   model_init_gguf   (fk_ctx *ctx, gguf_file *gf, enum fk_wtype wtype,
-                         struct model **out, char *err, size_t err_size);
+                         struct model **out, struct f4d_err *err);
 /* Adds a head after the built-in ones; before model_prepare. */
 int   model_register_head(struct model *m, const struct model_head_ops *ops);
 int   model_prepare     (struct model *m, int max_views, int max_h, int max_w);

@@ -5,16 +5,6 @@
 
 #include "model.h"
 
-static int fail(char *err, size_t n, const char *fmt, ...)
-{
-    va_list ap;
-    if (err && n) {
-        va_start(ap, fmt);
-        vsnprintf(err, n, fmt, ap);
-        va_end(ap);
-    }
-    return F4D_EFORMAT;
-}
 
 void model_config_default(struct model_config *c)
 {
@@ -33,61 +23,61 @@ int model_mlp_hidden(const struct model_config *c, int dim)
     return (int)((double)dim * (double)c->mlp_ratio); /* Python int(dim * ratio) */
 }
 
-int model_config_check(const struct model_config *c, char *err, size_t n)
+int model_config_check(const struct model_config *c, struct f4d_err *err)
 {
     if (c->patch_size < 1 || c->patch_size > 64)
-        return fail(err, n, "config: patch_size %d out of 1..64", c->patch_size);
+        return f4d_fail(err, F4D_EFORMAT, "config: patch_size %d out of 1..64", c->patch_size);
     /* img_size sizes the DINO pos-embed table, 1 + (img_size / patch_size)^2
      * rows: bounded like the input frames (model_prepare takes <= 4096). */
     if (c->img_size < c->patch_size || c->img_size > MODEL_IMG_MAX)
-        return fail(err, n, "config: img_size %d out of patch_size %d..%d", c->img_size,
+        return f4d_fail(err, F4D_EFORMAT, "config: img_size %d out of patch_size %d..%d", c->img_size,
                     c->patch_size, MODEL_IMG_MAX);
     if (c->img_size % c->patch_size)
-        return fail(err, n, "config: img_size %d is not a multiple of patch_size %d",
+        return f4d_fail(err, F4D_EFORMAT, "config: img_size %d is not a multiple of patch_size %d",
                     c->img_size, c->patch_size);
     if (c->embed_dim < 4 || c->embed_dim > MODEL_DIM_MAX)
-        return fail(err, n, "config: embed_dim %d out of 4..%d", c->embed_dim, MODEL_DIM_MAX);
+        return f4d_fail(err, F4D_EFORMAT, "config: embed_dim %d out of 4..%d", c->embed_dim, MODEL_DIM_MAX);
     if (c->depth < 1 || c->depth > MODEL_LAYERS_MAX)
-        return fail(err, n, "config: depth %d out of 1..%d", c->depth, MODEL_LAYERS_MAX);
+        return f4d_fail(err, F4D_EFORMAT, "config: depth %d out of 1..%d", c->depth, MODEL_LAYERS_MAX);
     if (c->num_heads < 1 || c->num_heads > c->embed_dim || c->embed_dim % c->num_heads || (c->embed_dim / c->num_heads) % 4)
-        return fail(err, n, "config: num_heads %d must divide embed_dim %d into head dims "
+        return f4d_fail(err, F4D_EFORMAT, "config: num_heads %d must divide embed_dim %d into head dims "
                     "that are multiples of 4 (RoPE)", c->num_heads, c->embed_dim);
     if (!(c->mlp_ratio > 0.0f) || c->mlp_ratio > 16.0f || model_mlp_hidden(c, c->embed_dim) < 1)
-        return fail(err, n, "config: mlp_ratio %g out of (0, 16]", (double)c->mlp_ratio);
+        return f4d_fail(err, F4D_EFORMAT, "config: mlp_ratio %g out of (0, 16]", (double)c->mlp_ratio);
     if (c->num_register_tokens < 0 || c->num_register_tokens > 64)
-        return fail(err, n, "config: num_register_tokens %d out of 0..64",
+        return f4d_fail(err, F4D_EFORMAT, "config: num_register_tokens %d out of 0..64",
                     c->num_register_tokens);
     if (c->patch_embed != MODEL_PATCH_DINO && c->patch_embed != MODEL_PATCH_CONV)
-        return fail(err, n, "config: patch_embed %d is neither dino nor conv", c->patch_embed);
+        return f4d_fail(err, F4D_EFORMAT, "config: patch_embed %d is neither dino nor conv", c->patch_embed);
     if (c->patch_embed == MODEL_PATCH_DINO) {
         if (c->dino_depth < 1 || c->dino_depth > MODEL_LAYERS_MAX)
-            return fail(err, n, "config: dino_depth %d out of 1..%d", c->dino_depth,
+            return f4d_fail(err, F4D_EFORMAT, "config: dino_depth %d out of 1..%d", c->dino_depth,
                         MODEL_LAYERS_MAX);
         if (c->dino_num_heads < 1 || c->dino_num_heads > c->embed_dim ||
             c->embed_dim % c->dino_num_heads ||
             (c->embed_dim / c->dino_num_heads) % 2)
-            return fail(err, n, "config: dino_num_heads %d does not divide embed_dim %d",
+            return f4d_fail(err, F4D_EFORMAT, "config: dino_num_heads %d does not divide embed_dim %d",
                         c->dino_num_heads, c->embed_dim);
     }
     int d2 = 2 * c->embed_dim;
     if (c->camera_trunk_depth < 1 || c->camera_trunk_depth > MODEL_LAYERS_MAX)
-        return fail(err, n, "config: camera_trunk_depth %d out of 1..%d",
+        return f4d_fail(err, F4D_EFORMAT, "config: camera_trunk_depth %d out of 1..%d",
                     c->camera_trunk_depth, MODEL_LAYERS_MAX);
     if (c->camera_num_heads < 1 || c->camera_num_heads > d2 || d2 % c->camera_num_heads || (d2 / c->camera_num_heads) % 2)
-        return fail(err, n, "config: camera_num_heads %d does not divide 2*embed_dim %d",
+        return f4d_fail(err, F4D_EFORMAT, "config: camera_num_heads %d does not divide 2*embed_dim %d",
                     c->camera_num_heads, d2);
     if (c->camera_iters < 1 || c->camera_iters > 16)
-        return fail(err, n, "config: camera_iters %d out of 1..16", c->camera_iters);
+        return f4d_fail(err, F4D_EFORMAT, "config: camera_iters %d out of 1..16", c->camera_iters);
     if (c->dpt_features < 8 || c->dpt_features > MODEL_DIM_MAX || c->dpt_features % 8)
-        return fail(err, n, "config: dpt_features %d must be a multiple of 8 in 8..%d",
+        return f4d_fail(err, F4D_EFORMAT, "config: dpt_features %d must be a multiple of 8 in 8..%d",
                     c->dpt_features, MODEL_DIM_MAX);
     for (int i = 0; i < 4; i++) {
         if (c->dpt_out_channels[i] < 4 || c->dpt_out_channels[i] > MODEL_DIM_MAX ||
             c->dpt_out_channels[i] % 4)
-            return fail(err, n, "config: dpt_out_channels[%d] = %d must be a multiple of 4 "
+            return f4d_fail(err, F4D_EFORMAT, "config: dpt_out_channels[%d] = %d must be a multiple of 4 "
                         "in 4..%d", i, c->dpt_out_channels[i], MODEL_DIM_MAX);
         if (c->dpt_layer_idx[i] < 0 || c->dpt_layer_idx[i] >= c->depth)
-            return fail(err, n, "config: dpt_layer_idx[%d] = %d out of 0..%d", i,
+            return f4d_fail(err, F4D_EFORMAT, "config: dpt_layer_idx[%d] = %d out of 0..%d", i,
                         c->dpt_layer_idx[i], c->depth - 1);
     }
     return F4D_OK;
@@ -99,46 +89,46 @@ int model_config_check(const struct model_config *c, char *err, size_t n)
     X(dino_depth) X(dino_num_heads) X(camera_trunk_depth) X(camera_num_heads) \
     X(camera_iters) X(dpt_features)
 
-int model_config_read(gguf_file *f, struct model_config *c, char *err, size_t n)
+int model_config_read(gguf_file *f, struct model_config *c, struct f4d_err *err)
 {
     int64_t v;
     double d;
     const char *s;
     memset(c, 0, sizeof *c);
     if (gguf_get_str(f, "general.architecture", &s) < 0 || strcmp(s, "forge4d"))
-        return fail(err, n, "config: key 'general.architecture' must be \"forge4d\"");
+        return f4d_fail(err, F4D_EFORMAT, "config: key 'general.architecture' must be \"forge4d\"");
 #define READ_INT(k) \
-    if (gguf_get_int(f, "forge4d." #k, &v) < 0) return fail(err, n, "%s", gguf_error(f)); \
-    if (v < 0 || v > 1000000) return fail(err, n, "config: key 'forge4d." #k "' = %lld out of range", (long long)v); \
+    if (gguf_get_int(f, "forge4d." #k, &v) < 0) return f4d_fail(err, F4D_EFORMAT, "%s", gguf_error(f)); \
+    if (v < 0 || v > 1000000) return f4d_fail(err, F4D_EFORMAT, "config: key 'forge4d." #k "' = %lld out of range", (long long)v); \
     c->k = (int)v;
     INT_KEYS(READ_INT)
 #undef READ_INT
     if (gguf_get_float(f, "forge4d.mlp_ratio", &d) < 0)
-        return fail(err, n, "%s", gguf_error(f));
+        return f4d_fail(err, F4D_EFORMAT, "%s", gguf_error(f));
     c->mlp_ratio = (float)d;
     if (gguf_get_str(f, "forge4d.patch_embed", &s) < 0)
-        return fail(err, n, "%s", gguf_error(f));
+        return f4d_fail(err, F4D_EFORMAT, "%s", gguf_error(f));
     if (!strcmp(s, "dino"))
         c->patch_embed = MODEL_PATCH_DINO;
     else if (!strcmp(s, "conv"))
         c->patch_embed = MODEL_PATCH_CONV;
     else
-        return fail(err, n, "config: key 'forge4d.patch_embed' = \"%s\" (dino or conv)", s);
+        return f4d_fail(err, F4D_EFORMAT, "config: key 'forge4d.patch_embed' = \"%s\" (dino or conv)", s);
     int64_t a[8];
     size_t na;
     static const char *arr_keys[2] = { "forge4d.dpt_out_channels", "forge4d.dpt_layer_idx" };
     for (int k = 0; k < 2; k++) {
         if (gguf_get_int_array(f, arr_keys[k], a, 8, &na) < 0)
-            return fail(err, n, "%s", gguf_error(f));
+            return f4d_fail(err, F4D_EFORMAT, "%s", gguf_error(f));
         if (na != 4)
-            return fail(err, n, "config: key '%s' has %zu entries, expected 4", arr_keys[k], na);
+            return f4d_fail(err, F4D_EFORMAT, "config: key '%s' has %zu entries, expected 4", arr_keys[k], na);
         for (int i = 0; i < 4; i++) {
             if (a[i] < 0 || a[i] > 100000)
-                return fail(err, n, "config: key '%s'[%d] out of range", arr_keys[k], i);
+                return f4d_fail(err, F4D_EFORMAT, "config: key '%s'[%d] out of range", arr_keys[k], i);
             (k ? c->dpt_layer_idx : c->dpt_out_channels)[i] = (int)a[i];
         }
     }
-    return model_config_check(c, err, n);
+    return model_config_check(c, err);
 }
 
 int model_config_write(const struct model_config *c, gguf_writer *w)

@@ -53,7 +53,7 @@ struct model {
     int                 owns_gf;           /* model_init opened it: closed by model_free */
     enum fk_wtype       wtype;
     struct model_config cfg;
-    char                err[512];
+    struct f4d_err      err;
     size_t              weight_bytes;
     unsigned            groups;            /* groups present in the file */
 

@@ -8,16 +8,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-static int fail(char *err, size_t n, int rc, const char *fmt, ...)
-{
-    va_list ap;
-    if (err && n) {
-        va_start(ap, fmt);
-        vsnprintf(err, n, fmt, ap);
-        va_end(ap);
-    }
-    return rc;
-}
 
 /* Parses "(a, b, c)" or "()" after "'shape':" in the header dict. */
 static int parse_shape(const char *h, int64_t *shape, int *ndim)
@@ -47,17 +37,17 @@ static int parse_shape(const char *h, int64_t *shape, int *ndim)
 }
 
 int npy_load_f32(const char *path, float **data, int64_t *shape, int *ndim,
-                 char *err, size_t err_size)
+                 struct f4d_err *err)
 {
     *data = NULL;
     FILE *f = fopen(path, "rb");
     if (!f)
-        return fail(err, err_size, -1, "npy: cannot open '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "npy: cannot open '%s': %s", path, strerror(errno));
     unsigned char pre[12];
     char *hdr = NULL;
     int rc = -1;
     if (fread(pre, 1, 10, f) != 10 || memcmp(pre, "\x93NUMPY", 6)) {
-        fail(err, err_size, -1, "npy: '%s' is not a .npy file", path);
+        f4d_fail(err, F4D_EFORMAT, "npy: '%s' is not a .npy file", path);
         goto out;
     }
     uint32_t hlen;
@@ -69,11 +59,11 @@ int npy_load_f32(const char *path, float **data, int64_t *shape, int *ndim,
         hlen = (uint32_t)pre[8] | (uint32_t)pre[9] << 8 | (uint32_t)pre[10] << 16 |
                (uint32_t)pre[11] << 24;
         if (hlen > (1u << 20)) {
-            fail(err, err_size, -1, "npy: '%s': header of %u bytes", path, hlen);
+            f4d_fail(err, F4D_EFORMAT, "npy: '%s': header of %u bytes", path, hlen);
             goto out;
         }
     } else {
-        fail(err, err_size, -1, "npy: '%s': unsupported version %u", path, pre[6]);
+        f4d_fail(err, F4D_EFORMAT, "npy: '%s': unsupported version %u", path, pre[6]);
         goto out;
     }
     hdr = malloc(hlen + 1);
@@ -81,28 +71,28 @@ int npy_load_f32(const char *path, float **data, int64_t *shape, int *ndim,
         goto trunc;
     hdr[hlen] = 0;
     if (!strstr(hdr, "'descr': '<f4'")) {
-        fail(err, err_size, -1, "npy: '%s': dtype is not little-endian float32", path);
+        f4d_fail(err, F4D_EFORMAT, "npy: '%s': dtype is not little-endian float32", path);
         goto out;
     }
     if (!strstr(hdr, "'fortran_order': False")) {
-        fail(err, err_size, -1, "npy: '%s': Fortran order is not supported", path);
+        f4d_fail(err, F4D_EFORMAT, "npy: '%s': Fortran order is not supported", path);
         goto out;
     }
     if (parse_shape(hdr, shape, ndim) < 0) {
-        fail(err, err_size, -1, "npy: '%s': bad shape in header", path);
+        f4d_fail(err, F4D_EFORMAT, "npy: '%s': bad shape in header", path);
         goto out;
     }
     size_t n = 1;
     for (int i = 0; i < *ndim; i++) {
         if (shape[i] && (uint64_t)shape[i] > (SIZE_MAX / 4) / (n ? n : 1)) {
-            fail(err, err_size, -1, "npy: '%s': shape too large", path);
+            f4d_fail(err, F4D_EFORMAT, "npy: '%s': shape too large", path);
             goto out;
         }
         n *= (size_t)shape[i];
     }
     *data = malloc(n ? n * 4 : 4);
     if (!*data) {
-        fail(err, err_size, -1, "npy: '%s': out of memory", path);
+        f4d_fail(err, F4D_EFORMAT, "npy: '%s': out of memory", path);
         goto out;
     }
     if (fread(*data, 4, n, f) != n) {
@@ -113,7 +103,7 @@ int npy_load_f32(const char *path, float **data, int64_t *shape, int *ndim,
     rc = 0;
     goto out;
 trunc:
-    fail(err, err_size, -1, "npy: '%s' is truncated", path);
+    f4d_fail(err, F4D_EFORMAT, "npy: '%s' is truncated", path);
 out:
     free(hdr);
     fclose(f);
@@ -121,10 +111,10 @@ out:
 }
 
 int npy_save_f32(const char *path, const float *data, const int64_t *shape, int ndim,
-                 char *err, size_t err_size)
+                 struct f4d_err *err)
 {
     if (ndim < 0 || ndim > NPY_MAX_DIMS)
-        return fail(err, err_size, -1, "npy: '%s': %d dims", path, ndim);
+        return f4d_fail(err, F4D_EFORMAT, "npy: '%s': %d dims", path, ndim);
     char dict[256];
     int k = snprintf(dict, sizeof dict, "{'descr': '<f4', 'fortran_order': False, 'shape': (");
     size_t n = 1;
@@ -142,7 +132,7 @@ int npy_save_f32(const char *path, const float *data, const int64_t *shape, int 
     snprintf(tmp, sizeof tmp, "%s.tmp", path);
     FILE *f = fopen(tmp, "wb");
     if (!f)
-        return fail(err, err_size, -1, "npy: cannot create '%s': %s", tmp, strerror(errno));
+        return f4d_fail(err, F4D_EIO, "npy: cannot create '%s': %s", tmp, strerror(errno));
     unsigned char pre[10] = { 0x93, 'N', 'U', 'M', 'P', 'Y', 1, 0,
                               (unsigned char)(hlen & 0xff), (unsigned char)(hlen >> 8) };
     int ok = fwrite(pre, 1, 10, f) == 10 && fwrite(dict, 1, (size_t)k, f) == (size_t)k;
@@ -152,7 +142,7 @@ int npy_save_f32(const char *path, const float *data, const int64_t *shape, int 
     ok = (fclose(f) == 0) && ok;
     if (!ok || rename(tmp, path) != 0) {
         remove(tmp);
-        return fail(err, err_size, -1, "npy: cannot write '%s': %s", path, strerror(errno));
+        return f4d_fail(err, F4D_EFORMAT, "npy: cannot write '%s': %s", path, strerror(errno));
     }
     return 0;
 }

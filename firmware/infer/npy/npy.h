@@ -1,8 +1,8 @@
 /* npy.h - NumPy .npy files of float32 (format 1.0), read and written.
  *
- *     int64_t shape[NPY_MAX_DIMS]; int nd; float *a; char err[256];
- *     if (npy_load_f32("x.npy", &a, shape, &nd, err, sizeof err) < 0) puts(err);
- *     npy_save_f32("y.npy", a, shape, nd, err, sizeof err);
+ *     int64_t shape[NPY_MAX_DIMS]; int nd; float *a; struct f4d_err err = {0};
+ *     if (npy_load_f32("x.npy", &a, shape, &nd, &err) < 0) puts(err);
+ *     npy_save_f32("y.npy", a, shape, nd, &err);
  *     free(a);
  *
  * Only little-endian float32 ('<f4'), C order, is read: anything else fails
@@ -15,12 +15,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "f4d_status.h"
+
 #define NPY_MAX_DIMS 8
 
 /* Loads into a malloc'ed array (caller frees). */
 int npy_load_f32(const char *path, float **data, int64_t *shape, int *ndim,
-                 char *err, size_t err_size);
+                 struct f4d_err *err);
 int npy_save_f32(const char *path, const float *data, const int64_t *shape, int ndim,
-                 char *err, size_t err_size);
+                 struct f4d_err *err);
 
 #endif

@@ -10,16 +10,6 @@
 #define PREC_BITS 22        /* PIL: 32 - 8 - 2 */
 #define KSIZE_MAX 512
 
-static int fail(char *err, size_t n, const char *fmt, ...)
-{
-    va_list ap;
-    if (err && n) {
-        va_start(ap, fmt);
-        vsnprintf(err, n, fmt, ap);
-        va_end(ap);
-    }
-    return -1;
-}
 
 static int round14(double v)
 {
@@ -169,25 +159,25 @@ void prep_demosaic_rggb(const uint8_t *src, size_t stride, int w, int h, uint8_t
  * [3, OH, OW] (already filled with white by the caller). */
 static int place(const struct prep_image *im, enum prep_mode mode, int target, void *scratch,
                  size_t scratch_bytes, float *out, int OH, int OW, int top, int left,
-                 char *err, size_t en)
+                 struct f4d_err *err)
 {
     const int w = im->width, h = im->height;
     int nw, nh, ow, oh;
     if (!im->data || sizes(w, h, mode, target, &nw, &nh, &ow, &oh) < 0)
-        return fail(err, en, "preprocess: frame %dx%d cannot be resized to target %d", w, h,
+        return f4d_fail(err, F4D_EINVAL, "preprocess: frame %dx%d cannot be resized to target %d", w, h,
                     target);
     if (im->pixfmt != PREP_PIXFMT_RGB8 && im->pixfmt != PREP_PIXFMT_MONO8 &&
         im->pixfmt != PREP_PIXFMT_BAYER_RG8)
-        return fail(err, en, "preprocess: pixel format %d is not RGB8, Mono8 or Bayer RG8",
+        return f4d_fail(err, F4D_EINVAL, "preprocess: pixel format %d is not RGB8, Mono8 or Bayer RG8",
                     im->pixfmt);
     size_t bpp = im->pixfmt == PREP_PIXFMT_RGB8 ? 3 : 1;
     if (im->stride < (size_t)w * bpp)
-        return fail(err, en, "preprocess: stride %zu < %d bytes per row", im->stride,
+        return f4d_fail(err, F4D_EINVAL, "preprocess: stride %zu < %d bytes per row", im->stride,
                     (int)(w * bpp));
     if (ksize_of(w, nw) > KSIZE_MAX || ksize_of(h, nh) > KSIZE_MAX)
-        return fail(err, en, "preprocess: %dx%d -> %dx%d shrinks too far", w, h, nw, nh);
+        return f4d_fail(err, F4D_EINVAL, "preprocess: %dx%d -> %dx%d shrinks too far", w, h, nw, nh);
     if (bytes_for(w, h, nw, nh) > scratch_bytes)
-        return fail(err, en, "preprocess: scratch of %zu bytes < %zu needed for %dx%d",
+        return f4d_fail(err, F4D_EINVAL, "preprocess: scratch of %zu bytes < %zu needed for %dx%d",
                     scratch_bytes, bytes_for(w, h, nw, nh), w, h);
     /* scratch: int32 coefficients first (aligned), then the byte images */
     int32_t *hb = scratch, *hk = hb + 2 * nw;
@@ -254,7 +244,7 @@ static int place(const struct prep_image *im, enum prep_mode mode, int target, v
     top += pt;
     left += pl;
     if (top < 0 || left < 0 || top + rows > OH || left + nw > OW)
-        return fail(err, en, "preprocess: internal placement error");
+        return f4d_fail(err, F4D_EINVAL, "preprocess: internal placement error");
     for (int c = 0; c < 3; c++)
         for (int y = 0; y < rows; y++)
             for (int x = 0; x < nw; x++)
@@ -270,26 +260,25 @@ static void fill_white(float *out, size_t n)
 }
 
 int prep_image(const struct prep_image *im, enum prep_mode mode, int target, void *scratch,
-               size_t scratch_bytes, float *out, int *ow, int *oh, char *err, size_t err_size)
+               size_t scratch_bytes, float *out, int *ow, int *oh, struct f4d_err *err)
 {
     if (prep_output_size(im->width, im->height, mode, target, ow, oh) < 0)
-        return fail(err, err_size, "preprocess: frame %dx%d cannot be resized to target %d",
+        return f4d_fail(err, F4D_EINVAL, "preprocess: frame %dx%d cannot be resized to target %d",
                     im->width, im->height, target);
     fill_white(out, (size_t)3 * *ow * *oh);
-    return place(im, mode, target, scratch, scratch_bytes, out, *oh, *ow, 0, 0, err, err_size);
+    return place(im, mode, target, scratch, scratch_bytes, out, *oh, *ow, 0, 0, err);
 }
 
 int prep_batch(const struct prep_image *ims, int n, enum prep_mode mode, int target,
-               void *scratch, size_t scratch_bytes, float *out, int *H, int *W, char *err,
-               size_t err_size)
+               void *scratch, size_t scratch_bytes, float *out, int *H, int *W, struct f4d_err *err)
 {
     int mh = 0, mw = 0;
     if (n < 1)
-        return fail(err, err_size, "preprocess: no frames");
+        return f4d_fail(err, F4D_EINVAL, "preprocess: no frames");
     for (int i = 0; i < n; i++) {
         int ow, oh;
         if (prep_output_size(ims[i].width, ims[i].height, mode, target, &ow, &oh) < 0)
-            return fail(err, err_size, "preprocess: frame %d (%dx%d) cannot be resized to "
+            return f4d_fail(err, F4D_EINVAL, "preprocess: frame %d (%dx%d) cannot be resized to "
                         "target %d", i, ims[i].width, ims[i].height, target);
         mh = oh > mh ? oh : mh;
         mw = ow > mw ? ow : mw;
@@ -300,7 +289,7 @@ int prep_batch(const struct prep_image *ims, int n, enum prep_mode mode, int tar
         float *o = out + (size_t)i * 3 * mh * mw;
         fill_white(o, (size_t)3 * mh * mw);
         if (place(&ims[i], mode, target, scratch, scratch_bytes, o, mh, mw, (mh - oh) / 2,
-                  (mw - ow) / 2, err, err_size) < 0)
+                  (mw - ow) / 2, err) < 0)
             return -1;
     }
     *H = mh;

@@ -17,7 +17,7 @@
  *     size_t need = prep_scratch_bytes(1280, 960, 518);   // at configure time
  *     struct prep_image im = { data, 1280, 960, 1280 * 3, PREP_PIXFMT_RGB8 };
  *     int H, W;
- *     prep_batch(&im, 1, PREP_CROP, 518, scratch, need, out, &H, &W, err, sizeof err);
+ *     prep_batch(&im, 1, PREP_CROP, 518, scratch, need, out, &H, &W, &err);
  *
  * No allocation: the caller passes scratch of prep_scratch_bytes() for the
  * largest frame and an output of 3 * H * W floats per frame (prep_output_size).
@@ -27,6 +27,8 @@
 
 #include <stddef.h>
 #include <stdint.h>
+
+#include "f4d_status.h"
 
 enum prep_pixfmt {              /* = enum hal_pixfmt values */
     PREP_PIXFMT_MONO8     = 1,
@@ -50,12 +52,12 @@ size_t prep_scratch_bytes(int w, int h, int target);
 /* One frame into out [3, oh, ow]. */
 int    prep_image        (const struct prep_image *im, enum prep_mode mode, int target,
                           void *scratch, size_t scratch_bytes, float *out, int *ow, int *oh,
-                          char *err, size_t err_size);
+                          struct f4d_err *err);
 /* n frames into out [n, 3, H, W] (H, W the largest); `out` must hold
  * n * 3 * target * target floats. */
 int    prep_batch        (const struct prep_image *ims, int n, enum prep_mode mode, int target,
                           void *scratch, size_t scratch_bytes, float *out, int *H, int *W,
-                          char *err, size_t err_size);
+                          struct f4d_err *err);
 
 /* Bilinear demosaic of an RGGB mosaic into RGB8 (exposed for tests). */
 void   prep_demosaic_rggb(const uint8_t *src, size_t stride, int w, int h, uint8_t *rgb);

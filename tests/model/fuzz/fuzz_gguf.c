@@ -74,25 +74,25 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         return 0;
     if (size)
         memcpy(buf, data, size);
-    char err[512] = "";
+    struct f4d_err err = {0};
     gguf_file *f = NULL;
-    int rc = gguf_open_memory(buf, size, &f, err, sizeof err);
+    int rc = gguf_open_memory(buf, size, &f, &err);
     if (rc < 0) {
-        F4D_ASSERT(f == NULL && err[0] && (rc == F4D_EFORMAT || rc == F4D_ENOMEM));
+        F4D_ASSERT(f == NULL && err.msg[0] && (rc == F4D_EFORMAT || rc == F4D_ENOMEM));
         free(buf);
         return 0;
     }
     read_keys(f);
     check_tensors(f, buf, size);
     struct model_config cfg;
-    if (model_config_read(f, &cfg, err, sizeof err) == 0 &&
+    if (model_config_read(f, &cfg, &err) == 0 &&
         model_schema_bytes(&cfg, MODEL_G_ALL) <= SCHEMA_LIMIT) {
         static const enum fk_wtype wts[2] = { FK_W_F32, FK_W_Q8 };
         for (int i = 0; i < 2; i++) {
             struct model *m = NULL;
-            err[0] = 0;
-            rc = model_init_gguf(ctx, f, wts[i], &m, err, sizeof err);
-            F4D_ASSERT(rc == 0 ? m != NULL : (m == NULL && err[0] != 0));
+            err.msg[0] = 0;
+            rc = model_init_gguf(ctx, f, wts[i], &m, &err);
+            F4D_ASSERT(rc == 0 ? m != NULL : (m == NULL && err.msg[0] != 0));
             model_free(m);
         }
     }
