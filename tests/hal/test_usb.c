@@ -20,6 +20,7 @@
 #include <umockdev.h>
 
 #include "f4d_capture.h"
+#include "f4d_test.h"
 #include "hal_board.h"
 #include "hal_registry.h"
 
@@ -275,7 +276,8 @@ static void negotiate_and_stream(void **state)
 {
     struct env *e = *state;
     if (!e->mocked)
-        skip();
+        f4d_skip("negotiate_and_stream: not run under umockdev-wrapper (LD_PRELOAD has no libumockdev-preload), "
+                 "so there is no fake /dev/video0; ctest runs it as umockdev-wrapper test_usb");
     struct hal_board b;
     struct hal_rig rig;
     char err[256];
@@ -318,11 +320,11 @@ static void negotiate_and_stream(void **state)
     assert_int_equal(st.dequeue_errors, 0);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(open_failures),
         cmocka_unit_test(negotiate_and_stream),
     };
-    return cmocka_run_group_tests_name("hal/usb", tests, setup, teardown);
+    return F4D_TEST_MAIN(argc, argv, "hal/usb", tests, setup, teardown);
 }
