@@ -18,12 +18,14 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 #include "f4d_capture.h"
+#include "f4d_test.h"
 #include "f4d_take.h"
 #include "hal_board.h"
 #include "hal_registry.h"
@@ -34,8 +36,11 @@
 #include <arv.h>
 #endif
 
-static char tmp_root[256];
+static char tmp_root[256]; /* the replay case's own directory (case setup) */
+#if HAL_TEST_ARAVIS
 static bool netns_ok;
+static char netns_why[160] = "the network namespace was not made";
+#endif
 
 struct fixture {
     const char *name;
@@ -338,7 +343,8 @@ static void contract_aravis(void **state)
 {
     (void)state;
     if (!netns_ok)
-        skip();
+        f4d_skip("contract_aravis: %s (needs root, or unprivileged user namespaces, and ip from iproute2)",
+                 netns_why);
     enum { NCAM = 2 };
     ArvGvFakeCamera *fake[NCAM];
     for (int i = 0; i < NCAM; i++) {
@@ -380,7 +386,6 @@ static void contract_aravis(void **state)
     for (int i = 0; i < NCAM; i++)
         g_object_unref(fake[i]);
 }
-#endif
 
 /* Private network namespace with loopback aliases: camera traffic never leaves it. */
 static bool write_file(const char *path, const char *text)
@@ -401,7 +406,8 @@ static void make_netns(void)
         if (unshare(CLONE_NEWUSER | CLONE_NEWNET) != 0 || !write_file("/proc/self/setgroups", "deny") ||
             (snprintf(map, sizeof map, "0 %u 1", uid), !write_file("/proc/self/uid_map", map)) ||
             (snprintf(map, sizeof map, "0 %u 1", gid), !write_file("/proc/self/gid_map", map))) {
-            fprintf(stderr, "test_contract: cannot make a private network namespace: aravis contract skipped\n");
+            snprintf(netns_why, sizeof netns_why, "cannot make a private network namespace (unshare: %s)",
+                     strerror(errno));
             return;
         }
     }
@@ -409,33 +415,43 @@ static void make_netns(void)
                       "ip addr add 127.0.0.3/8 dev lo && ip addr add 127.0.0.4/8 dev lo && "
                       "ip addr add 127.0.0.5/8 dev lo") == 0;
     if (!netns_ok)
-        fprintf(stderr, "test_contract: cannot configure lo in the namespace: aravis contract skipped\n");
+        snprintf(netns_why, sizeof netns_why, "cannot configure lo and its 127.0.0.2-5 aliases in the namespace");
 }
 
-static int setup(void **state)
+#endif /* HAL_TEST_ARAVIS */
+
+/* The replay case records its own take in a directory of its own: no case
+ * reads what another wrote, so any order and any subset runs. */
+static int setup_tmp(void **state)
 {
     (void)state;
-    snprintf(tmp_root, sizeof tmp_root, "/tmp/f4d_test_contract_XXXXXX");
-    return mkdtemp(tmp_root) ? 0 : -1;
+    return f4d_test_mkdtemp(tmp_root, sizeof tmp_root, "test_contract");
 }
 
-static int teardown(void **state)
+static int teardown_tmp(void **state)
 {
     (void)state;
-    char cmd[300];
-    snprintf(cmd, sizeof cmd, "rm -rf '%s'", tmp_root);
-    return system(cmd) == 0 ? 0 : -1;
+    int rc = f4d_test_rmtree(tmp_root);
+    tmp_root[0] = 0;
+    return rc;
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
-    make_netns(); /* before any thread exists: a namespace belongs to the thread that makes it */
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(contract_sim),
-        cmocka_unit_test(contract_replay),
+        cmocka_unit_test_setup_teardown(contract_replay, setup_tmp, teardown_tmp),
 #if HAL_TEST_ARAVIS
         cmocka_unit_test(contract_aravis),
 #endif
     };
-    return cmocka_run_group_tests_name("hal/contract", tests, setup, teardown);
+    argc = f4d_test_parse(argc, argv);
+    if (argc < 0)
+        return 2;
+#if HAL_TEST_ARAVIS
+    /* before any thread exists: a namespace belongs to the thread that makes it */
+    if (f4d_test_selected("contract_aravis"))
+        make_netns();
+#endif
+    return F4D_TEST_MAIN(argc, argv, "hal/contract", tests, NULL, NULL);
 }

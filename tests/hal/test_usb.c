@@ -21,6 +21,7 @@
 #include <unistd.h>
 
 #include "f4d_capture.h"
+#include "f4d_test.h"
 #include "hal_board.h"
 #include "hal_registry.h"
 #include "hal_usb.h"
@@ -286,7 +287,8 @@ static void negotiate_and_stream(void **state)
 {
     struct env *e = *state;
     if (!e->mocked)
-        skip();
+        f4d_skip("negotiate_and_stream: not run under umockdev-wrapper (LD_PRELOAD has no libumockdev-preload), "
+                 "so there is no fake /dev/video0; ctest runs it as umockdev-wrapper test_usb");
     struct hal_board b;
     struct hal_rig rig;
     struct f4d_err err = {0};
@@ -459,7 +461,7 @@ static void unplug_replug_stream(void **state)
 {
     struct env *e = *state;
     if (!e->mocked)
-        skip();
+        f4d_skip("unplug_replug_stream: not run under umockdev-wrapper: no fake USB camera");
     g_mutex_init(&e->fake2.lock);
     e->handler2 = umockdev_ioctl_base_new();
     g_signal_connect(e->handler2, "handle-ioctl", G_CALLBACK(on_ioctl), &e->fake2);
@@ -577,12 +579,12 @@ static void unplug_replug_stream(void **state)
     unplug(e, &d);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(open_failures),
         cmocka_unit_test(negotiate_and_stream),
         cmocka_unit_test(unplug_replug_stream),
     };
-    return cmocka_run_group_tests_name("hal/usb", tests, setup, teardown);
+    return F4D_TEST_MAIN(argc, argv, "hal/usb", tests, setup, teardown);
 }

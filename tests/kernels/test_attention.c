@@ -228,7 +228,7 @@ static void test_rope_reference(void **state)
     assert_float_equal(u[0], t[0] * cosf(3.0f) - t[4] * sinf(3.0f), 1e-5);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_vs_reference),
@@ -238,5 +238,5 @@ int main(void)
         cmocka_unit_test(test_rope_reference),
         cmocka_unit_test(test_bad_arguments),
     };
-    return cmocka_run_group_tests_name("kernels/attention", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/attention", tests);
 }

@@ -178,12 +178,12 @@ static void test_bad_input(void **state)
     fk_ctx_free(ctx);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_conv2d_shapes),
         cmocka_unit_test(test_conv_transpose_shapes),
         cmocka_unit_test(test_bad_input),
     };
-    return cmocka_run_group_tests_name("kernels/conv", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/conv", tests);
 }

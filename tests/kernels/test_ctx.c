@@ -103,12 +103,12 @@ static void test_frozen_scratch(void **state)
     fk_ctx_free(ctx);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_isa_selection),
         cmocka_unit_test(test_parallel_for),
         cmocka_unit_test(test_frozen_scratch),
     };
-    return cmocka_run_group_tests_name("kernels/ctx", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/ctx", tests);
 }

@@ -93,7 +93,7 @@ static void test_isa_vs_reference(void **state)
     enum fk_isa isas[4];
     int n_isa = test_isas(isas);
     if (n_isa == 0)
-        skip();
+        f4d_skip("test_isa_vs_reference: no optimized ISA under test (none on this CPU, or --isa ref)");
     fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
     struct fk_epilogue plain = { FK_ACT_NONE, NULL, 0 };
     for (size_t s = 0; s < sizeof shapes / sizeof shapes[0]; s++) {
@@ -151,7 +151,7 @@ static void test_epilogues(void **state)
     enum fk_isa isas[4];
     int n_isa = test_isas(isas);
     if (n_isa == 0)
-        skip();
+        f4d_skip("test_epilogues: no optimized ISA under test (none on this CPU, or --isa ref)");
     fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
     struct problem p;
     problem_make(&p, 19, 45, 70, 9);
@@ -377,7 +377,7 @@ static void test_f16_source_and_q8_import(void **state)
     fk_ctx_free(ctx);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_isa_vs_reference),
@@ -389,5 +389,5 @@ int main(void)
         cmocka_unit_test(test_f16_source_and_q8_import),
         cmocka_unit_test(test_bad_input),
     };
-    return cmocka_run_group_tests_name("kernels/linear", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/linear", tests);
 }

@@ -544,7 +544,7 @@ static void test_bad_arguments(void **state)
     fk_ctx_free(ctx);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_ref_known_values),
@@ -559,5 +559,5 @@ int main(void)
         cmocka_unit_test(test_residual_vs_ref),
         cmocka_unit_test(test_bad_arguments),
     };
-    return cmocka_run_group_tests_name("kernels/ops", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/ops", tests);
 }

@@ -413,7 +413,7 @@ static void test_bad_arguments(void **state)
     fk_ctx_free(ctx);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_bilinear_vs_direct),
@@ -423,5 +423,5 @@ int main(void)
         cmocka_unit_test(test_nan_stays_local),
         cmocka_unit_test(test_bad_arguments),
     };
-    return cmocka_run_group_tests_name("kernels/resize", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/resize", tests);
 }

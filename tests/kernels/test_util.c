@@ -1,6 +1,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "test_util.h"
 
@@ -39,9 +40,17 @@ void rng_fill_normal(struct rng *r, float *x, size_t n, float std)
         x[i] = std * rng_normal(r);
 }
 
+static int only_isa = -1; /* --isa: the one ISA under test, -1 = all */
+
 int test_isas(enum fk_isa out[4])
 {
     static const enum fk_isa all[] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_NEON };
+    if (only_isa >= 0) {
+        if (only_isa == FK_ISA_REF)
+            return 0;
+        out[0] = (enum fk_isa)only_isa;
+        return 1;
+    }
     int n = 0;
     for (size_t i = 0; i < sizeof all / sizeof all[0]; i++)
         if (fk_isa_supported(all[i]))
@@ -95,4 +104,33 @@ void *xmalloc(size_t bytes)
     void *p = calloc(1, bytes ? bytes : 1);
     assert_non_null(p);
     return p;
+}
+
+int kernel_test_main(int argc, char **argv, const char *group, const struct CMUnitTest *tests, size_t n)
+{
+    int out = 1;
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "--isa") != 0) {
+            argv[out++] = argv[i];
+            continue;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "%s: --isa needs a name (ref, avx2, avx2-vnni, neon)\n", argv[0]);
+            return 2;
+        }
+        const char *name = argv[++i];
+        int isa = (int)fk_isa_from_name(name);
+        if (isa <= FK_ISA_AUTO) {
+            fprintf(stderr, "%s: --isa '%s' is not an ISA fk knows\n", argv[0], name);
+            return 2;
+        }
+        if (isa != FK_ISA_REF && !fk_isa_supported((enum fk_isa)isa)) {
+            fprintf(stderr, "[  SKIP    ] %s --isa %s: this CPU does not support %s (cpuid), nothing of %s "
+                    "can run on it\n", group, name, name, group);
+            return F4D_TEST_SKIPPED;
+        }
+        only_isa = isa;
+    }
+    argv[out] = NULL;
+    return f4d_test_run(out, argv, group, tests, n, NULL, NULL);
 }

@@ -163,7 +163,7 @@ static void test_exp_sweep(void **state)
 {
     (void)state;
     if (!have_avx2())
-        skip();
+        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
     struct sweep s;
     sweep_run(V_EXP, -110.0f, 90.0f, 509, &s);
     printf("exp:  max %.3f ulp at %a\n", s.max_ulp, s.at_ulp);
@@ -177,7 +177,7 @@ static void test_erf_sweep(void **state)
 {
     (void)state;
     if (!have_avx2())
-        skip();
+        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
     struct sweep s;
     sweep_run(V_ERF, -13.0f, 13.0f, 211, &s);
     printf("erf:  max abs %.3g at %a, max rel %.3g at %a\n", s.max_abs, s.at_abs, s.max_rel,
@@ -194,7 +194,7 @@ static void test_gelu_sweep(void **state)
 {
     (void)state;
     if (!have_avx2())
-        skip();
+        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
     struct sweep s;
     sweep_run(V_GELU, -30.0f, 30.0f, 211, &s);
     printf("gelu: max rel %.3g at %a (normal results), max abs %.3g at %a\n", s.max_rel,
@@ -206,7 +206,7 @@ static void test_sigmoid_silu_sweep(void **state)
 {
     (void)state;
     if (!have_avx2())
-        skip();
+        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
     struct sweep s;
     sweep_run(V_SIGMOID, -110.0f, 110.0f, 211, &s);
     printf("sigmoid: max rel %.3g at %a, max abs %.3g\n", s.max_rel, s.at_rel, s.max_abs);
@@ -222,7 +222,7 @@ static void test_special_values(void **state)
 {
     (void)state;
     if (!have_avx2())
-        skip();
+        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
     for (int f = V_EXP; f <= V_SILU; f++) {
         assert_true(isnan(vfn1((enum vfn)f, NAN)));
         assert_true(isnan(vfn1((enum vfn)f, -NAN)));
@@ -271,7 +271,7 @@ static void test_horizontal(void **state)
 {
     (void)state;
     if (!have_avx2())
-        skip();
+        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
     float v[8] = { 1, -2, 3.5f, 8, -100, 0.25f, 7, 2 };
     float sum, max;
     horizontal(v, &sum, &max);
@@ -291,10 +291,14 @@ static void test_horizontal(void **state)
 }
 
 #else /* not x86: nothing to test */
-static void test_not_x86(void **state) { (void)state; skip(); }
+static void test_not_x86(void **state)
+{
+    (void)state;
+    f4d_skip("the vector math under test is x86-64 AVX2 code: not built for this architecture");
+}
 #endif
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
 #if defined(__x86_64__)
@@ -308,5 +312,5 @@ int main(void)
         cmocka_unit_test(test_not_x86),
 #endif
     };
-    return cmocka_run_group_tests_name("kernels/vecmath", tests, NULL, NULL);
+    return KERNEL_TEST_MAIN(argc, argv, "kernels/vecmath", tests);
 }

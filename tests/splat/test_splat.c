@@ -14,6 +14,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "f4d_test.h"
 #include "splat.h"
 
 /* NaN-aware running maximum: once a NaN is seen the result stays NaN, so any
@@ -417,10 +418,8 @@ static void test_threads_give_identical_images(void **state)
 static void test_simd_matches_scalar(void **state)
 {
     (void)state;
-    if (!fk_isa_supported(FK_ISA_AVX2)) {
-        skip();
-        return;
-    }
+    if (!fk_isa_supported(FK_ISA_AVX2))
+        f4d_skip("test_simd_matches_scalar: this CPU has no AVX2 + FMA + F16C (the SIMD compositor's ISA)");
     fk_ctx *ref = NULL, *simd = NULL;
     struct fk_ctx_config c1 = { .isa = FK_ISA_REF, .threads = 2 }, c2 = { .isa = FK_ISA_AVX2, .threads = 2 };
     assert_int_equal(fk_ctx_new(&c1, &ref), F4D_OK);
@@ -802,10 +801,8 @@ static void test_donut_renders(void **state)
 {
     (void)state;
     const char *path = SHARED_DIR "/data/splats/donut.ply";
-    if (access(path, R_OK) != 0) {
-        skip();
-        return;
-    }
+    if (access(path, R_OK) != 0)
+        f4d_skip("test_donut_renders: %s is absent (../shared beside the repository holds the data)", path);
     struct splat_frame f = { 0 };
     struct f4d_err err;
     if (splat_ply_read(path, &f, &err) < 0)
@@ -842,24 +839,16 @@ static void test_donut_renders(void **state)
 static int setup(void **state)
 {
     (void)state;
-    snprintf(tmpdir, sizeof tmpdir, "/tmp/f4d_test_splat_XXXXXX");
-    return mkdtemp(tmpdir) ? 0 : -1;
+    return f4d_test_mkdtemp(tmpdir, sizeof tmpdir, "test_splat");
 }
 
 static int teardown(void **state)
 {
     (void)state;
-    const char *names[] = { "rt.ply", "inria.ply", "bad.ply", "rig.json", "t.png", "t.npy" };
-    char p[300];
-    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
-        tmp_path(p, sizeof p, names[i]);
-        unlink(p);
-    }
-    rmdir(tmpdir);
-    return 0;
+    return f4d_test_rmtree(tmpdir);
 }
 
-int main(void)
+int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_single_isotropic_peak_and_falloff),
@@ -882,5 +871,5 @@ int main(void)
         cmocka_unit_test(test_metrics),
         cmocka_unit_test(test_donut_renders),
     };
-    return cmocka_run_group_tests_name("splat", tests, setup, teardown);
+    return F4D_TEST_MAIN(argc, argv, "splat", tests, setup, teardown);
 }

@@ -1,7 +1,10 @@
 /* fuzz_take.c: libFuzzer harness for the take reader and verify
  * (hal/take). The input is a take.f4t; verify (with repair) and the
- * reader must handle it without crashing, leaking or reading out of bounds. */
+ * reader must handle it without crashing, leaking or reading out of bounds.
+ * Its scratch directory (mkdtemp) is removed when the fuzzer exits. */
+#define _XOPEN_SOURCE 700 /* nftw */
 #include <fcntl.h>
+#include <ftw.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -13,16 +16,30 @@
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
-static char dir[64];
+static char dir[256];
+
+static int rm_one(const char *path, const struct stat *sb, int flag, struct FTW *ftw)
+{
+    (void)sb; (void)flag; (void)ftw;
+    return remove(path);
+}
+
+static void remove_dir(void)
+{
+    if (dir[0])
+        nftw(dir, rm_one, 8, FTW_DEPTH | FTW_PHYS);
+}
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (!dir[0]) {
-        snprintf(dir, sizeof dir, "/tmp/f4d_fuzz_take_XXXXXX");
+        const char *tmp = getenv("TMPDIR");
+        snprintf(dir, sizeof dir, "%s/f4d_fuzz_take_XXXXXX", tmp && *tmp ? tmp : "/tmp");
         if (!mkdtemp(dir))
             abort();
+        atexit(remove_dir); /* libFuzzer ends -max_total_time with exit() */
     }
-    char path[128];
+    char path[320];
     snprintf(path, sizeof path, "%s/" F4D_TAKE_FILE, dir);
     int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
     if (fd < 0 || write(fd, data, size) != (ssize_t)size)

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# install_check.sh CMAKE BUILD_DIR CC PKG_CONFIG USE_FK_C [EXTRA_CFLAGS]
+# cmake --install into a fresh temporary prefix (removed on exit), then build
+# USE_FK_C with `pkg-config --cflags --libs forge4d-kernels` only and run it.
+set -euo pipefail
+cmake=$1 build=$2 cc=$3 pkgconfig=$4 src=$5 extra=${6:-}
+prefix=$(mktemp -d "${TMPDIR:-/tmp}/f4d_install_XXXXXX")
+trap 'rm -rf "$prefix"' EXIT
+
+"$cmake" --install "$build" --prefix "$prefix" >/dev/null
+
+pcdir=$(dirname "$(find "$prefix" -name forge4d-kernels.pc -print -quit)")
+[ -f "$pcdir/forge4d-kernels.pc" ] || { echo "forge4d-kernels.pc not installed under $prefix"; exit 1; }
+case "$pcdir" in "$prefix"/lib/pkgconfig|"$prefix"/lib/*/pkgconfig) ;;
+  *) echo "forge4d-kernels.pc installed in $pcdir, not <prefix>/lib/pkgconfig"; exit 1 ;; esac
+for f in include/forge4d/f4d_status.h include/forge4d/fk_ctx.h include/forge4d/fk_ops.h \
+         bin/forge4d bin/f4d-convert bin/f4d-infer bin/f4d-render bin/f4d-metrics bin/f4d-scene; do
+  [ -e "$prefix/$f" ] || { echo "missing after install: $f"; exit 1; }
+done
+find "$prefix" -name libfk.a | grep -q . || { echo "libfk.a not installed"; exit 1; }
+# kernels/src/ is private
+for h in fk_internal.h gemm.h pool.h attention.h; do
+  if find "$prefix" -name "$h" | grep -q .; then echo "private header $h installed"; exit 1; fi
+done
+
+# only the prefix's .pc files: nothing from the build or source tree can leak in
+export PKG_CONFIG_PATH=$pcdir
+flags=$("$pkgconfig" --cflags --libs forge4d-kernels)
+echo "pkg-config --cflags --libs forge4d-kernels: $flags"
+for w in $flags; do # every -I/-L must lie in the prefix, not the build or source tree
+  case "$w" in -I*|-L*) p=$(cd "${w:2}" 2>/dev/null && pwd) || { echo "$w: no such directory"; exit 1; }
+    case "$p" in "$(cd "$prefix" && pwd)"/*) ;; *) echo "$w is outside the prefix $prefix"; exit 1 ;; esac ;;
+  esac
+done
+# shellcheck disable=SC2086 # flags are words by design
+"$cc" -std=c11 -Wall -Werror $extra "$src" $flags -o "$prefix/use_fk"
+"$prefix/use_fk"
+echo "install + pkg-config consumer ok"
