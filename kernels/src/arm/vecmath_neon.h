@@ -3,8 +3,10 @@
  * (same polynomials, same range reductions, same special-value handling), four
  * lanes at a time. Header-only, static inline.
  *
- * Accuracy as for the AVX2 versions (see vecmath_avx2.h): exp <= 2 ulp, erfc
- * relative 1e-6, GELU relative 1e-6 (negative tail included), SiLU 5e-7.
+ * Accuracy as for the AVX2 versions (see vecmath_avx2.h), held to the same
+ * budgets by tests/kernels/test_vecmath.c: exp, exp2 <= 2 ulp; erf absolute
+ * 2e-7; erfc and GELU relative 1e-6 (negative tail included); sigmoid and
+ * SiLU relative 5e-7; results below FLT_MIN may flush to 0.
  * NaN in gives NaN out: FMIN / FMAX return NaN when either operand is NaN,
  * so every clamp keeps NaN (as the AVX2 code's operand order does). */
 #ifndef FK_VECMATH_NEON_H
@@ -58,6 +60,16 @@ FK_NEON_FN float32x4_t fk__exp_neon(float32x4_t x)
     return fk__scale2n_neon(p, n, -126);
 }
 
+/* 2^x. */
+FK_NEON_FN float32x4_t fk__exp2_neon(float32x4_t x)
+{
+    x = vminq_f32(vdupq_n_f32(129.0f), vmaxq_f32(vdupq_n_f32(-151.0f), x));
+    float32x4_t n = vrndnq_f32(x);
+    float32x4_t f = vsubq_f32(x, n);                                     /* exact */
+    float32x4_t r = vfmaq_f32(vmulq_f32(f, vdupq_n_f32(-1.90465432e-9f)), f, vdupq_n_f32(6.93147182e-1f));
+    return fk__scale2n_neon(fk__exp_core_neon(r), n, -126);
+}
+
 /* erf(a) / a as a polynomial in a^2, |a| <= 0.5. */
 FK_NEON_FN float32x4_t fk__erf_small_neon(float32x4_t a2)
 {
@@ -91,6 +103,37 @@ FK_NEON_FN float32x4_t fk__erfc_tail_neon(float32x4_t a, float32x4_t s, float32x
     return fk__scale2n_neon(vmulq_f32(r, e), n, -126);
 }
 
+/* |x| clamped to c (NaN stays NaN), with its square as s + t. */
+FK_NEON_FN float32x4_t fk__abs_sq_neon(float32x4_t x, float c, float32x4_t *s, float32x4_t *t)
+{
+    float32x4_t a = vminq_f32(vdupq_n_f32(c), vabsq_f32(x));
+    *s = vmulq_f32(a, a);
+    *t = vfmaq_f32(vnegq_f32(*s), a, a);
+    return a;
+}
+
+FK_NEON_FN float32x4_t fk__erf_neon(float32x4_t x)
+{
+    float32x4_t s, t;
+    float32x4_t a = fk__abs_sq_neon(x, 12.0f, &s, &t);   /* erf(12) == 1 in float */
+    float32x4_t small = vmulq_f32(x, fk__erf_small_neon(vmulq_f32(x, x)));
+    float32x4_t big = vsubq_f32(vdupq_n_f32(1.0f), fk__erfc_tail_neon(a, s, t, vdupq_n_f32(1.0f)));
+    big = vreinterpretq_f32_u32(vorrq_u32(vreinterpretq_u32_f32(big),
+                                          vandq_u32(vreinterpretq_u32_f32(x), vdupq_n_u32(0x80000000u))));
+    return vbslq_f32(vcltq_f32(a, vdupq_n_f32(0.5f)), small, big);
+}
+
+FK_NEON_FN float32x4_t fk__erfc_neon(float32x4_t x)
+{
+    float32x4_t s, t;
+    float32x4_t a = fk__abs_sq_neon(x, 12.0f, &s, &t);
+    float32x4_t small = vfmsq_f32(vdupq_n_f32(1.0f), x, fk__erf_small_neon(vmulq_f32(x, x)));
+    float32x4_t tail = fk__erfc_tail_neon(a, s, t, vdupq_n_f32(1.0f));
+    uint32x4_t neg = vcltq_f32(x, vdupq_n_f32(0.0f));
+    tail = vbslq_f32(neg, vsubq_f32(vdupq_n_f32(2.0f), tail), tail);
+    return vbslq_f32(vcltq_f32(a, vdupq_n_f32(0.5f)), small, tail);
+}
+
 /* Exact-erf GELU, x Phi(x) (see fk__gelu_avx2). */
 FK_NEON_FN float32x4_t fk__gelu_neon(float32x4_t x)
 {
@@ -108,6 +151,14 @@ FK_NEON_FN float32x4_t fk__gelu_neon(float32x4_t x)
     float32x4_t big = vbslq_f32(neg, c, vmulq_f32(x, vaddq_f32(vdupq_n_f32(1.0f), c)));
     float32x4_t small = vfmaq_f32(hx, hx, vmulq_f32(u, fk__erf_small_neon(vmulq_f32(u, u))));
     return vbslq_f32(vcltq_f32(a, half), small, big);
+}
+
+/* 1 / (1 + e^-x) from e = e^-|x|: 1/(1+e) for x >= 0, e/(1+e) below. */
+FK_NEON_FN float32x4_t fk__sigmoid_neon(float32x4_t x)
+{
+    float32x4_t e = fk__exp_neon(vnegq_f32(vabsq_f32(x)));
+    float32x4_t r = vdivq_f32(vdupq_n_f32(1.0f), vaddq_f32(vdupq_n_f32(1.0f), e));
+    return vbslq_f32(vcltq_f32(x, vdupq_n_f32(0.0f)), vmulq_f32(e, r), r);
 }
 
 /* x sigmoid(x) (see fk__silu_avx2). */
