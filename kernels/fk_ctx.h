@@ -1,7 +1,8 @@
 /* fk_ctx.h - the kernel context: ISA choice, thread pool, scratch, errors.
  *
  * Every kernel in kernels/ takes an fk_ctx. The context owns
- *   - the instruction set chosen once at creation (scored from cpuid, or forced),
+ *   - the instruction set chosen once at creation (scored from cpuid / the
+ *     AArch64 hwcaps, or forced),
  *   - a small pthread pool (the caller's thread is worker 0),
  *   - per-thread and shared scratch arenas, reserved up front and optionally
  *     frozen so that the per-frame path provably never allocates,
@@ -39,7 +40,7 @@ enum fk_isa {
     FK_ISA_REF       = 1, /* portable scalar C: the specification               */
     FK_ISA_AVX2      = 2, /* x86-64 AVX2 + FMA + F16C                           */
     FK_ISA_AVX2_VNNI = 3, /* AVX2 plus AVX-VNNI (VEX vpdpbusd) for int8 GEMM     */
-    FK_ISA_NEON      = 4, /* AArch64 NEON: the seam for ARM boards (no kernels yet) */
+    FK_ISA_NEON      = 4, /* AArch64 NEON (int8 GEMM with sdot where HWCAP_ASIMDDP) */
 };
 
 /* CPU feature bits reported by fk_cpu_features(). */
@@ -49,6 +50,7 @@ enum {
     FK_CPU_F16C     = 1u << 2,
     FK_CPU_AVX_VNNI = 1u << 3,
     FK_CPU_NEON     = 1u << 4,
+    FK_CPU_ASIMDDP  = 1u << 5, /* AArch64 dot product (sdot/udot), ARMv8.2+ */
 };
 
 struct fk_ctx_config {

@@ -30,5 +30,19 @@ static inline int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc
     return F4D_ENOTSUP;
 }
 #endif
+#if defined(__aarch64__)
+int  fk__attention_neon(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,
+                        int nq, const float *k, int ldk, const float *v, int ldv, int nk,
+                        float *out, int ldo);
+#else /* never called: fk__isa_neon() is 0 off AArch64 */
+static inline int fk__attention_neon(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q,
+                                     int ldq, int nq, const float *k, int ldk, const float *v,
+                                     int ldv, int nk, float *out, int ldo)
+{
+    (void)ctx; (void)a; (void)q; (void)ldq; (void)nq; (void)k; (void)ldk; (void)v; (void)ldv;
+    (void)nk; (void)out; (void)ldo;
+    return F4D_ENOTSUP;
+}
+#endif
 
 #endif

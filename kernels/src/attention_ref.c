@@ -150,5 +150,7 @@ int fk_attention(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q,
         return FK_FAIL(ctx, F4D_EINVAL, "output overlaps q, k or v");
     if (fk__isa_avx2(ctx->isa))
         return fk__attention_avx2(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
+    if (fk__isa_neon(ctx->isa))
+        return fk__attention_neon(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
     return fk__attention_ref(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
 }

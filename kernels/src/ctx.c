@@ -8,6 +8,16 @@
 #include "fk_internal.h"
 #include "pool.h"
 
+#if defined(__aarch64__)
+#include <sys/auxv.h>
+#ifndef HWCAP_ASIMD
+#define HWCAP_ASIMD (1 << 1)
+#endif
+#ifndef HWCAP_ASIMDDP
+#define HWCAP_ASIMDDP (1 << 20)
+#endif
+#endif
+
 #if defined(__x86_64__) || defined(__i386__)
 #include <cpuid.h>
 
@@ -45,7 +55,12 @@ unsigned fk_cpu_features(void)
 #if defined(__x86_64__) || defined(__i386__)
     return detect_x86();
 #elif defined(__aarch64__)
-    return FK_CPU_NEON;
+    /* AdvSIMD is architectural on AArch64 Linux; the dot product is optional */
+    unsigned long hw = getauxval(AT_HWCAP);
+    unsigned f = FK_CPU_NEON;
+    if (hw & HWCAP_ASIMDDP)
+        f |= FK_CPU_ASIMDDP;
+    return f;
 #else
     return 0;
 #endif
@@ -59,9 +74,14 @@ int fk_isa_supported(enum fk_isa isa)
     case FK_ISA_REF:       return 1;
     case FK_ISA_AVX2:      return (f & avx2) == avx2;
     case FK_ISA_AVX2_VNNI: return (f & (avx2 | FK_CPU_AVX_VNNI)) == (avx2 | FK_CPU_AVX_VNNI);
-    /* NEON is the seam for ARM boards: the dispatch points exist, the kernels
-     * do not yet, so it is never reported as usable. */
-    case FK_ISA_NEON:      return 0;
+    /* NEON kernels exist for AArch64 only (the int8 GEMM picks sdot or its
+     * widening fallback from FK_CPU_ASIMDDP per call) */
+    case FK_ISA_NEON:
+#if defined(__aarch64__)
+        return (f & FK_CPU_NEON) != 0;
+#else
+        return 0;
+#endif
     default:               return 0;
     }
 }

@@ -63,6 +63,25 @@ static inline int fk__isa_avx2(enum fk_isa isa)
 #endif
 }
 
+/* Nonzero when the context runs the AArch64 NEON kernels. Always 0 off
+ * AArch64. */
+static inline int fk__isa_neon(enum fk_isa isa)
+{
+#if defined(__aarch64__)
+    return isa == FK_ISA_NEON;
+#else
+    (void)isa;
+    return 0;
+#endif
+}
+
+/* Nonzero when weights are stored in the packed panel layouts of gemm.h
+ * (the AVX2 and the NEON kernels share them; the reference keeps [n][k]). */
+static inline int fk__isa_packed(enum fk_isa isa)
+{
+    return fk__isa_avx2(isa) || fk__isa_neon(isa);
+}
+
 /* Checks shared by the front ends. */
 #define FK_CHECK_CTX(ctx) do { if (!(ctx)) return F4D_EINVAL; } while (0)
 

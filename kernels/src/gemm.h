@@ -7,7 +7,9 @@
  *   f32  [n_pad/16][k][16]              panels of 16 output channels
  *   f16  [n_pad/16][k][16] (fp16 bits)  widened per cache block
  *   q8   [n_pad/16][k_pad/4][16][4]     4 consecutive k per 32-bit lane
- * The reference ISA keeps W as given: [n][k]. */
+ * The reference ISA keeps W as given: [n][k]. NEON uses the same packed
+ * layouts (sdot multiplies 4 consecutive k of 4 columns per 128-bit lane
+ * group, exactly the q8 panel; signed x signed, so no +128 and no colsum). */
 #ifndef FK_GEMM_H
 #define FK_GEMM_H
 
@@ -44,6 +46,21 @@ int  fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc
                    int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
 #else /* never called: fk__isa_avx2() is 0 off x86-64 */
 static inline int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
+                                int m, const struct fk__cdst *c, const struct fk_epilogue *ep)
+{
+    (void)ctx; (void)L; (void)a; (void)m; (void)c; (void)ep;
+    return F4D_ENOTSUP;
+}
+#endif
+#if defined(__aarch64__)
+int  fk__gemm_neon(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
+                   int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
+/* int8 micro-kernel with the ARMv8.2 dot product (src/arm/gemm_dot.c, built
+ * with +dotprod, called only where HWCAP_ASIMDDP): c[6][16] = sum over k4 of
+ * a[k4][6][4] (s8) * b[k4][16][4] (s8). */
+void fk__gemm_q8_ukr_sdot(int k4, const int8_t *a, const int8_t *b, int32_t *c);
+#else /* never called: fk__isa_neon() is 0 off AArch64 */
+static inline int fk__gemm_neon(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
                                 int m, const struct fk__cdst *c, const struct fk_epilogue *ep)
 {
     (void)ctx; (void)L; (void)a; (void)m; (void)c; (void)ep;

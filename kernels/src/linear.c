@@ -49,7 +49,7 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
     L->isa = ctx->isa;
     L->n = n;
     L->k = k;
-    int simd = fk__isa_avx2(ctx->isa);
+    int simd = fk__isa_packed(ctx->isa);
     size_t n_pad = simd ? fk__round_up((size_t)n, FK_GEMM_NR) : (size_t)n;
     size_t k_pad = simd && as == FK_W_Q8 ? fk__round_up((size_t)k, 4) : (size_t)k;
     size_t esize = as == FK_W_F32 ? 4 : as == FK_W_F16 ? 2 : 1;
@@ -82,7 +82,7 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
 /* Index of element (row j, column i) of W in the packed layout. */
 static size_t packed_index(const struct fk_linear *L, int j, int i)
 {
-    if (!fk__isa_avx2(L->isa))
+    if (!fk__isa_packed(L->isa))
         return (size_t)j * (size_t)L->k + (size_t)i;
     size_t panel = (size_t)(j / FK_GEMM_NR), col = (size_t)(j % FK_GEMM_NR);
     if (L->type == FK_W_Q8) {
@@ -310,13 +310,16 @@ int fk__gemm_run(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *
         ep = &none;
     if ((unsigned)ep->act > FK_ACT_SILU)
         return FK_FAIL(ctx, F4D_EINVAL, "unknown activation %d", (int)ep->act);
-    if (L->isa != ctx->isa && (fk__isa_avx2(L->isa) != fk__isa_avx2(ctx->isa)))
+    if (L->isa != ctx->isa && (fk__isa_avx2(L->isa) != fk__isa_avx2(ctx->isa) ||
+                               fk__isa_neon(L->isa) != fk__isa_neon(ctx->isa)))
         return FK_FAIL(ctx, F4D_EINVAL, "weights were packed for %s, context runs %s",
                        fk_isa_name(L->isa), fk_isa_name(ctx->isa));
     if (m == 0)
         return F4D_OK;
     if (fk__isa_avx2(ctx->isa))
         return fk__gemm_avx2(ctx, L, a, m, c, ep);
+    if (fk__isa_neon(ctx->isa))
+        return fk__gemm_neon(ctx, L, a, m, c, ep);
     return fk__gemm_ref(ctx, L, a, m, c, ep);
 }
 

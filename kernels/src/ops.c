@@ -12,6 +12,7 @@
 #include "../fk_ops.h"
 #include "fk_internal.h"
 #include "x86/x86.h"
+#include "arm/arm.h"
 
 /* ---- scalar references ------------------------------------------------ */
 
@@ -133,7 +134,7 @@ enum elt_op { ELT_GELU, ELT_SILU, ELT_RELU };
 
 struct elt_job {
     enum elt_op  op;
-    int          avx2;
+    int          avx2, neon;
     const float *x;
     float       *y;
     size_t       n, chunk;
@@ -152,6 +153,14 @@ static void elt_task(void *arg, int task, int thread)
         case ELT_GELU: fk__gelu_array_avx2(x, y, n); break;
         case ELT_SILU: fk__silu_array_avx2(x, y, n); break;
         case ELT_RELU: fk__relu_array_avx2(x, y, n); break;
+        }
+        return;
+    }
+    if (j->neon) {
+        switch (j->op) {
+        case ELT_GELU: fk__gelu_array_neon(x, y, n); break;
+        case ELT_SILU: fk__silu_array_neon(x, y, n); break;
+        case ELT_RELU: fk__relu_array_neon(x, y, n); break;
         }
         return;
     }
@@ -174,7 +183,7 @@ static int elementwise(fk_ctx *ctx, const char *func, enum elt_op op, const floa
     int st = check_array(ctx, func, x, n, y);
     if (st != F4D_OK || n == 0)
         return st;
-    struct elt_job j = { op, fk__isa_avx2(ctx->isa), x, y, n, 16384 };
+    struct elt_job j = { op, fk__isa_avx2(ctx->isa), fk__isa_neon(ctx->isa), x, y, n, 16384 };
     while ((n + j.chunk - 1) / j.chunk > INT32_MAX)
         j.chunk *= 2;
     fk_parallel_for(ctx, (int)((n + j.chunk - 1) / j.chunk), elt_cost[op] * (double)n, elt_task, &j);
@@ -204,7 +213,7 @@ enum row_op { ROW_LAYERNORM, ROW_SOFTMAX, ROW_RESIDUAL };
  * updated matrix and w is gamma. */
 struct row_job {
     enum row_op  op;
-    int          avx2, per;
+    int          avx2, neon, per;
     int          rows, cols, ldx, ldy;
     const float *x, *w, *b;
     float       *y;
@@ -244,6 +253,20 @@ static void row_task(void *arg, int task, int thread)
         }
         return;
     }
+    if (j->neon) {
+        switch (j->op) {
+        case ROW_LAYERNORM:
+            fk__layernorm_rows_neon(x, nr, j->cols, j->ldx, j->w, j->b, j->eps, y, j->ldy);
+            break;
+        case ROW_SOFTMAX:
+            fk__softmax_rows_neon(x, nr, j->cols, j->ldx, y, j->ldy);
+            break;
+        case ROW_RESIDUAL:
+            fk__residual_rows_neon(y, j->ldy, x, j->ldx, j->w, nr, j->cols);
+            break;
+        }
+        return;
+    }
     for (int i = 0; i < nr; i++) {
         const float *xi = x + (size_t)i * j->ldx;
         float *yi = y + (size_t)i * j->ldy;
@@ -260,6 +283,7 @@ static void row_task(void *arg, int task, int thread)
 static int run_rows(fk_ctx *ctx, struct row_job *j, double cost)
 {
     j->avx2 = fk__isa_avx2(ctx->isa);
+    j->neon = fk__isa_neon(ctx->isa);
     j->per = rows_per_task(ctx, j->rows);
     fk_parallel_for(ctx, (j->rows + j->per - 1) / j->per, cost * j->rows * (double)j->cols,
                     row_task, j);

@@ -1,6 +1,7 @@
 /* fk_ctx: ISA selection, the thread pool (every task exactly once, tiny jobs
  * inline), frozen scratch and error reporting. */
 #include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -16,9 +17,22 @@ static void test_isa_selection(void **state)
     assert_true(fk_isa_supported(fk_ctx_isa(ctx)));
     assert_string_equal(fk_ctx_error(ctx), "");
     fk_ctx_free(ctx);
-    cfg.isa = FK_ISA_NEON; /* the seam exists, the kernels do not: never offered */
+    cfg.isa = FK_ISA_NEON; /* offered on AArch64, where it is also the automatic choice */
+#if defined(__aarch64__)
+    assert_true(fk_cpu_features() & FK_CPU_NEON);
+    assert_true(fk_isa_supported(FK_ISA_NEON));
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    fk_ctx_free(ctx);
+    cfg.isa = FK_ISA_AUTO;
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    assert_int_equal(fk_ctx_isa(ctx), FK_ISA_NEON);
+    fk_ctx_free(ctx);
+    printf("aarch64: dot product %s\n", fk_cpu_features() & FK_CPU_ASIMDDP ? "yes (sdot)" : "no (widening int8)");
+#else
+    assert_false(fk_isa_supported(FK_ISA_NEON));
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_ENOTSUP);
     assert_null(ctx);
+#endif
     cfg.isa = (enum fk_isa)99;
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_ENOTSUP);
     cfg = (struct fk_ctx_config){ FK_ISA_REF, 1000 };

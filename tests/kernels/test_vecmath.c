@@ -1,5 +1,6 @@
-/* The AVX2 vector math of kernels/src/x86/vecmath_avx2.h against double libm
- * over dense sweeps of the float line, and at its special values.
+/* The vector math of kernels/src/x86/vecmath_avx2.h (AVX2) and
+ * kernels/src/arm/vecmath_neon.h (AArch64 NEON) against double libm over dense
+ * sweeps of the float line, and at its special values.
  *
  * Error budgets (the header states the same), for exact results of normal
  * magnitude; below FLT_MIN the functions may flush to 0, so there the
@@ -17,12 +18,14 @@
 
 #include "test_util.h"
 
-#if defined(__x86_64__)
-#include "../../kernels/src/x86/vecmath_avx2.h"
-
+#if defined(__x86_64__) || defined(__aarch64__)
 enum vfn { V_EXP, V_EXP2, V_ERF, V_ERFC, V_GELU, V_SIGMOID, V_SILU };
 
 static const char *const vfn_name[] = { "exp", "exp2", "erf", "erfc", "gelu", "sigmoid", "silu" };
+#endif
+
+#if defined(__x86_64__)
+#include "../../kernels/src/x86/vecmath_avx2.h"
 
 __attribute__((target("avx2,fma,f16c")))
 static __m256 vfn_eval(enum vfn f, __m256 x)
@@ -54,19 +57,68 @@ static void vfn_apply(enum vfn f, const float *x, float *y, size_t n)
     }
 }
 
-static float vfn1(enum vfn f, float x)
-{
-    float y;
-    vfn_apply(f, &x, &y, 1);
-    return y;
-}
-
 __attribute__((target("avx2,fma,f16c")))
 static void horizontal(const float v[8], float *sum, float *max)
 {
     __m256 x = _mm256_loadu_ps(v);
     *sum = fk__hsum_avx2(x);
     *max = fk__hmax_avx2(x);
+}
+
+static int have_simd(void)
+{
+    return fk_isa_supported(FK_ISA_AVX2);
+}
+
+#elif defined(__aarch64__)
+#include "../../kernels/src/arm/vecmath_neon.h"
+
+static float32x4_t vfn_eval(enum vfn f, float32x4_t x)
+{
+    switch (f) {
+    case V_EXP:     return fk__exp_neon(x);
+    case V_EXP2:    return fk__exp2_neon(x);
+    case V_ERF:     return fk__erf_neon(x);
+    case V_ERFC:    return fk__erfc_neon(x);
+    case V_GELU:    return fk__gelu_neon(x);
+    case V_SIGMOID: return fk__sigmoid_neon(x);
+    case V_SILU:    return fk__silu_neon(x);
+    }
+    return x;
+}
+
+static void vfn_apply(enum vfn f, const float *x, float *y, size_t n)
+{
+    size_t i = 0;
+    for (; i + 4 <= n; i += 4)
+        vst1q_f32(y + i, vfn_eval(f, vld1q_f32(x + i)));
+    if (i < n) {
+        float bx[4] = { 0 }, by[4];
+        memcpy(bx, x + i, (n - i) * sizeof *x);
+        vst1q_f32(by, vfn_eval(f, vld1q_f32(bx)));
+        memcpy(y + i, by, (n - i) * sizeof *y);
+    }
+}
+
+static void horizontal(const float v[8], float *sum, float *max)
+{
+    float32x4_t a = vld1q_f32(v), b = vld1q_f32(v + 4);
+    *sum = fk__hsum_neon(vaddq_f32(a, b));
+    *max = fk__hmax_neon(vmaxq_f32(a, b));
+}
+
+static int have_simd(void)
+{
+    return fk_isa_supported(FK_ISA_NEON);
+}
+#endif
+
+#if defined(__x86_64__) || defined(__aarch64__)
+static float vfn1(enum vfn f, float x)
+{
+    float y;
+    vfn_apply(f, &x, &y, 1);
+    return y;
 }
 
 static double exact(enum vfn f, double x)
@@ -106,10 +158,18 @@ struct sweep {
     float at_ulp, at_abs, at_rel;
 };
 
+/* Under an emulator (cross builds run the tests in qemu-user, ~50x slower on
+ * this double-precision libm work) the sweeps take every FK_SWEEP_THIN-th
+ * point of the native sweep: still 0.9-2 million points per function. */
+#ifndef FK_SWEEP_THIN
+#define FK_SWEEP_THIN 1
+#endif
+
 /* Every `step`-th float bit pattern in [lo, hi] (both signs handled by the
  * caller through lo < 0), plus the end points. */
 static void sweep_run(enum vfn f, float lo, float hi, uint32_t step, struct sweep *s)
 {
+    step *= FK_SWEEP_THIN;
     enum { CHUNK = 4096 };
     float *x = xmalloc(CHUNK * sizeof *x), *y = xmalloc(CHUNK * sizeof *y);
     memset(s, 0, sizeof *s);
@@ -154,16 +214,11 @@ static void sweep_run(enum vfn f, float lo, float hi, uint32_t step, struct swee
     free(y);
 }
 
-static int have_avx2(void)
-{
-    return fk_isa_supported(FK_ISA_AVX2);
-}
-
 static void test_exp_sweep(void **state)
 {
     (void)state;
-    if (!have_avx2())
-        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
+    if (!have_simd())
+        f4d_skip("%s: this CPU has no SIMD vector math (AVX2 + FMA, or NEON)", __func__);
     struct sweep s;
     sweep_run(V_EXP, -110.0f, 90.0f, 509, &s);
     printf("exp:  max %.3f ulp at %a\n", s.max_ulp, s.at_ulp);
@@ -176,8 +231,8 @@ static void test_exp_sweep(void **state)
 static void test_erf_sweep(void **state)
 {
     (void)state;
-    if (!have_avx2())
-        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
+    if (!have_simd())
+        f4d_skip("%s: this CPU has no SIMD vector math (AVX2 + FMA, or NEON)", __func__);
     struct sweep s;
     sweep_run(V_ERF, -13.0f, 13.0f, 211, &s);
     printf("erf:  max abs %.3g at %a, max rel %.3g at %a\n", s.max_abs, s.at_abs, s.max_rel,
@@ -193,8 +248,8 @@ static void test_erf_sweep(void **state)
 static void test_gelu_sweep(void **state)
 {
     (void)state;
-    if (!have_avx2())
-        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
+    if (!have_simd())
+        f4d_skip("%s: this CPU has no SIMD vector math (AVX2 + FMA, or NEON)", __func__);
     struct sweep s;
     sweep_run(V_GELU, -30.0f, 30.0f, 211, &s);
     printf("gelu: max rel %.3g at %a (normal results), max abs %.3g at %a\n", s.max_rel,
@@ -205,8 +260,8 @@ static void test_gelu_sweep(void **state)
 static void test_sigmoid_silu_sweep(void **state)
 {
     (void)state;
-    if (!have_avx2())
-        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
+    if (!have_simd())
+        f4d_skip("%s: this CPU has no SIMD vector math (AVX2 + FMA, or NEON)", __func__);
     struct sweep s;
     sweep_run(V_SIGMOID, -110.0f, 110.0f, 211, &s);
     printf("sigmoid: max rel %.3g at %a, max abs %.3g\n", s.max_rel, s.at_rel, s.max_abs);
@@ -221,8 +276,8 @@ static void test_sigmoid_silu_sweep(void **state)
 static void test_special_values(void **state)
 {
     (void)state;
-    if (!have_avx2())
-        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
+    if (!have_simd())
+        f4d_skip("%s: this CPU has no SIMD vector math (AVX2 + FMA, or NEON)", __func__);
     for (int f = V_EXP; f <= V_SILU; f++) {
         assert_true(isnan(vfn1((enum vfn)f, NAN)));
         assert_true(isnan(vfn1((enum vfn)f, -NAN)));
@@ -270,8 +325,8 @@ static void test_special_values(void **state)
 static void test_horizontal(void **state)
 {
     (void)state;
-    if (!have_avx2())
-        f4d_skip("%s: this CPU has no AVX2 + FMA (the vector math's ISA)", __func__);
+    if (!have_simd())
+        f4d_skip("%s: this CPU has no SIMD vector math (AVX2 + FMA, or NEON)", __func__);
     float v[8] = { 1, -2, 3.5f, 8, -100, 0.25f, 7, 2 };
     float sum, max;
     horizontal(v, &sum, &max);
@@ -290,18 +345,18 @@ static void test_horizontal(void **state)
     assert_true(max == INFINITY && sum == INFINITY);
 }
 
-#else /* not x86: nothing to test */
-static void test_not_x86(void **state)
+#else /* neither x86-64 nor AArch64: nothing to test */
+static void test_no_simd(void **state)
 {
     (void)state;
-    f4d_skip("the vector math under test is x86-64 AVX2 code: not built for this architecture");
+    f4d_skip("the vector math under test is x86-64 AVX2 or AArch64 NEON code: not built for this architecture");
 }
 #endif
 
 int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
-#if defined(__x86_64__)
+#if defined(__x86_64__) || defined(__aarch64__)
         cmocka_unit_test(test_exp_sweep),
         cmocka_unit_test(test_erf_sweep),
         cmocka_unit_test(test_gelu_sweep),
@@ -309,7 +364,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_special_values),
         cmocka_unit_test(test_horizontal),
 #else
-        cmocka_unit_test(test_not_x86),
+        cmocka_unit_test(test_no_simd),
 #endif
     };
     return KERNEL_TEST_MAIN(argc, argv, "kernels/vecmath", tests);

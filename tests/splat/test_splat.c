@@ -414,14 +414,17 @@ static void test_threads_give_identical_images(void **state)
     fk_ctx_free(c2);
 }
 
-/* The SIMD compositing (when this CPU has it) against the scalar reference. */
+/* The SIMD compositing (AVX2 or NEON, when this CPU has it) against the
+ * scalar reference. */
 static void test_simd_matches_scalar(void **state)
 {
     (void)state;
-    if (!fk_isa_supported(FK_ISA_AVX2))
-        f4d_skip("test_simd_matches_scalar: this CPU has no AVX2 + FMA + F16C (the SIMD compositor's ISA)");
+    enum fk_isa isa = fk_isa_supported(FK_ISA_AVX2) ? FK_ISA_AVX2
+                    : fk_isa_supported(FK_ISA_NEON) ? FK_ISA_NEON : FK_ISA_REF;
+    if (isa == FK_ISA_REF)
+        f4d_skip("test_simd_matches_scalar: this CPU has neither AVX2 + FMA + F16C nor NEON (the SIMD compositor's ISAs)");
     fk_ctx *ref = NULL, *simd = NULL;
-    struct fk_ctx_config c1 = { .isa = FK_ISA_REF, .threads = 2 }, c2 = { .isa = FK_ISA_AVX2, .threads = 2 };
+    struct fk_ctx_config c1 = { .isa = FK_ISA_REF, .threads = 2 }, c2 = { .isa = isa, .threads = 2 };
     assert_int_equal(fk_ctx_new(&c1, &ref), F4D_OK);
     assert_int_equal(fk_ctx_new(&c2, &simd), F4D_OK);
     struct splat_camera cam = axis_camera(100, 60, 60.0f);

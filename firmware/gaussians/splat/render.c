@@ -599,8 +599,10 @@ static void raster_task_ref(void *arg, int tile, int thread)
 static void raster_task_simd(void *arg, int tile, int thread)
 {
     (void)thread;
-#ifdef F4D_SPLAT_HAVE_AVX2
+#if defined(F4D_SPLAT_HAVE_AVX2)
     splat__raster_tile_avx2(arg, tile);
+#elif defined(F4D_SPLAT_HAVE_NEON)
+    splat__raster_tile_neon(arg, tile);
 #else
     splat__raster_tile_ref(arg, tile);
 #endif
@@ -647,7 +649,8 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     pj.lim_y_pos = ((float)r->height - cam->cy) / cam->fy + 0.3f * tany;
     pj.lim_y_neg = cam->cy / cam->fy + 0.3f * tany;
     enum fk_isa isa = fk_ctx_isa(r->ctx);
-    pj.simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI;
+    /* AVX2: vector preprocessing and compositing; NEON: vector compositing */
+    pj.simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI || isa == FK_ISA_NEON;
     pj.pv = (struct prep_view){ .f = f, .features = features, .proj = r->proj, .V = cam->w2c,
                                 .fx = cam->fx, .fy = cam->fy, .cx = cam->cx, .cy = cam->cy,
                                 .lim_x_pos = pj.lim_x_pos, .lim_x_neg = pj.lim_x_neg,
