@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole test suite: installs what is missing, builds twice (optimised with
 # warnings as errors, and AddressSanitizer + UndefinedBehaviorSanitizer), runs
-# ctest on both, then prints what passed, failed and was SKIPPED (with why).
+# ctest on both, runs the aarch64 cross build of kernels + splat under qemu-user
+# (tools/test-aarch64.sh), then prints what passed, failed and was SKIPPED (with why).
 #
 # A skipped test is never a pass. Under CI (CI set, as CI runners do) a skip
 # fails the run unless the test carries the ctest label machine-dependent
@@ -61,6 +62,13 @@ cmake -S . -B build/asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DF4D_SANITIZE=ON \
 cmake --build build/asan -j "$jobs"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
   run_ctest "asan+ubsan" build/asan --timeout 900 -LE no-asan
+
+# The ARM boards: kernels + splat cross-built for aarch64, their tests under qemu-user.
+arm_rc=0
+bash tools/test-aarch64.sh 2>&1 | tee build/aarch64-test.log || arm_rc=$?
+arm_line=$(sed -n 's/.*\(tests passed, [0-9]* tests* failed out of [0-9]*\).*/\1/p' build/aarch64-test.log | tail -1)
+summary+=("aarch64 (qemu-user): ${arm_line:-no ctest summary}, exit $arm_rc")
+[ "$arm_rc" -eq 0 ] || failed_runs=$((failed_runs + 1))
 
 echo
 echo "==== tools/test.sh summary ($((SECONDS - t0)) s wall, CI=$ci) ===="
