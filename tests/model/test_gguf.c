@@ -525,9 +525,9 @@ static void test_model_init_validates(void **state)
     expect_init_fails(&(struct rewrite){ .img_grid = 293 },
                       "config: img_size 4102 out of patch_size 14..4096");
     expect_init_fails(&(struct rewrite){ .extra = "aggregator.extra.weight" }, "unknown tensor 'aggregator.extra.weight'");
-    /* Forge4D's heads are schema groups: one stray tensor asks for the rest */
+    /* Forge4D's heads are schema groups: a stray tensor is checked like the rest */
     expect_init_fails(&(struct rewrite){ .extra = "gaussian_head.norm.weight" },
-                      "missing tensor 'gaussian_head.norm.bias'");
+                      "'gaussian_head.norm.weight' has shape [4], expected [64]");
     expect_init_fails(&(struct rewrite){ .rename_from = "point_head.norm.bias",
                                          .rename_to = "pointhead.norm.bias" },
                       "missing tensor 'point_head.norm.bias'");
