@@ -49,7 +49,6 @@
 #include "fk_ctx.h"
 #include "fk_linear.h"
 #include "gguf.h"
-#include "splat.h"          /* struct splat_frame (header only: no link dependency) */
 
 #define MODEL_LAYERS_MAX  64   /* aggregator depth limit (bit mask width)   */
 #define MODEL_VIEWS_MAX   8
@@ -136,6 +135,22 @@ const char *model_group_prefix(unsigned group);
 #define MODEL_GAUSS_LOG_MAX   4.0f
 #define MODEL_GAUSS_QUAT_EPS  1e-12f /* |q| below this: identity rotation    */
 
+/* Pixel-aligned Gaussians, structure of arrays in the layout and units of
+ * struct splat_frame (firmware/gaussians/splat/splat.h), which this stage may
+ * not include (house.md: infer runs before gaussians): a consumer wraps the
+ * arrays into a splat_frame without copying (count = capacity = count, motion
+ * arrays NULL). Values are activated: pos / scale in metres after metric
+ * recovery (model units without a scale head), scale = std dev per local axis,
+ * rot = unit quaternion (w, x, y, z), opacity in [0, 1], rgb linear in [0, 1]. */
+struct model_gaussians {
+    size_t count;      /* S * H * W; Gaussian (s * H + y) * W + x    */
+    float *pos;        /* [3 * count]                                */
+    float *scale;      /* [3 * count]                                */
+    float *rot;        /* [4 * count]                                */
+    float *opacity;    /* [count]                                    */
+    float *rgb;        /* [3 * count]                                */
+};
+
 struct model;
 
 struct model_outputs {
@@ -154,12 +169,10 @@ struct model_outputs {
     const float *extrinsic_metric;  /* [S, 3, 4] translations / gauge (scale and
                                        camera heads), else NULL                  */
     const float *gaussian_raw;      /* [S, H, W, 14] gaussian head before activation */
-    /* Pixel-aligned Gaussians, Gaussian (s * H + y) * W + x, activated: metres
-     * (divided by the gauge) when has_gauge, else model units. The arrays are
-     * the model's arena: read-only, valid until the next Eval or model_free;
-     * never pass this frame to splat_frame_reserve / _free. count 0 without
-     * the gaussian head; motion arrays NULL. */
-    struct splat_frame gaussians;
+    /* Gaussian head output (count 0 without it). The arrays are the model's
+     * arena: read-only, valid until the next Eval or model_free; a splat_frame
+     * wrapping them must never be passed to splat_frame_reserve / _free. */
+    struct model_gaussians gaussians;
 };
 
 /* Checkpoint callback. Names and layouts (f = frame, -1 = all frames):

@@ -1,6 +1,7 @@
 /* model_gaussian.c - Forge4D's Gaussian head (forge4d-arch.md 1): a DPT head
  * like VGGT's with 14 raw channels per pixel, dp (3) | dc (3) | o (1) | s (3) |
- * q (4), activated into pixel-aligned Gaussians (struct splat_frame) with the
+ * q (4), activated into pixel-aligned Gaussians (struct model_gaussians, the
+ * layout of the gaussians stage's struct splat_frame) with the
  * point head's X, the camera head's pose and the input colours:
  *
  *   mu    = X + dp                                  (/ gauge: metres)
@@ -128,7 +129,7 @@ static int gauss_eval(void *hp, struct model_run *run, float *persist)
     model_dpt_raw_plan(&h->cfg, MODEL_GAUSS_CH, S, H, W, &dp, &dscr);
     const float *raw = persist;
     struct bump pb = { (unsigned char *)persist, dp };
-    struct splat_frame *g = &run->out->gaussians;
+    struct model_gaussians *g = &run->out->gaussians;
     memset(g, 0, sizeof *g);
     g->pos = BUMP_F(&pb, 3 * n);
     g->scale = BUMP_F(&pb, 3 * n);
@@ -166,7 +167,7 @@ static int gauss_eval(void *hp, struct model_run *run, float *persist)
                 g->scale[i] /= gauge;
             }
     }
-    g->count = g->capacity = n;
+    g->count = n;
     run->out->gaussian_raw = raw;
     return 0;
 }
