@@ -525,6 +525,9 @@ static void test_model_init_validates(void **state)
     expect_init_fails(&(struct rewrite){ .img_grid = 293 },
                       "config: img_size 4102 out of patch_size 14..4096");
     expect_init_fails(&(struct rewrite){ .extra = "aggregator.extra.weight" }, "unknown tensor 'aggregator.extra.weight'");
+    /* Forge4D's heads are schema groups: a stray tensor is checked like the rest */
+    expect_init_fails(&(struct rewrite){ .extra = "gaussian_head.norm.weight" },
+                      "'gaussian_head.norm.weight' has shape [4], expected [64]");
     expect_init_fails(&(struct rewrite){ .rename_from = "point_head.norm.bias",
                                          .rename_to = "pointhead.norm.bias" },
                       "missing tensor 'point_head.norm.bias'");
@@ -535,7 +538,7 @@ static void test_model_prepare_refuses_unknown_group(void **state)
     (void)state;
     /* a tensor under a prefix no registered head owns: Init loads the known
      * groups, Prepare (after all registrations) names it */
-    rewrite_tiny(&(struct rewrite){ .extra = "gaussian_head.norm.weight" });
+    rewrite_tiny(&(struct rewrite){ .extra = "unknown_head.norm.weight" });
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 1 };
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
@@ -543,7 +546,7 @@ static void test_model_prepare_refuses_unknown_group(void **state)
     struct f4d_err err = {0};
     assert_int_equal(model_init(ctx, tmp_path, FK_W_F32, &m, &err), 0);
     assert_int_equal(model_prepare(m, 1, 42, 70), F4D_EFORMAT);
-    assert_non_null(strstr(model_error(m), "unknown tensor 'gaussian_head.norm.weight'"));
+    assert_non_null(strstr(model_error(m), "unknown tensor 'unknown_head.norm.weight'"));
     model_free(m);
     fk_ctx_free(ctx);
 }

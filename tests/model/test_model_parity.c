@@ -281,7 +281,7 @@ static void test_arena_bounds(void **state)
     assert_int_equal(model_init(ctx, path, FK_W_F32, &m, &err), 0);
     assert_int_equal(model_prepare(m, 2, 42, 70), 0);
     const struct model_config *c = model_get_config(m);
-    assert_int_equal(model_arena_bytes(m), model_plan_bytes(c, MODEL_G_ALL, 2, 42, 70));
+    assert_int_equal(model_arena_bytes(m), model_plan_bytes(c, MODEL_G_VGGT, 2, 42, 70));
     float *img = calloc((size_t)3 * 3 * 42 * 70, sizeof *img);
     for (size_t i = 0; i < (size_t)3 * 3 * 42 * 70; i++)
         img[i] = (float)(i % 97) / 97.0f;

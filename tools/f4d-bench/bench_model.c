@@ -301,7 +301,7 @@ int bench_model(int argc, char **argv)
     /* ---- full-size plan (no weights needed) ---- */
     struct model_config full;
     model_config_default(&full);
-    size_t plan = model_plan_bytes(&full, MODEL_G_ALL, 4, 518, 518);
+    size_t plan = model_plan_bytes(&full, MODEL_G_VGGT, 4, 518, 518);
     printf("full VGGT-1B plan, 4 views 518x518, camera+depth+point heads: arena %zu bytes "
            "(%.2f GiB)\n", plan, plan / 1073741824.0);
     if (jf)

@@ -472,10 +472,11 @@ int main(int argc, char **argv)
     if (!w || model_config_write(&cfg, w) < 0 ||
         gguf_writer_add_str(w, "forge4d.file_type", type) < 0)
         goto done;
-    static const char *heads[] = { "camera_head", "depth_head", "point_head" };
-    const char *present[3];
+    static const char *heads[] = { "camera_head", "depth_head", "point_head", "gaussian_head",
+                                   "scale_head" };
+    const char *present[5];
     size_t np = 0;
-    for (int i = 0; i < 3; i++)
+    for (int i = 0; i < 5; i++)
         if (groups & (MODEL_G_CAMERA << i))
             present[np++] = heads[i];
     printf("config: %s patch embed, embed_dim %d, depth %d, heads %d; groups: aggregator",

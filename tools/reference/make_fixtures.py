@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """make_fixtures.py - tiny random-weight VGGT parity fixtures for tests/model/.
 
-    /usr/bin/python3 tools/reference/make_fixtures.py [OUT_DIR]
+    /usr/bin/python3 tools/reference/make_fixtures.py [OUT_DIR] [--forge4d-only]
 
 For each tiny config it writes OUT_DIR/<config>/:
     config.json            the f4d-convert config (the issue's keys)
@@ -25,6 +25,7 @@ from PIL import Image
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from vggt_ref import VGGT, Config, aa_bicubic_weights  # noqa: E402
+from forge4d_ref import Forge4D  # noqa: E402
 
 CONFIGS = {
     # DINO patch embed; 42x70 input: pos-embed grid 4x4 -> 3x5 (down rows, up columns).
@@ -65,8 +66,12 @@ def init_weights(model, gen):
     # FoV: positive (about 1 rad) so the intrinsics stay finite.
     sd["camera_head.pose_branch.fc2.weight"] *= 0.2
     sd["camera_head.pose_branch.fc2.bias"][7:9] = 0.3
-    for h in ("depth_head", "point_head"):
-        sd[f"{h}.scratch.output_conv2.2.weight"] *= 0.3
+    for h in ("depth_head", "point_head", "gaussian_head"):
+        if f"{h}.scratch.output_conv2.2.weight" in sd:
+            sd[f"{h}.scratch.output_conv2.2.weight"] *= 0.3
+    if "scale_head.fc2.weight" in sd:  # a gauge near 2, well away from the untrained 1
+        sd["scale_head.fc2.weight"] *= 0.5
+        sd["scale_head.fc2.bias"][0] = 0.7
     model.load_state_dict(sd)
 
 
@@ -165,9 +170,85 @@ def prep_fixtures(out_root):
     np.save(os.path.join(d, "batch_crop56.npy"), b.numpy())
 
 
+# Forge4D stage-1 fixture: the tiny VGGT + gaussian_head + scale_head, 2 views. Only
+# the new checkpoints are written (the VGGT ones are covered by `tiny`).
+F4D_SAVE = ("input", "gaussian_head.level0", "gaussian_head.level1", "gaussian_head.level2",
+            "gaussian_head.level3", "gaussian_head.fused", "gaussian_raw", "gaussian_head.mu",
+            "gaussian_head.sigma", "gauge", "gaussians_pos", "gaussians_scale", "gaussians_rot",
+            "gaussians_opacity", "gaussians_rgb", "extrinsic_metric")
+
+# Hard cases: the same weights with one edit each, made in float32 exactly as the C test
+# (tests/model/test_forge4d.c) makes them on the converted f32 file.
+F4D_HARD = {
+    # near-zero camera translations: the translation rows of the pose branch x 1e-6
+    "near_zero_t": ("gauge", "extrinsic", "extrinsic_metric"),
+    # huge predicted scales: s logits +60, -60 and 1e30 (the exp clamp)
+    "huge_scale": ("gaussians_scale",),
+    # a zero quaternion: q_raw = (-1, 0, 0, 0) at every pixel
+    "zero_quat": ("gaussians_rot",),
+}
+
+
+def f4d_hard_edit(sd, case):
+    sd = {k: v.clone() for k, v in sd.items()}
+    if case == "near_zero_t":
+        k = torch.tensor(1e-6, dtype=torch.float32)
+        sd["camera_head.pose_branch.fc2.weight"][0:3] *= k
+        sd["camera_head.pose_branch.fc2.bias"][0:3] *= k
+    elif case == "huge_scale":
+        b = sd["gaussian_head.scratch.output_conv2.2.bias"]
+        b[7] += 60.0
+        b[8] -= 60.0
+        b[9] = 1e30
+    elif case == "zero_quat":
+        sd["gaussian_head.scratch.output_conv2.2.weight"][10:14] = 0.0
+        sd["gaussian_head.scratch.output_conv2.2.bias"][10:14] = torch.tensor([-1.0, 0.0, 0.0, 0.0])
+    return sd
+
+
+def forge4d_fixtures(out_root):
+    cfg, H, W, S = CONFIGS["tiny"]["cfg"], 42, 70, 2
+    gen = torch.Generator().manual_seed(4242)
+    model = Forge4D(cfg).eval()
+    init_weights(model, gen)
+    d = os.path.join(out_root, "tiny_f4d")
+    os.makedirs(d, exist_ok=True)
+    sd = {k: v.clone() for k, v in model.state_dict().items()}
+    write_safetensors(os.path.join(d, "weights.safetensors"), sd)
+    with open(os.path.join(d, "config.json"), "w") as f:
+        json.dump({k: getattr(cfg, k) for k in cfg.__dataclass_fields__}, f, indent=1)
+        f.write("\n")
+    img = torch.rand(S, 3, H, W, generator=gen).to(torch.float32)
+    sdir = os.path.join(d, f"s{S}")
+    os.makedirs(sdir, exist_ok=True)
+    out = model.double()(img.double())
+    out["input"] = img
+    for k in F4D_SAVE:
+        np.save(os.path.join(sdir, f"{k}.npy"), out[k].to(torch.float32).contiguous().numpy())
+    g, sc = out["gauge"].item(), out["gaussians_scale"]
+    print(f"tiny_f4d S={S}: gauge {g:.4g}, scale {sc.min().item():.3g}..{sc.max().item():.3g}, "
+          f"opacity {out['gaussians_opacity'].min().item():.3g}..{out['gaussians_opacity'].max().item():.3g}")
+    for case, keys in F4D_HARD.items():
+        m2 = Forge4D(cfg).eval()
+        m2.load_state_dict(f4d_hard_edit(sd, case))
+        o2 = m2.double()(img.double())
+        hdir = os.path.join(d, f"hard_{case}")
+        os.makedirs(hdir, exist_ok=True)
+        for k in keys:
+            v = o2[k].to(torch.float32).contiguous().numpy()
+            assert np.isfinite(v).all(), (case, k)
+            np.save(os.path.join(hdir, f"{k}.npy"), v)
+        print(f"tiny_f4d hard {case}: " + ", ".join(
+            f"{k} |max| {o2[k].abs().max().item():.3g}" for k in keys))
+
+
 def main():
-    out_root = sys.argv[1] if len(sys.argv) > 1 else os.path.join(
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    out_root = args[0] if args else os.path.join(
         os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "model", "fixtures")
+    if "--forge4d-only" in sys.argv:  # only tiny_f4d/ (the VGGT fixtures stay as committed)
+        forge4d_fixtures(out_root)
+        return
     check_aa_bicubic()
     prep_fixtures(out_root)
     for ci, (cname, spec) in enumerate(CONFIGS.items()):
@@ -199,6 +280,7 @@ def main():
             print(f"{cname} S={S} {H}x{W}: {len(out)} tensors, depth range "
                   f"{out['depth'].min().item():.3g}..{out['depth'].max().item():.3g}")
         model.float()
+    forge4d_fixtures(out_root)
 
 
 if __name__ == "__main__":

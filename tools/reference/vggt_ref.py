@@ -396,6 +396,8 @@ class DPTHead(nn.Module):
         y = sc.output_conv2(y)
         out[f"{name}.logits"] = y
         y = y.permute(0, 2, 3, 1)  # [S, H, W, out]
+        if self.activation == "none":  # raw channels (the Gaussian head)
+            return y, None
         conf = 1 + torch.exp(y[..., -1])
         v = y[..., :-1]
         if self.activation == "exp":

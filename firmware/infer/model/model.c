@@ -8,9 +8,13 @@
 
 #include "model_internal.h"
 
-/* Built-in heads, in evaluation order (vggt.md 0: camera, depth, point). */
+/* Built-in heads, in evaluation order (vggt.md 0: camera, depth, point; then
+ * Forge4D's scale head, whose gauge the Gaussian head divides by). A head
+ * whose tensors are not in the file is skipped: a plain VGGT file runs the
+ * first three only. */
 static const struct model_head_ops *const builtin_heads[] = {
     &model_camera_head_ops, &model_depth_head_ops, &model_point_head_ops,
+    &model_scale_head_ops,  &model_gaussian_head_ops,
 };
 
 int model_fail(struct model *m, int rc, const char *fmt, ...)
@@ -421,7 +425,9 @@ size_t model_plan_bytes(const struct model_config *c, unsigned groups, int views
     uint64_t keep = 0;
     if (groups & MODEL_G_CAMERA)
         keep |= UINT64_C(1) << (c->depth - 1);
-    if (groups & (MODEL_G_DEPTH | MODEL_G_POINT))
+    if (groups & MODEL_G_SCALE)
+        keep |= UINT64_C(1) << (c->depth - 1);
+    if (groups & (MODEL_G_DEPTH | MODEL_G_POINT | MODEL_G_GAUSSIAN))
         for (int i = 0; i < 4; i++)
             keep |= UINT64_C(1) << c->dpt_layer_idx[i];
     size_t persist, scratch, p, s;
@@ -437,6 +443,16 @@ size_t model_plan_bytes(const struct model_config *c, unsigned groups, int views
             persist += p;
             scratch = scratch > s ? scratch : s;
         }
+    if (groups & MODEL_G_SCALE) {
+        model_scale_plan(c, views, &p, &s);
+        persist += (p + MODEL_ALIGN - 1) / MODEL_ALIGN * MODEL_ALIGN;
+        scratch = scratch > s ? scratch : s;
+    }
+    if (groups & MODEL_G_GAUSSIAN) {
+        model_gaussian_plan(c, views, h, w, &p, &s);
+        persist += (p + MODEL_ALIGN - 1) / MODEL_ALIGN * MODEL_ALIGN;
+        scratch = scratch > s ? scratch : s;
+    }
     return persist + scratch;
 }
 
@@ -580,9 +596,11 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
     out->S = S;
     out->H = H;
     out->W = W;
+    out->gauge = 1.0f;
     struct model_run run = {
         .m = m, .cfg = &m->cfg, .S = S, .H = H, .W = W, .h = H / p, .w = W / p,
         .P = (H / p) * (W / p), .tokens = (int)P1, .layers = (const float *const *)m->layers,
+        .images = images,
         .scratch = m->scratch, .scratch_bytes = m->scratch_bytes, .out = out,
     };
     for (int i = 0; i < m->n_heads; i++) {

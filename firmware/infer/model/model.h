@@ -90,8 +90,12 @@ enum model_group {
     MODEL_G_CAMERA     = 1u << 1,
     MODEL_G_DEPTH      = 1u << 2,
     MODEL_G_POINT      = 1u << 3,
+    MODEL_G_GAUSSIAN   = 1u << 4,   /* Forge4D gaussian_head.* (forge4d-arch.md 1) */
+    MODEL_G_SCALE      = 1u << 5,   /* Forge4D scale_head.*    (forge4d-arch.md 2) */
 };
-#define MODEL_G_ALL 0xfu
+#define MODEL_G_VGGT    0xfu        /* aggregator + camera, depth, point heads */
+#define MODEL_G_FORGE4D 0x30u       /* Forge4D's heads */
+#define MODEL_G_ALL     0x3fu
 
 enum model_tclass {
     MODEL_T_F32    = 0, /* kept f32: norms, biases, LayerScale, tokens, pos-embeds,
@@ -124,6 +128,29 @@ const char *model_group_prefix(unsigned group);
 
 /* ---- runtime ------------------------------------------------------------ */
 
+/* Forge4D's Gaussian head (forge4d-arch.md 1): 14 raw channels per pixel. */
+#define MODEL_GAUSS_CH        14   /* dp 3 | dc 3 | o 1 | s 3 | q 4          */
+#define MODEL_GAUSS_OPACITY_BIAS 4.0f
+#define MODEL_GAUSS_LOG_MIN  (-8.0f) /* exp clamp of the scale logits        */
+#define MODEL_GAUSS_LOG_MAX   4.0f
+#define MODEL_GAUSS_QUAT_EPS  1e-12f /* |q| below this: identity rotation    */
+
+/* Pixel-aligned Gaussians, structure of arrays in the layout and units of
+ * struct splat_frame (firmware/gaussians/splat/splat.h), which this stage may
+ * not include (house.md: infer runs before gaussians): a consumer wraps the
+ * arrays into a splat_frame without copying (count = capacity = count, motion
+ * arrays NULL). Values are activated: pos / scale in metres after metric
+ * recovery (model units without a scale head), scale = std dev per local axis,
+ * rot = unit quaternion (w, x, y, z), opacity in [0, 1], rgb linear in [0, 1]. */
+struct model_gaussians {
+    size_t count;      /* S * H * W; Gaussian (s * H + y) * W + x    */
+    float *pos;        /* [3 * count]                                */
+    float *scale;      /* [3 * count]                                */
+    float *rot;        /* [4 * count]                                */
+    float *opacity;    /* [count]                                    */
+    float *rgb;        /* [3 * count]                                */
+};
+
 struct model;
 
 struct model_outputs {
@@ -136,9 +163,22 @@ struct model_outputs {
     const float *depth_conf;        /* [S, H, W]                               */
     const float *world_points;      /* [S, H, W, 3]     point head, else NULL  */
     const float *world_points_conf; /* [S, H, W]                               */
+    /* Forge4D (forge4d-arch.md 1-3), when the weight file has the heads: */
+    int          has_gauge;         /* scale head ran: metric outputs            */
+    float        gauge;             /* p_gauge_hat (1 without the scale head)    */
+    const float *extrinsic_metric;  /* [S, 3, 4] translations / gauge (scale and
+                                       camera heads), else NULL                  */
+    const float *gaussian_raw;      /* [S, H, W, 14] gaussian head before activation */
+    /* Gaussian head output (count 0 without it). The arrays are the model's
+     * arena: read-only, valid until the next Eval or model_free; a splat_frame
+     * wrapping them must never be passed to splat_frame_reserve / _free. */
+    struct model_gaussians gaussians;
 };
 
 /* Checkpoint callback. Names and layouts (f = frame, -1 = all frames):
+ *   "gaussian_head.mu"    f [H, W, 3]     Gaussian centres, model units
+ *   "gaussian_head.sigma" f [H, W, 3]     Gaussian std devs, model units
+ *   "scale_head.gauge"  f=-1 [1]          p_gauge_hat
  *   "patch_embed"       f    [P, C]           patch tokens after the patch embed
  *   "layer<l>"          f=-1 [S, P', 2C]      aggregator output l (kept layers)
  *   "camera_iter<i>"    f=-1 [S, 9]           activated pose encoding, iteration i
@@ -163,6 +203,7 @@ struct model_run {
     const struct model_config *cfg;
     int                    S, H, W, h, w, P, tokens; /* P patches, P' tokens/frame */
     const float * const   *layers;   /* [depth]; non-NULL for every kept layer */
+    const float           *images;   /* the Eval input [S, 3, H, W] in [0, 1] */
     float                 *scratch;  /* the arena's scratch part (phase overlay) */
     size_t                 scratch_bytes;
     struct model_outputs  *out;
@@ -231,6 +272,14 @@ gguf_file *model_gguf   (struct model *m);
 int   model_load_vec    (struct model *m, const char *name, int n, const float **v);
 int   model_load_linear (struct model *m, struct fk_linear *L, const char *wname,
                          const char *bname, int n, int k);
+
+/* The paper's metric gauge (training target, or a calibrated rig's scale):
+ * p = mean over views of |t_true[i]| / |t_pred[i]| (metres over model units),
+ * t_* [S, 3], taking only the views where both norms are >= eps (VGGT's view 0
+ * sits at the origin; a near-zero prediction gives no ratio). Norms in double.
+ * F4D_EINVAL (gauge untouched) when no view qualifies or eps is not > 0. */
+int   model_gauge_from_translations(const float *t_true, const float *t_pred, int S,
+                                    float eps, float *gauge);
 
 /* vggt.md 5a: pose encoding [9] to extrinsic [3x4] and intrinsic [3x3]. */
 void  model_pose_to_extri_intri(const float *enc, int H, int W, float *ext, float *intr);

@@ -6,7 +6,7 @@
 
 #include "model_internal.h"
 
-enum dpt_act { DPT_EXP = 0, DPT_INV_LOG = 1 };
+enum dpt_act { DPT_EXP = 0, DPT_INV_LOG = 1, DPT_RAW = 2 };
 
 struct rcu {
     struct fk_conv2d conv1, conv2;
@@ -325,6 +325,10 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
         (rc = model_conv(m, &h->oc2b, a->big2, H, W, a->logit, FK_ACT_NONE)) < 0)
         return rc;
     const int od = h->out_dim, vd = od - 1;
+    if (h->act == DPT_RAW) {
+        memcpy(val, a->logit, (size_t)H * W * od * sizeof(float));
+        return 0;
+    }
     for (size_t i = 0; i < (size_t)H * W; i++) {
         const float *lg = a->logit + i * od;
         for (int k = 0; k < vd; k++) {
@@ -342,10 +346,19 @@ static int dpt_eval(void *hp, struct model_run *run, float *persist)
     struct dpt_head *h = hp;
     const int S = run->S, H = run->H, W = run->W, vd = h->out_dim - 1;
     struct bump pb = { (unsigned char *)persist, 0 }, sb = { (unsigned char *)run->scratch, 0 };
-    float *val = BUMP_F(&pb, (size_t)S * H * W * vd);
-    float *conf = BUMP_F(&pb, (size_t)S * H * W);
     struct dpt_bufs a;
     dpt_layout(&sb, &h->cfg, h->out_dim, H, W, &a);
+    if (h->act == DPT_RAW) { /* [S, H, W, out_dim], no confidence */
+        float *raw = BUMP_F(&pb, (size_t)S * H * W * h->out_dim);
+        for (int f = 0; f < S; f++) {
+            int rc = dpt_frame(run->m, h, run, f, &a, raw + (size_t)f * H * W * h->out_dim, NULL);
+            if (rc < 0)
+                return rc;
+        }
+        return 0;
+    }
+    float *val = BUMP_F(&pb, (size_t)S * H * W * vd);
+    float *conf = BUMP_F(&pb, (size_t)S * H * W);
     for (int f = 0; f < S; f++) {
         int rc = dpt_frame(run->m, h, run, f, &a, val + (size_t)f * H * W * vd,
                            conf + (size_t)f * H * W);
@@ -371,3 +384,28 @@ const struct model_head_ops model_point_head_ops = {
     .api_version = MODEL_HEAD_API_VERSION, .prefix = "point_head", .init = point_init,
     .layers = dpt_layers, .plan = dpt_plan, .eval = dpt_eval, .free = dpt_free,
 };
+
+/* ---- the raw DPT trunk of Forge4D's Gaussian head ------------------------ */
+
+int model_dpt_raw_init(struct model *m, void **head, const char *prefix, int out_dim)
+{
+    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW);
+}
+
+void model_dpt_raw_plan(const struct model_config *c, int out_dim, int S, int H, int W,
+                        size_t *persist, size_t *scratch)
+{
+    struct bump pb = { NULL, 0 }, sb = { NULL, 0 };
+    BUMP_F(&pb, (size_t)S * H * W * out_dim);
+    *persist = pb.off;
+    struct dpt_bufs a;
+    dpt_layout(&sb, c, out_dim, H, W, &a);
+    *scratch = sb.off;
+}
+
+uint64_t model_dpt_head_layers(const void *head) { return dpt_layers(head); }
+int model_dpt_head_eval(void *head, struct model_run *run, float *persist)
+{
+    return dpt_eval(head, run, persist);
+}
+void model_dpt_head_free(void *head) { dpt_free(head); }

@@ -136,4 +136,24 @@ void model_camera_plan(const struct model_config *c, int S, size_t *persist, siz
 void model_dpt_plan(const struct model_config *c, int out_dim, int S, int H, int W,
                     size_t *persist, size_t *scratch);
 
+/* Forge4D heads (model_scale.c, model_gaussian.c), registered after the
+ * built-in VGGT heads: the scale head first (the Gaussian head divides by
+ * its gauge). */
+extern const struct model_head_ops model_scale_head_ops;
+extern const struct model_head_ops model_gaussian_head_ops;
+void model_scale_plan(const struct model_config *c, int S, size_t *persist, size_t *scratch);
+void model_gaussian_plan(const struct model_config *c, int S, int H, int W, size_t *persist,
+                         size_t *scratch);
+
+/* A DPT head giving its raw output channels (no activation, no confidence):
+ * the Gaussian head's trunk. init returns 1 when `prefix` is not in the file.
+ * The raw maps [S, H, W, out_dim] sit at the start of the head's persist part,
+ * whose size model_dpt_raw_plan gives. */
+int      model_dpt_raw_init (struct model *m, void **head, const char *prefix, int out_dim);
+void     model_dpt_raw_plan (const struct model_config *c, int out_dim, int S, int H, int W,
+                             size_t *persist, size_t *scratch);
+uint64_t model_dpt_head_layers(const void *head);
+int      model_dpt_head_eval(void *head, struct model_run *run, float *persist);
+void     model_dpt_head_free(void *head);
+
 #endif

@@ -1,5 +1,5 @@
-/* model_schema.c - every parameter name and shape of VGGT (vggt.md 2-6), from
- * the config. The converter checks a checkpoint against it and the loader reads
+/* model_schema.c - every parameter name and shape of VGGT (vggt.md 2-6) and of
+ * Forge4D's heads (forge4d-arch.md 1-2), from the config. The converter checks a checkpoint against it and the loader reads
  * the weight file through it, so there is one table of names. */
 #include <stdarg.h>
 #include <stdio.h>
@@ -170,12 +170,24 @@ int model_schema_foreach(const struct model_config *c, unsigned groups, model_te
         e.group = MODEL_G_POINT;
         dpt(&e, "point_head", c, 4);
     }
+    /* Forge4D (forge4d-arch.md 1-2) */
+    if (groups & MODEL_G_GAUSSIAN) {
+        e.group = MODEL_G_GAUSSIAN;
+        dpt(&e, "gaussian_head", c, MODEL_GAUSS_CH);
+    }
+    if (groups & MODEL_G_SCALE) {
+        e.group = MODEL_G_SCALE;
+        norm(&e, "scale_head.norm", D);
+        linear(&e, "scale_head.fc1", C, D);
+        linear(&e, "scale_head.fc2", 1, C);
+    }
     return e.rc;
 }
 
 static const struct { unsigned g; const char *prefix; } groups_tab[] = {
     { MODEL_G_AGGREGATOR, "aggregator." }, { MODEL_G_CAMERA, "camera_head." },
     { MODEL_G_DEPTH, "depth_head." },      { MODEL_G_POINT, "point_head." },
+    { MODEL_G_GAUSSIAN, "gaussian_head." }, { MODEL_G_SCALE, "scale_head." },
 };
 
 unsigned model_group_of(const char *name)
