@@ -578,6 +578,9 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             explicit_match = 0; /* identity: indices >= ref->count are new */
         }
         float rs = rot_step(qi->rot_bits);
+        float pos_tol[3];
+        for (int c = 0; c < 3; c++)
+            pos_tol[c] = 0.5f * (z[c].step > qi->pos_step_max ? z[c].step : qi->pos_step_max);
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -615,11 +618,21 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 dot += qin[c] * p.rot[c];
             }
             qn = qn > 1e-30f ? (dot < 0 ? -1.0f : 1.0f) / sqrtf(qn) : 0.0f;
+            int rot_near = 1;
             for (int c = 0; c < 4; c++) {
                 float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
                 double t = ((double)qc - (double)p.rot[c]) / rs;
                 res[CH_ROT + c] = (int32_t)llround(t);
+                rot_near &= fabs(t) <= 1.0;
             }
+            /* Dead zone: a channel whose prediction is already within the
+             * level's bound keeps it (the reference's own quantization error
+             * would otherwise flip it to +-1 from key to key). */
+            if (rot_near)
+                res[CH_ROT] = res[CH_ROT + 1] = res[CH_ROT + 2] = res[CH_ROT + 3] = 0;
+            for (int c = 0; c < 3; c++)
+                if (fabsf(f->pos[3 * i + c] - p.pos[c]) <= pos_tol[c])
+                    res[CH_POS + c] = 0;
             int any = 0;
             for (int c = 0; c < nch; c++)
                 any |= res[c];
