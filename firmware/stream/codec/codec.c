@@ -25,7 +25,7 @@ enum { CH_POS = 0, CH_LS = 3, CH_OP = 6, CH_RGB = 7, CH_ROT = 10, CH_MB = 14, CH
 enum { QZ_MB = 10, QZ_MF = 13 };
 
 static const struct codec_quality_info qtab[CODEC_QUALITY_COUNT] = {
-    { "low",    14, 0.5e-3f,  1.0f / 16,  7,  7,  8, 0.5e-3f },
+    { "low",    12, 1.0e-3f,  1.0f / 8,   6,  6,  7, 1.0e-3f },
     { "medium", 16, 0.1e-3f,  1.0f / 32,  8,  8, 10, 0.1e-3f },
     { "high",   18, 0.02e-3f, 1.0f / 128, 10, 10, 12, 0.02e-3f },
 };
@@ -112,6 +112,10 @@ static inline uint32_t quant(struct qz z, float v)
 static inline int32_t resid(struct qz z, float v, float p)
 {
     double t = ((double)v - (double)p) / (double)z.step;
+    /* dead zone a hair wider than half a step: a reference value decoded on
+     * another frame's grid sits up to step/2 plus float rounding away */
+    if (fabs(t) <= 0.5005)
+        return 0;
     if (t > RMAX)
         return RMAX;
     if (t < -RMAX)
@@ -366,9 +370,15 @@ static struct qz fixed_qz(float lo, float hi, float step)
 {
     double ext = (double)hi - (double)lo;
     double st = step;
-    if (ext / st > QMAX)
-        st = ext / QMAX * (1 + 1e-6);
-    struct qz z = { lo, (float)st };
+    if (ext / st > QMAX - 2)
+        st = ext / (QMAX - 2) * (1 + 1e-6);
+    /* lo on the step's grid, so 0 (a static Gaussian's motion) decodes to
+     * exactly 0 and predictions from it do not drift */
+    float fs = (float)st;
+    float k = floorf((float)((double)lo / (double)fs));
+    struct qz z = { k * fs, fs };
+    if (z.lo > lo)
+        z.lo = (k - 1.0f) * fs;
     return z;
 }
 
