@@ -1,0 +1,541 @@
+/* test_codec.c - the stream codec: round trips per quality level with error
+ * bounds, predicted keys with dropped / new Gaussians, the container (joining
+ * mid-stream, a lost packet, corrupted CRC, truncation), refused input, no
+ * allocation per frame, SPZ. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <zlib.h>
+
+#include "f4d_test.h"
+#include "f4d_codec.h"
+#include "scene.h"
+
+/* ---- allocation counter (malloc wrapped at link time) ---- */
+void *__real_malloc(size_t n);
+void *__real_calloc(size_t a, size_t b);
+void *__real_realloc(void *p, size_t n);
+static int g_count_allocs;
+static long g_allocs;
+void *__wrap_malloc(size_t n);
+void *__wrap_calloc(size_t a, size_t b);
+void *__wrap_realloc(void *p, size_t n);
+void *__wrap_malloc(size_t n) { if (g_count_allocs) g_allocs++; return __real_malloc(n); }
+void *__wrap_calloc(size_t a, size_t b) { if (g_count_allocs) g_allocs++; return __real_calloc(a, b); }
+void *__wrap_realloc(void *p, size_t n) { if (g_count_allocs) g_allocs++; return __real_realloc(p, n); }
+
+#define N_G 4000
+#define CAP 8192
+
+static void make_key(scene *s, int k, double dt, struct splat_frame *f)
+{
+    assert_int_equal(scene_eval(s, k * dt, dt, f, NULL), 0);
+}
+
+static scene *walk(void)
+{
+    scene *s;
+    assert_int_equal(scene_new(SCENE_WALK, 3, N_G, &s, NULL), 0);
+    return s;
+}
+
+/* Every value of b within the level's bounds of a (same Gaussian order). */
+static void check_bounds(const struct splat_frame *a, const struct splat_frame *b, enum codec_quality q)
+{
+    const struct codec_quality_info *qi = codec_quality_get(q);
+    assert_int_equal(a->count, b->count);
+    float rgb_lo[3] = { 1e9f, 1e9f, 1e9f }, rgb_hi[3] = { -1e9f, -1e9f, -1e9f };
+    for (size_t i = 0; i < a->count; i++)
+        for (int c = 0; c < 3; c++) {
+            rgb_lo[c] = fminf(rgb_lo[c], a->rgb[3 * i + c]);
+            rgb_hi[c] = fmaxf(rgb_hi[c], a->rgb[3 * i + c]);
+        }
+    double ep = 0, el = 0, eo = 0, er = 0, eq = 0, em = 0;
+    for (size_t i = 0; i < a->count; i++) {
+        for (int c = 0; c < 3; c++) {
+            ep = fmax(ep, fabs(a->pos[3 * i + c] - b->pos[3 * i + c]));
+            el = fmax(el, fabs(log(fmax(a->scale[3 * i + c], 1e-7)) - log(b->scale[3 * i + c])));
+            er = fmax(er, fabs(a->rgb[3 * i + c] - b->rgb[3 * i + c]) /
+                              ((rgb_hi[c] - rgb_lo[c]) / ((1 << qi->rgb_bits) - 1)));
+            if (a->motion_fwd) {
+                em = fmax(em, fabs(a->motion_fwd[3 * i + c] - b->motion_fwd[3 * i + c]));
+                em = fmax(em, fabs(a->motion_bwd[3 * i + c] - b->motion_bwd[3 * i + c]));
+            }
+        }
+        eo = fmax(eo, fabs(a->opacity[i] - b->opacity[i]));
+        double dot = 0;
+        for (int c = 0; c < 4; c++)
+            dot += a->rot[4 * i + c] * b->rot[4 * i + c];
+        eq = fmax(eq, 1.0 - fabs(dot));
+    }
+    double rs = 1.41421356 / ((1 << qi->rot_bits) - 1);
+    assert_true(ep <= qi->pos_step_max * 0.5 * 1.01 + 2e-6);
+    assert_true(el <= qi->log_scale_step * 0.5 + 1e-4);
+    assert_true(eo <= 0.5 / ((1 << qi->opacity_bits) - 1) + 1e-6);
+    assert_true(er <= 0.5 + 1e-3);
+    assert_true(em <= qi->motion_step * 0.5 * 1.01 + 2e-6);
+    assert_true(eq <= 2.0 * rs * rs + 1e-6); /* 1 - cos(angle) for component error <= step */
+}
+
+static void same_frame(const struct splat_frame *a, const struct splat_frame *b)
+{
+    assert_int_equal(a->count, b->count);
+    size_t n = a->count;
+    assert_memory_equal(a->pos, b->pos, 3 * n * sizeof(float));
+    assert_memory_equal(a->scale, b->scale, 3 * n * sizeof(float));
+    assert_memory_equal(a->rot, b->rot, 4 * n * sizeof(float));
+    assert_memory_equal(a->opacity, b->opacity, n * sizeof(float));
+    assert_memory_equal(a->rgb, b->rgb, 3 * n * sizeof(float));
+    assert_int_equal(!!a->motion_fwd, !!b->motion_fwd);
+    if (a->motion_fwd) {
+        assert_memory_equal(a->motion_fwd, b->motion_fwd, 3 * n * sizeof(float));
+        assert_memory_equal(a->motion_bwd, b->motion_bwd, 3 * n * sizeof(float));
+    }
+}
+
+struct rig {
+    codec_enc *e;
+    codec_dec *d;
+    uint8_t *buf;
+    size_t cap;
+};
+
+static void rig_open(struct rig *r, enum codec_quality q)
+{
+    struct f4d_err err = { 0 };
+    assert_int_equal(codec_enc_new(CAP, q, &r->e, &err), 0);
+    assert_int_equal(codec_dec_new(CAP, &r->d, &err), 0);
+    r->cap = codec_packet_bound(CAP);
+    r->buf = malloc(r->cap);
+    assert_non_null(r->buf);
+}
+
+static void rig_close(struct rig *r)
+{
+    codec_enc_free(r->e);
+    codec_dec_free(r->d);
+    free(r->buf);
+}
+
+/* Encodes, parses and decodes one key; returns the packet size. */
+static size_t pass(struct rig *r, const struct splat_frame *f, enum codec_key_mode m, const int32_t *match)
+{
+    size_t n;
+    struct codec_packet p;
+    int rc = codec_enc_key(r->e, f, 0, m, match, r->buf, r->cap, &n);
+    if (rc)
+        fprintf(stderr, "%s\n", codec_enc_error(r->e));
+    assert_int_equal(rc, 0);
+    assert_int_equal(codec_packet_parse(r->buf, n, &p, NULL), 0);
+    rc = codec_dec_packet(r->d, &p);
+    if (rc != 1)
+        fprintf(stderr, "%s\n", codec_dec_error(r->d));
+    assert_int_equal(rc, 1);
+    same_frame(codec_enc_recon(r->e), codec_dec_frame(r->d));
+    return n;
+}
+
+static void test_intra_round_trip_per_level(void **state)
+{
+    scene *s = walk();
+    struct splat_frame f = { 0 };
+    make_key(s, 3, 0.1, &f);
+    size_t prev = 0;
+    for (int q = 0; q < CODEC_QUALITY_COUNT; q++) {
+        struct rig r;
+        rig_open(&r, (enum codec_quality)q);
+        size_t n = pass(&r, &f, CODEC_KEY_INTRA, NULL);
+        check_bounds(&f, codec_dec_frame(r.d), (enum codec_quality)q);
+        assert_true(n > prev); /* higher quality costs more */
+        prev = n;
+        rig_close(&r);
+    }
+    splat_frame_free(&f);
+    scene_free(s);
+}
+
+static void test_predicted_keys(void **state)
+{
+    scene *s = walk();
+    struct splat_frame f = { 0 };
+    struct rig r;
+    rig_open(&r, CODEC_Q_MEDIUM);
+    size_t intra = 0;
+    for (int k = 0; k < 4; k++) {
+        make_key(s, k, 0.1, &f);
+        size_t n = pass(&r, &f, CODEC_KEY_AUTO, NULL);
+        const struct codec_enc_stats *st = codec_enc_last(r.e);
+        check_bounds(&f, codec_dec_frame(r.d), CODEC_Q_MEDIUM);
+        if (k == 0) {
+            intra = n;
+            assert_true(st->intra);
+        } else {
+            assert_false(st->intra);
+            assert_true(n < intra);
+            assert_true(st->unchanged > 0); /* the floor does not move */
+            assert_int_equal(st->unchanged + st->changed, f.count);
+        }
+    }
+    assert_int_equal(codec_dec_stats(r.d)->predicted, 3);
+    rig_close(&r);
+    splat_frame_free(&f);
+    scene_free(s);
+}
+
+static void test_predicted_dropped_and_new(void **state)
+{
+    scene *s = walk();
+    struct splat_frame a = { 0 }, b = { 0 }, c = { 0 };
+    struct rig r;
+    rig_open(&r, CODEC_Q_HIGH);
+    make_key(s, 0, 0.1, &a);
+    pass(&r, &a, CODEC_KEY_AUTO, NULL);
+    make_key(s, 1, 0.1, &b);
+    /* c: every 7th Gaussian of b dropped, 100 new ones appended, one moved far */
+    size_t n = 0, extra = 100;
+    int32_t *match = malloc((b.count + extra) * sizeof *match);
+    assert_int_equal(splat_frame_resize(&c, b.count + extra, 1, NULL), 0);
+    for (size_t i = 0; i < b.count; i++) {
+        if (i % 7 == 3)
+            continue;
+        memcpy(c.pos + 3 * n, b.pos + 3 * i, 12);
+        memcpy(c.scale + 3 * n, b.scale + 3 * i, 12);
+        memcpy(c.rot + 4 * n, b.rot + 4 * i, 16);
+        memcpy(c.rgb + 3 * n, b.rgb + 3 * i, 12);
+        memcpy(c.motion_bwd + 3 * n, b.motion_bwd + 3 * i, 12);
+        memcpy(c.motion_fwd + 3 * n, b.motion_fwd + 3 * i, 12);
+        c.opacity[n] = b.opacity[i];
+        match[n++] = (int32_t)i;
+    }
+    for (size_t k = 0; k < extra; k++, n++) {
+        c.pos[3 * n] = 0.01f * (float)k;
+        c.pos[3 * n + 1] = 0.5f;
+        c.pos[3 * n + 2] = 1.0f;
+        c.scale[3 * n] = c.scale[3 * n + 1] = c.scale[3 * n + 2] = 0.01f;
+        c.opacity[n] = 0.5f;
+        c.rgb[3 * n] = 1.0f;
+        match[n] = -1;
+    }
+    c.count = n;
+    c.pos[0] += 0.3f;
+    pass(&r, &c, CODEC_KEY_AUTO, match);
+    const struct codec_enc_stats *st = codec_enc_last(r.e);
+    assert_int_equal(st->fresh, extra);
+    assert_int_equal(st->dropped, (b.count + 3) / 7);
+    check_bounds(&c, codec_dec_frame(r.d), CODEC_Q_HIGH);
+    /* identity correspondence with a shrinking then growing count */
+    c.count = n - extra - 50;
+    pass(&r, &c, CODEC_KEY_AUTO, NULL);
+    check_bounds(&c, codec_dec_frame(r.d), CODEC_Q_HIGH);
+    c.count = n;
+    pass(&r, &c, CODEC_KEY_AUTO, NULL);
+    assert_int_equal(codec_enc_last(r.e)->fresh, extra + 50);
+    check_bounds(&c, codec_dec_frame(r.d), CODEC_Q_HIGH);
+    /* a bad match is refused by the encoder */
+    size_t len;
+    match[0] = (int32_t)c.count + 100000;
+    assert_int_equal(codec_enc_key(r.e, &c, 0, CODEC_KEY_AUTO, match, r.buf, r.cap, &len), F4D_EINVAL);
+    free(match);
+    rig_close(&r);
+    splat_frame_free(&a);
+    splat_frame_free(&b);
+    splat_frame_free(&c);
+    scene_free(s);
+}
+
+/* A stream: header, I P P I P P, end; packets kept with their offsets. */
+struct stream {
+    uint8_t *bytes;
+    size_t len, off[16], n;
+};
+
+static void make_stream(struct stream *st, scene *s)
+{
+    codec_enc *e;
+    assert_int_equal(codec_enc_new(CAP, CODEC_Q_MEDIUM, &e, NULL), 0);
+    size_t cap = codec_packet_bound(CAP), l;
+    st->bytes = malloc(16 * cap);
+    st->len = st->n = 0;
+    struct splat_frame f = { 0 };
+    assert_int_equal(codec_enc_stream_header(e, 0, st->bytes, cap, &l), 0);
+    st->off[st->n++] = 0;
+    st->len = l;
+    for (int k = 0; k < 6; k++) {
+        make_key(s, k, 0.1, &f);
+        st->off[st->n++] = st->len;
+        assert_int_equal(codec_enc_key(e, &f, (uint64_t)k * 100000, k % 3 == 0 ? CODEC_KEY_INTRA : CODEC_KEY_AUTO,
+                                       NULL, st->bytes + st->len, cap, &l), 0);
+        st->len += l;
+    }
+    st->off[st->n++] = st->len;
+    assert_int_equal(codec_enc_end(e, 600000, st->bytes + st->len, cap, &l), 0);
+    st->len += l;
+    st->off[st->n] = st->len;
+    splat_frame_free(&f);
+    codec_enc_free(e);
+}
+
+/* Feeds packets [from, to) except `lose`; returns frames decoded. */
+static int feed(codec_dec *d, const struct stream *st, size_t from, size_t to, size_t lose)
+{
+    int frames = 0;
+    for (size_t i = from; i < to; i++) {
+        if (i == lose)
+            continue;
+        struct codec_packet p;
+        assert_int_equal(codec_packet_parse(st->bytes + st->off[i], st->off[i + 1] - st->off[i], &p, NULL), 0);
+        int rc = codec_dec_packet(d, &p);
+        assert_true(rc >= 0);
+        frames += rc;
+    }
+    return frames;
+}
+
+static void test_join_mid_stream(void **state)
+{
+    scene *s = walk();
+    struct stream st;
+    make_stream(&st, s);
+    codec_dec *d;
+    assert_int_equal(codec_dec_new(CAP, &d, NULL), 0);
+    /* packets: 0 header, 1 I, 2 P, 3 P, 4 I, 5 P, 6 P, 7 end: join at 2 */
+    assert_int_equal(feed(d, &st, 2, 8, 99), 3);
+    assert_int_equal(codec_dec_stats(d)->skipped, 2);
+    assert_int_equal(codec_dec_stats(d)->intra, 1);
+    assert_int_equal(codec_dec_time(d), 500000);
+    codec_dec_free(d);
+    free(st.bytes);
+    scene_free(s);
+}
+
+static void test_lost_packet(void **state)
+{
+    scene *s = walk();
+    struct stream st;
+    make_stream(&st, s);
+    codec_dec *d;
+    assert_int_equal(codec_dec_new(CAP, &d, NULL), 0);
+    assert_int_equal(feed(d, &st, 0, 8, 2), 4); /* lose the first P: the second is skipped */
+    const struct codec_dec_stats *ds = codec_dec_stats(d);
+    assert_int_equal(ds->lost, 1);
+    assert_int_equal(ds->skipped, 1);
+    assert_int_equal(ds->intra, 2);
+    assert_int_equal(ds->predicted, 2);
+    codec_dec_free(d);
+    free(st.bytes);
+    scene_free(s);
+}
+
+static void test_corrupt_and_truncated(void **state)
+{
+    scene *s = walk();
+    struct stream st;
+    make_stream(&st, s);
+    struct codec_packet p;
+    struct f4d_err err = { 0 };
+    size_t o = st.off[1], n = st.off[2] - st.off[1];
+    /* CRC: one flipped payload bit */
+    st.bytes[o + 100] ^= 0x10;
+    assert_int_equal(codec_packet_parse(st.bytes + o, n, &p, &err), F4D_ECORRUPT);
+    assert_non_null(strstr(err.msg, "CRC"));
+    st.bytes[o + 100] ^= 0x10;
+    /* truncation: every shorter prefix asks for more */
+    assert_int_equal(codec_packet_parse(st.bytes + o, n - 1, &p, NULL), F4D_EEOF);
+    assert_int_equal(codec_packet_parse(st.bytes + o, 10, &p, NULL), F4D_EEOF);
+    /* resync from inside a packet finds the next one */
+    size_t at = 5 + codec_packet_resync(st.bytes + o + 5, st.len - o - 5);
+    assert_true(at <= n + 5);
+    /* a payload truncated under a valid CRC is refused by the decoder */
+    codec_dec *d;
+    assert_int_equal(codec_dec_new(CAP, &d, NULL), 0);
+    uint8_t *cut = malloc(n);
+    size_t cn, plen = n - CODEC_PACKET_HEADER;
+    for (size_t keep = 0; keep < plen; keep += plen / 13 + 1) {
+        assert_int_equal(codec_packet_write(cut, n, CODEC_PKT_INTRA, 1, 1, 0, st.bytes + o + CODEC_PACKET_HEADER,
+                                            keep, &cn, NULL), 0);
+        assert_int_equal(codec_packet_parse(cut, cn, &p, NULL), 0);
+        assert_true(codec_dec_packet(d, &p) < 0);
+        assert_null(codec_dec_frame(d));
+    }
+    assert_true(codec_dec_stats(d)->refused > 0);
+    /* wrong magic / version / type */
+    memcpy(cut, st.bytes + o, CODEC_PACKET_HEADER);
+    cut[4] = 9;
+    assert_int_equal(codec_packet_parse(cut, CODEC_PACKET_HEADER, &p, NULL), F4D_EFORMAT);
+    free(cut);
+    codec_dec_free(d);
+    free(st.bytes);
+    scene_free(s);
+}
+
+static void test_non_finite_refused(void **state)
+{
+    scene *s = walk();
+    struct splat_frame f = { 0 };
+    struct rig r;
+    rig_open(&r, CODEC_Q_LOW);
+    make_key(s, 0, 0.1, &f);
+    size_t n;
+    f.pos[3 * 17 + 1] = NAN;
+    assert_int_equal(codec_enc_key(r.e, &f, 0, CODEC_KEY_AUTO, NULL, r.buf, r.cap, &n), F4D_EINVAL);
+    assert_non_null(strstr(codec_enc_error(r.e), "Gaussian 17"));
+    f.pos[3 * 17 + 1] = 0.0f;
+    f.motion_fwd[5] = INFINITY;
+    assert_int_equal(codec_enc_key(r.e, &f, 0, CODEC_KEY_AUTO, NULL, r.buf, r.cap, &n), F4D_EINVAL);
+    f.motion_fwd[5] = 0.0f;
+    /* a quantizer made non-finite in the payload is refused by the decoder */
+    assert_int_equal(codec_enc_key(r.e, &f, 0, CODEC_KEY_AUTO, NULL, r.buf, r.cap, &n), 0);
+    float inf = INFINITY;
+    memcpy(r.buf + CODEC_PACKET_HEADER + 20 + 4, &inf, 4);
+    size_t m;
+    struct codec_packet p;
+    assert_int_equal(codec_packet_write(r.buf, r.cap, CODEC_PKT_INTRA, 0, 0, 0, r.buf + CODEC_PACKET_HEADER,
+                                        n - CODEC_PACKET_HEADER, &m, NULL), 0);
+    assert_int_equal(codec_packet_parse(r.buf, m, &p, NULL), 0);
+    assert_int_equal(codec_dec_packet(r.d, &p), F4D_EFORMAT);
+    rig_close(&r);
+    splat_frame_free(&f);
+    scene_free(s);
+}
+
+static void test_empty_frames(void **state)
+{
+    struct rig r;
+    rig_open(&r, CODEC_Q_MEDIUM);
+    struct splat_frame f = { 0 };
+    pass(&r, &f, CODEC_KEY_AUTO, NULL);
+    pass(&r, &f, CODEC_KEY_AUTO, NULL);
+    assert_int_equal(codec_dec_frame(r.d)->count, 0);
+    rig_close(&r);
+}
+
+static void test_huge_counts_refused(void **state)
+{
+    codec_enc *e;
+    codec_dec *d;
+    assert_int_equal(codec_enc_new(CODEC_CAPACITY_MAX + 1, CODEC_Q_LOW, &e, NULL), F4D_ERANGE);
+    assert_int_equal(codec_dec_new(CODEC_CAPACITY_MAX + 1, &d, NULL), F4D_ERANGE);
+    struct rig r;
+    rig_open(&r, CODEC_Q_LOW);
+    struct splat_frame f = { 0 };
+    assert_int_equal(splat_frame_resize(&f, CAP + 1, 0, NULL), 0);
+    size_t n;
+    assert_int_equal(codec_enc_key(r.e, &f, 0, CODEC_KEY_AUTO, NULL, r.buf, r.cap, &n), F4D_ERANGE);
+    /* a header claiming 2^32 - 1 Gaussians */
+    f.count = 10;
+    assert_int_equal(codec_enc_key(r.e, &f, 0, CODEC_KEY_AUTO, NULL, r.buf, r.cap, &n), 0);
+    memset(r.buf + CODEC_PACKET_HEADER + 4, 0xff, 4);
+    struct codec_packet p;
+    assert_int_equal(codec_packet_write(r.buf, r.cap, CODEC_PKT_INTRA, 0, 0, 0, r.buf + CODEC_PACKET_HEADER,
+                                        n - CODEC_PACKET_HEADER, &n, NULL), 0);
+    assert_int_equal(codec_packet_parse(r.buf, n, &p, NULL), 0);
+    assert_int_equal(codec_dec_packet(r.d, &p), F4D_ERANGE);
+    /* a packet length over the limit */
+    uint8_t h[CODEC_PACKET_HEADER] = { 0x46, 0x34, 0x44, 0x50, 1, 2 };
+    h[27] = 0xff;
+    assert_int_equal(codec_packet_parse(h, sizeof h, &p, NULL), F4D_EFORMAT);
+    rig_close(&r);
+    splat_frame_free(&f);
+}
+
+static void test_no_allocation_per_frame(void **state)
+{
+    scene *s = walk();
+    struct splat_frame f[4] = { { 0 } };
+    for (int k = 0; k < 4; k++)
+        make_key(s, k, 0.1, &f[k]);
+    struct rig r;
+    rig_open(&r, CODEC_Q_MEDIUM);
+    g_allocs = 0;
+    g_count_allocs = 1;
+    for (int k = 0; k < 4; k++)
+        pass(&r, &f[k], k == 2 ? CODEC_KEY_INTRA : CODEC_KEY_AUTO, NULL);
+    g_count_allocs = 0;
+    assert_int_equal(g_allocs, 0);
+    rig_close(&r);
+    for (int k = 0; k < 4; k++)
+        splat_frame_free(&f[k]);
+    scene_free(s);
+}
+
+static void test_spz_round_trip(void **state)
+{
+    scene *s = walk();
+    struct splat_frame f = { 0 }, g = { 0 };
+    make_key(s, 2, 0.1, &f);
+    uint8_t *z;
+    size_t zn;
+    assert_int_equal(codec_spz_encode(&f, &z, &zn, NULL), 0);
+    /* the header, byte for byte, after gunzip */
+    uint8_t raw[16];
+    z_stream zs;
+    memset(&zs, 0, sizeof zs);
+    assert_int_equal(inflateInit2(&zs, 15 + 16), Z_OK);
+    zs.next_in = z;
+    zs.avail_in = (uInt)zn;
+    zs.next_out = raw;
+    zs.avail_out = sizeof raw;
+    inflate(&zs, Z_SYNC_FLUSH);
+    inflateEnd(&zs);
+    assert_int_equal(zs.total_out, 16);
+    uint32_t n = (uint32_t)f.count;
+    const uint8_t want[16] = { 0x4e, 0x47, 0x53, 0x50, 3, 0, 0, 0, (uint8_t)n, (uint8_t)(n >> 8),
+                               (uint8_t)(n >> 16), (uint8_t)(n >> 24), 0, 12, 0, 0 };
+    assert_memory_equal(raw, want, 16);
+    assert_int_equal(z[0], 0x1f);
+    assert_int_equal(z[1], 0x8b);
+    assert_int_equal(codec_spz_decode(z, zn, &g, NULL), 0);
+    assert_int_equal(g.count, f.count);
+    double ep = 0, el = 0, eo = 0, ec = 0, eq = 0;
+    for (size_t i = 0; i < f.count; i++) {
+        for (int c = 0; c < 3; c++) {
+            ep = fmax(ep, fabs(f.pos[3 * i + c] - g.pos[3 * i + c]));
+            double ls = log(f.scale[3 * i + c]);
+            if (ls > -10 && ls < 5.9)
+                el = fmax(el, fabs(ls - log(g.scale[3 * i + c])));
+            double fdc = (f.rgb[3 * i + c] - 0.5) / SPLAT_SH_C0;
+            if (fabs(fdc * 0.15 * 255) < 127)
+                ec = fmax(ec, fabs(f.rgb[3 * i + c] - g.rgb[3 * i + c]));
+        }
+        eo = fmax(eo, fabs(f.opacity[i] - g.opacity[i]));
+        double dot = 0;
+        for (int c = 0; c < 4; c++)
+            dot += f.rot[4 * i + c] * g.rot[4 * i + c];
+        eq = fmax(eq, 1 - fabs(dot));
+    }
+    assert_true(ep <= 0.5 / 4096 + 1e-6);
+    assert_true(el <= 0.5 / 16 + 1e-4);
+    assert_true(eo <= 0.5 / 255 + 1e-6);
+    assert_true(ec <= 0.5 / 255 / 0.15 * SPLAT_SH_C0 + 1e-5);
+    assert_true(eq < 1e-4);
+    /* corrupt input: truncated gzip, wrong magic, v4 */
+    assert_true(codec_spz_decode(z, zn / 2, &g, NULL) < 0);
+    uint8_t v4[32] = { 0x4e, 0x47, 0x53, 0x50, 4 };
+    struct f4d_err err = { 0 };
+    assert_int_equal(codec_spz_decode(v4, sizeof v4, &g, &err), F4D_ENOTSUP);
+    assert_int_equal(codec_spz_read("/nonexistent/x.spz", &g, &err), F4D_EIO);
+    assert_non_null(strstr(err.msg, "/nonexistent/x.spz"));
+    free(z);
+    splat_frame_free(&f);
+    splat_frame_free(&g);
+    scene_free(s);
+}
+
+int main(int argc, char **argv)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_intra_round_trip_per_level),
+        cmocka_unit_test(test_predicted_keys),
+        cmocka_unit_test(test_predicted_dropped_and_new),
+        cmocka_unit_test(test_join_mid_stream),
+        cmocka_unit_test(test_lost_packet),
+        cmocka_unit_test(test_corrupt_and_truncated),
+        cmocka_unit_test(test_non_finite_refused),
+        cmocka_unit_test(test_empty_frames),
+        cmocka_unit_test(test_huge_counts_refused),
+        cmocka_unit_test(test_no_allocation_per_frame),
+        cmocka_unit_test(test_spz_round_trip),
+    };
+    return F4D_TEST_MAIN(argc, argv, "stream", tests, NULL, NULL);
+}
