@@ -13,6 +13,11 @@
  *             y = acc * (sx * sw[n]) + b[n]. The optimized paths are bit-exact
  *             with the reference before the activation. k <= 65536 keeps the
  *             int32 sum exact; longer rows are F4D_ERANGE.
+ *             On CPUs without VNNI (FK_Q8_7BIT, see fk_ctx_config.q8_bits)
+ *             the weights are packed as 7-bit codes (W ~= scale[n] * q,
+ *             q in [-63, 63]; from int8 files q7 = round(q8 * 63 / 127)) so
+ *             that vpmaddubsw's int16 pair sums cannot saturate; the
+ *             reference run with the same q8_bits is bit-exact with it.
  * Non-finite values in a row of x make that output row non-finite (all
  * precisions), never a crash.
  *
@@ -68,6 +73,7 @@ struct fk_linear {
     int32_t      *colsum;    /* FK_W_Q8, VNNI: sum_k q[n][k] * 128 */
     float        *bias;      /* [n], zeros when none was given     */
     size_t        bytes;     /* memory held by this layer          */
+    int           q8_bits;   /* FK_W_Q8: 8, or 7 (codes in [-63, 63]) */
 };
 
 /* Pack from fp32 weights into `as` (quantizing for FK_W_Q8, rounding for

@@ -20,6 +20,9 @@ struct fk_arena {
 struct fk_ctx {
     enum fk_isa      isa;
     int              threads;
+    int              q8_bits;    /* 7 or 8: int8 weight codes packed       */
+    struct fk_cache_info  caches;
+    struct fk_gemm_blocks blocks; /* resolved: model, then overrides       */
     int              frozen;
     struct fk_pool  *pool;       /* NULL when threads == 1           */
     struct fk_arena *local;      /* [threads] per-thread scratch      */

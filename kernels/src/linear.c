@@ -9,7 +9,8 @@
 #include "fk_internal.h"
 #include "gemm.h"
 
-float fk_quantize_row_q8(const float *w, int k, int8_t *q)
+/* Symmetric quantization of a row to codes in [-qmax, qmax]. */
+static float quantize_row_qmax(const float *w, int k, int8_t *q, int qmax)
 {
     float amax = 0, poison = 0;
     if (k <= 0)
@@ -24,12 +25,17 @@ float fk_quantize_row_q8(const float *w, int k, int8_t *q)
         memset(q, 0, (size_t)k);
         return amax == 0 && poison == 0 ? 0.0f : NAN;
     }
-    float inv = 127.0f / amax;
+    float fq = (float)qmax, inv = fq / amax;
     for (int i = 0; i < k; i++) {
         float r = nearbyintf(w[i] * inv);
-        q[i] = (int8_t)(r > 127 ? 127 : r < -127 ? -127 : r);
+        q[i] = (int8_t)(r > fq ? fq : r < -fq ? -fq : r);
     }
-    return amax / 127.0f;
+    return amax / fq;
+}
+
+float fk_quantize_row_q8(const float *w, int k, int8_t *q)
+{
+    return quantize_row_qmax(w, k, q, 127);
 }
 
 /* ---------------------------------------------------------------- packing */
@@ -47,6 +53,7 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
                        k, FK_Q8_K_MAX);
     L->type = as;
     L->isa = ctx->isa;
+    L->q8_bits = as == FK_W_Q8 ? ctx->q8_bits : 0;
     L->n = n;
     L->k = k;
     int simd = fk__isa_avx2(ctx->isa);
@@ -137,7 +144,7 @@ static int pack_rows(fk_ctx *ctx, struct fk_linear *L, const float *wf, const fk
                     wh ? wh[(size_t)j * (size_t)L->k + (size_t)i] : fk_f32_to_f16_ref(src[i]);
             break;
         case FK_W_Q8: {
-            float s = fk_quantize_row_q8(src, L->k, q);
+            float s = quantize_row_qmax(src, L->k, q, L->q8_bits == FK_Q8_7BIT ? 63 : 127);
             if (isnan(s)) {
                 free(q);
                 free(row);
@@ -195,7 +202,21 @@ int fk_linear_pack_q8(fk_ctx *ctx, struct fk_linear *L, const int8_t *q, const f
                 return FK_FAIL(ctx, F4D_EINVAL,
                                "weight [%d, %d] is -128: symmetric int8 uses [-127, 127]", j, i);
             }
-        finish_q8(L, j, r, scale[j]);
+        if (L->q8_bits == FK_Q8_7BIT) {
+            /* the file stays 8-bit; the 7-bit kernels get q7 = round(q8 * 63 / 127),
+             * which never ties (127 is prime), with the scale widened to match */
+            int8_t *q7 = malloc((size_t)k);
+            if (!q7) {
+                fk_linear_free(L);
+                return FK_FAIL(ctx, F4D_ENOMEM, "cannot allocate a %d-wide row", k);
+            }
+            for (int i = 0; i < k; i++)
+                q7[i] = (int8_t)nearbyintf((float)r[i] * 63.0f / 127.0f);
+            finish_q8(L, j, q7, scale[j] * (127.0f / 63.0f));
+            free(q7);
+        } else {
+            finish_q8(L, j, r, scale[j]);
+        }
     }
     return F4D_OK;
 }

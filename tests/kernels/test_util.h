@@ -22,6 +22,8 @@ void     rng_fill_normal(struct rng *r, float *x, size_t n, float std);
 /* Optimized ISAs this CPU supports (REF excluded); returns the count. */
 int      test_isas(enum fk_isa out[4]);
 fk_ctx  *test_ctx(enum fk_isa isa, int threads);   /* asserts success */
+/* ... with the int8 weight codes forced (FK_Q8_7BIT / FK_Q8_8BIT) */
+fk_ctx  *test_ctx_q8(enum fk_isa isa, int threads, enum fk_q8_bits bits);
 
 /* max |a-b| / (atol + rtol*|b|) over n values: <= 1 means within budget.
  * NaN in exactly one of a, b counts as out of budget. */
