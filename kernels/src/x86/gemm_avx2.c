@@ -607,9 +607,18 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     }
     j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
     j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
+    /* The C tile (mc x nc of fp32 / int32) is bounded by the L2 size: the nc
+     * of the model then shrinks to even chunks (A is packed once per chunk). */
+    size_t mcp = fk__round_up((size_t)mc, MR);
+    size_t l2 = ctx->caches.l2 ? ctx->caches.l2 : 512 * 1024;
+    int cap = (int)(l2 / (mcp * NR * 4));
+    cap = cap < 4 ? 4 : cap;
+    if (j.nc_panels > cap) {
+        int chunks = (j.panels_per_chunk + cap - 1) / cap;
+        j.nc_panels = (j.panels_per_chunk + chunks - 1) / chunks;
+    }
     int np = j.nc_panels < j.panels_per_chunk ? j.nc_panels : j.panels_per_chunk;
 
-    size_t mcp = fk__round_up((size_t)mc, MR);
     int kcb = k < j.kc ? k : j.kc; /* fp32 block width */
     size_t a_bytes = q8 ? mcp * (size_t)j.k_pad * (j.path == Q8_EXACT16 ? 2 : 1)
                         : mcp * (size_t)kcb * 4 + 8 * sizeof(float); /* + transpose spill */
