@@ -40,6 +40,9 @@ enum fk_isa {
     FK_ISA_AVX2      = 2, /* x86-64 AVX2 + FMA + F16C                           */
     FK_ISA_AVX2_VNNI = 3, /* AVX2 plus AVX-VNNI (VEX vpdpbusd) for int8 GEMM     */
     FK_ISA_NEON      = 4, /* AArch64 NEON: the seam for ARM boards (no kernels yet) */
+    FK_ISA_AVX512    = 5, /* AVX2_VNNI's set plus AVX-512 F/BW/VL/VNNI: 6x32 zmm
+                           * GEMM tiles (same packed layouts); forced only for
+                           * now, FK_ISA_AUTO does not pick it (see ctx.c)    */
 };
 
 /* CPU feature bits reported by fk_cpu_features(). */
@@ -49,6 +52,7 @@ enum {
     FK_CPU_F16C     = 1u << 2,
     FK_CPU_AVX_VNNI = 1u << 3,
     FK_CPU_NEON     = 1u << 4,
+    FK_CPU_AVX512   = 1u << 5, /* F + BW + VL + VNNI, ZMM state enabled by the OS */
 };
 
 /* Data caches as read at context creation (cpuid leaf 4 on Intel, 0x8000001D

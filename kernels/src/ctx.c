@@ -33,6 +33,10 @@ static unsigned detect_x86(void)
     if (__get_cpuid_max(0, NULL) >= 7) {
         __cpuid_count(7, 0, a, b, c, d);
         if ((b >> 5) & 1) f |= FK_CPU_AVX2;
+        /* F (b16), BW (b30), VL (b31), VNNI (c11); opmask and ZMM state saved */
+        if (((b >> 16) & 1) && ((b >> 30) & 1) && ((b >> 31) & 1) && ((c >> 11) & 1) &&
+            (xgetbv0() & 0xe6) == 0xe6)
+            f |= FK_CPU_AVX512;
         __cpuid_count(7, 1, a, b, c, d);
         if ((a >> 4) & 1) f |= FK_CPU_AVX_VNNI;
     }
@@ -272,6 +276,7 @@ int fk_isa_supported(enum fk_isa isa)
     case FK_ISA_REF:       return 1;
     case FK_ISA_AVX2:      return (f & avx2) == avx2;
     case FK_ISA_AVX2_VNNI: return (f & (avx2 | FK_CPU_AVX_VNNI)) == (avx2 | FK_CPU_AVX_VNNI);
+    case FK_ISA_AVX512:    return (f & (avx2 | FK_CPU_AVX512)) == (avx2 | FK_CPU_AVX512);
     /* NEON is the seam for ARM boards: the dispatch points exist, the kernels
      * do not yet, so it is never reported as usable. */
     case FK_ISA_NEON:      return 0;
@@ -279,7 +284,9 @@ int fk_isa_supported(enum fk_isa isa)
     }
 }
 
-/* ggml-style score: the best ISA this CPU can run. */
+/* ggml-style score: the best ISA this CPU can run. FK_ISA_AVX512 is not in
+ * the list yet: code outside kernels/ (the splat renderer) still tests for
+ * FK_ISA_AVX2 / FK_ISA_AVX2_VNNI by value and would fall back to scalar. */
 static enum fk_isa best_isa(void)
 {
     static const enum fk_isa order[] = { FK_ISA_AVX2_VNNI, FK_ISA_AVX2, FK_ISA_NEON };
@@ -289,7 +296,7 @@ static enum fk_isa best_isa(void)
     return FK_ISA_REF;
 }
 
-static const char *const isa_names[] = { "auto", "ref", "avx2", "avx2-vnni", "neon" };
+static const char *const isa_names[] = { "auto", "ref", "avx2", "avx2-vnni", "neon", "avx512" };
 
 const char *fk_isa_name(enum fk_isa isa)
 {
@@ -464,6 +471,7 @@ const char *fk_ctx_q8_path(const fk_ctx *ctx)
     int b7 = ctx->q8_bits == FK_Q8_7BIT;
     switch (ctx->isa) {
     case FK_ISA_AVX2_VNNI: return b7 ? "vnni-7bit" : "vnni-8bit";
+    case FK_ISA_AVX512:    return b7 ? "avx512-vnni-7bit" : "avx512-vnni-8bit";
     case FK_ISA_AVX2:      return b7 ? "avx2-7bit" : "avx2-8bit";
     default:               return b7 ? "ref-7bit" : "ref-8bit";
     }

@@ -41,7 +41,7 @@ void rng_fill_normal(struct rng *r, float *x, size_t n, float std)
 
 int test_isas(enum fk_isa out[4])
 {
-    static const enum fk_isa all[] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_NEON };
+    static const enum fk_isa all[] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_NEON, FK_ISA_AVX512 };
     int n = 0;
     for (size_t i = 0; i < sizeof all / sizeof all[0]; i++)
         if (fk_isa_supported(all[i]))

@@ -173,15 +173,15 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
     for (int threads = o->quick ? o->threads_max : 1; threads <= o->threads_max; threads++) {
         fk_ctx *ctx = make_ctx(o->isa, threads);
         /* --isa all: int8 also on each other optimized ISA (its own int8 path) */
-        fk_ctx *xctx[2] = { NULL, NULL };
+        fk_ctx *xctx[3] = { NULL, NULL, NULL };
         int n_x = 0;
-        static const enum fk_isa others[2] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI };
-        for (int i = 0; o->all_isas && i < 2; i++)
+        static const enum fk_isa others[3] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_AVX512 };
+        for (int i = 0; o->all_isas && i < 3; i++)
             if (others[i] != fk_ctx_isa(ctx) && fk_isa_supported(others[i]))
                 xctx[n_x++] = make_ctx(others[i], threads);
         double blas_gflops = NAN, blas_max = NAN, blas_mean = NAN;
-        static const enum fk_wtype types[] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
-        static const char *names[] = { "f32", "f16", "int8", "int8", "int8" };
+        static const enum fk_wtype types[] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
+        static const char *names[] = { "f32", "f16", "int8", "int8", "int8", "int8" };
         for (int t = 0; t < 3 + n_x; t++) {
             fk_ctx *c = t < 3 ? ctx : xctx[t - 3];
             struct fk_linear L;
@@ -388,7 +388,7 @@ static int parse(int argc, char **argv, struct opts *o)
             }
         } else {
             fprintf(stderr, "usage: f4d-bench kernels [--quick] [--reps N] [--threads N] "
-                            "[--isa auto|ref|avx2|avx2-vnni|all] [--only gemm|attention] [--openblas-native] [--json FILE]\n"
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--json FILE]\n"
                             "f4d-bench kernels: unexpected argument '%s'\n", a);
             return 2;
         }

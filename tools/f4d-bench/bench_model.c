@@ -249,7 +249,7 @@ int bench_model(int argc, char **argv)
         } else {
             fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
                             "[--size HxW] [--reps R] [--skip-full] [--tmp DIR] "
-                            "[--isa auto|ref|avx2|avx2-vnni|all]\n");
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n");
             return 2;
         }
     }
@@ -257,7 +257,7 @@ int bench_model(int argc, char **argv)
         fprintf(stderr, "f4d-bench model: bad --views/--size/--reps\n");
         return 2;
     }
-    fk_ctx *ctx, *xctx[2] = { NULL, NULL };
+    fk_ctx *ctx, *xctx[3] = { NULL, NULL, NULL };
     struct fk_ctx_config cc = { .isa = isa, .threads = threads };
     if (fk_ctx_new(&cc, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-bench model: cannot create the kernel context\n");
@@ -265,8 +265,8 @@ int bench_model(int argc, char **argv)
     }
     /* --isa all: int8 again on every other optimized ISA of this CPU */
     int n_x = 0;
-    static const enum fk_isa others[2] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI };
-    for (int i = 0; all_isas && i < 2; i++)
+    static const enum fk_isa others[3] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_AVX512 };
+    for (int i = 0; all_isas && i < 3; i++)
         if (others[i] != fk_ctx_isa(ctx) && fk_isa_supported(others[i])) {
             struct fk_ctx_config xc = { .isa = others[i], .threads = threads };
             if (fk_ctx_new(&xc, &xctx[n_x]) == F4D_OK)
@@ -345,17 +345,17 @@ int bench_model(int argc, char **argv)
             one.dpt_layer_idx[i] = 0;
         if (write_random(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
             goto done;
-        enum fk_wtype wts[5] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
-        fk_ctx *rctx[5] = { ctx, ctx, ctx, xctx[0], xctx[1] };
-        char wn[5][40];
+        enum fk_wtype wts[6] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
+        fk_ctx *rctx[6] = { ctx, ctx, ctx, xctx[0], xctx[1], xctx[2] };
+        char wn[6][40];
         int nrun = 3 + n_x;
         snprintf(wn[0], sizeof wn[0], "f32");
         snprintf(wn[1], sizeof wn[1], "f16");
         for (int p = 2; p < nrun; p++)
             snprintf(wn[p], sizeof wn[p], "int8 %s", fk_ctx_q8_path(rctx[p]));
-        struct result fr[5];
+        struct result fr[6];
         int ok = 1;
-        double peak_run[5];
+        double peak_run[6];
         for (int p = 0; p < nrun && ok; p++) {
             /* the machine may be shared: the peak is re-measured beside each run */
             peak_run[p] = bench_fma_peak_gflops(nthr, 3);

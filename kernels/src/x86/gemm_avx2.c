@@ -147,38 +147,39 @@ static inline int load_u32(const uint8_t *p)
  * int32 accumulation is exact for k <= 65536: |sum| <= 65536 * 255 * 63 <
  * 2^31. (8-bit weights would reach 2 * 255 * 127 = 64770 and saturate.)
  * test_linear's worst case (all activations 255, weights +-63) checks it. */
-__attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
-                                                  int accumulate)
+/* Rows [r0, r0 + R) of ukr_q7_avx2: R <= 4 keeps accumulators, weights,
+ * ones and the broadcast in 16 registers (six rows at once spilled). */
+static inline __attribute__((always_inline)) void
+q7_rows(int k4, const uint8_t *a, int r0, int R, const int8_t *b, int32_t *c, int accumulate)
 {
     const __m256i ones = _mm256_set1_epi16(1);
-    __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
-    __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
-    if (accumulate) {
-#define LD(i) _mm256_load_si256((const __m256i *)(c + 8 * (i)))
-        c00 = LD(0); c01 = LD(1); c10 = LD(2); c11 = LD(3); c20 = LD(4); c21 = LD(5);
-        c30 = LD(6); c31 = LD(7); c40 = LD(8); c41 = LD(9); c50 = LD(10); c51 = LD(11);
-#undef LD
-    }
+    __m256i acc[4][2];
+    for (int r = 0; r < R; r++)
+        for (int h = 0; h < 2; h++)
+            acc[r][h] = accumulate ? _mm256_load_si256((const __m256i *)(c + NR * (r0 + r) + 8 * h))
+                                   : _mm256_setzero_si256();
+    a += 4 * r0;
     for (int k = 0; k < k4; k++) {
         __m256i b0 = _mm256_load_si256((const __m256i *)b);
         __m256i b1 = _mm256_load_si256((const __m256i *)(b + 32));
-        __m256i t;
-#define ROW(r, lo, hi)                                                                     \
-    t = _mm256_set1_epi32(load_u32(a + 4 * (r)));                                          \
-    lo = _mm256_add_epi32(lo, _mm256_madd_epi16(_mm256_maddubs_epi16(t, b0), ones));       \
-    hi = _mm256_add_epi32(hi, _mm256_madd_epi16(_mm256_maddubs_epi16(t, b1), ones));
-        ROW(0, c00, c01) ROW(1, c10, c11) ROW(2, c20, c21)
-        ROW(3, c30, c31) ROW(4, c40, c41) ROW(5, c50, c51)
-#undef ROW
-        a += 24;
-        b += 64;
+        for (int r = 0; r < R; r++) {
+            __m256i t = _mm256_set1_epi32(load_u32(a + 4 * r));
+            acc[r][0] = _mm256_add_epi32(acc[r][0], _mm256_madd_epi16(_mm256_maddubs_epi16(t, b0), ones));
+            acc[r][1] = _mm256_add_epi32(acc[r][1], _mm256_madd_epi16(_mm256_maddubs_epi16(t, b1), ones));
+        }
+        a += 4 * MR;
+        b += 4 * NR;
     }
-    _mm256_store_si256((__m256i *)(c + 0), c00);  _mm256_store_si256((__m256i *)(c + 8), c01);
-    _mm256_store_si256((__m256i *)(c + 16), c10); _mm256_store_si256((__m256i *)(c + 24), c11);
-    _mm256_store_si256((__m256i *)(c + 32), c20); _mm256_store_si256((__m256i *)(c + 40), c21);
-    _mm256_store_si256((__m256i *)(c + 48), c30); _mm256_store_si256((__m256i *)(c + 56), c31);
-    _mm256_store_si256((__m256i *)(c + 64), c40); _mm256_store_si256((__m256i *)(c + 72), c41);
-    _mm256_store_si256((__m256i *)(c + 80), c50); _mm256_store_si256((__m256i *)(c + 88), c51);
+    for (int r = 0; r < R; r++)
+        for (int h = 0; h < 2; h++)
+            _mm256_store_si256((__m256i *)(c + NR * (r0 + r) + 8 * h), acc[r][h]);
+}
+
+__attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
+                                                  int accumulate)
+{
+    q7_rows(k4, a, 0, 4, b, c, accumulate);
+    q7_rows(k4, a, 4, 2, b, c, accumulate);
 }
 
 /* ----------------------------------------------------------------- packing */
@@ -398,6 +399,7 @@ struct gemm_job {
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
     int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct;
+    int    wide; /* AVX-512: two panels per micro-kernel call */
     size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero;
 };
 
@@ -446,35 +448,50 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
             kc = kc < KC ? kc : KC;
             if (!j->direct)
                 pack_a_f32(src, m0, rows, k0, kc, ap, (float *)(s + j->off_tmp), zeros);
-            for (int jp = jg; jp < jge; jp++) {
-                const float *bp;
-                if (f32) {
-                    bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
-                } else {
-                    /* fp16: widened once per sliver, used by every micro-panel */
-                    const uint16_t *h = (const uint16_t *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
-                    for (int e = 0; e < kc * NR; e += 8)
-                        _mm256_store_ps(bconv + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
-                    bp = bconv;
+            /* AVX-512: two panels per step (a 6x32 tile), the direct conv stays 6x16 */
+            int step = j->wide && !j->direct ? 2 : 1;
+            size_t esz = f32 ? 4 : 2, sliver_lines = (size_t)kc * NR * esz / 64;
+            for (int jp = jg; jp < jge; jp += step) {
+                int pair = step == 2 && jp + 1 < jge;
+                const float *bp, *bp1 = NULL;
+                for (int q = 0; q <= pair; q++) {
+                    const float *b;
+                    if (f32) {
+                        b = (const float *)L->data + ((size_t)(jp + q) * (size_t)k + (size_t)k0) * NR;
+                    } else {
+                        /* fp16: widened once per sliver, used by every micro-panel */
+                        const uint16_t *h = (const uint16_t *)L->data + ((size_t)(jp + q) * (size_t)k + (size_t)k0) * NR;
+                        float *d = bconv + (size_t)q * (size_t)kc * NR;
+                        for (int e = 0; e < kc * NR; e += 8)
+                            _mm256_store_ps(d + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
+                        b = d;
+                    }
+                    if (q)
+                        bp1 = b;
+                    else
+                        bp = b;
                 }
-                /* the next sliver (next panel, same k block) towards L1 while
-                 * this one is in use, a few lines per micro-panel */
-                const char *next = NULL;
-                size_t next_lines = 0, esz = f32 ? 4 : 2;
-                if (jp + 1 < jge) {
-                    next = (const char *)L->data + ((size_t)(jp + 1) * (size_t)k + (size_t)k0) * NR * esz;
-                    next_lines = (size_t)kc * NR * esz / 64;
-                }
+                /* the next sliver(s) (next panels, same k block) towards L1 while
+                 * these are in use, a few lines per micro-panel */
+                const char *next = NULL, *next1 = NULL;
+                int jn = jp + (pair ? 2 : 1);
+                if (jn < jge)
+                    next = (const char *)L->data + ((size_t)jn * (size_t)k + (size_t)k0) * NR * esz;
+                if (pair && jn + 1 < jge)
+                    next1 = (const char *)L->data + ((size_t)(jn + 1) * (size_t)k + (size_t)k0) * NR * esz;
                 for (int i = 0; i < mp; i++) {
-                    prefetch_share(next, next_lines, i, mp);
+                    prefetch_share(next, sliver_lines, i, mp);
+                    prefetch_share(next1, sliver_lines, i, mp);
                     float *ci = ct + tile_at(i, np, jp - jg);
                     if (i + 1 < mp)
-                        for (int l = 0; l < MR * NR * 4; l += 64)
+                        for (int l = 0; l < MR * NR * 4 * (1 + pair); l += 64)
                             _mm_prefetch((const char *)(ci + MR * NR * np) + l, _MM_HINT_T0);
                     if (j->direct) {
                         const float *ar[MR];
                         direct_rows(src, m0, rows, i, k0, zeros, ar);
                         ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
+                    } else if (pair) {
+                        fk__gemm_f32_ukr_avx512(kc, ap + (size_t)i * (size_t)kc * MR, bp, bp1, ci, k0 > 0);
                     } else {
                         fk__ukr_f32_6x16(kc, ap + (size_t)i * (size_t)kc * MR, bp, ci, NR, k0 > 0);
                     }
@@ -506,14 +523,23 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
         int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
         for (int q0 = 0, qn; q0 < k4; q0 += qn) {
             qn = k4 - q0 < KC4 ? k4 - q0 : KC4;
-            for (int jp = jg; jp < jge; jp++) {
+            int step = j->wide ? 2 : 1;
+            size_t sliver_lines = (size_t)qn * NR * 4 / 64, panel_b = (size_t)k4 * NR * 4;
+            for (int jp = jg; jp < jge; jp += step) {
+                int pair = step == 2 && jp + 1 < jge;
                 const int8_t *bp = (const int8_t *)L->data + ((size_t)jp * (size_t)k4 + (size_t)q0) * NR * 4;
-                const char *next = jp + 1 < jge ? (const char *)(bp + (size_t)k4 * NR * 4) : NULL;
-                size_t next_lines = (size_t)qn * NR * 4 / 64;
+                int jn = jp + (pair ? 2 : 1);
+                const char *next = jn < jge ? (const char *)(bp + (size_t)(jn - jp) * panel_b) : NULL;
+                const char *next1 = pair && jn + 1 < jge ? (const char *)(bp + (size_t)(jn + 1 - jp) * panel_b) : NULL;
                 for (int i = 0; i < mp; i++) {
-                    prefetch_share(next, next_lines, i, mp);
+                    prefetch_share(next, sliver_lines, i, mp);
+                    prefetch_share(next1, sliver_lines, i, mp);
                     const char *ai = s + (size_t)i * panel_a + (size_t)q0 * MR * 4 * esz;
                     int32_t *ci = ct + tile_at(i, np, jp - jg);
+                    if (pair) {
+                        fk__gemm_q8_ukr_avx512(qn, (const uint8_t *)ai, bp, bp + panel_b, ci, q0 > 0);
+                        continue;
+                    }
                     switch (j->path) {
                     case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
                     case Q8_7BIT:  ukr_q7_avx2(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
@@ -569,12 +595,16 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     int k = L->k, q8 = L->type == FK_W_Q8;
     struct fk_gemm_blocks bl = fk_ctx_gemm_blocks(ctx);
     /* 7-bit codes run on any of the three kernels; 8-bit ones never on ukr_q7 */
-    j.path = ctx->isa == FK_ISA_AVX2_VNNI ? Q8_VNNI : L->q8_bits == FK_Q8_7BIT ? Q8_7BIT : Q8_EXACT16;
+    j.path = ctx->isa == FK_ISA_AVX2_VNNI || ctx->isa == FK_ISA_AVX512 ? Q8_VNNI
+           : L->q8_bits == FK_Q8_7BIT ? Q8_7BIT : Q8_EXACT16;
+    j.wide = ctx->isa == FK_ISA_AVX512;
     j.k_pad = q8 ? (int)fk__round_up((size_t)k, 4) : k;
     j.panels = (L->n + NR - 1) / NR;
     /* f32: kc elements of k per block; int8: kc groups of 4 (the same bytes
      * of weights per sliver, a quarter of the A bytes per row of k) */
     j.kc = bl.kc;
+    if (j.wide) /* two slivers share the half of L1 that one had */
+        j.kc = bl.kc / 2 / 8 * 8 > 8 ? bl.kc / 2 / 8 * 8 : 8;
     j.nc_panels = bl.nc / NR > 0 ? bl.nc / NR : 1;
     /* stride-1 convolutions (3x3 in the DPT heads) read A in place */
     j.direct = !q8 && a->conv && a->stride == 1;
@@ -625,7 +655,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     size_t bytes_a = j.direct ? 0 : fk__round_up(a_bytes, FK_ALIGN);
     j.off_c = bytes_a;
     j.off_b = j.off_c + fk__round_up(mcp * (size_t)np * NR * 4, FK_ALIGN);
-    j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : fk__round_up((size_t)kcb * NR * 4, FK_ALIGN));
+    j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : fk__round_up((size_t)kcb * NR * 4 * 2, FK_ALIGN));
     size_t tmp = a->conv && !j.direct ? (q8 ? (size_t)k * 4 : (size_t)MR * (size_t)kcb * 4) : 0;
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
