@@ -77,15 +77,17 @@ struct fk_gemm_blocks {
 enum fk_q8_bits {
     FK_Q8_AUTO = 0, /* 8 where the CPU has VNNI dot products, else 7            */
     FK_Q8_8BIT = 8, /* [-127, 127]: VNNI vpdpbusd, or exact vpmaddwd pairs      */
-    FK_Q8_7BIT = 7, /* [-63, 63], requantized at packing: u8 x s7 vpmaddubsw    */
+    FK_Q8_7BIT = 7, /* the int16 pair budget of 7-bit codes: |q[2i]| + |q[2i+1]|
+                     * <= 128 (so u8 x s8 vpmaddubsw pairs cannot saturate),
+                     * spent per pair; requantized at packing              */
 };
 
 struct fk_ctx_config {
     enum fk_isa isa;     /* FK_ISA_AUTO picks the best the CPU supports          */
     int         threads; /* 0 = all online CPUs; 1 = no pool threads at all      */
     /* Experiments; zero = automatic. The environment variables
-     * FK_GEMM_BLOCKS="kc,mc,nc" and FK_CACHES="l1d,l2,l3share" (bytes, K/M
-     * suffixes) apply where these are zero. */
+     * FK_GEMM_BLOCKS="kc,mc,nc", FK_CACHES="l1d,l2,l3share" (bytes, K/M
+     * suffixes) and FK_Q8_BITS=7|8 apply where these are zero. */
     struct fk_gemm_blocks blocks;  /* override of the cache model's blocks  */
     struct fk_cache_info  caches;  /* l1d/l2 nonzero: model these caches     */
     enum fk_q8_bits       q8_bits; /* int8 weight codes                      */

@@ -14,10 +14,12 @@
  *             with the reference before the activation. k <= 65536 keeps the
  *             int32 sum exact; longer rows are F4D_ERANGE.
  *             On CPUs without VNNI (FK_Q8_7BIT, see fk_ctx_config.q8_bits)
- *             the weights are packed as 7-bit codes (W ~= scale[n] * q,
- *             q in [-63, 63]; from int8 files q7 = round(q8 * 63 / 127)) so
- *             that vpmaddubsw's int16 pair sums cannot saturate; the
- *             reference run with the same q8_bits is bit-exact with it.
+ *             the weight codes keep vpmaddubsw's int16 pair sums exact:
+ *             |q[n][2i]| + |q[n][2i+1]| <= 128 (what two 7-bit codes give;
+ *             the scale is the row's largest |w0| + |w1| over 127). From
+ *             int8 files, rows whose pairs exceed 128 are requantized
+ *             (q' = round(q * 127 / max pair)). The reference run with the
+ *             same q8_bits packs the same codes and is bit-exact with it.
  * Non-finite values in a row of x make that output row non-finite (all
  * precisions), never a crash.
  *

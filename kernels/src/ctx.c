@@ -419,9 +419,11 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     }
     ctx->blocks = blocks_override(blocks_override(fk_gemm_blocks_for(&ctx->caches), blocks_env()),
                                   cfg->blocks);
-    if (cfg->q8_bits == FK_Q8_7BIT || cfg->q8_bits == FK_Q8_8BIT)
-        ctx->q8_bits = cfg->q8_bits;
-    else if (cfg->q8_bits != FK_Q8_AUTO) {
+    const char *qenv = getenv("FK_Q8_BITS");
+    int qbits = cfg->q8_bits != FK_Q8_AUTO ? (int)cfg->q8_bits : qenv ? atoi(qenv) : 0;
+    if (qbits == FK_Q8_7BIT || qbits == FK_Q8_8BIT)
+        ctx->q8_bits = qbits;
+    else if (cfg->q8_bits != FK_Q8_AUTO) { /* (an unreadable FK_Q8_BITS is ignored) */
         free(ctx->local);
         free(ctx);
         return F4D_EINVAL;

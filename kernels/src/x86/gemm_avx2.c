@@ -136,17 +136,23 @@ static inline int load_u32(const uint8_t *p)
 }
 
 /* c[6][16] (+)= sum over k4 of a[k4][6][4] (u8, code + 128) * b[k4][16][4]
- * (7-bit codes), the same operands as the VNNI kernel, without VNNI.
+ * (7-bit path codes), the same operands as the VNNI kernel, without VNNI.
  *
  * No saturation, by construction: vpmaddubsw multiplies unsigned bytes
- * a in [1, 255] (activation code in [-127, 127] plus 128) by signed bytes
- * w in [-63, 63] (fk_linear packs 7-bit codes for this path) and adds
- * adjacent products with signed 16-bit saturation; every such pair sum has
- * |a0 w0 + a1 w1| <= 2 * 255 * 63 = 32130 < 32767, so it is exact. vpmaddwd
- * with ones widens and adds two pair sums into int32 (|.| <= 64260), and the
- * int32 accumulation is exact for k <= 65536: |sum| <= 65536 * 255 * 63 <
- * 2^31. (8-bit weights would reach 2 * 255 * 127 = 64770 and saturate.)
- * test_linear's worst case (all activations 255, weights +-63) checks it. */
+ * a in [1, 255] (activation code in [-127, 127] plus 128) by signed bytes w
+ * and adds adjacent products (k even, k odd) with signed 16-bit saturation.
+ * fk_linear packs this path's weights so that every such pair has
+ * |w0| + |w1| <= 128 (7-bit codes, |w| <= 63, are the simplest case; the
+ * packer spends the budget per pair, see quantize_row_pairs in linear.c):
+ * then |a0 w0 + a1 w1| <= 255 * 128 = 32640 < 32767, so the pair sum is
+ * exact. vpmaddwd with ones widens and adds two pair sums into int32
+ * (|.| <= 65280), and the int32 accumulation is exact for k <= 65536:
+ * |sum| <= 65536 * 255 * 64 < 2^31. (Free 8-bit codes would reach
+ * 2 * 255 * 127 = 64770 and saturate.) test_linear's worst cases (all
+ * activations 255, pairs summing to 128) check it against exact integers. */
+__attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
+                                                  int accumulate);
+
 /* Rows [r0, r0 + R) of ukr_q7_avx2: R <= 4 keeps accumulators, weights,
  * ones and the broadcast in 16 registers (six rows at once spilled). */
 static inline __attribute__((always_inline)) void
