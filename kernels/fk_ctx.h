@@ -56,10 +56,11 @@ enum {
 };
 
 /* Data caches as read at context creation (cpuid leaf 4 on Intel, 0x8000001D
- * on AMD, sysfs as the fallback; 0 = unknown). l3_share is the L3 bytes per
- * core (the L3 divided among the cores that share it). */
+ * on AMD, sysfs as the fallback; 0 = unknown). l2_share and l3_share are the
+ * bytes per core (the cache divided among the cores that share it: an
+ * Alder Lake-N cluster shares 2 MiB of L2 between 4 cores); 0 = not shared. */
 struct fk_cache_info {
-    size_t l1d, l2, l3, l3_share;
+    size_t l1d, l2, l3, l3_share, l2_share;
     int    l1d_ways, l2_ways;
     int    source;           /* FK_CACHES_* below                            */
 };
@@ -114,8 +115,8 @@ const char * fk_ctx_q8_path  (const fk_ctx *ctx);
  *   kc: the kc x NR weight sliver takes half of L1 (it is reused across all
  *       micro-panels of A; the other half holds the streaming MR x kc A
  *       slivers and the C tile), a multiple of 16 in [64, 1024];
- *   mc: the packed mc x kc block of A takes half of L2, a multiple of MR in
- *       [MR, 1020];
+ *   mc: the packed mc x kc block of A takes half of the core's L2 (l2_share
+ *       where set, else l2), a multiple of MR in [MR, 1020];
  *   nc: a kc x nc block of weights takes half of the L3 share, a multiple
  *       of 64 in [256, 4096]. */
 struct fk_gemm_blocks fk_gemm_blocks_for(const struct fk_cache_info *caches);

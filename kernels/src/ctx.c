@@ -67,7 +67,7 @@ static int caches_cpuid(struct fk_cache_info *ci)
     }
     if (!leaf)
         return 0;
-    unsigned share2 = 1, share3 = 1;
+    unsigned share1 = 1, share2 = 1, share3 = 1;
     for (unsigned i = 0; i < 16; i++) {
         __cpuid_count(leaf, i, a, b, c, d);
         unsigned type = a & 31, level = (a >> 5) & 7;
@@ -81,6 +81,7 @@ static int caches_cpuid(struct fk_cache_info *ci)
         if (level == 1) {
             ci->l1d = size;
             ci->l1d_ways = (int)ways;
+            share1 = sharing;
         } else if (level == 2) {
             ci->l2 = size;
             ci->l2_ways = (int)ways;
@@ -90,6 +91,9 @@ static int caches_cpuid(struct fk_cache_info *ci)
             share3 = sharing;
         }
     }
+    /* L1 is per core: CPUs sharing L2 over CPUs sharing L1 = cores on the L2 */
+    if (ci->l2 && share2 > share1)
+        ci->l2_share = ci->l2 / share2 * share1;
     if (ci->l3)
         ci->l3_share = share3 > share2 ? ci->l3 / share3 * share2 : ci->l3;
     return ci->l1d != 0 && ci->l2 != 0;
@@ -142,7 +146,7 @@ static int count_cpus(const char *s)
 
 static int caches_sysfs(struct fk_cache_info *ci)
 {
-    int share2 = 1, share3 = 1;
+    int share1 = 1, share2 = 1, share3 = 1;
     for (int i = 0; i < 8; i++) {
         char path[96], buf[256];
         snprintf(path, sizeof path, "/sys/devices/system/cpu/cpu0/cache/index%d/level", i);
@@ -163,6 +167,7 @@ static int caches_sysfs(struct fk_cache_info *ci)
         if (level == 1) {
             ci->l1d = size;
             ci->l1d_ways = ways;
+            share1 = sharing;
         } else if (level == 2) {
             ci->l2 = size;
             ci->l2_ways = ways;
@@ -172,6 +177,8 @@ static int caches_sysfs(struct fk_cache_info *ci)
             share3 = sharing;
         }
     }
+    if (ci->l2 && share2 > share1)
+        ci->l2_share = ci->l2 / (size_t)share2 * (size_t)share1;
     if (ci->l3)
         ci->l3_share = share3 > share2 ? ci->l3 / (size_t)share3 * (size_t)share2 : ci->l3;
     return ci->l1d != 0 && ci->l2 != 0;
@@ -202,7 +209,7 @@ static int clampi(long v, int lo, int hi) { return v < lo ? lo : v > hi ? hi : (
 struct fk_gemm_blocks fk_gemm_blocks_for(const struct fk_cache_info *c)
 {
     size_t l1 = c && c->l1d ? c->l1d : 32 * 1024;
-    size_t l2 = c && c->l2 ? c->l2 : 512 * 1024;
+    size_t l2 = c && c->l2_share ? c->l2_share : c && c->l2 ? c->l2 : 512 * 1024;
     size_t l3 = c && c->l3_share ? c->l3_share : 2 * 1024 * 1024;
     struct fk_gemm_blocks b;
     /* the kc x 16 fp32 weight sliver in half of L1 */

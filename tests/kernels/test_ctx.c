@@ -119,6 +119,8 @@ static void test_gemm_blocks_model(void **state)
         { { .l1d = 32 << 10, .l2 = 2 << 20 }, { 256, 1020, 1024 } },
         /* nothing known: 32K / 512K / 2M */
         { { .l1d = 0 }, { 256, 252, 1024 } },
+        /* Gracemont (Alder Lake-N): 2M L2 shared by a cluster of 4 cores */
+        { { .l1d = 32 << 10, .l2 = 2 << 20, .l2_share = 512 << 10, .l3_share = 1536 << 10 }, { 256, 252, 768 } },
         /* tiny caches clamp */
         { { .l1d = 4 << 10, .l2 = 16 << 10, .l3_share = 64 << 10 }, { 64, 30, 256 } },
     };

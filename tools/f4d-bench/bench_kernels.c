@@ -6,7 +6,15 @@
  *   f32   ours vs OpenBLAS sgemm (both fp32: summation order only)
  *   f16   fp16 weights vs our fp32 weights, same input
  *   int8  int8 weights + int8 dynamic activations vs our fp32
- *   attention  vs the scalar reference kernel on a sample of query rows. */
+ *   attention  vs the scalar reference kernel on a sample of query rows.
+ *
+ * The header names the CPU and its SIMD flags, the caches fk read (and
+ * where from), the GEMM blocks chosen from them (FK_GEMM_BLOCKS / FK_CACHES
+ * override) and the int8 path. Each row names its path; xf32 is an f16 or
+ * int8 GEMM's speed over our f32 GEMM on the same shape in the same run.
+ * --isa NAME forces one ISA; --isa all runs f32/f16/int8 on the best ISA and
+ * int8 again on every other optimized ISA this CPU has (avx2-7bit beside
+ * vnni-8bit and avx512-vnni-8bit on one machine). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -424,9 +432,9 @@ int bench_kernels(int argc, char **argv)
     struct fk_gemm_blocks bl = fk_ctx_gemm_blocks(probe);
     static const char *const src_names[] = { "defaults", "cpuid", "sysfs", "given (FK_CACHES/config)" };
     print_cpu();
-    printf("caches (%s): L1d %zu KiB, L2 %zu KiB, L3 %zu KiB (%zu KiB per core)\n",
-           src_names[ci.source & 3], ci.l1d >> 10, ci.l2 >> 10, ci.l3 >> 10,
-           ci.l3_share >> 10);
+    printf("caches (%s): L1d %zu KiB, L2 %zu KiB (%zu per core), L3 %zu KiB (%zu KiB per core)\n",
+           src_names[ci.source & 3], ci.l1d >> 10, ci.l2 >> 10,
+           (ci.l2_share ? ci.l2_share : ci.l2) >> 10, ci.l3 >> 10, ci.l3_share >> 10);
     printf("GEMM blocks%s: kc %d, mc %d, nc %d (fp32; int8 kc x 4); int8 path %s\n",
            getenv("FK_GEMM_BLOCKS") ? " (FK_GEMM_BLOCKS)" : "", bl.kc, bl.mc, bl.nc, fk_ctx_q8_path(probe));
     fk_ctx_free(probe);

@@ -646,7 +646,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     /* The C tile (mc x nc of fp32 / int32) is bounded by the L2 size: the nc
      * of the model then shrinks to even chunks (A is packed once per chunk). */
     size_t mcp = fk__round_up((size_t)mc, MR);
-    size_t l2 = ctx->caches.l2 ? ctx->caches.l2 : 512 * 1024;
+    size_t l2 = ctx->caches.l2_share ? ctx->caches.l2_share : ctx->caches.l2 ? ctx->caches.l2 : 512 * 1024;
     int cap = (int)(l2 / (mcp * NR * 4));
     cap = cap < 4 ? 4 : cap;
     if (j.nc_panels > cap) {
