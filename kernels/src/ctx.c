@@ -408,6 +408,16 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     }
     if (threads > 256)
         return F4D_EINVAL;
+    /* int8 weight codes: the config's, else FK_Q8_BITS (ignored when not 7
+     * or 8), else 7 where the ISA has no VNNI: u8 x s8 products then only fit
+     * vpmaddubsw's int16 pairs with the 7-bit path's codes, and the exact
+     * 8-bit vpmaddwd path is no faster than fp32 */
+    if (cfg->q8_bits != FK_Q8_AUTO && cfg->q8_bits != FK_Q8_7BIT && cfg->q8_bits != FK_Q8_8BIT)
+        return F4D_EINVAL;
+    const char *qenv = getenv("FK_Q8_BITS");
+    int qbits = cfg->q8_bits != FK_Q8_AUTO ? (int)cfg->q8_bits : qenv ? atoi(qenv) : 0;
+    if (qbits != FK_Q8_7BIT && qbits != FK_Q8_8BIT)
+        qbits = isa == FK_ISA_AVX2 ? FK_Q8_7BIT : FK_Q8_8BIT;
 
     fk_ctx *ctx = calloc(1, sizeof *ctx);
     if (!ctx)
@@ -426,18 +436,7 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     }
     ctx->blocks = blocks_override(blocks_override(fk_gemm_blocks_for(&ctx->caches), blocks_env()),
                                   cfg->blocks);
-    const char *qenv = getenv("FK_Q8_BITS");
-    int qbits = cfg->q8_bits != FK_Q8_AUTO ? (int)cfg->q8_bits : qenv ? atoi(qenv) : 0;
-    if (qbits == FK_Q8_7BIT || qbits == FK_Q8_8BIT)
-        ctx->q8_bits = qbits;
-    else if (cfg->q8_bits != FK_Q8_AUTO) { /* (an unreadable FK_Q8_BITS is ignored) */
-        free(ctx->local);
-        free(ctx);
-        return F4D_EINVAL;
-    } else
-        /* without VNNI, u8 x s8 products only fit vpmaddubsw's int16 pairs
-         * with 7-bit weights; the exact 8-bit vpmaddwd path is no faster than fp32 */
-        ctx->q8_bits = isa == FK_ISA_AVX2 ? FK_Q8_7BIT : FK_Q8_8BIT;
+    ctx->q8_bits = qbits;
     ctx->local = calloc((size_t)threads, sizeof *ctx->local);
     if (!ctx->local) {
         free(ctx);
