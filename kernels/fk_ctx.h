@@ -41,6 +41,9 @@ enum fk_isa {
     FK_ISA_AVX2      = 2, /* x86-64 AVX2 + FMA + F16C                           */
     FK_ISA_AVX2_VNNI = 3, /* AVX2 plus AVX-VNNI (VEX vpdpbusd) for int8 GEMM     */
     FK_ISA_NEON      = 4, /* AArch64 NEON (int8 GEMM with sdot where HWCAP_ASIMDDP) */
+    FK_ISA_AVX512    = 5, /* AVX2_VNNI's set plus AVX-512 F/BW/VL/VNNI: 6x32 zmm
+                           * GEMM tiles (same packed layouts); forced only for
+                           * now, FK_ISA_AUTO does not pick it (see ctx.c)    */
 };
 
 /* CPU feature bits reported by fk_cpu_features(). */
@@ -51,11 +54,46 @@ enum {
     FK_CPU_AVX_VNNI = 1u << 3,
     FK_CPU_NEON     = 1u << 4,
     FK_CPU_ASIMDDP  = 1u << 5, /* AArch64 dot product (sdot/udot), ARMv8.2+ */
+    FK_CPU_AVX512   = 1u << 6, /* F + BW + VL + VNNI, ZMM state enabled by the OS */
+};
+
+/* Data caches as read at context creation (cpuid leaf 4 on Intel, 0x8000001D
+ * on AMD, sysfs as the fallback; 0 = unknown). l2_share and l3_share are the
+ * bytes per core (the cache divided among the cores that share it: an
+ * Alder Lake-N cluster shares 2 MiB of L2 between 4 cores); 0 = not shared. */
+struct fk_cache_info {
+    size_t l1d, l2, l3, l3_share, l2_share;
+    int    l1d_ways, l2_ways;
+    int    source;           /* FK_CACHES_* below                            */
+};
+enum { FK_CACHES_DEFAULT = 0, FK_CACHES_CPUID = 1, FK_CACHES_SYSFS = 2, FK_CACHES_GIVEN = 3 };
+
+/* Cache blocks of the GEMM (fp32 elements; int8 uses 4 kc): kc rows of k per
+ * weight panel slice (kept in L1), mc rows of A per packed block (kept in
+ * L2), nc output columns per chunk of weights (kept in the L3 share). 0 in a
+ * field of an override means "from the cache model". */
+struct fk_gemm_blocks {
+    int kc, mc, nc;
+};
+
+/* int8 weight codes on the optimized x86 path (FK_W_Q8). */
+enum fk_q8_bits {
+    FK_Q8_AUTO = 0, /* 8 where the CPU has VNNI dot products, else 7            */
+    FK_Q8_8BIT = 8, /* [-127, 127]: VNNI vpdpbusd, or exact vpmaddwd pairs      */
+    FK_Q8_7BIT = 7, /* the int16 pair budget of 7-bit codes: |q[2i]| + |q[2i+1]|
+                     * <= 128 (so u8 x s8 vpmaddubsw pairs cannot saturate),
+                     * spent per pair; requantized at packing              */
 };
 
 struct fk_ctx_config {
     enum fk_isa isa;     /* FK_ISA_AUTO picks the best the CPU supports          */
     int         threads; /* 0 = all online CPUs; 1 = no pool threads at all      */
+    /* Experiments; zero = automatic. The environment variables
+     * FK_GEMM_BLOCKS="kc,mc,nc", FK_CACHES="l1d,l2,l3share" (bytes, K/M
+     * suffixes) and FK_Q8_BITS=7|8 apply where these are zero. */
+    struct fk_gemm_blocks blocks;  /* override of the cache model's blocks  */
+    struct fk_cache_info  caches;  /* l1d/l2 nonzero: model these caches     */
+    enum fk_q8_bits       q8_bits; /* int8 weight codes                      */
 };
 
 typedef struct fk_ctx fk_ctx;
@@ -67,6 +105,25 @@ enum fk_isa  fk_ctx_isa      (const fk_ctx *ctx);
 int          fk_ctx_threads  (const fk_ctx *ctx);
 const char * fk_ctx_error    (const fk_ctx *ctx);   /* "" when no error yet     */
 int          fk_ctx_status   (const fk_ctx *ctx);   /* code of that error, 0 if none */
+struct fk_cache_info  fk_ctx_caches     (const fk_ctx *ctx);
+struct fk_gemm_blocks fk_ctx_gemm_blocks(const fk_ctx *ctx);
+enum fk_q8_bits       fk_ctx_q8_bits    (const fk_ctx *ctx); /* 7 or 8 (never AUTO) */
+/* Name of the int8 GEMM path the context runs: "ref", "vnni-8bit",
+ * "avx2-7bit", "avx2-8bit". */
+const char * fk_ctx_q8_path  (const fk_ctx *ctx);
+
+/* The cache model (pure; unknown sizes take 32K / 512K / 2M defaults), with
+ * MR = 6 rows by NR = 16 columns per register tile of fp32:
+ *   kc: the kc x NR weight sliver takes half of L1 (it is reused across all
+ *       micro-panels of A; the other half holds the streaming MR x kc A
+ *       slivers and the C tile), a multiple of 16 in [64, 1024];
+ *   mc: the packed mc x kc block of A takes half of the core's L2 (l2_share
+ *       where set, else l2), a multiple of MR in [MR, 1020];
+ *   nc: a kc x nc block of weights takes half of the L3 share, a multiple
+ *       of 64 in [256, 4096]. */
+struct fk_gemm_blocks fk_gemm_blocks_for(const struct fk_cache_info *caches);
+/* Reads this CPU's caches (what fk_ctx_new does). */
+struct fk_cache_info  fk_cpu_caches(void);
 
 /* Scratch. Kernels grow the arenas on demand until the context is frozen;
  * after fk_ctx_freeze a kernel that needs more scratch fails with F4D_ENOMEM.

@@ -13,6 +13,13 @@
  *             y = acc * (sx * sw[n]) + b[n]. The optimized paths are bit-exact
  *             with the reference before the activation. k <= 65536 keeps the
  *             int32 sum exact; longer rows are F4D_ERANGE.
+ *             On CPUs without VNNI (FK_Q8_7BIT, see fk_ctx_config.q8_bits)
+ *             the weight codes keep vpmaddubsw's int16 pair sums exact:
+ *             |q[n][2i]| + |q[n][2i+1]| <= 128 (what two 7-bit codes give;
+ *             the scale is the row's largest |w0| + |w1| over 127). From
+ *             int8 files, rows whose pairs exceed 128 are requantized
+ *             (q' = round(q * 127 / max pair)). The reference run with the
+ *             same q8_bits packs the same codes and is bit-exact with it.
  * Non-finite values in a row of x make that output row non-finite (all
  * precisions), never a crash.
  *
@@ -68,6 +75,7 @@ struct fk_linear {
     int32_t      *colsum;    /* FK_W_Q8, VNNI: sum_k q[n][k] * 128 */
     float        *bias;      /* [n], zeros when none was given     */
     size_t        bytes;     /* memory held by this layer          */
+    int           q8_bits;   /* FK_W_Q8: 8, or 7 (codes in [-63, 63]) */
 };
 
 /* Pack from fp32 weights into `as` (quantizing for FK_W_Q8, rounding for

@@ -20,6 +20,9 @@ struct fk_arena {
 struct fk_ctx {
     enum fk_isa      isa;
     int              threads;
+    int              q8_bits;    /* 7 or 8: int8 weight codes packed       */
+    struct fk_cache_info  caches;
+    struct fk_gemm_blocks blocks; /* resolved: model, then overrides       */
     int              frozen;
     int              measuring;  /* fk_ctx_measure: reserve, then skip  */
     struct fk_pool  *pool;       /* NULL when threads == 1           */
@@ -50,13 +53,13 @@ void *fk__alloc(size_t bytes);
 
 static inline size_t fk__round_up(size_t x, size_t a) { return (x + a - 1) / a * a; }
 
-/* Nonzero when the context runs the AVX2 kernels (AVX2 and AVX2_VNNI share
- * layouts and code; only the int8 micro-kernel differs). Always 0 off x86-64,
+/* Nonzero when the context runs the AVX2 kernels (AVX2, AVX2_VNNI and AVX512
+ * share layouts and code; only the GEMM micro-kernels differ). Always 0 off x86-64,
  * where every front end runs its reference. */
 static inline int fk__isa_avx2(enum fk_isa isa)
 {
 #if defined(__x86_64__)
-    return isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI;
+    return isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI || isa == FK_ISA_AVX512;
 #else
     (void)isa;
     return 0;

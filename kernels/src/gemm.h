@@ -17,7 +17,7 @@
 
 #define FK_GEMM_NR 16  /* output channels per packed panel        */
 #define FK_GEMM_MR 6   /* rows per register tile                  */
-#define FK_GEMM_KC 256 /* k per cache block of the fp32 kernels   */
+/* Cache blocks (kc, mc, nc) come from the context: fk_gemm_blocks_for(). */
 #define FK_Q8_K_MAX 65536
 
 /* Where rows of A come from. */
@@ -73,12 +73,17 @@ int  fk__gemm_run (fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc
 int  fk__gemm_ref (fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a,
                    int m, const struct fk__cdst *c, const struct fk_epilogue *ep);
 
-/* int8 micro-kernel with AVX-VNNI: c[6][16] = sum over k4 of u8 a * s8 b. */
-void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c);
+/* int8 micro-kernel with AVX-VNNI: c[6][16] (+)= sum over k4 of u8 a * s8 b. */
+void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c, int accumulate);
 
 
-
-
+/* AVX-512 micro-kernels: two adjacent 16-wide panels at once, a 6x32 tile
+ * in 12 zmm registers; c is the two 6x16 tiles [2][6][16] (64-byte aligned).
+ * fp32: c (+)= a[kc][6] * (b0 | b1)[kc][16]; int8: u8 a x s8 b with vpdpbusd. */
+void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const float *b1, float *c,
+                             int accumulate);
+void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const int8_t *b1,
+                            int32_t *c, int accumulate);
 
 /* Address of element (m, n) of the destination. */
 float *fk__cdst_ptr(const struct fk__cdst *c, int m, int n);

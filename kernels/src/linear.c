@@ -9,7 +9,8 @@
 #include "fk_internal.h"
 #include "gemm.h"
 
-float fk_quantize_row_q8(const float *w, int k, int8_t *q)
+/* Symmetric quantization of a row to codes in [-qmax, qmax]. */
+static float quantize_row_qmax(const float *w, int k, int8_t *q, int qmax)
 {
     float amax = 0, poison = 0;
     if (k <= 0)
@@ -24,12 +25,59 @@ float fk_quantize_row_q8(const float *w, int k, int8_t *q)
         memset(q, 0, (size_t)k);
         return poison == 0 ? 0.0f : NAN;
     }
-    float inv = 127.0f / amax;
+    float fq = (float)qmax, inv = fq / amax;
+    for (int i = 0; i < k; i++) {
+        float r = nearbyintf(w[i] * inv);
+        q[i] = (int8_t)(r > fq ? fq : r < -fq ? -fq : r);
+    }
+    return amax / fq;
+}
+
+float fk_quantize_row_q8(const float *w, int k, int8_t *q)
+{
+    return quantize_row_qmax(w, k, q, 127);
+}
+
+/* Largest |q[2i]| + |q[2i+1]| of a row of codes (k odd: the last one alone). */
+static int pair_max(const int8_t *q, int k)
+{
+    int pm = 0;
+    for (int i = 0; i < k; i += 2) {
+        int s = abs(q[i]) + (i + 1 < k ? abs(q[i + 1]) : 0);
+        pm = s > pm ? s : pm;
+    }
+    return pm;
+}
+
+/* Codes for the 7-bit path (CPUs without VNNI): the int16 pair budget of
+ * vpmaddubsw, spent per pair. With u8 activations up to 255, a pair sum
+ * a0 q0 + a1 q1 stays exact while |q0| + |q1| <= 128 (255 * 128 = 32640 <=
+ * 32767), the bound two 7-bit codes (|q| <= 63) meet with room. The scale
+ * puts the row's largest pair |w0| + |w1| at 127: rounding adds at most 1/2
+ * to each code, so every pair of codes sums to <= 128, and single codes stay
+ * in [-127, 127]; a row's weights are resolved between 1x and 2x the 8-bit
+ * step (7-bit codes would be 2x everywhere). Pairs are (k even, k odd), as
+ * the packed [k4][16][4] layout hands them to vpmaddubsw. */
+static float quantize_row_pairs(const float *w, int k, int8_t *q)
+{
+    float pmax = 0, poison = 0;
+    if (k <= 0)
+        return 0;
+    for (int i = 0; i < k; i += 2) {
+        float a = fabsf(w[i]), b = i + 1 < k ? fabsf(w[i + 1]) : 0.0f;
+        poison += w[i] * 0.0f + (i + 1 < k ? w[i + 1] * 0.0f : 0.0f);
+        pmax = a + b > pmax ? a + b : pmax;
+    }
+    if (pmax == 0 || poison != 0) {
+        memset(q, 0, (size_t)k);
+        return pmax == 0 && poison == 0 ? 0.0f : NAN;
+    }
+    float inv = 127.0f / pmax;
     for (int i = 0; i < k; i++) {
         float r = nearbyintf(w[i] * inv);
         q[i] = (int8_t)(r > 127 ? 127 : r < -127 ? -127 : r);
     }
-    return amax / 127.0f;
+    return pmax / 127.0f;
 }
 
 /* ---------------------------------------------------------------- packing */
@@ -47,6 +95,7 @@ static int pack_alloc(fk_ctx *ctx, struct fk_linear *L, enum fk_wtype as, int n,
                        k, FK_Q8_K_MAX);
     L->type = as;
     L->isa = ctx->isa;
+    L->q8_bits = as == FK_W_Q8 ? ctx->q8_bits : 0;
     L->n = n;
     L->k = k;
     int simd = fk__isa_packed(ctx->isa);
@@ -137,7 +186,8 @@ static int pack_rows(fk_ctx *ctx, struct fk_linear *L, const float *wf, const fk
                     wh ? wh[(size_t)j * (size_t)L->k + (size_t)i] : fk_f32_to_f16_ref(src[i]);
             break;
         case FK_W_Q8: {
-            float s = fk_quantize_row_q8(src, L->k, q);
+            float s = L->q8_bits == FK_Q8_7BIT ? quantize_row_pairs(src, L->k, q)
+                                                : fk_quantize_row_q8(src, L->k, q);
             if (isnan(s)) {
                 free(q);
                 free(row);
@@ -195,7 +245,22 @@ int fk_linear_pack_q8(fk_ctx *ctx, struct fk_linear *L, const int8_t *q, const f
                 return FK_FAIL(ctx, F4D_EINVAL,
                                "weight [%d, %d] is -128: symmetric int8 uses [-127, 127]", j, i);
             }
-        finish_q8(L, j, r, scale[j]);
+        int pm = L->q8_bits == FK_Q8_7BIT ? pair_max(r, k) : 0;
+        if (pm > 128) {
+            /* the file stays 8-bit; rows whose pairs overrun the 7-bit path's
+             * budget are requantized: q' = round(q * 127 / pm), pairs <= 128 */
+            int8_t *q7 = malloc((size_t)k);
+            if (!q7) {
+                fk_linear_free(L);
+                return FK_FAIL(ctx, F4D_ENOMEM, "cannot allocate a %d-wide row", k);
+            }
+            for (int i = 0; i < k; i++)
+                q7[i] = (int8_t)nearbyintf((float)r[i] * 127.0f / (float)pm);
+            finish_q8(L, j, q7, scale[j] * ((float)pm / 127.0f));
+            free(q7);
+        } else {
+            finish_q8(L, j, r, scale[j]);
+        }
     }
     return F4D_OK;
 }

@@ -12,7 +12,7 @@ static void test_isa_selection(void **state)
 {
     (void)state;
     fk_ctx *ctx = NULL;
-    struct fk_ctx_config cfg = { FK_ISA_AUTO, 1 };
+    struct fk_ctx_config cfg = { .isa = FK_ISA_AUTO, .threads = 1 };
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     assert_true(fk_isa_supported(fk_ctx_isa(ctx)));
     assert_string_equal(fk_ctx_error(ctx), "");
@@ -35,7 +35,7 @@ static void test_isa_selection(void **state)
 #endif
     cfg.isa = (enum fk_isa)99;
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_ENOTSUP);
-    cfg = (struct fk_ctx_config){ FK_ISA_REF, 1000 };
+    cfg = (struct fk_ctx_config){ .isa = FK_ISA_REF, .threads = 1000 };
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_EINVAL);
     assert_int_equal(fk_ctx_new(&cfg, NULL), F4D_EINVAL);
     for (int i = FK_ISA_AUTO; i <= FK_ISA_NEON; i++)
@@ -117,12 +117,118 @@ static void test_frozen_scratch(void **state)
     fk_ctx_free(ctx);
 }
 
+/* The cache model (fk_gemm_blocks_for) on the caches of the boxes' CPUs. */
+static void test_gemm_blocks_model(void **state)
+{
+    (void)state;
+    static const struct {
+        struct fk_cache_info c;
+        struct fk_gemm_blocks want;
+    } cases[] = {
+        /* Zen 3: 32K L1d, 512K L2, 32M L3 over 8 cores */
+        { { .l1d = 32 << 10, .l2 = 512 << 10, .l3 = 32 << 20, .l3_share = 4 << 20 }, { 256, 252, 2048 } },
+        /* Golden Cove P-core: 48K L1d, 1.25M L2, 30M L3 over 12 */
+        { { .l1d = 48 << 10, .l2 = 1280 << 10, .l3 = 30 << 20, .l3_share = 2560 << 10 }, { 384, 426, 832 } },
+        /* 32K L1d, 2M L2 (Gracemont cluster), L3 unknown */
+        { { .l1d = 32 << 10, .l2 = 2 << 20 }, { 256, 1020, 1024 } },
+        /* nothing known: 32K / 512K / 2M */
+        { { .l1d = 0 }, { 256, 252, 1024 } },
+        /* Gracemont (Alder Lake-N): 2M L2 shared by a cluster of 4 cores */
+        { { .l1d = 32 << 10, .l2 = 2 << 20, .l2_share = 512 << 10, .l3_share = 1536 << 10 }, { 256, 252, 768 } },
+        /* tiny caches clamp */
+        { { .l1d = 4 << 10, .l2 = 16 << 10, .l3_share = 64 << 10 }, { 64, 30, 256 } },
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        struct fk_gemm_blocks b = fk_gemm_blocks_for(&cases[i].c);
+        if (b.kc != cases[i].want.kc || b.mc != cases[i].want.mc || b.nc != cases[i].want.nc)
+            fail_msg("case %zu: blocks %d,%d,%d, want %d,%d,%d", i, b.kc, b.mc, b.nc,
+                     cases[i].want.kc, cases[i].want.mc, cases[i].want.nc);
+        /* the invariants the model promises */
+        assert_true((size_t)b.kc * 16 * 4 <= (cases[i].c.l1d ? cases[i].c.l1d : 32 << 10) / 2 || b.kc == 64);
+        assert_int_equal(b.mc % 6, 0);
+    }
+    assert_int_equal(fk_gemm_blocks_for(NULL).kc, 256);
+
+    /* the config's caches and blocks, and the environment, override */
+    fk_ctx *ctx;
+    struct fk_ctx_config cfg = { .isa = FK_ISA_REF, .threads = 1,
+                                 .caches = { .l1d = 48 << 10, .l2 = 1280 << 10, .l3_share = 2560 << 10 } };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    struct fk_gemm_blocks b = fk_ctx_gemm_blocks(ctx);
+    assert_int_equal(b.kc, 384);
+    assert_int_equal(b.mc, 426);
+    assert_int_equal(fk_ctx_caches(ctx).source, FK_CACHES_GIVEN);
+    fk_ctx_free(ctx);
+    cfg.blocks = (struct fk_gemm_blocks){ 100, 0, 0 }; /* kc rounded to 8, the rest modelled */
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    b = fk_ctx_gemm_blocks(ctx);
+    assert_int_equal(b.kc, 104);
+    assert_int_equal(b.mc, 426);
+    fk_ctx_free(ctx);
+    setenv("FK_GEMM_BLOCKS", "64,12,128", 1);
+    setenv("FK_CACHES", "32K,512K,4M", 1);
+    cfg = (struct fk_ctx_config){ .isa = FK_ISA_REF, .threads = 1, .blocks = { 0, 18, 0 } };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    b = fk_ctx_gemm_blocks(ctx);
+    assert_int_equal(b.kc, 64);  /* env */
+    assert_int_equal(b.mc, 18);  /* config over env */
+    assert_int_equal(b.nc, 128); /* env */
+    assert_int_equal(fk_ctx_caches(ctx).l2, 512 << 10);
+    fk_ctx_free(ctx);
+    unsetenv("FK_GEMM_BLOCKS");
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    b = fk_ctx_gemm_blocks(ctx);
+    assert_int_equal(b.kc, 256); /* modelled from FK_CACHES = Zen 3 */
+    assert_int_equal(b.nc, 2048);
+    fk_ctx_free(ctx);
+    unsetenv("FK_CACHES");
+
+    /* this CPU: something sane was read or defaulted */
+    struct fk_cache_info c = fk_cpu_caches();
+    print_message("caches: L1d %zu L2 %zu L3 %zu (share %zu), source %d\n", c.l1d, c.l2, c.l3,
+                  c.l3_share, c.source);
+    if (c.source != FK_CACHES_DEFAULT)
+        assert_true(c.l1d >= 4096 && c.l2 >= c.l1d);
+}
+
+/* int8 weight codes: 7 bits where the ISA has no VNNI, unless forced. */
+static void test_q8_bits(void **state)
+{
+    (void)state;
+    fk_ctx *ctx;
+    struct fk_ctx_config cfg = { .isa = FK_ISA_REF, .threads = 1 };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    assert_int_equal(fk_ctx_q8_bits(ctx), FK_Q8_8BIT);
+    fk_ctx_free(ctx);
+    if (fk_isa_supported(FK_ISA_AVX2)) {
+        cfg.isa = FK_ISA_AVX2;
+        assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+        assert_int_equal(fk_ctx_q8_bits(ctx), FK_Q8_7BIT);
+        assert_string_equal(fk_ctx_q8_path(ctx), "avx2-7bit");
+        fk_ctx_free(ctx);
+        cfg.q8_bits = FK_Q8_8BIT;
+        assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+        assert_string_equal(fk_ctx_q8_path(ctx), "avx2-8bit");
+        fk_ctx_free(ctx);
+    }
+    if (fk_isa_supported(FK_ISA_AVX2_VNNI)) {
+        cfg = (struct fk_ctx_config){ .isa = FK_ISA_AVX2_VNNI, .threads = 1 };
+        assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+        assert_string_equal(fk_ctx_q8_path(ctx), "vnni-8bit");
+        fk_ctx_free(ctx);
+    }
+    cfg = (struct fk_ctx_config){ .isa = FK_ISA_REF, .threads = 1, .q8_bits = (enum fk_q8_bits)5 };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_EINVAL);
+}
+
 int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_isa_selection),
         cmocka_unit_test(test_parallel_for),
         cmocka_unit_test(test_frozen_scratch),
+        cmocka_unit_test(test_gemm_blocks_model),
+        cmocka_unit_test(test_q8_bits),
     };
     return KERNEL_TEST_MAIN(argc, argv, "kernels/ctx", tests);
 }

@@ -8,6 +8,9 @@
  *                                          int8       bit-exact before the activation
  *   f16 weights vs f32 weights:                       |dy| <= 1e-3 S
  *   int8 weights + int8 activations vs f32:           |dy| <= 2e-2 S
+ *   7-bit path weights (no VNNI) + int8 act.:         |dy| <= 3e-2 S
+ *     (pairs |q0| + |q1| <= 128: each weight's step is 1x to 2x the 8-bit one)
+ *   different cache blocks (kc, mc, nc), any type:    bit-identical
  * Activations (GELU, SiLU) add at most 2e-6 relative on top. */
 #include <math.h>
 #include <stdlib.h>
@@ -94,21 +97,25 @@ static void test_isa_vs_reference(void **state)
     int n_isa = test_isas(isas);
     if (n_isa == 0)
         f4d_skip("test_isa_vs_reference: no optimized ISA under test (none on this CPU, or --isa ref)");
-    fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
     struct fk_epilogue plain = { FK_ACT_NONE, NULL, 0 };
     for (size_t s = 0; s < sizeof shapes / sizeof shapes[0]; s++) {
         struct problem p;
         problem_make(&p, shapes[s][0], shapes[s][1], shapes[s][2], 100 + s);
-        for (int t = FK_W_F32; t <= FK_W_Q8; t++) {
+        /* int8 twice: 8-bit and 7-bit weight codes, each path against the
+         * reference packing the same codes */
+        for (int v = 0; v < 4; v++) {
+            int t = v < FK_W_Q8 ? v : FK_W_Q8, bits = v == 3 ? 7 : 8;
+            fk_ctx *ref = test_ctx_q8(FK_ISA_REF, 1, (enum fk_q8_bits)bits);
             float *want = run(ref, &p, (enum fk_wtype)t, &plain);
+            fk_ctx_free(ref);
             for (int i = 0; i < n_isa; i++)
                 for (int threads = 1; threads <= 2; threads++) {
-                    fk_ctx *ctx = test_ctx(isas[i], threads);
+                    fk_ctx *ctx = test_ctx_q8(isas[i], threads, (enum fk_q8_bits)bits);
                     float *got = run(ctx, &p, (enum fk_wtype)t, &plain);
                     if (t == FK_W_Q8) {
                         if (memcmp(got, want, sizeof(float) * (size_t)p.m * (size_t)p.n) != 0)
-                            fail_msg("%s int8 %dx%dx%d not bit-exact (%g)", fk_isa_name(isas[i]),
-                                     p.m, p.n, p.k, scaled_err(&p, got, want));
+                            fail_msg("%s int8 (%s) %dx%dx%d not bit-exact (%g)", fk_isa_name(isas[i]),
+                                     fk_ctx_q8_path(ctx), p.m, p.n, p.k, scaled_err(&p, got, want));
                     } else {
                         double e = scaled_err(&p, got, want);
                         if (e > 1e-5)
@@ -122,7 +129,6 @@ static void test_isa_vs_reference(void **state)
         }
         problem_free(&p);
     }
-    fk_ctx_free(ref);
 }
 
 static void test_precision_budgets(void **state)
@@ -134,15 +140,19 @@ static void test_precision_budgets(void **state)
     problem_make(&p, 64, 96, 384, 5);
     float *f32 = run(ctx, &p, FK_W_F32, &plain);
     float *f16 = run(ctx, &p, FK_W_F16, &plain);
-    float *q8 = run(ctx, &p, FK_W_Q8, &plain);
-    double e16 = scaled_err(&p, f16, f32), e8 = scaled_err(&p, q8, f32);
-    print_message("f16 vs f32: %.3g S, int8 vs f32: %.3g S\n", e16, e8);
+    fk_ctx *c8 = test_ctx_q8(FK_ISA_AUTO, 2, FK_Q8_8BIT), *c7 = test_ctx_q8(FK_ISA_AUTO, 2, FK_Q8_7BIT);
+    float *q8 = run(c8, &p, FK_W_Q8, &plain), *q7 = run(c7, &p, FK_W_Q8, &plain);
+    double e16 = scaled_err(&p, f16, f32), e8 = scaled_err(&p, q8, f32), e7 = scaled_err(&p, q7, f32);
+    print_message("f16 vs f32: %.3g S, int8 vs f32: %.3g S (%s), 7-bit weights vs f32: %.3g S (%s)\n",
+                  e16, e8, fk_ctx_q8_path(c8), e7, fk_ctx_q8_path(c7));
     assert_true(e16 <= 1e-3);
     assert_true(e8 <= 2e-2);
+    assert_true(e7 <= 3e-2);
     assert_true(e8 > 0); /* int8 really quantized */
-    free(f32); free(f16); free(q8);
+    assert_true(e7 > e8); /* and 7 bits really coarser */
+    free(f32); free(f16); free(q8); free(q7);
     problem_free(&p);
-    fk_ctx_free(ctx);
+    fk_ctx_free(ctx); fk_ctx_free(c8); fk_ctx_free(c7);
 }
 
 static void test_epilogues(void **state)
@@ -152,7 +162,7 @@ static void test_epilogues(void **state)
     int n_isa = test_isas(isas);
     if (n_isa == 0)
         f4d_skip("test_epilogues: no optimized ISA under test (none on this CPU, or --isa ref)");
-    fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
+    fk_ctx *refs[2] = { test_ctx_q8(FK_ISA_REF, 1, FK_Q8_8BIT), test_ctx_q8(FK_ISA_REF, 1, FK_Q8_7BIT) };
     struct problem p;
     problem_make(&p, 19, 45, 70, 9);
     const enum fk_act acts[] = { FK_ACT_NONE, FK_ACT_RELU, FK_ACT_GELU, FK_ACT_SILU };
@@ -160,9 +170,9 @@ static void test_epilogues(void **state)
         for (int mode = 0; mode < 3; mode++) {
             struct fk_epilogue ep = { acts[a], mode >= 1 ? p.gamma : NULL, mode == 2 };
             for (int t = FK_W_F32; t <= FK_W_Q8; t++) {
-                float *want = run(ref, &p, (enum fk_wtype)t, &ep);
                 for (int i = 0; i < n_isa; i++) {
                     fk_ctx *ctx = test_ctx(isas[i], 2);
+                    float *want = run(refs[fk_ctx_q8_bits(ctx) == FK_Q8_7BIT], &p, (enum fk_wtype)t, &ep);
                     float *got = run(ctx, &p, (enum fk_wtype)t, &ep);
                     /* residual outputs carry y0 (|y0| ~ 1): budget on S + |y0| */
                     double worst = 0;
@@ -176,17 +186,19 @@ static void test_epilogues(void **state)
                         fail_msg("%s act %d mode %d type %d: error %g", fk_isa_name(isas[i]),
                                  a, mode, t, worst);
                     free(got);
+                    free(want);
                     fk_ctx_free(ctx);
                 }
-                free(want);
             }
         }
     problem_free(&p);
-    fk_ctx_free(ref);
+    fk_ctx_free(refs[0]);
+    fk_ctx_free(refs[1]);
 }
 
-/* All codes at +-127 over k = 4096: sums of 66e6 that any int16 intermediate
- * (vpmaddubsw) would saturate; the result must equal the exact integer. */
+/* All codes at +-127 over k = 4096 (8-bit weight codes on every ISA): sums of
+ * 66e6 that any int16 intermediate of 8-bit x 8-bit pairs (vpmaddubsw) would
+ * saturate; the result must equal the exact integer. */
 static void test_int8_exact_accumulation(void **state)
 {
     (void)state;
@@ -201,7 +213,7 @@ static void test_int8_exact_accumulation(void **state)
     enum fk_isa all[5] = { FK_ISA_REF };
     int n_isa = 1 + test_isas(all + 1);
     for (int a = 0; a < n_isa; a++) {
-        fk_ctx *ctx = test_ctx(all[a], 2);
+        fk_ctx *ctx = test_ctx_q8(all[a], 2, FK_Q8_8BIT);
         struct fk_linear L;
         assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, n, k, NULL), F4D_OK);
         assert_int_equal(fk_linear_forward(ctx, &L, x, m, k, y, n, NULL), F4D_OK);
@@ -219,6 +231,121 @@ static void test_int8_exact_accumulation(void **state)
         fk_ctx_free(ctx);
     }
     free(x); free(w); free(y);
+}
+
+/* The 7-bit path's worst cases, exact against int64 sums over k = 4096 and
+ * in several k blocks: every activation at code 127 (255 as the unsigned
+ * operand of vpmaddubsw; row 6 at -127, i.e. 1), weights whose (even, odd)
+ * pairs sum to the budget |q0| + |q1| = 128, so each int16 pair sum reaches
+ * +-255 * 128 = +-32640. From fp32 (+-0.5 everywhere: codes +-64) and from an
+ * int8 file holding pairs (127, 1), (64, 64), (-1, -127) kept as they are.
+ * Any saturation would show. */
+static void test_q7_worst_case(void **state)
+{
+    (void)state;
+    const int k = 4096, n = 16, m = 7;
+    float *x = xmalloc(sizeof(float) * m * k), *w = xmalloc(sizeof(float) * n * k);
+    float *y = xmalloc(sizeof(float) * m * n), sc[16];
+    int8_t *qf = xmalloc((size_t)n * k);
+    for (int i = 0; i < m * k; i++)
+        x[i] = i / k == 6 ? -2.0f : 2.0f;
+    for (int j = 0; j < n; j++) {
+        sc[j] = 0.25f;
+        for (int i = 0; i < k; i++) {
+            /* all +, all -, pairs alternating sign, then mixed runs */
+            int neg = j == 0 ? 0 : j == 1 ? 1 : j < 8 ? (i / 2 + j) % 2 : (i / (2 * j)) % 2;
+            w[j * k + i] = neg ? -0.5f : 0.5f;
+            int big = (i / 2 + j) % 3, v = big == 0 ? (i % 2 ? 1 : 127) : big == 1 ? 64 : (i % 2 ? 127 : 1);
+            qf[j * k + i] = (int8_t)(neg ? -v : v);
+        }
+    }
+    enum fk_isa all[5] = { FK_ISA_REF };
+    int n_isa = 1 + test_isas(all + 1);
+    static const struct fk_gemm_blocks blocks[] = { { 0, 0, 0 }, { 64, 6, 16 } };
+    for (int a = 0; a < n_isa; a++)
+        for (int bl = 0; bl < 2; bl++)
+            for (int src = 0; src < 2; src++) {
+                fk_ctx *ctx = NULL;
+                struct fk_ctx_config cfg = { .isa = all[a], .threads = 2, .q8_bits = FK_Q8_7BIT,
+                                             .blocks = blocks[bl] };
+                assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+                struct fk_linear L;
+                if (src == 0)
+                    assert_int_equal(fk_linear_pack(ctx, &L, FK_W_Q8, w, n, k, NULL), F4D_OK);
+                else
+                    assert_int_equal(fk_linear_pack_q8(ctx, &L, qf, sc, n, k, NULL), F4D_OK);
+                assert_int_equal(L.q8_bits, 7);
+                assert_int_equal(fk_linear_forward(ctx, &L, x, m, k, y, n, NULL), F4D_OK);
+                for (int i = 0; i < m; i++)
+                    for (int j = 0; j < n; j++) {
+                        int64_t acc = 0;
+                        for (int q = 0; q < k; q++) {
+                            int wq = src == 0 ? (w[j * k + q] > 0 ? 64 : -64) : qf[j * k + q];
+                            acc += (int64_t)(x[i * k + q] > 0 ? 127 : -127) * wq;
+                        }
+                        float sw = src == 0 ? 1.0f / 127.0f : 0.25f;
+                        float want = fmaf((float)acc, (2.0f / 127.0f) * sw, 0.0f);
+                        if (y[i * n + j] != want)
+                            fail_msg("%s (%s, %s): y[%d][%d] = %.9g, exact %.9g", fk_isa_name(all[a]),
+                                     fk_ctx_q8_path(ctx), src ? "int8 file" : "fp32", i, j,
+                                     y[i * n + j], want);
+                    }
+                fk_linear_free(&L);
+                fk_ctx_free(ctx);
+            }
+    free(x); free(w); free(y); free(qf);
+}
+
+/* The cache blocks change where partial sums are stored, never the order of
+ * accumulation: every blocking gives bit-identical results, for every weight
+ * type, including blocks far from the model's (kc 8, mc 6, nc 16). */
+static void test_blockings_identical(void **state)
+{
+    (void)state;
+    enum fk_isa isas[4];
+    int n_isa = test_isas(isas);
+    if (n_isa == 0)
+        f4d_skip("test_blockings_identical: no optimized ISA under test (none on this CPU, or --isa ref)");
+    static const struct fk_gemm_blocks blocks[] = {
+        { 8, 6, 16 }, { 64, 12, 32 }, { 128, 30, 256 }, { 256, 252, 1024 }, { 384, 426, 2048 },
+        { 1024, 1020, 4096 },
+    };
+    static const int dims[][3] = { { 97, 70, 1000 }, { 13, 33, 263 }, { 250, 128, 520 } };
+    struct fk_epilogue ep = { FK_ACT_GELU, NULL, 0 };
+    for (size_t d = 0; d < sizeof dims / sizeof dims[0]; d++) {
+        struct problem p;
+        problem_make(&p, dims[d][0], dims[d][1], dims[d][2], 31 + d);
+        for (int i = 0; i < n_isa; i++)
+            for (int t = FK_W_F32; t <= FK_W_Q8 + 1; t++) {
+                enum fk_wtype wt = t > FK_W_Q8 ? FK_W_Q8 : (enum fk_wtype)t;
+                enum fk_q8_bits bits = t > FK_W_Q8 ? FK_Q8_7BIT : FK_Q8_8BIT;
+                float *first = NULL;
+                for (size_t b = 0; b < sizeof blocks / sizeof blocks[0]; b++)
+                    for (int threads = 1; threads <= 2; threads++) {
+                        fk_ctx *ctx = NULL;
+                        struct fk_ctx_config cfg = { .isa = isas[i], .threads = threads,
+                                                     .blocks = blocks[b], .q8_bits = bits };
+                        assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+                        struct fk_gemm_blocks got = fk_ctx_gemm_blocks(ctx);
+                        assert_int_equal(got.kc, blocks[b].kc);
+                        assert_int_equal(got.mc, blocks[b].mc);
+                        assert_int_equal(got.nc, blocks[b].nc);
+                        float *y = run(ctx, &p, wt, &ep);
+                        if (!first)
+                            first = y;
+                        else if (memcmp(first, y, sizeof(float) * (size_t)p.m * (size_t)p.n) != 0)
+                            fail_msg("%s type %d (%d-bit) %dx%dx%d: blocks %d,%d,%d threads %d differ (%g)",
+                                     fk_isa_name(isas[i]), (int)wt, (int)bits, p.m, p.n, p.k,
+                                     blocks[b].kc, blocks[b].mc, blocks[b].nc, threads,
+                                     scaled_err(&p, y, first));
+                        if (y != first)
+                            free(y);
+                        fk_ctx_free(ctx);
+                    }
+                free(first);
+            }
+        problem_free(&p);
+    }
 }
 
 static void test_nonfinite_rows(void **state)
@@ -346,7 +473,7 @@ static void test_bad_input(void **state)
 static void test_f16_source_and_q8_import(void **state)
 {
     (void)state;
-    fk_ctx *ctx = test_ctx(FK_ISA_AUTO, 1);
+    fk_ctx *ctx = test_ctx_q8(FK_ISA_AUTO, 1, FK_Q8_8BIT);
     struct problem p;
     problem_make(&p, 11, 21, 33, 77);
     fk_f16 *wh = xmalloc(sizeof(fk_f16) * 21 * 33);
@@ -372,6 +499,20 @@ static void test_f16_source_and_q8_import(void **state)
     assert_memory_equal(ya, yb, sizeof(float) * 11 * 21);
     assert_true(a.bytes < (size_t)21 * 33 * 4); /* int8 holds less than fp32 */
     fk_linear_free(&a); fk_linear_free(&b);
+    /* an 8-bit file under 7-bit codes: requantized at packing, the same on
+     * every ISA as on the reference, and within the 7-bit budget */
+    fk_ctx *r7 = test_ctx_q8(FK_ISA_REF, 1, FK_Q8_7BIT), *c7 = test_ctx_q8(FK_ISA_AUTO, 1, FK_Q8_7BIT);
+    assert_int_equal(fk_linear_pack_q8(r7, &a, q, sc, 21, 33, p.b), F4D_OK);
+    assert_int_equal(fk_linear_pack_q8(c7, &b, q, sc, 21, 33, p.b), F4D_OK);
+    assert_int_equal(a.q8_bits, 7);
+    assert_int_equal(fk_linear_forward(r7, &a, p.x, 11, 33, ya, 21, NULL), F4D_OK);
+    assert_int_equal(fk_linear_forward(c7, &b, p.x, 11, 33, yb, 21, NULL), F4D_OK);
+    assert_memory_equal(ya, yb, sizeof(float) * 11 * 21);
+    float *yf = run(ctx, &p, FK_W_F32, NULL);
+    assert_true(scaled_err(&p, ya, yf) <= 3e-2);
+    free(yf);
+    fk_linear_free(&a); fk_linear_free(&b);
+    fk_ctx_free(r7); fk_ctx_free(c7);
     free(q); free(wh); free(ya); free(yb);
     problem_free(&p);
     fk_ctx_free(ctx);
@@ -384,6 +525,8 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_precision_budgets),
         cmocka_unit_test(test_epilogues),
         cmocka_unit_test(test_int8_exact_accumulation),
+        cmocka_unit_test(test_q7_worst_case),
+        cmocka_unit_test(test_blockings_identical),
         cmocka_unit_test(test_nonfinite_rows),
         cmocka_unit_test(test_tiny_rows),
         cmocka_unit_test(test_f16_source_and_q8_import),

@@ -44,7 +44,7 @@ static int only_isa = -1; /* --isa: the one ISA under test, -1 = all */
 
 int test_isas(enum fk_isa out[4])
 {
-    static const enum fk_isa all[] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_NEON };
+    static const enum fk_isa all[] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_NEON, FK_ISA_AVX512 };
     if (only_isa >= 0) {
         if (only_isa == FK_ISA_REF)
             return 0;
@@ -61,7 +61,15 @@ int test_isas(enum fk_isa out[4])
 fk_ctx *test_ctx(enum fk_isa isa, int threads)
 {
     fk_ctx *ctx = NULL;
-    struct fk_ctx_config cfg = { isa, threads };
+    struct fk_ctx_config cfg = { .isa = isa, .threads = threads };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+    return ctx;
+}
+
+fk_ctx *test_ctx_q8(enum fk_isa isa, int threads, enum fk_q8_bits bits)
+{
+    fk_ctx *ctx = NULL;
+    struct fk_ctx_config cfg = { .isa = isa, .threads = threads, .q8_bits = bits };
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     return ctx;
 }

@@ -32,6 +32,8 @@ int      kernel_test_main(int argc, char **argv, const char *group, const struct
 #define KERNEL_TEST_MAIN(argc, argv, group, tests) \
     kernel_test_main(argc, argv, group, tests, sizeof(tests) / sizeof((tests)[0]))
 fk_ctx  *test_ctx(enum fk_isa isa, int threads);   /* asserts success */
+/* ... with the int8 weight codes forced (FK_Q8_7BIT / FK_Q8_8BIT) */
+fk_ctx  *test_ctx_q8(enum fk_isa isa, int threads, enum fk_q8_bits bits);
 
 /* max |a-b| / (atol + rtol*|b|) over n values: <= 1 means within budget.
  * NaN in exactly one of a, b counts as out of budget. */

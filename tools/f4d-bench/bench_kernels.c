@@ -6,7 +6,15 @@
  *   f32   ours vs OpenBLAS sgemm (both fp32: summation order only)
  *   f16   fp16 weights vs our fp32 weights, same input
  *   int8  int8 weights + int8 dynamic activations vs our fp32
- *   attention  vs the scalar reference kernel on a sample of query rows. */
+ *   attention  vs the scalar reference kernel on a sample of query rows.
+ *
+ * The header names the CPU and its SIMD flags, the caches fk read (and
+ * where from), the GEMM blocks chosen from them (FK_GEMM_BLOCKS / FK_CACHES
+ * override) and the int8 path. Each row names its path; xf32 is an f16 or
+ * int8 GEMM's speed over our f32 GEMM on the same shape in the same run.
+ * --isa NAME forces one ISA; --isa all runs f32/f16/int8 on the best ISA and
+ * int8 again on every other optimized ISA this CPU has (avx2-7bit beside
+ * vnni-8bit and avx512-vnni-8bit on one machine). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -33,6 +41,7 @@ struct opts {
     int         threads_max;
     const char *json;
     enum fk_isa isa;
+    int         all_isas; /* --isa all: int8 on every optimized ISA too */
     const char *only;   /* "gemm", "attention" or NULL for both */
     int         openblas_native;
 };
@@ -42,6 +51,8 @@ struct row {
     int    threads, m, n, k;
     double gflops, openblas_gflops, max_rel_err, mean_rel_err;
     double peer_ratio; /* gemm: ours / OpenBLAS; attention: ours / our f32 GEMM */
+    double vs_f32;     /* gemm f16/int8: ours / our f32 GEMM, same shape and run */
+    const char *path;  /* the kernel path that ran (ISA, int8 path) */
 };
 
 /* Attention's peer: our f32 GEMM on the same token count, 1024 -> 1024, same
@@ -52,8 +63,15 @@ static void attention_ratios(struct row *rows, int n)
         struct row *r = &rows[i];
         if (strcmp(r->kernel, "gemm") == 0) {
             r->peer_ratio = r->gflops / r->openblas_gflops;
+            r->vs_f32 = NAN;
+            for (int j = 0; j < n; j++)
+                if (!strcmp(rows[j].kernel, "gemm") && !strcmp(rows[j].precision, "f32") &&
+                    rows[j].m == r->m && rows[j].n == r->n && rows[j].k == r->k &&
+                    rows[j].threads == r->threads)
+                    r->vs_f32 = r->gflops / rows[j].gflops;
             continue;
         }
+        r->vs_f32 = NAN;
         r->peer_ratio = NAN;
         for (int j = 0; j < n; j++)
             if (!strcmp(rows[j].kernel, "gemm") && !strcmp(rows[j].precision, "f32") &&
@@ -103,7 +121,7 @@ static void errors_vs(const float *y, const float *ref, size_t n, double *max_re
 static fk_ctx *make_ctx(enum fk_isa isa, int threads)
 {
     fk_ctx *ctx;
-    struct fk_ctx_config cfg = { isa, threads };
+    struct fk_ctx_config cfg = { .isa = isa, .threads = threads };
     if (fk_ctx_new(&cfg, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-bench: cannot create a %s context with %d threads\n",
                 fk_isa_name(isa), threads);
@@ -162,21 +180,30 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
     int count = 0;
     for (int threads = o->quick ? o->threads_max : 1; threads <= o->threads_max; threads++) {
         fk_ctx *ctx = make_ctx(o->isa, threads);
+        /* --isa all: int8 also on each other optimized ISA (its own int8 path) */
+        fk_ctx *xctx[3] = { NULL, NULL, NULL };
+        int n_x = 0;
+        static const enum fk_isa others[3] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_AVX512 };
+        for (int i = 0; o->all_isas && i < 3; i++)
+            if (others[i] != fk_ctx_isa(ctx) && fk_isa_supported(others[i]))
+                xctx[n_x++] = make_ctx(others[i], threads);
         double blas_gflops = NAN, blas_max = NAN, blas_mean = NAN;
-        static const enum fk_wtype types[] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
-        static const char *names[] = { "f32", "f16", "int8" };
-        for (int t = 0; t < 3; t++) {
+        static const enum fk_wtype types[] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
+        static const char *names[] = { "f32", "f16", "int8", "int8", "int8", "int8" };
+        for (int t = 0; t < 3 + n_x; t++) {
+            fk_ctx *c = t < 3 ? ctx : xctx[t - 3];
             struct fk_linear L;
-            if (fk_linear_pack(ctx, &L, types[t], w, n, k, b) != F4D_OK) {
-                fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
+            if (fk_linear_pack(c, &L, types[t], w, n, k, b) != F4D_OK) {
+                fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(c));
                 exit(1);
             }
-            double sec = time_linear(ctx, &L, x, m, t == 0 ? y32 : y, o->reps);
+            double sec = time_linear(c, &L, x, m, t == 0 ? y32 : y, o->reps);
             double flops = 2.0 * m * (double)n * k;
             struct row *r = &rows[count++];
             if (count > nrows)
                 exit(1);
-            *r = (struct row){ "gemm", names[t], threads, m, n, k, flops / sec * 1e-9, NAN, NAN, NAN, NAN };
+            *r = (struct row){ "gemm", names[t], threads, m, n, k, flops / sec * 1e-9, NAN, NAN, NAN, NAN,
+                               NAN, types[t] == FK_W_Q8 ? fk_ctx_q8_path(c) : fk_isa_name(fk_ctx_isa(c)) };
             if (t == 0) {
 #ifdef F4D_HAVE_OPENBLAS
                 double bs = time_openblas(x, w, b, yb, m, n, k, threads, o->reps);
@@ -192,6 +219,8 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
             fk_linear_free(&L);
         }
         fk_ctx_free(ctx);
+        for (int i = 0; i < n_x; i++)
+            fk_ctx_free(xctx[i]);
     }
     free(x); free(w); free(b); free(y32); free(y); free(yb);
     return count;
@@ -243,7 +272,8 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
         }
         struct row *r = &rows[count++];
         *r = (struct row){ "attention", "f32", threads, ntok, ntok, d,
-                           4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN };
+                           4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
+                           NAN, fk_isa_name(fk_ctx_isa(ctx)) };
         errors_vs(out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
         fk_ctx_free(ctx);
     }
@@ -274,6 +304,9 @@ static int write_json(const char *path, double peak, const struct row *rows, int
         cJSON_AddItemToObject(o, "openblas_gflops", num_or_null(r->openblas_gflops));
         cJSON_AddItemToObject(o, "max_rel_err", num_or_null(r->max_rel_err));
         cJSON_AddItemToObject(o, "mean_rel_err", num_or_null(r->mean_rel_err));
+        cJSON_AddItemToObject(o, "path", cJSON_CreateString(r->path));
+        if (!strcmp(r->kernel, "gemm") && strcmp(r->precision, "f32")) /* extra: vs our f32 */
+            cJSON_AddItemToObject(o, "vs_f32", num_or_null(r->vs_f32));
         if (!strcmp(r->kernel, "attention")) /* extra: the goal is stated against our f32 GEMM */
             cJSON_AddItemToObject(o, "vs_f32_gemm", num_or_null(r->peer_ratio));
         cJSON_AddItemToArray(arr, o);
@@ -293,9 +326,47 @@ static int write_json(const char *path, double peak, const struct row *rows, int
     return 0;
 }
 
+/* The CPU's model name and the flags the kernels care about (Linux). */
+static void print_cpu(void)
+{
+    char line[4096], model[256] = "unknown";
+    static const char *const want[] = { "avx2", "fma", "f16c", "avx_vnni", "avx512f", "avx512bw",
+                                        "avx512vl", "avx512_vnni", "avx512_bf16", "amx_int8", "asimd",
+                                        "asimddp", "sve" };
+    char have[256] = "";
+    FILE *f = fopen("/proc/cpuinfo", "r");
+    int got_flags = 0;
+    while (f && fgets(line, sizeof line, f)) {
+        char *v = strchr(line, ':');
+        if (!v)
+            continue;
+        v += 2;
+        if (!strncmp(line, "model name", 10) && !strcmp(model, "unknown")) {
+            snprintf(model, sizeof model, "%s", v);
+            model[strcspn(model, "\n")] = 0;
+        } else if ((!strncmp(line, "flags", 5) || !strncmp(line, "Features", 8)) && !got_flags) {
+            got_flags = 1;
+            for (size_t i = 0; i < sizeof want / sizeof want[0]; i++) {
+                char pat[32];
+                size_t len = strlen(want[i]);
+                snprintf(pat, sizeof pat, " %s", want[i]);
+                for (char *p = strstr(v - 1, pat); p; p = strstr(p + 1, pat))
+                    if (p[len + 1] == ' ' || p[len + 1] == '\n') {
+                        strncat(have, want[i], sizeof have - strlen(have) - 2);
+                        strcat(have, " ");
+                        break;
+                    }
+            }
+        }
+    }
+    if (f)
+        fclose(f);
+    printf("cpu: %s; flags: %s\n", model, have[0] ? have : "(none of interest)");
+}
+
 static int parse(int argc, char **argv, struct opts *o)
 {
-    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, NULL, 0 };
+    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0 };
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--quick")) {
@@ -314,6 +385,9 @@ static int parse(int argc, char **argv, struct opts *o)
             o->reps = atoi(argv[++i]);
         } else if (!strcmp(a, "--threads") && i + 1 < argc) {
             o->threads_max = atoi(argv[++i]);
+        } else if (!strcmp(a, "--isa") && i + 1 < argc && !strcmp(argv[i + 1], "all")) {
+            o->all_isas = 1;
+            i++;
         } else if (!strcmp(a, "--isa") && i + 1 < argc) {
             o->isa = fk_isa_from_name(argv[++i]);
             if ((int)o->isa < 0 || !fk_isa_supported(o->isa)) {
@@ -322,7 +396,7 @@ static int parse(int argc, char **argv, struct opts *o)
             }
         } else {
             fprintf(stderr, "usage: f4d-bench kernels [--quick] [--reps N] [--threads N] "
-                            "[--isa auto|ref|avx2|avx2-vnni] [--only gemm|attention] [--openblas-native] [--json FILE]\n"
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--json FILE]\n"
                             "f4d-bench kernels: unexpected argument '%s'\n", a);
             return 2;
         }
@@ -354,6 +428,15 @@ int bench_kernels(int argc, char **argv)
 #endif
     fk_ctx *probe = make_ctx(o.isa, 1);
     enum fk_isa isa = fk_ctx_isa(probe);
+    struct fk_cache_info ci = fk_ctx_caches(probe);
+    struct fk_gemm_blocks bl = fk_ctx_gemm_blocks(probe);
+    static const char *const src_names[] = { "defaults", "cpuid", "sysfs", "given (FK_CACHES/config)" };
+    print_cpu();
+    printf("caches (%s): L1d %zu KiB, L2 %zu KiB (%zu per core), L3 %zu KiB (%zu KiB per core)\n",
+           src_names[ci.source & 3], ci.l1d >> 10, ci.l2 >> 10,
+           (ci.l2_share ? ci.l2_share : ci.l2) >> 10, ci.l3 >> 10, ci.l3_share >> 10);
+    printf("GEMM blocks%s: kc %d, mc %d, nc %d (fp32; int8 kc x 4); int8 path %s\n",
+           getenv("FK_GEMM_BLOCKS") ? " (FK_GEMM_BLOCKS)" : "", bl.kc, bl.mc, bl.nc, fk_ctx_q8_path(probe));
     fk_ctx_free(probe);
 
     double peak = bench_fma_peak_gflops(o.threads_max, 3);
@@ -384,18 +467,19 @@ int bench_kernels(int argc, char **argv)
         n += bench_attention_shape(&o, 226, 4, 16, rows + n);
 
     attention_ratios(rows, n);
-    printf("\n%-9s %-5s %2s %5s %5s %5s %9s %9s %7s %7s %10s %10s\n", "kernel", "prec", "th", "m", "n",
-           "k", "GFLOP/s", "OpenBLAS", "xpeer", "xpeak", "max_rel", "mean_rel");
+    printf("\n%-9s %-5s %-10s %2s %5s %5s %5s %9s %9s %7s %6s %7s %10s %10s\n", "kernel", "prec", "path",
+           "th", "m", "n", "k", "GFLOP/s", "OpenBLAS", "xpeer", "xf32", "xpeak", "max_rel", "mean_rel");
     for (int i = 0; i < n; i++) {
         const struct row *r = &rows[i];
         double pk = r->threads == 1 ? peak1 : peak * r->threads / o.threads_max;
-        printf("%-9s %-5s %2d %5d %5d %5d %9.1f %9.1f %7.2f %7.2f %10.2e %10.2e\n", r->kernel,
-               r->precision, r->threads, r->m, r->n, r->k, r->gflops, r->openblas_gflops,
-               r->peer_ratio, r->gflops / pk, r->max_rel_err, r->mean_rel_err);
+        printf("%-9s %-5s %-10s %2d %5d %5d %5d %9.1f %9.1f %7.2f %6.2f %7.2f %10.2e %10.2e\n", r->kernel,
+               r->precision, r->path, r->threads, r->m, r->n, r->k, r->gflops, r->openblas_gflops,
+               r->peer_ratio, r->vs_f32, r->gflops / pk, r->max_rel_err, r->mean_rel_err);
     }
     printf("\nerrors are relative to the RMS of the fp32 output: f32 vs OpenBLAS, f16/int8 vs our f32,\n"
            "attention vs the scalar reference on 48 query rows. xpeer = ours / OpenBLAS sgemm for GEMM,\n"
-           "ours / our f32 GEMM (same tokens, 1024 -> 1024) for attention; same threads, same run.\n"
+           "ours / our f32 GEMM (same tokens, 1024 -> 1024) for attention; xf32 = f16/int8 GEMM / our\n"
+           "f32 GEMM on the same shape; same threads, same run.\n"
            "xpeak = ours / the FMA peak measured for those threads. Best of %d runs each.\n", o.reps);
     return o.json ? write_json(o.json, peak, rows, n, isa) : 0;
 }

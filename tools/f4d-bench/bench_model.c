@@ -1,7 +1,7 @@
 /* bench_model.c - f4d-bench model: the VGGT forward, per stage, per precision.
  *
  *   f4d-bench model [--json FILE] [--threads N] [--views S] [--size HxW]
- *                   [--reps R] [--skip-full] [--tmp DIR]
+ *                   [--reps R] [--skip-full] [--tmp DIR] [--isa NAME|all]
  *
  * tiny: a small random-weight config (embed 128, depth 4) end to end, best of
  *       R runs: ms and GFLOP/s per stage.
@@ -14,6 +14,9 @@
  *       convolution layer but the patchify), the error against the f32 run of
  *       the same weights: max |x - x_f32| / max |x_f32| over the aggregator
  *       output and the depth map. Also the arena of the full 4 x 518^2 plan.
+ *       int8 names the kernel path that ran (vnni-8bit, avx2-7bit, ...);
+ *       --isa forces one ISA, --isa all runs f32/f16 on the best ISA and
+ *       int8 on every ISA this CPU has, side by side.
  * JSON: {"tiny": [{"stage","ms","gflops"}], "full": [{"precision","seconds",
  *        "max_rel_err", ...}], ...}.
  */
@@ -215,7 +218,8 @@ static double stage_sec(const struct result *r, const char *name, double *flops)
 int bench_model(int argc, char **argv)
 {
     const char *json = NULL, *tmpdir = "/tmp";
-    int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0;
+    int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0, all_isas = 0;
+    enum fk_isa isa = FK_ISA_AUTO;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
@@ -231,9 +235,21 @@ int bench_model(int argc, char **argv)
             skip_full = 1;
         else if (!strcmp(argv[i], "--tmp") && i + 1 < argc)
             tmpdir = argv[++i];
-        else {
+        else if (!strcmp(argv[i], "--isa") && i + 1 < argc) {
+            i++;
+            if (!strcmp(argv[i], "all")) {
+                all_isas = 1;
+            } else {
+                isa = fk_isa_from_name(argv[i]);
+                if ((int)isa < 0 || !fk_isa_supported(isa)) {
+                    fprintf(stderr, "f4d-bench model: ISA '%s' is unknown or not supported here\n", argv[i]);
+                    return 2;
+                }
+            }
+        } else {
             fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
-                            "[--size HxW] [--reps R] [--skip-full] [--tmp DIR]\n");
+                            "[--size HxW] [--reps R] [--skip-full] [--tmp DIR] "
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n");
             return 2;
         }
     }
@@ -241,12 +257,25 @@ int bench_model(int argc, char **argv)
         fprintf(stderr, "f4d-bench model: bad --views/--size/--reps\n");
         return 2;
     }
-    fk_ctx *ctx;
-    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
+    fk_ctx *ctx, *xctx[3] = { NULL, NULL, NULL };
+    struct fk_ctx_config cc = { .isa = isa, .threads = threads };
     if (fk_ctx_new(&cc, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-bench model: cannot create the kernel context\n");
         return 1;
     }
+    /* --isa all: int8 again on every other optimized ISA of this CPU */
+    int n_x = 0;
+    static const enum fk_isa others[3] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_AVX512 };
+    for (int i = 0; all_isas && i < 3; i++)
+        if (others[i] != fk_ctx_isa(ctx) && fk_isa_supported(others[i])) {
+            struct fk_ctx_config xc = { .isa = others[i], .threads = threads };
+            if (fk_ctx_new(&xc, &xctx[n_x]) == F4D_OK)
+                n_x++;
+        }
+    printf("model: isa %s, int8 path %s", fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_q8_path(ctx));
+    for (int i = 0; i < n_x; i++)
+        printf(", also int8 on %s (%s)", fk_isa_name(fk_ctx_isa(xctx[i])), fk_ctx_q8_path(xctx[i]));
+    printf("\n");
     int nthr = fk_ctx_threads(ctx);
     double peak = bench_fma_peak_gflops(nthr, 3);
     char path[1024];
@@ -316,15 +345,21 @@ int bench_model(int argc, char **argv)
             one.dpt_layer_idx[i] = 0;
         if (write_random(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
             goto done;
-        static const enum fk_wtype wts[3] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
-        static const char *wn[3] = { "f32", "f16", "int8" };
-        struct result fr[3];
+        enum fk_wtype wts[6] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
+        fk_ctx *rctx[6] = { ctx, ctx, ctx, xctx[0], xctx[1], xctx[2] };
+        char wn[6][40];
+        int nrun = 3 + n_x;
+        snprintf(wn[0], sizeof wn[0], "f32");
+        snprintf(wn[1], sizeof wn[1], "f16");
+        for (int p = 2; p < nrun; p++)
+            snprintf(wn[p], sizeof wn[p], "int8 %s", fk_ctx_q8_path(rctx[p]));
+        struct result fr[6];
         int ok = 1;
-        double peak_run[3];
-        for (int p = 0; p < 3 && ok; p++) {
+        double peak_run[6];
+        for (int p = 0; p < nrun && ok; p++) {
             /* the machine may be shared: the peak is re-measured beside each run */
             peak_run[p] = bench_fma_peak_gflops(nthr, 3);
-            ok = run_model(ctx, path, wts[p], S, H, W, 1, 0, &fr[p]) == 0;
+            ok = run_model(rctx[p], path, wts[p], S, H, W, 1, 0, &fr[p]) == 0;
             if (ok) {
                 printf("full dims, one block each, %d views %dx%d, %s weights (%zu bytes "
                        "packed, arena %zu bytes):\n", S, W, H, wn[p], fr[p].weights, fr[p].arena);
@@ -338,7 +373,7 @@ int bench_model(int argc, char **argv)
             goto done;
         if (jf)
             fprintf(jf, ",\n  \"full\": [");
-        for (int p = 0; p < 3; p++) {
+        for (int p = 0; p < nrun; p++) {
             double fpatch, fdino, fframe, fglobal, fdpt;
             double tpatch = stage_sec(&fr[p], "patch_embed", &fpatch);
             double tdino = stage_sec(&fr[p], "dino_blocks", &fdino);
@@ -352,22 +387,30 @@ int bench_model(int argc, char **argv)
             double el = p ? rel_err(fr[p].layer, fr[0].layer, fr[0].n_layer) : 0;
             double ed = p ? rel_err(fr[p].depth, fr[0].depth, fr[0].n_depth) : 0;
             double e = fmax(el, ed);
+            /* the ratio to f32 in the same run: the comparison that survives a shared machine */
+            double f32_total = stage_sec(&fr[0], "patch_embed", NULL) +
+                               24 * (stage_sec(&fr[0], "dino_blocks", NULL) + stage_sec(&fr[0], "frame_blocks", NULL) +
+                                     stage_sec(&fr[0], "global_blocks", NULL)) +
+                               2 * stage_sec(&fr[0], "depth_head", NULL);
+            double mine = total - tcam;
             printf("full forward %s (extrapolated): %.1f s, %.0f GFLOP, %.1f GFLOP/s "
-                   "(%.0f %% of the FMA peak %.1f measured beside it); error vs f32: layer %.3e, "
-                   "depth %.3e\n", wn[p], total, 1e-9 * flops, 1e-9 * flops / total,
-                   100.0 * 1e-9 * flops / total / peak_run[p], peak_run[p], el, ed);
+                   "(%.0f %% of the FMA peak %.1f measured beside it), %.2fx f32 speed; "
+                   "error vs f32: layer %.3e, depth %.3e\n", wn[p], total, 1e-9 * flops, 1e-9 * flops / total,
+                   100.0 * 1e-9 * flops / total / peak_run[p], peak_run[p], f32_total / mine, el, ed);
             if (jf)
                 fprintf(jf, "%s\n    {\"precision\": \"%s\", \"seconds\": %.2f, \"max_rel_err\": %.3e, "
                         "\"layer_rel_err\": %.3e, \"depth_rel_err\": %.3e, \"gflop\": %.1f, "
                         "\"dino_block_s\": %.4f, \"frame_block_s\": %.4f, \"global_block_s\": %.4f, "
                         "\"dpt_head_s\": %.4f, \"patch_embed_s\": %.4f, \"camera_head_s_est\": %.4f, "
-                        "\"weights_bytes_one_block_each\": %zu, \"fma_peak_gflops_beside\": %.1f}",
+                        "\"weights_bytes_one_block_each\": %zu, \"fma_peak_gflops_beside\": %.1f, "
+                        "\"isa\": \"%s\", \"speed_vs_f32\": %.3f}",
                         p ? "," : "", wn[p], total, e, el, ed, 1e-9 * flops, tdino, tframe,
-                        tglobal, tdpt, tpatch, tcam, fr[p].weights, peak_run[p]);
+                        tglobal, tdpt, tpatch, tcam, fr[p].weights, peak_run[p],
+                        fk_isa_name(fk_ctx_isa(rctx[p])), f32_total / mine);
         }
         if (jf)
             fprintf(jf, "\n  ],\n  \"full_views\": %d, \"full_height\": %d, \"full_width\": %d", S, H, W);
-        for (int p = 0; p < 3; p++) {
+        for (int p = 0; p < nrun; p++) {
             free(fr[p].layer);
             free(fr[p].depth);
         }
@@ -380,5 +423,7 @@ done:
         rc = 1;
     remove(path);
     fk_ctx_free(ctx);
+    for (int i = 0; i < n_x; i++)
+        fk_ctx_free(xctx[i]);
     return rc;
 }

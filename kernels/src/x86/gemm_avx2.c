@@ -1,18 +1,23 @@
 /* gemm_avx2.c - blocked GEMM for AVX2/FMA/F16C: the driver shared by
  * fk_linear and fk_conv, the 6x16 fp32 micro-kernel (fp16 weights widened per
- * cache block into it), and the exact int8 micro-kernel for CPUs without
- * AVX-VNNI (sign-extended int16 pairs through vpmaddwd: no int16 sums, so
- * no saturation).
+ * cache block into it), and two int8 micro-kernels for CPUs without AVX-VNNI:
+ * 7-bit weights through vpmaddubsw (u8 x s7 pairs cannot saturate, see
+ * ukr_q7_avx2) and the exact 8-bit one (sign-extended int16 pairs through
+ * vpmaddwd: no int16 sums, so no saturation, but no faster than fp32).
  *
- * Blocking: a task owns mc rows of A (packed for the whole k, sized to stay in
- * L2) and a range of 16-wide weight panels. For each panel it walks k in
- * blocks of FK_GEMM_KC (the panel slice stays in L1) over all 6-row
- * micro-panels, accumulating in a small mc x 16 tile, then applies the
- * epilogue (bias, activation, LayerScale, residual) while the tile is hot. */
+ * Blocking (BLIS order, blocks from the context's cache model, see
+ * fk_gemm_blocks_for): a task owns mc rows of A and a range of 16-wide weight
+ * panels, walked nc columns at a time. For each k block of kc it packs the
+ * mc x kc block of A (L2) and runs every panel's kc x 16 weight sliver (L1)
+ * over all 6-row micro-panels, accumulating in an mc x nc tile of C; after the
+ * last k block the epilogue (bias, activation, LayerScale, residual) writes
+ * the tile row by row. The order of accumulation along k never depends on the
+ * blocks (the tile is stored and reloaded exactly), so every blocking gives
+ * bit-identical results. int8 packs A whole (rows are quantized with their
+ * full-row scale) and walks it in k blocks of 4 kc. */
 #include <immintrin.h>
 #include <math.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "../fk_internal.h"
 #include "../gemm.h"
@@ -21,7 +26,6 @@
 
 #define MR FK_GEMM_MR
 #define NR FK_GEMM_NR
-#define KC FK_GEMM_KC
 #define PG 4 /* fp32 weight panels per output tile */
 
 /* ----------------------------------------------------------- micro-kernels */
@@ -86,7 +90,7 @@ static inline long long load_i64(const int16_t *p)
  * end. R <= 4 keeps accumulators, weights and the broadcast in 16 registers
  * (all six rows at once made GCC spill accumulators). */
 static inline __attribute__((always_inline)) void
-q8_rows(int k4, const int16_t *a, int r0, int R, const int8_t *b, int32_t *c, int half)
+q8_rows(int k4, const int16_t *a, int r0, int R, const int8_t *b, int32_t *c, int half, int accumulate)
 {
     __m256i acc[4][2];
     for (int r = 0; r < R; r++)
@@ -106,19 +110,82 @@ q8_rows(int k4, const int16_t *a, int r0, int R, const int8_t *b, int32_t *c, in
         bp += 4 * NR;
     }
     /* lanes [c0 c0 c1 c1 | c2 c2 c3 c3] and [c4 c4 c5 c5 | c6 c6 c7 c7] -> c0..c7 */
-    for (int r = 0; r < R; r++)
-        _mm256_storeu_si256((__m256i *)(c + NR * (r0 + r) + 8 * half),
-                            _mm256_permute4x64_epi64(_mm256_hadd_epi32(acc[r][0], acc[r][1]), 0xd8));
+    for (int r = 0; r < R; r++) {
+        __m256i *d = (__m256i *)(c + NR * (r0 + r) + 8 * half);
+        __m256i v = _mm256_permute4x64_epi64(_mm256_hadd_epi32(acc[r][0], acc[r][1]), 0xd8);
+        _mm256_store_si256(d, accumulate ? _mm256_add_epi32(_mm256_load_si256(d), v) : v);
+    }
 }
 
 /* c[6][16] = sum over k4 of a[k4][6][4] (int16) * b[k4][16][4] (int8), exact:
  * vpmaddwd sums two int16 products into int32, no int16 intermediate. */
-__attribute__((noinline)) static void ukr_q8_avx2(int k4, const int16_t *a, const int8_t *b, int32_t *c)
+__attribute__((noinline)) static void ukr_q8_avx2(int k4, const int16_t *a, const int8_t *b, int32_t *c,
+                                                  int accumulate)
 {
     for (int half = 0; half < 2; half++) {
-        q8_rows(k4, a, 0, 4, b, c, half);
-        q8_rows(k4, a, 4, 2, b, c, half);
+        q8_rows(k4, a, 0, 4, b, c, half, accumulate);
+        q8_rows(k4, a, 4, 2, b, c, half, accumulate);
     }
+}
+
+static inline int load_u32(const uint8_t *p)
+{
+    int v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+/* c[6][16] (+)= sum over k4 of a[k4][6][4] (u8, code + 128) * b[k4][16][4]
+ * (7-bit path codes), the same operands as the VNNI kernel, without VNNI.
+ *
+ * No saturation, by construction: vpmaddubsw multiplies unsigned bytes
+ * a in [1, 255] (activation code in [-127, 127] plus 128) by signed bytes w
+ * and adds adjacent products (k even, k odd) with signed 16-bit saturation.
+ * fk_linear packs this path's weights so that every such pair has
+ * |w0| + |w1| <= 128 (7-bit codes, |w| <= 63, are the simplest case; the
+ * packer spends the budget per pair, see quantize_row_pairs in linear.c):
+ * then |a0 w0 + a1 w1| <= 255 * 128 = 32640 < 32767, so the pair sum is
+ * exact. vpmaddwd with ones widens and adds two pair sums into int32
+ * (|.| <= 65280), and the int32 accumulation is exact for k <= 65536:
+ * |sum| <= 65536 * 255 * 64 < 2^31. (Free 8-bit codes would reach
+ * 2 * 255 * 127 = 64770 and saturate.) test_linear's worst cases (all
+ * activations 255, pairs summing to 128) check it against exact integers. */
+__attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
+                                                  int accumulate);
+
+/* Rows [r0, r0 + R) of ukr_q7_avx2: R <= 4 keeps accumulators, weights,
+ * ones and the broadcast in 16 registers (six rows at once spilled). */
+static inline __attribute__((always_inline)) void
+q7_rows(int k4, const uint8_t *a, int r0, int R, const int8_t *b, int32_t *c, int accumulate)
+{
+    const __m256i ones = _mm256_set1_epi16(1);
+    __m256i acc[4][2];
+    for (int r = 0; r < R; r++)
+        for (int h = 0; h < 2; h++)
+            acc[r][h] = accumulate ? _mm256_load_si256((const __m256i *)(c + NR * (r0 + r) + 8 * h))
+                                   : _mm256_setzero_si256();
+    a += 4 * r0;
+    for (int k = 0; k < k4; k++) {
+        __m256i b0 = _mm256_load_si256((const __m256i *)b);
+        __m256i b1 = _mm256_load_si256((const __m256i *)(b + 32));
+        for (int r = 0; r < R; r++) {
+            __m256i t = _mm256_set1_epi32(load_u32(a + 4 * r));
+            acc[r][0] = _mm256_add_epi32(acc[r][0], _mm256_madd_epi16(_mm256_maddubs_epi16(t, b0), ones));
+            acc[r][1] = _mm256_add_epi32(acc[r][1], _mm256_madd_epi16(_mm256_maddubs_epi16(t, b1), ones));
+        }
+        a += 4 * MR;
+        b += 4 * NR;
+    }
+    for (int r = 0; r < R; r++)
+        for (int h = 0; h < 2; h++)
+            _mm256_store_si256((__m256i *)(c + NR * (r0 + r) + 8 * h), acc[r][h]);
+}
+
+__attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
+                                                  int accumulate)
+{
+    q7_rows(k4, a, 0, 4, b, c, accumulate);
+    q7_rows(k4, a, 4, 2, b, c, accumulate);
 }
 
 /* ----------------------------------------------------------------- packing */
@@ -149,10 +216,11 @@ static inline void transpose_6x8(const float *const r[MR], int k0, float *d)
     _mm256_storeu_ps(d + 7 * MR, _mm256_permute2f128_ps(u3, u7, 0x31));
 }
 
-/* Rows [m0, m0 + rows) of A as micro-panels [i][k][6], zero rows to pad.
- * Writes up to 2 floats past the last panel (the scratch has room). */
-static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k, float *ap, float *tmp,
-                       const float *zeros)
+/* Columns [k0, k0 + k) of rows [m0, m0 + rows) of A as micro-panels
+ * [i][k][6], zero rows to pad (zeros holds k floats). Writes up to 2 floats
+ * past the last panel (the scratch has room). */
+static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k0, int k, float *ap,
+                       float *tmp, const float *zeros)
 {
     for (int i = 0; i * MR < rows; i++) {
         const float *r[MR];
@@ -161,9 +229,9 @@ static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k, floa
             if (row >= rows) {
                 r[rr] = zeros;
             } else if (!src->conv) {
-                r[rr] = src->x + (size_t)(m0 + row) * (size_t)src->ldx;
+                r[rr] = src->x + (size_t)(m0 + row) * (size_t)src->ldx + (size_t)k0;
             } else {
-                fk__asrc_row(src, m0 + row, 0, k, tmp + (size_t)rr * (size_t)k);
+                fk__asrc_row(src, m0 + row, k0, k, tmp + (size_t)rr * (size_t)k);
                 r[rr] = tmp + (size_t)rr * (size_t)k;
             }
         }
@@ -328,13 +396,16 @@ store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0,
 
 /* ------------------------------------------------------------------ driver */
 
+enum q8_path { Q8_EXACT16, Q8_VNNI, Q8_7BIT };
+
 struct gemm_job {
     fk_ctx                   *ctx;
     const struct fk_linear   *L;
     const struct fk__asrc    *a;
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
-    int    m, mc, n_chunks, panels, panels_per_chunk, k_pad, vnni, direct;
+    int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct;
+    int    wide; /* AVX-512: two panels per micro-kernel call */
     size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero;
 };
 
@@ -355,68 +426,88 @@ static void direct_rows(const struct fk__asrc *a, int m0, int rows, int i, int k
     }
 }
 
+/* Pulls `lines` cache lines from p towards L1, the share of micro-panel i of mp. */
+static inline void prefetch_share(const char *p, size_t lines, int i, int mp)
+{
+    if (!p)
+        return;
+    size_t per = (lines + (size_t)mp - 1) / (size_t)mp;
+    for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < lines; l++)
+        _mm_prefetch(p + l * 64, _MM_HINT_T0);
+}
+
+/* The C tile is [mp][np][6][16]: micro-tile (i, p) at ((i * np + p) * 6) * 16. */
+static inline size_t tile_at(int i, int np, int p) { return ((size_t)i * (size_t)np + (size_t)p) * MR * NR; }
+
 static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
 {
     const struct fk_linear *L = j->L;
-    int k = L->k, mp = (rows + MR - 1) / MR;
+    int k = L->k, mp = (rows + MR - 1) / MR, KC = j->kc, f32 = L->type == FK_W_F32;
     float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
     const float *zeros = (const float *)(s + j->off_zero);
     const struct fk__asrc *src = j->a;
-    if (!j->direct)
-        pack_a_f32(src, m0, rows, k, ap, (float *)(s + j->off_tmp), zeros);
-    /* Panels in groups of PG: the tile holds PG x 16 columns per row, so the
-     * epilogue writes 256 contiguous bytes per output row, not 64 bytes
-     * 4 KB apart (which thrashed L1 sets). */
-    int ldc = NR * PG;
-    for (int jg = jp0; jg < jp1; jg += PG) {
-        int jge = jg + PG < jp1 ? jg + PG : jp1;
-        for (int jp = jg; jp < jge; jp++)
-            for (int k0 = 0, kc; k0 < k; k0 += kc) {
-                /* direct convolution: k blocks never straddle two taps */
-                kc = j->direct ? src->cin - k0 % src->cin : k - k0;
-                kc = kc < KC ? kc : KC;
-                const float *bp;
-                if (L->type == FK_W_F32) {
-                    bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
-                } else {
-                    const uint16_t *h = (const uint16_t *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
-                    for (int e = 0; e < kc * NR; e += 8)
-                        _mm256_store_ps(bconv + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
-                    bp = bconv;
-                }
-                /* Pull the next weight slice towards L1 while this one is in use,
-                 * a few lines per micro-panel (fp32 reads the packed weights in place). */
-                const char *next = NULL;
-                size_t next_lines = 0;
-                if (L->type == FK_W_F32) {
-                    size_t off = (size_t)jp * (size_t)k + (size_t)k0 + (size_t)kc;
-                    if (k0 + kc >= k)
-                        off = (size_t)(jp + 1) * (size_t)k;
-                    if (jp + 1 < jp1 || k0 + kc < k) {
-                        next = (const char *)((const float *)L->data + off * NR);
-                        size_t kn = (size_t)(k - (int)(off % (size_t)k));
-                        next_lines = (kn < KC ? kn : KC) * NR * 4 / 64;
+    for (int jg = jp0; jg < jp1; jg += j->nc_panels) {
+        int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
+        for (int k0 = 0, kc; k0 < k; k0 += kc) {
+            /* direct convolution: k blocks never straddle two taps */
+            kc = j->direct ? src->cin - k0 % src->cin : k - k0;
+            kc = kc < KC ? kc : KC;
+            if (!j->direct)
+                pack_a_f32(src, m0, rows, k0, kc, ap, (float *)(s + j->off_tmp), zeros);
+            /* AVX-512: two panels per step (a 6x32 tile), the direct conv stays 6x16 */
+            int step = j->wide && !j->direct ? 2 : 1;
+            size_t esz = f32 ? 4 : 2, sliver_lines = (size_t)kc * NR * esz / 64;
+            for (int jp = jg; jp < jge; jp += step) {
+                int pair = step == 2 && jp + 1 < jge;
+                const float *bp, *bp1 = NULL;
+                for (int q = 0; q <= pair; q++) {
+                    const float *b;
+                    if (f32) {
+                        b = (const float *)L->data + ((size_t)(jp + q) * (size_t)k + (size_t)k0) * NR;
+                    } else {
+                        /* fp16: widened once per sliver, used by every micro-panel */
+                        const uint16_t *h = (const uint16_t *)L->data + ((size_t)(jp + q) * (size_t)k + (size_t)k0) * NR;
+                        float *d = bconv + (size_t)q * (size_t)kc * NR;
+                        for (int e = 0; e < kc * NR; e += 8)
+                            _mm256_store_ps(d + e, _mm256_cvtph_ps(_mm_load_si128((const __m128i *)(h + e))));
+                        b = d;
                     }
+                    if (q)
+                        bp1 = b;
+                    else
+                        bp = b;
                 }
-                size_t per = next ? (next_lines + (size_t)mp - 1) / (size_t)mp : 0;
+                /* the next sliver(s) (next panels, same k block) towards L1 while
+                 * these are in use, a few lines per micro-panel */
+                const char *next = NULL, *next1 = NULL;
+                int jn = jp + (pair ? 2 : 1);
+                if (jn < jge)
+                    next = (const char *)L->data + ((size_t)jn * (size_t)k + (size_t)k0) * NR * esz;
+                if (pair && jn + 1 < jge)
+                    next1 = (const char *)L->data + ((size_t)(jn + 1) * (size_t)k + (size_t)k0) * NR * esz;
                 for (int i = 0; i < mp; i++) {
-                    for (size_t l = (size_t)i * per; l < (size_t)(i + 1) * per && l < next_lines; l++)
-                        _mm_prefetch(next + l * 64, _MM_HINT_T0);
-                    float *ci = ct + (size_t)i * MR * (size_t)ldc + (size_t)(jp - jg) * NR;
+                    prefetch_share(next, sliver_lines, i, mp);
+                    prefetch_share(next1, sliver_lines, i, mp);
+                    float *ci = ct + tile_at(i, np, jp - jg);
+                    if (i + 1 < mp)
+                        for (int l = 0; l < MR * NR * 4 * (1 + pair); l += 64)
+                            _mm_prefetch((const char *)(ci + MR * NR * np) + l, _MM_HINT_T0);
                     if (j->direct) {
                         const float *ar[MR];
                         direct_rows(src, m0, rows, i, k0, zeros, ar);
-                        ukr_f32(kc, ar, 1, bp, ci, ldc, k0 > 0);
+                        ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
+                    } else if (pair) {
+                        fk__gemm_f32_ukr_avx512(kc, ap + (size_t)i * (size_t)kc * MR, bp, bp1, ci, k0 > 0);
                     } else {
-                        fk__ukr_f32_6x16(kc, ap + ((size_t)i * (size_t)k + (size_t)k0) * MR, bp, ci,
-                                         ldc, k0 > 0);
+                        fk__ukr_f32_6x16(kc, ap + (size_t)i * (size_t)kc * MR, bp, ci, NR, k0 > 0);
                     }
                 }
             }
+        }
         for (int r = 0; r < rows; r++)
             for (int jp = jg; jp < jge; jp++) {
                 int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-                const float *cr = ct + (size_t)r * (size_t)ldc + (size_t)(jp - jg) * NR;
+                const float *cr = ct + tile_at(r / MR, np, jp - jg) + (size_t)(r % MR) * NR;
                 __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), _mm256_load_ps(L->bias + n0)));
                 __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), _mm256_load_ps(L->bias + n0 + 8)));
                 store_row(j->c, j->ep, m0 + r, n0, nn, t0, t1);
@@ -427,40 +518,59 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
 static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
 {
     const struct fk_linear *L = j->L;
-    int mp = (rows + MR - 1) / MR, k4 = j->k_pad / 4;
+    int mp = (rows + MR - 1) / MR, k4 = j->k_pad / 4, KC4 = j->kc, u8 = j->path != Q8_EXACT16;
     int32_t *ct = (int32_t *)(s + j->off_c);
     float *sa = (float *)(s + j->off_sa);
-    size_t panel_a = (size_t)j->k_pad * MR * (j->vnni ? 1 : 2);
-    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, j->vnni, s, sa, (float *)(s + j->off_tmp),
+    size_t esz = u8 ? 1 : 2, panel_a = (size_t)j->k_pad * MR * esz;
+    /* whole rows: each is quantized with its own scale before any k block */
+    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, u8, s, sa, (float *)(s + j->off_tmp),
               (int8_t *)(s + j->off_q));
-    /* Row panels outside, weight panels inside: the epilogue then writes
-     * each output row left to right (panel-major writes 4 KB apart thrash L1
-     * sets and dominated the int8 time); the int8 weights, a quarter of fp32,
-     * stream from L2. */
-    for (int i = 0; i < mp; i++) {
-        const void *ai = s + (size_t)i * panel_a;
-        int r0 = i * MR, nr = rows - r0 < MR ? rows - r0 : MR;
-        for (int jp = jp0; jp < jp1; jp++) {
-            const int8_t *bp = (const int8_t *)L->data + (size_t)jp * (size_t)j->k_pad * NR;
-            if (j->vnni)
-                fk__gemm_q8_ukr_vnni(k4, (const uint8_t *)ai, bp, ct);
-            else
-                ukr_q8_avx2(k4, (const int16_t *)ai, bp, ct);
-            int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-            __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
-            __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
-            __m256i z0 = _mm256_setzero_si256(), z1 = z0;
-            if (j->vnni) {
-                z0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
-                z1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
+    for (int jg = jp0; jg < jp1; jg += j->nc_panels) {
+        int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
+        for (int q0 = 0, qn; q0 < k4; q0 += qn) {
+            qn = k4 - q0 < KC4 ? k4 - q0 : KC4;
+            int step = j->wide ? 2 : 1;
+            size_t sliver_lines = (size_t)qn * NR * 4 / 64, panel_b = (size_t)k4 * NR * 4;
+            for (int jp = jg; jp < jge; jp += step) {
+                int pair = step == 2 && jp + 1 < jge;
+                const int8_t *bp = (const int8_t *)L->data + ((size_t)jp * (size_t)k4 + (size_t)q0) * NR * 4;
+                int jn = jp + (pair ? 2 : 1);
+                const char *next = jn < jge ? (const char *)(bp + (size_t)(jn - jp) * panel_b) : NULL;
+                const char *next1 = pair && jn + 1 < jge ? (const char *)(bp + (size_t)(jn + 1 - jp) * panel_b) : NULL;
+                for (int i = 0; i < mp; i++) {
+                    prefetch_share(next, sliver_lines, i, mp);
+                    prefetch_share(next1, sliver_lines, i, mp);
+                    const char *ai = s + (size_t)i * panel_a + (size_t)q0 * MR * 4 * esz;
+                    int32_t *ci = ct + tile_at(i, np, jp - jg);
+                    if (pair) {
+                        fk__gemm_q8_ukr_avx512(qn, (const uint8_t *)ai, bp, bp + panel_b, ci, q0 > 0);
+                        continue;
+                    }
+                    switch (j->path) {
+                    case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
+                    case Q8_7BIT:  ukr_q7_avx2(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
+                    default:       ukr_q8_avx2(qn, (const int16_t *)(const void *)ai, bp, ci, q0 > 0); break;
+                    }
+                }
             }
-            for (int r = 0; r < nr; r++) {
-                __m256 s_r = _mm256_set1_ps(sa[r0 + r]);
-                __m256i a0 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR)), z0);
-                __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(ct + r * NR + 8)), z1);
+        }
+        /* epilogue row by row: each output row written left to right */
+        for (int r = 0; r < rows; r++) {
+            __m256 s_r = _mm256_set1_ps(sa[r]);
+            for (int jp = jg; jp < jge; jp++) {
+                int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+                const int32_t *cr = ct + tile_at(r / MR, np, jp - jg) + (size_t)(r % MR) * NR;
+                __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+                __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
+                __m256i a0 = _mm256_load_si256((const __m256i *)cr);
+                __m256i a1 = _mm256_load_si256((const __m256i *)(cr + 8));
+                if (u8) { /* take the +128 of the unsigned activations back out */
+                    a0 = _mm256_sub_epi32(a0, _mm256_load_si256((const __m256i *)(L->colsum + n0)));
+                    a1 = _mm256_sub_epi32(a1, _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8)));
+                }
                 __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
                 __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
-                store_row(j->c, j->ep, m0 + r0 + r, n0, nn, activate(j->ep->act, t0),
+                store_row(j->c, j->ep, m0 + r, n0, nn, activate(j->ep->act, t0),
                           activate(j->ep->act, t1));
             }
         }
@@ -470,7 +580,8 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
 static void gemm_task(void *arg, int task, int thread)
 {
     const struct gemm_job *j = arg;
-    int mb = task / j->n_chunks, nb = task % j->n_chunks;
+    /* m blocks inner: tasks running together share one chunk of weights */
+    int nb = task / j->m_blocks, mb = task % j->m_blocks;
     int m0 = mb * j->mc, rows = j->m - m0 < j->mc ? j->m - m0 : j->mc;
     int jp0 = nb * j->panels_per_chunk;
     int jp1 = jp0 + j->panels_per_chunk < j->panels ? jp0 + j->panels_per_chunk : j->panels;
@@ -484,21 +595,26 @@ static void gemm_task(void *arg, int task, int thread)
 int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc *a, int m,
                   const struct fk__cdst *c, const struct fk_epilogue *ep)
 {
-    struct gemm_job j = { ctx, L, a, c, ep, m, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
+    struct gemm_job j;
+    memset(&j, 0, sizeof j);
+    j.ctx = ctx; j.L = L; j.a = a; j.c = c; j.ep = ep; j.m = m; j.n_chunks = 1;
     int k = L->k, q8 = L->type == FK_W_Q8;
-    j.vnni = q8 && ctx->isa == FK_ISA_AVX2_VNNI;
+    struct fk_gemm_blocks bl = fk_ctx_gemm_blocks(ctx);
+    /* 7-bit codes run on any of the three kernels; 8-bit ones never on ukr_q7 */
+    j.path = ctx->isa == FK_ISA_AVX2_VNNI || ctx->isa == FK_ISA_AVX512 ? Q8_VNNI
+           : L->q8_bits == FK_Q8_7BIT ? Q8_7BIT : Q8_EXACT16;
+    j.wide = ctx->isa == FK_ISA_AVX512;
     j.k_pad = q8 ? (int)fk__round_up((size_t)k, 4) : k;
     j.panels = (L->n + NR - 1) / NR;
-
-    /* The packed rows of A stay in L2 for the whole task: half of it. */
-    long l2 = sysconf(_SC_LEVEL2_CACHE_SIZE);
-    size_t budget = l2 >= 256 * 1024 && l2 <= 64l << 20 ? (size_t)l2 / 2 : 512 * 1024;
+    /* f32: kc elements of k per block; int8: kc groups of 4 (the same bytes
+     * of weights per sliver, a quarter of the A bytes per row of k) */
+    j.kc = bl.kc;
+    if (j.wide) /* two slivers share the half of L1 that one had */
+        j.kc = bl.kc / 2 / 8 * 8 > 8 ? bl.kc / 2 / 8 * 8 : 8;
+    j.nc_panels = bl.nc / NR > 0 ? bl.nc / NR : 1;
     /* stride-1 convolutions (3x3 in the DPT heads) read A in place */
     j.direct = !q8 && a->conv && a->stride == 1;
-    size_t a_row = q8 ? (size_t)j.k_pad * (j.vnni ? 1 : 2) : (size_t)k * 4;
-    int mc = (int)(budget / a_row) / MR * MR;
-    if (mc > 144)
-        mc = 144;
+    int mc = bl.mc / MR * MR;
     if (mc < MR)
         mc = MR;
     /* Scratch is laid out for this mc, which does not depend on m: the need is
@@ -525,34 +641,51 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
             mc = even;
     }
     j.mc = mc;
-    int m_blocks = (m + mc - 1) / mc;
-    if (threads > 1 && m_blocks < 4 * threads) {
-        int chunks = (4 * threads + m_blocks - 1) / m_blocks;
+    j.m_blocks = (m + mc - 1) / mc;
+    if (threads > 1 && j.m_blocks < 4 * threads) {
+        int chunks = (4 * threads + j.m_blocks - 1) / j.m_blocks;
         int max_chunks = j.panels / 4 > 0 ? j.panels / 4 : 1;
         j.n_chunks = chunks < max_chunks ? chunks : max_chunks;
     }
     j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
     j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
-
+    /* Scratch is laid out for mc_scratch and for the largest chunk of
+     * panels, neither of which depends on m: one need measured at any size
+     * covers every size (fk_ctx_measure). The C tile (mc x nc of fp32 /
+     * int32) is bounded by the L2 size: the nc of the model then shrinks to
+     * even chunks (A is packed once per chunk). */
     size_t mcp = fk__round_up((size_t)mc_scratch, MR);
-    size_t bytes_a = j.direct ? 0 : fk__round_up(mcp * a_row + 8 * sizeof(float), FK_ALIGN); /* + transpose spill */
+    size_t l2 = ctx->caches.l2_share ? ctx->caches.l2_share : ctx->caches.l2 ? ctx->caches.l2 : 512 * 1024;
+    int cap = (int)(l2 / (mcp * NR * 4));
+    cap = cap < 4 ? 4 : cap;
+    int np = j.nc_panels < cap ? j.nc_panels : cap; /* bounds the runtime chunk below */
+    np = np < j.panels ? np : j.panels;
+    if (j.nc_panels > cap) {
+        int chunks = (j.panels_per_chunk + cap - 1) / cap;
+        j.nc_panels = (j.panels_per_chunk + chunks - 1) / chunks;
+    }
+
+    int kcb = k < j.kc ? k : j.kc; /* fp32 block width */
+    size_t a_bytes = q8 ? mcp * (size_t)j.k_pad * (j.path == Q8_EXACT16 ? 2 : 1)
+                        : mcp * (size_t)kcb * 4 + 8 * sizeof(float); /* + transpose spill */
+    size_t bytes_a = j.direct ? 0 : fk__round_up(a_bytes, FK_ALIGN);
     j.off_c = bytes_a;
-    j.off_b = j.off_c + fk__round_up(mcp * NR * (q8 ? 1 : PG) * 4, FK_ALIGN);
-    j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : (size_t)KC * NR * 4);
-    size_t tmp = a->conv && !j.direct ? (size_t)(q8 ? 1 : MR) * (size_t)k * 4 : 0;
+    j.off_b = j.off_c + fk__round_up(mcp * (size_t)np * NR * 4, FK_ALIGN);
+    j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : fk__round_up((size_t)kcb * NR * 4 * 2, FK_ALIGN));
+    size_t tmp = a->conv && !j.direct ? (q8 ? (size_t)k * 4 : (size_t)MR * (size_t)kcb * 4) : 0;
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
     /* a row of zeros stands in for the padding rows of the last micro-panel */
     j.off_zero = j.off_sa + fk__round_up(q8 ? mcp * 4 : 0, FK_ALIGN);
-    size_t need = j.off_zero + (q8 ? 0 : (size_t)k * 4) + FK_ALIGN;
+    size_t need = j.off_zero + (q8 ? 0 : (size_t)kcb * 4) + FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
     if (st || fk__measuring(ctx))
         return st;
     if (!q8)
         for (int t = 0; t < ctx->threads; t++)
-            memset((char *)fk__scratch(ctx, t) + j.off_zero, 0, (size_t)k * 4);
+            memset((char *)fk__scratch(ctx, t) + j.off_zero, 0, (size_t)kcb * 4);
 
     double work = 2.0 * m * (double)L->n * k;
-    fk_parallel_for(ctx, m_blocks * j.n_chunks, work, gemm_task, &j);
+    fk_parallel_for(ctx, j.m_blocks * j.n_chunks, work, gemm_task, &j);
     return F4D_OK;
 }

@@ -14,10 +14,16 @@ static inline int load_i32(const uint8_t *p)
     return v;
 }
 
-void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c)
+void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c, int accumulate)
 {
     __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
     __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
+    if (accumulate) {
+#define LD(i) _mm256_load_si256((const __m256i *)(c + 8 * (i)))
+        c00 = LD(0); c01 = LD(1); c10 = LD(2); c11 = LD(3); c20 = LD(4); c21 = LD(5);
+        c30 = LD(6); c31 = LD(7); c40 = LD(8); c41 = LD(9); c50 = LD(10); c51 = LD(11);
+#undef LD
+    }
     for (int k = 0; k < k4; k++) {
         __m256i b0 = _mm256_load_si256((const __m256i *)b);
         __m256i b1 = _mm256_load_si256((const __m256i *)(b + 32));
