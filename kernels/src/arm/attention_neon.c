@@ -353,8 +353,14 @@ int fk__attention_neon(fk_ctx *ctx, const struct fk_attention_desc *a, const flo
     j.off_o = fk__round_up((size_t)MR * BK * sizeof(float), FK_ALIGN);
     j.off_ml = j.off_o + fk__round_up((size_t)QB * (size_t)d * sizeof(float), FK_ALIGN);
     size_t local = j.off_ml + (2 * QB + 8) * sizeof(float) + FK_ALIGN;
-    int st = fk__scratch_reserve(ctx, local, table + per_head * (size_t)group + 3 * FK_ALIGN);
-    if (st)
+    /* A bound that grows monotonically with nq / nk (as on AVX2): a smaller
+     * problem may fit more heads per group, so per_head * group measured at
+     * the largest size (fk_ctx_measure) would not cover it. */
+    size_t grp_bytes = per_head > GROUP_BYTES ? per_head : GROUP_BYTES;
+    if (grp_bytes > per_head * (size_t)a->heads)
+        grp_bytes = per_head * (size_t)a->heads;
+    int st = fk__scratch_reserve(ctx, local, table + grp_bytes + 3 * FK_ALIGN);
+    if (st || fk__measuring(ctx))
         return st;
     char *sh = fk__scratch_shared(ctx);
     if (span > 0)

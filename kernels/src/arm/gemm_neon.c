@@ -9,7 +9,7 @@
  *
  * Weights are in gemm.h's packed layouts (the same as AVX2's). A task owns mc
  * rows of A, packed for the whole k, and a range of 16-wide weight panels; for
- * each panel it walks k in blocks of FK_GEMM_KC over all 6-row micro-panels,
+ * each panel it walks k in blocks of kc (the context's cache blocks) over all 6-row micro-panels,
  * then applies the epilogue (bias, activation, LayerScale, residual). */
 #include <arm_neon.h>
 #include <math.h>
@@ -22,7 +22,6 @@
 
 #define MR FK_GEMM_MR
 #define NR FK_GEMM_NR
-#define KC FK_GEMM_KC
 
 /* ----------------------------------------------------------- micro-kernels */
 
@@ -230,7 +229,7 @@ struct gemm_job {
     const struct fk__asrc    *a;
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
-    int    m, mc, n_chunks, panels, panels_per_chunk, k_pad, dot;
+    int    m, mc, kc, n_chunks, panels, panels_per_chunk, k_pad, dot;
     size_t off_c, off_b, off_tmp, off_q, off_sa;
 };
 
@@ -241,8 +240,8 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
     float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
     pack_a_f32(j->a, m0, rows, k, ap, (float *)(s + j->off_tmp));
     for (int jp = jp0; jp < jp1; jp++) {
-        for (int k0 = 0; k0 < k; k0 += KC) {
-            int kc = k - k0 < KC ? k - k0 : KC;
+        for (int k0 = 0; k0 < k; k0 += j->kc) {
+            int kc = k - k0 < j->kc ? k - k0 : j->kc;
             const float *bp;
             if (L->type == FK_W_F32) {
                 bp = (const float *)L->data + ((size_t)jp * (size_t)k + (size_t)k0) * NR;
@@ -347,15 +346,18 @@ int fk__gemm_neon(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
     j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
 
+    j.kc = fk_ctx_gemm_blocks(ctx).kc;
+    if (j.kc < 8)
+        j.kc = 8;
     size_t mcp = fk__round_up((size_t)mc, MR);
     j.off_c = fk__round_up(mcp * a_row, FK_ALIGN);
     j.off_b = j.off_c + fk__round_up((q8 ? MR : mcp) * NR * 4, FK_ALIGN);
-    j.off_tmp = j.off_b + (L->type == FK_W_F16 ? (size_t)KC * NR * 4 : 0);
+    j.off_tmp = j.off_b + (L->type == FK_W_F16 ? (size_t)j.kc * NR * 4 : 0);
     j.off_q = j.off_tmp + fk__round_up(a->conv ? (size_t)k * 4 : 0, FK_ALIGN);
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
     size_t need = j.off_sa + (q8 ? mcp * 4 : 0) + FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
-    if (st)
+    if (st || fk__measuring(ctx))
         return st;
     double work = 2.0 * m * (double)L->n * k;
     fk_parallel_for(ctx, m_blocks * j.n_chunks, work, gemm_task, &j);
