@@ -22,6 +22,7 @@
 
 #include "fk_ctx.h"
 #include "model.h"
+#include "model_test_util.h"
 #include "npy.h"
 #include "splat.h"
 
@@ -45,116 +46,16 @@ static double ck_budget(const char *name, double base)
 
 enum { FIX_S = 2, FIX_H = 42, FIX_W = 70 };
 
-static double max_nan(double m, double v)
-{
-    return isnan(m) || isnan(v) ? NAN : (v > m ? v : m);
-}
-
-#define MAX_CK 24
-
-struct ck {
-    char    name[64];
-    float  *ref;
-    int64_t shape[NPY_MAX_DIMS];
-    int     nd;
-    int     nchw;          /* fixture [S, c, h, w] vs taps HWC per frame */
-    double  max_diff, max_ref;
-    int     seen;
-};
-
-struct run {
-    struct ck ck[MAX_CK];
-    int       n;
-};
-
-static struct ck *ck_add(struct run *r, const char *dir, const char *name, int nchw)
-{
-    char path[2200];
-    struct f4d_err err = {0};
-    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-    struct ck *c = &r->ck[r->n];
-    memset(c, 0, sizeof *c);
-    if (npy_load_f32(path, &c->ref, c->shape, &c->nd, &err) < 0) {
-        print_error("%s\n", err.msg);
-        return NULL;
-    }
-    snprintf(c->name, sizeof c->name, "%s", name);
-    c->nchw = nchw;
-    r->n++;
-    return c;
-}
-
-static size_t numel(const struct ck *c, int from)
-{
-    size_t n = 1;
-    for (int i = from; i < c->nd; i++)
-        n *= (size_t)c->shape[i];
-    return n;
-}
-
-/* Compares `count` values (frame f of the fixture, or all with f = -1), with
- * a stride: data[i * stride + off] against ref[i * stride + off]. */
-static void compare_strided(struct ck *c, int frame, const float *data, size_t count,
-                            size_t stride, size_t off)
-{
-    size_t per = frame < 0 ? numel(c, 0) : numel(c, 1);
-    const float *ref = frame < 0 ? c->ref : c->ref + (size_t)frame * per;
-    if (count != per) {
-        print_error("%s: %zu values, fixture has %zu\n", c->name, count, per);
-        c->max_diff = INFINITY;
-        return;
-    }
-    if (c->nchw) {
-        size_t ch = (size_t)c->shape[1], hw = per / ch;
-        for (size_t i = 0; i < hw; i++)
-            for (size_t k = 0; k < ch; k++) {
-                double rv = ref[k * hw + i], d = fabs((double)data[i * ch + k] - rv);
-                c->max_diff = max_nan(c->max_diff, d);
-                c->max_ref = max_nan(c->max_ref, fabs(rv));
-            }
-    } else {
-        for (size_t i = off; i < count; i += stride) {
-            double rv = ref[i], d = fabs((double)data[i] - rv);
-            c->max_diff = max_nan(c->max_diff, d);
-            c->max_ref = max_nan(c->max_ref, fabs(rv));
-        }
-    }
-    c->seen = 1;
-}
-
-static void compare(struct ck *c, int frame, const float *data, size_t count)
-{
-    compare_strided(c, frame, data, count, 1, 0);
-}
-
-static double rel(const struct ck *c)
-{
-    if (isinf(c->max_ref))
-        return NAN;
-    return c->max_ref > 0 ? c->max_diff / c->max_ref : c->max_diff;
-}
-
 static void on_tap(void *user, const char *name, int frame, const float *data, size_t count)
 {
-    struct run *r = user;
-    for (int i = 0; i < r->n; i++)
-        if (!strcmp(r->ck[i].name, name)) {
-            compare(&r->ck[i], frame, data, count);
-            return;
-        }
-}
-
-static struct ck *ck_find(struct run *r, const char *name)
-{
-    for (int i = 0; i < r->n; i++)
-        if (!strcmp(r->ck[i].name, name))
-            return &r->ck[i];
-    return NULL;
+    struct mt_ck *c = mt_ck_find(user, name);
+    if (c)
+        mt_compare(c, frame, data, count);
 }
 
 /* Compares the model's Forge4D outputs with every fixture checkpoint of `r`
  * that is an output (taps were compared during Eval). */
-static void compare_outputs(struct run *r, const struct model_outputs *o)
+static void compare_outputs(struct mt_run *r, const struct model_outputs *o)
 {
     const size_t n = (size_t)o->S * o->H * o->W;
     struct { const char *name; const float *p; size_t count; } outs[] = {
@@ -169,7 +70,7 @@ static void compare_outputs(struct run *r, const struct model_outputs *o)
         { "extrinsic_metric", o->extrinsic_metric, (size_t)o->S * 12 },
     };
     for (size_t i = 0; i < sizeof outs / sizeof outs[0]; i++) {
-        struct ck *c = ck_find(r, outs[i].name);
+        struct mt_ck *c = mt_ck_find(r, outs[i].name);
         if (!c)
             continue;
         if (!outs[i].p) {
@@ -178,44 +79,32 @@ static void compare_outputs(struct run *r, const struct model_outputs *o)
             c->seen = 1;
             continue;
         }
-        compare(c, -1, outs[i].p, outs[i].count);
+        mt_compare(c, -1, outs[i].p, outs[i].count);
     }
 }
 
 /* Prints every checkpoint, asserts each within budget; returns the worst. */
-static double report(struct run *r, const char *tag, double budget)
+static double report(struct mt_run *r, const char *tag, double budget)
 {
     double worst = 0;
     for (int i = 0; i < r->n; i++) {
-        struct ck *c = &r->ck[i];
-        double e = rel(c), b = ck_budget(c->name, budget);
+        struct mt_ck *c = &r->ck[i];
+        double e = mt_rel(c), b = ck_budget(c->name, budget);
         printf("  %-16s %-22s rel_err %.3e (budget %.1e)%s\n", tag, c->name, e, b,
                !c->seen ? "  NOT SEEN" : !(e <= b) ? "  OVER BUDGET" : "");
         assert_true(c->seen);
         assert_true(e <= b); /* NaN fails */
-        worst = max_nan(worst, e);
+        worst = mt_max_nan(worst, e);
     }
     printf("  %-16s worst %.3e\n", tag, worst);
     return worst;
 }
 
-static void run_free(struct run *r)
-{
-    for (int i = 0; i < r->n; i++)
-        free(r->ck[i].ref);
-    r->n = 0;
-}
-
 static float *load_input(void)
 {
-    char path[2200];
-    struct f4d_err err = {0};
-    float *img;
     int64_t sh[NPY_MAX_DIMS];
     int nd;
-    snprintf(path, sizeof path, "%s/tiny_f4d/s%d/input.npy", fixture_dir, FIX_S);
-    if (npy_load_f32(path, &img, sh, &nd, &err) < 0)
-        fail_msg("%s", err.msg);
+    float *img = mt_npy_load(sh, &nd, "%s/tiny_f4d/s%d/input.npy", fixture_dir, FIX_S);
     assert_int_equal(nd, 4);
     assert_int_equal(sh[0], FIX_S);
     assert_int_equal(sh[2], FIX_H);
@@ -274,19 +163,19 @@ static double run_parity(const char *type, enum fk_wtype wt, double budget)
     /* one arena, as planned from the groups without weights */
     assert_int_equal(model_arena_bytes(m),
                      model_plan_bytes(model_get_config(m), MODEL_G_ALL, FIX_S, FIX_H, FIX_W));
-    static struct run r;
+    static struct mt_run r;
     memset(&r, 0, sizeof r);
     char nm[64];
     for (int l = 0; l < 4; l++) {
         snprintf(nm, sizeof nm, "gaussian_head.level%d", l);
-        assert_non_null(ck_add(&r, dir, nm, 1));
+        assert_non_null(mt_ck_add(&r, dir, nm, 1));
     }
-    assert_non_null(ck_add(&r, dir, "gaussian_head.fused", 1));
+    assert_non_null(mt_ck_add(&r, dir, "gaussian_head.fused", 1));
     static const char *plain[] = { "gaussian_head.mu", "gaussian_head.sigma", "gaussian_raw",
                                    "gauge", "gaussians_pos", "gaussians_scale", "gaussians_rot",
                                    "gaussians_opacity", "gaussians_rgb", "extrinsic_metric" };
     for (size_t i = 0; i < sizeof plain / sizeof plain[0]; i++)
-        assert_non_null(ck_add(&r, dir, plain[i], 0));
+        assert_non_null(mt_ck_add(&r, dir, plain[i], 0));
     model_set_tap(m, on_tap, &r);
     float *img = load_input();
     struct model_outputs out;
@@ -301,7 +190,7 @@ static double run_parity(const char *type, enum fk_wtype wt, double budget)
     for (int i = 0; i < FIX_S * 12; i++)
         if (i % 4 != 3)
             assert_true(out.extrinsic_metric[i] == out.extrinsic[i]);
-    run_free(&r);
+    mt_run_free(&r);
     free(img);
     model_free(m);
     fk_ctx_free(ctx);
@@ -445,83 +334,96 @@ static struct model *run_hard(struct mem_gguf *mg, gguf_file **gf, fk_ctx *ctx, 
         fail_msg("%s", model_error(m));
     if (model_eval(m, img, FIX_S, FIX_H, FIX_W, out) < 0)
         fail_msg("%s", model_error(m));
-    static struct run r;
+    static struct mt_run r;
     memset(&r, 0, sizeof r);
     snprintf(dir, sizeof dir, "%s/tiny_f4d/hard_%s", fixture_dir, cs);
     for (int i = 0; i < n; i++)
-        assert_non_null(ck_add(&r, dir, names[i], 0));
+        assert_non_null(mt_ck_add(&r, dir, names[i], 0));
     compare_outputs(&r, out);
     snprintf(tag, sizeof tag, "%s %s", cs, wt == FK_W_F32 ? "f32" : wt == FK_W_F16 ? "f16" : "int8");
     report(&r, tag, budget);
     check_frame(out);
-    run_free(&r);
+    mt_run_free(&r);
     return m;
 }
 
 static const enum fk_wtype wts[3] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
 static const double *const budgets[3] = { &budget_f32, &budget_f16, &budget_int8 };
 
+/* Runs hard case `h` (fixtures hard_<cs>/, checkpoints `names`) at every
+ * precision; check() sees each precision's outputs (index p of wts). */
+typedef void hard_check(const struct model_outputs *out, int p);
+
+static void run_hard_case(enum hard h, const char *cs, const char *const *names, int n,
+                          hard_check *check)
+{
+    struct mem_gguf mg;
+    mem_load(&mg);
+    hard_edit(&mg, h);
+    fk_ctx *ctx = new_ctx();
+    float *img = load_input();
+    for (int p = 0; p < 3; p++) {
+        gguf_file *gf;
+        struct model_outputs out;
+        struct model *m = run_hard(&mg, &gf, ctx, wts[p], cs, names, n, *budgets[p], img, &out);
+        check(&out, p);
+        model_free(m);
+        gguf_close(gf);
+    }
+    free(img);
+    fk_ctx_free(ctx);
+    free(mg.buf);
+}
+
 /* Near-zero camera translations (~1e-7): the metric translations are T / g to
  * f32 accuracy relative to their own (tiny) size, no absolute epsilon, no
  * NaN; the gauge from translations refuses such views instead of dividing by
  * them, and handles a camera at the origin, denormals and zeros. */
+static void check_near_zero_t(const struct model_outputs *o, int p)
+{
+    /* the translation column alone, relative to its own size */
+    int64_t sh[NPY_MAX_DIMS];
+    int nd;
+    float *ref = mt_npy_load(sh, &nd, "%s/tiny_f4d/hard_near_zero_t/extrinsic_metric.npy",
+                             fixture_dir);
+    double md = 0, mr = 0, tmax = 0;
+    for (int s = 0; s < FIX_S; s++)
+        for (int r = 0; r < 3; r++) {
+            const int i = s * 12 + r * 4 + 3;
+            md = mt_max_nan(md, fabs((double)o->extrinsic_metric[i] - ref[i]));
+            mr = mt_max_nan(mr, fabs((double)ref[i]));
+            tmax = mt_max_nan(tmax, fabs((double)o->extrinsic[i]));
+        }
+    printf("  near_zero_t %-4s |T| max %.3e, metric T rel_err %.3e\n",
+           p == 0 ? "f32" : p == 1 ? "f16" : "int8", tmax, md / mr);
+    assert_true(tmax < 1e-5 && tmax > 0);  /* the case is what it says */
+    /* f16 weights cannot hold the edit (w x 1e-6 is subnormal in f16: the
+     * predicted T itself moves); f32 and int8 (per-row scales) can */
+    if (wts[p] != FK_W_F16)
+        assert_true(md / mr <= *budgets[p]);
+    /* in every precision: metric T = T / gauge to rounding, finite */
+    for (int i = 3; i < FIX_S * 12; i += 4) {
+        const double t = o->extrinsic[i], tm = o->extrinsic_metric[i];
+        assert_true(isfinite(tm));
+        assert_true(fabs(tm * o->gauge - t) <= 1e-6 * fabs(t));
+    }
+    /* gauge from these translations (|T| ~1e-6, eps 1e-5): nothing to divide by */
+    float t_pred[FIX_S * 3], g = -1.0f;
+    for (int s = 0; s < FIX_S; s++)
+        for (int r = 0; r < 3; r++)
+            t_pred[s * 3 + r] = o->extrinsic[s * 12 + r * 4 + 3];
+    const float t_true[FIX_S * 3] = { 0, 0, 0, 1.0f, 0.5f, 0 };
+    assert_int_equal(model_gauge_from_translations(t_true, t_pred, FIX_S, 1e-5f, &g),
+                     F4D_EINVAL);
+    assert_true(g == -1.0f);
+    free(ref);
+}
+
 static void test_hard_near_zero_translations(void **state)
 {
     (void)state;
-    struct mem_gguf mg;
-    mem_load(&mg);
-    hard_edit(&mg, HARD_NEAR_ZERO_T);
-    fk_ctx *ctx = new_ctx();
-    float *img = load_input();
     static const char *names[] = { "gauge", "extrinsic", "extrinsic_metric" };
-    for (int p = 0; p < 3; p++) {
-        gguf_file *gf;
-        struct model_outputs out;
-        struct model *m = run_hard(&mg, &gf, ctx, wts[p], "near_zero_t", names, 3, *budgets[p],
-                                   img, &out);
-        /* the translation column alone, relative to its own size */
-        char path[1200];
-        struct f4d_err err = {0};
-        float *ref;
-        int64_t sh[NPY_MAX_DIMS];
-        int nd;
-        snprintf(path, sizeof path, "%s/tiny_f4d/hard_near_zero_t/extrinsic_metric.npy",
-                 fixture_dir);
-        assert_int_equal(npy_load_f32(path, &ref, sh, &nd, &err), 0);
-        double md = 0, mr = 0, tmax = 0;
-        for (int s = 0; s < FIX_S; s++)
-            for (int r = 0; r < 3; r++) {
-                const int i = s * 12 + r * 4 + 3;
-                md = max_nan(md, fabs((double)out.extrinsic_metric[i] - ref[i]));
-                mr = max_nan(mr, fabs((double)ref[i]));
-                tmax = max_nan(tmax, fabs((double)out.extrinsic[i]));
-            }
-        printf("  near_zero_t %-4s |T| max %.3e, metric T rel_err %.3e\n",
-               p == 0 ? "f32" : p == 1 ? "f16" : "int8", tmax, md / mr);
-        assert_true(tmax < 1e-5 && tmax > 0);  /* the case is what it says */
-        /* f16 weights cannot hold the edit (w x 1e-6 is subnormal in f16: the
-         * predicted T itself moves); f32 and int8 (per-row scales) can */
-        if (wts[p] != FK_W_F16)
-            assert_true(md / mr <= *budgets[p]);
-        /* in every precision: metric T = T / gauge to rounding, finite */
-        for (int i = 3; i < FIX_S * 12; i += 4) {
-            const double t = out.extrinsic[i], tm = out.extrinsic_metric[i];
-            assert_true(isfinite(tm));
-            assert_true(fabs(tm * out.gauge - t) <= 1e-6 * fabs(t));
-        }
-        /* gauge from these translations (|T| ~1e-6, eps 1e-5): nothing to divide by */
-        float t_pred[FIX_S * 3], g = -1.0f;
-        for (int s = 0; s < FIX_S; s++)
-            for (int r = 0; r < 3; r++)
-                t_pred[s * 3 + r] = out.extrinsic[s * 12 + r * 4 + 3];
-        const float t_true[FIX_S * 3] = { 0, 0, 0, 1.0f, 0.5f, 0 };
-        assert_int_equal(model_gauge_from_translations(t_true, t_pred, FIX_S, 1e-5f, &g),
-                         F4D_EINVAL);
-        assert_true(g == -1.0f);
-        free(ref);
-        model_free(m);
-        gguf_close(gf);
-    }
+    run_hard_case(HARD_NEAR_ZERO_T, "near_zero_t", names, 3, check_near_zero_t);
     /* the paper's gauge: view 0 at the origin and a near-zero prediction are
      * left out; the others give |T| / |T_hat| = 2 */
     const float tt[5 * 3] = { 0, 0, 0, 2, 0, 0, 0, 0, 3e-9f, 0, 6, 8, 1e-40f, 0, 0 };
@@ -535,72 +437,48 @@ static void test_hard_near_zero_translations(void **state)
     assert_int_equal(model_gauge_from_translations(zeros, zeros, 2, 1e-6f, &g), F4D_EINVAL);
     assert_int_equal(model_gauge_from_translations(tt, tp, 5, 0.0f, &g), F4D_EINVAL);
     assert_true(g == 5.0f);
-    free(img);
-    fk_ctx_free(ctx);
-    free(mg.buf);
 }
 
 /* Scale logits of +60, -60 and 1e30: clamped to [-8, 4] before exp, so the
  * scales stay finite and equal the reference in every precision. */
+static void check_huge_scale(const struct model_outputs *o, int p)
+{
+    (void)p;
+    for (size_t i = 0; i < o->gaussians.count; i++) {
+        assert_true(o->gaussian_raw[i * MODEL_GAUSS_CH + 9] > 1e29f);
+        const float *sc = o->gaussians.scale + 3 * i;
+        assert_true(isfinite(sc[0]) && isfinite(sc[1]) && isfinite(sc[2]));
+        /* s0, s2 at the upper clamp: the same footprint, exp(4) each */
+        assert_true(fabsf(sc[0] - sc[2]) <= 1e-6f * sc[2]);
+        /* s1 at the lower clamp: exp(-8) / exp(4) of it */
+        assert_true(fabsf(sc[1] - sc[2] * expf(-12.0f)) <= 1e-5f * sc[2] * expf(-12.0f));
+    }
+}
+
 static void test_hard_huge_scale(void **state)
 {
     (void)state;
-    struct mem_gguf mg;
-    mem_load(&mg);
-    hard_edit(&mg, HARD_HUGE_SCALE);
-    fk_ctx *ctx = new_ctx();
-    float *img = load_input();
     static const char *names[] = { "gaussians_scale" };
-    for (int p = 0; p < 3; p++) {
-        gguf_file *gf;
-        struct model_outputs out;
-        struct model *m = run_hard(&mg, &gf, ctx, wts[p], "huge_scale", names, 1, *budgets[p],
-                                   img, &out);
-        const size_t n = out.gaussians.count;
-        for (size_t i = 0; i < n; i++) {
-            assert_true(out.gaussian_raw[i * MODEL_GAUSS_CH + 9] > 1e29f);
-            const float *sc = out.gaussians.scale + 3 * i;
-            assert_true(isfinite(sc[0]) && isfinite(sc[1]) && isfinite(sc[2]));
-            /* s0, s2 at the upper clamp: the same footprint, exp(4) each */
-            assert_true(fabsf(sc[0] - sc[2]) <= 1e-6f * sc[2]);
-            /* s1 at the lower clamp: exp(-8) / exp(4) of it */
-            assert_true(fabsf(sc[1] - sc[2] * expf(-12.0f)) <= 1e-5f * sc[2] * expf(-12.0f));
-        }
-        model_free(m);
-        gguf_close(gf);
-    }
-    free(img);
-    fk_ctx_free(ctx);
-    free(mg.buf);
+    run_hard_case(HARD_HUGE_SCALE, "huge_scale", names, 1, check_huge_scale);
 }
 
 /* q_raw = (-1, 0, 0, 0) at every pixel: (1,0,0,0) + q_raw is the zero vector;
  * the rotation is the identity, exactly, with no NaN, in every precision. */
+static void check_zero_quat(const struct model_outputs *o, int p)
+{
+    (void)p;
+    for (size_t i = 0; i < o->gaussians.count; i++) {
+        const float *q = o->gaussians.rot + 4 * i;
+        assert_true(o->gaussian_raw[i * MODEL_GAUSS_CH + 10] == -1.0f);
+        assert_true(q[0] == 1.0f && q[1] == 0.0f && q[2] == 0.0f && q[3] == 0.0f);
+    }
+}
+
 static void test_hard_zero_quaternion(void **state)
 {
     (void)state;
-    struct mem_gguf mg;
-    mem_load(&mg);
-    hard_edit(&mg, HARD_ZERO_QUAT);
-    fk_ctx *ctx = new_ctx();
-    float *img = load_input();
     static const char *names[] = { "gaussians_rot" };
-    for (int p = 0; p < 3; p++) {
-        gguf_file *gf;
-        struct model_outputs out;
-        struct model *m = run_hard(&mg, &gf, ctx, wts[p], "zero_quat", names, 1, *budgets[p],
-                                   img, &out);
-        for (size_t i = 0; i < out.gaussians.count; i++) {
-            const float *q = out.gaussians.rot + 4 * i;
-            assert_true(out.gaussian_raw[i * MODEL_GAUSS_CH + 10] == -1.0f);
-            assert_true(q[0] == 1.0f && q[1] == 0.0f && q[2] == 0.0f && q[3] == 0.0f);
-        }
-        model_free(m);
-        gguf_close(gf);
-    }
-    free(img);
-    fk_ctx_free(ctx);
-    free(mg.buf);
+    run_hard_case(HARD_ZERO_QUAT, "zero_quat", names, 1, check_zero_quat);
 }
 
 /* The comparison helpers fail on non-finite values. */
@@ -610,27 +488,23 @@ static void test_compare_fails_on_nan(void **state)
     float ref[8], got[8];
     for (int i = 0; i < 8; i++)
         ref[i] = got[i] = 1.0f + (float)i;
-    struct ck c;
-    memset(&c, 0, sizeof c);
-    c.ref = ref;
-    c.nd = 1;
-    c.shape[0] = 8;
-    compare(&c, -1, got, 8);
-    assert_true(rel(&c) == 0.0);
+    struct mt_ck c;
+    mt_ck_wrap(&c, ref, 8);
+    mt_compare(&c, -1, got, 8);
+    assert_true(mt_rel(&c) == 0.0);
     got[3] = NAN;
-    memset(&c, 0, sizeof c);
-    c.ref = ref;
-    c.nd = 1;
-    c.shape[0] = 8;
-    compare(&c, -1, got, 8);
-    assert_false(rel(&c) <= budget_int8);
+    mt_ck_wrap(&c, ref, 8);
+    mt_compare(&c, -1, got, 8);
+    assert_false(mt_rel(&c) <= budget_int8);
     got[3] = INFINITY;
-    memset(&c, 0, sizeof c);
-    c.ref = ref;
-    c.nd = 1;
-    c.shape[0] = 8;
-    compare(&c, -1, got, 8);
-    assert_false(rel(&c) <= budget_int8);
+    mt_ck_wrap(&c, ref, 8);
+    mt_compare(&c, -1, got, 8);
+    assert_false(mt_rel(&c) <= budget_int8);
+    for (int i = 0; i < 8; i++)
+        got[i] = NAN;
+    mt_ck_wrap(&c, ref, 8);
+    mt_compare(&c, -1, got, 8);
+    assert_false(mt_rel(&c) <= budget_int8);
 }
 
 int main(int argc, char **argv)

@@ -16,109 +16,33 @@
 
 #include "fk_ctx.h"
 #include "model.h"
+#include "model_test_util.h"
 #include "npy.h"
 
 static const char *fixture_dir, *gguf_dir;
-
-/* NaN-aware running maximum: once a NaN is seen the result stays NaN, so any
- * bound check on it (x <= budget) fails; fmax() would silently drop the NaN. */
-static double max_nan(double m, double v)
-{
-    return isnan(m) || isnan(v) ? NAN : (v > m ? v : m);
-}
 
 /* Budgets per precision (f32 from the issue; f16 / int8 measured on these
  * fixtures with margin: f16 ~1e-3, int8 ~2e-2 at the heads, see the report). */
 static const double budget_f32 = 1e-4, budget_f16 = 5e-3, budget_int8 = 8e-2;
 
-#define MAX_CK 48
-
-struct ck {
-    char    name[64];
-    float  *ref;           /* fixture array                          */
-    int64_t shape[NPY_MAX_DIMS];
-    int     nd;
-    int     nchw;          /* fixture [S,c,h,w] vs C taps HWC per frame */
-    double  max_diff, max_ref;
-    int     seen;
-};
-
-struct run {
-    struct ck ck[MAX_CK];
-    int       n;
-    int       bad_size;
-};
-
-static struct ck *ck_add(struct run *r, const char *dir, const char *name, int nchw)
-{
-    char path[2200];
-    struct f4d_err err = {0};
-    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-    struct ck *c = &r->ck[r->n];
-    memset(c, 0, sizeof *c);
-    if (npy_load_f32(path, &c->ref, c->shape, &c->nd, &err) < 0) {
-        print_error("%s\n", err.msg);
-        return NULL;
-    }
-    snprintf(c->name, sizeof c->name, "%s", name);
-    c->nchw = nchw;
-    r->n++;
-    return c;
-}
-
-static size_t numel(const struct ck *c, int from)
-{
-    size_t n = 1;
-    for (int i = from; i < c->nd; i++)
-        n *= (size_t)c->shape[i];
-    return n;
-}
-
-static void compare(struct ck *c, int frame, const float *data, size_t count)
-{
-    size_t per = frame < 0 ? numel(c, 0) : numel(c, 1);
-    const float *ref = frame < 0 ? c->ref : c->ref + (size_t)frame * per;
-    if (count != per) {
-        print_error("%s: %zu values, fixture has %zu\n", c->name, count, per);
-        c->max_diff = INFINITY;
-        return;
-    }
-    if (c->nchw) { /* ref [ch, h, w] vs data [h, w, ch] */
-        size_t ch = (size_t)c->shape[1], hw = per / ch;
-        for (size_t i = 0; i < hw; i++)
-            for (size_t k = 0; k < ch; k++) {
-                double r = ref[k * hw + i], d = fabs((double)data[i * ch + k] - r);
-                c->max_diff = max_nan(c->max_diff, d);
-                c->max_ref = max_nan(c->max_ref, fabs(r));
-            }
-    } else {
-        for (size_t i = 0; i < count; i++) {
-            double r = ref[i], d = fabs((double)data[i] - r);
-            c->max_diff = max_nan(c->max_diff, d);
-            c->max_ref = max_nan(c->max_ref, fabs(r));
-        }
-    }
-    c->seen = 1;
-}
-
 static void on_tap(void *user, const char *name, int frame, const float *data, size_t count)
 {
-    struct run *r = user;
+    struct mt_run *r = user;
     char nm[64];
     /* camera_iter<i> compares with pose_enc_list[i] */
     if (!strncmp(name, "camera_iter", 11)) {
         for (int i = 0; i < r->n; i++)
             if (!strcmp(r->ck[i].name, "pose_enc_list")) {
-                struct ck *c = &r->ck[i];
+                struct mt_ck *c = &r->ck[i];
                 int it = atoi(name + 11);
-                size_t per = numel(c, 1);
-                struct ck tmp = *c;
+                size_t per = mt_numel(c, 1);
+                struct mt_ck tmp = *c;
                 tmp.ref = c->ref + (size_t)it * per;
                 tmp.nd = c->nd - 1;
                 memmove(tmp.shape, c->shape + 1, sizeof(int64_t) * (size_t)tmp.nd);
                 tmp.max_diff = c->max_diff;
                 tmp.max_ref = c->max_ref;
-                compare(&tmp, -1, data, count);
+                mt_compare(&tmp, -1, data, count);
                 c->max_diff = tmp.max_diff;
                 c->max_ref = tmp.max_ref;
                 c->seen = 1;
@@ -126,16 +50,9 @@ static void on_tap(void *user, const char *name, int frame, const float *data, s
         return;
     }
     snprintf(nm, sizeof nm, "%s", name);
-    for (int i = 0; i < r->n; i++)
-        if (!strcmp(r->ck[i].name, nm)) {
-            compare(&r->ck[i], frame, data, count);
-            return;
-        }
-}
-
-static double rel(const struct ck *c)
-{
-    return c->max_ref > 0 ? c->max_diff / c->max_ref : c->max_diff;
+    struct mt_ck *c = mt_ck_find(r, nm);
+    if (c)
+        mt_compare(c, frame, data, count);
 }
 
 /* Runs one fixture set with one precision; returns the worst relative error. */
@@ -160,17 +77,15 @@ static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtyp
         print_error("%s\n", model_error(m));
     assert_int_equal(rc, 0);
 
-    static struct run r;
+    static struct mt_run r;
     memset(&r, 0, sizeof r);
-    float *img;
     int64_t ish[NPY_MAX_DIMS];
     int ind;
-    snprintf(path, sizeof path, "%s/input.npy", dir);
-    assert_int_equal(npy_load_f32(path, &img, ish, &ind, &err), 0);
+    float *img = mt_npy_load(ish, &ind, "%s/input.npy", dir);
     assert_int_equal(ind, 4);
     assert_int_equal(ish[0], S);
     const int H = (int)ish[2], W = (int)ish[3];
-    assert_non_null(ck_add(&r, dir, "patch_embed", 0));
+    assert_non_null(mt_ck_add(&r, dir, "patch_embed", 0));
     int seen_layer[MODEL_LAYERS_MAX] = { 0 };
     for (int i = 0; i < 4; i++)
         seen_layer[mc->dpt_layer_idx[i]] = 1;
@@ -179,24 +94,24 @@ static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtyp
         if (seen_layer[l]) {
             char nm[32];
             snprintf(nm, sizeof nm, "layer%d", l);
-            assert_non_null(ck_add(&r, dir, nm, 0));
+            assert_non_null(mt_ck_add(&r, dir, nm, 0));
         }
-    assert_non_null(ck_add(&r, dir, "pose_enc_list", 0));
+    assert_non_null(mt_ck_add(&r, dir, "pose_enc_list", 0));
     static const char *heads[2] = { "depth_head", "point_head" };
     for (int hd = 0; hd < 2; hd++) {
         char nm[64];
         for (int l = 0; l < 4; l++) {
             snprintf(nm, sizeof nm, "%s.level%d", heads[hd], l);
-            assert_non_null(ck_add(&r, dir, nm, 1));
+            assert_non_null(mt_ck_add(&r, dir, nm, 1));
         }
         snprintf(nm, sizeof nm, "%s.fused", heads[hd]);
-        assert_non_null(ck_add(&r, dir, nm, 1));
+        assert_non_null(mt_ck_add(&r, dir, nm, 1));
     }
     int first_out = r.n;
     static const char *outs[7] = { "pose_enc", "extrinsic", "intrinsic", "depth", "depth_conf",
                                    "world_points", "world_points_conf" };
     for (int i = 0; i < 7; i++)
-        assert_non_null(ck_add(&r, dir, outs[i], 0));
+        assert_non_null(mt_ck_add(&r, dir, outs[i], 0));
 
     model_set_tap(m, on_tap, &r);
     struct model_outputs out;
@@ -210,17 +125,17 @@ static double run_fixture(const char *cfg, int S, const char *type, enum fk_wtyp
     const float *o[7] = { out.pose_enc, out.extrinsic, out.intrinsic, out.depth, out.depth_conf,
                           out.world_points, out.world_points_conf };
     for (int i = 0; i < 7; i++)
-        compare(&r.ck[first_out + i], -1, o[i], numel(&r.ck[first_out + i], 0));
+        mt_compare(&r.ck[first_out + i], -1, o[i], mt_numel(&r.ck[first_out + i], 0));
 
     double worst = 0;
     for (int i = 0; i < r.n; i++) {
-        struct ck *c = &r.ck[i];
-        double e = rel(c);
+        struct mt_ck *c = &r.ck[i];
+        double e = mt_rel(c);
         printf("  %-10s %-5s S=%d %-22s rel_err %.3e%s\n", cfg, type, S, c->name, e,
                !c->seen ? "  NOT SEEN" : e > budget ? "  OVER BUDGET" : "");
         assert_true(c->seen);
         assert_true(e <= budget); /* NaN-aware: fails on NaN */
-        worst = max_nan(worst, e);
+        worst = mt_max_nan(worst, e);
         free(c->ref);
     }
     printf("  %-10s %-5s S=%d worst %.3e (budget %.0e), arena %zu bytes\n", cfg, type, S, worst,
@@ -315,20 +230,6 @@ static void test_arena_bounds(void **state)
     fk_ctx_free(ctx);
 }
 
-/* max |a - b| / max |b|; NaN when either array holds a NaN or an Inf, so that
- * `e <= budget` fails on any non-finite value. */
-static double arr_rel(const float *a, const float *b, size_t n)
-{
-    double md = 0, mr = 0;
-    for (size_t i = 0; i < n; i++) {
-        md = max_nan(md, fabs((double)a[i] - b[i]));
-        mr = max_nan(mr, fabs((double)b[i]));
-    }
-    if (isinf(mr))
-        return NAN;
-    return md / (mr > 0 ? mr : 1);
-}
-
 static double npy_rel(const char *a_path, const char *b_path, int64_t *shape, int *nd)
 {
     struct f4d_err err = {0};
@@ -350,7 +251,7 @@ static double npy_rel(const char *a_path, const char *b_path, int64_t *shape, in
         same = same && sb[i] == shape[i];
         n *= (size_t)shape[i];
     }
-    double e = same ? arr_rel(a, b, n) : INFINITY;
+    double e = same ? mt_arr_rel(a, b, n) : INFINITY;
     free(a);
     free(b);
     return e;
@@ -402,10 +303,10 @@ static void test_infer_outputs(void **state)
     struct model_outputs out;
     assert_int_equal(model_eval(m, batch, 2, 56, 56, &out), 0);
     assert_non_null(out.depth);
-    double e = arr_rel(depth, out.depth, (size_t)2 * 56 * 56);
+    double e = mt_arr_rel(depth, out.depth, (size_t)2 * 56 * 56);
     double dmax = 0;
     for (size_t i = 0; i < (size_t)2 * 56 * 56; i++)
-        dmax = max_nan(dmax, fabs((double)out.depth[i]));
+        dmax = mt_max_nan(dmax, fabs((double)out.depth[i]));
     printf("  f4d-infer png depth vs in-process eval rel_err %.3e (max depth %.3g)\n", e, dmax);
     assert_true(dmax > 0);   /* a real depth map, not zeros */
     assert_true(e <= 1e-5);
@@ -424,34 +325,28 @@ static void test_compare_fails_on_nan(void **state)
         ref[i] = 1.0f + (float)i;
         got[i] = NAN;
     }
-    assert_false(arr_rel(got, ref, 16) <= 1.0);
-    assert_false(arr_rel(ref, got, 16) <= 1.0);
+    assert_false(mt_arr_rel(got, ref, 16) <= 1.0);
+    assert_false(mt_arr_rel(ref, got, 16) <= 1.0);
     memcpy(got, ref, sizeof got);
-    assert_true(arr_rel(got, ref, 16) == 0.0);
+    assert_true(mt_arr_rel(got, ref, 16) == 0.0);
     got[5] = INFINITY;
-    assert_false(arr_rel(got, ref, 16) <= 1.0);
+    assert_false(mt_arr_rel(got, ref, 16) <= 1.0);
     ref[5] = INFINITY;
-    assert_false(arr_rel(got, ref, 16) <= 1.0);
+    assert_false(mt_arr_rel(got, ref, 16) <= 1.0);
     /* the tap comparison: all-NaN data against a finite fixture */
     for (int i = 0; i < 16; i++) {
         ref[i] = 1.0f + (float)i;
         got[i] = NAN;
     }
-    struct ck c;
-    memset(&c, 0, sizeof c);
-    c.ref = ref;
-    c.nd = 1;
-    c.shape[0] = 16;
-    compare(&c, -1, got, 16);
-    assert_false(rel(&c) <= budget_int8);
+    struct mt_ck c;
+    mt_ck_wrap(&c, ref, 16);
+    mt_compare(&c, -1, got, 16);
+    assert_false(mt_rel(&c) <= budget_int8);
     got[0] = ref[0];
-    memset(&c, 0, sizeof c);
-    c.ref = ref;
-    c.nd = 1;
-    c.shape[0] = 16;
+    mt_ck_wrap(&c, ref, 16);
     memcpy(got, ref, sizeof got);
-    compare(&c, -1, got, 16);
-    assert_true(rel(&c) == 0.0);
+    mt_compare(&c, -1, got, 16);
+    assert_true(mt_rel(&c) == 0.0);
 }
 
 int main(int argc, char **argv)

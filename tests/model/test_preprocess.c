@@ -9,6 +9,7 @@
 #include <string.h>
 #include <cmocka.h>
 
+#include "model_test_util.h"
 #include "npy.h"
 #include "preprocess.h"
 
@@ -21,13 +22,9 @@ struct img {
 
 static struct img load_img(const char *name)
 {
-    char path[1024];
-    struct f4d_err err = {0};
-    float *a;
     int64_t sh[NPY_MAX_DIMS];
     int nd;
-    snprintf(path, sizeof path, "%s/prep/%s.npy", fixdir, name);
-    assert_int_equal(npy_load_f32(path, &a, sh, &nd, &err), 0);
+    float *a = mt_npy_load(sh, &nd, "%s/prep/%s.npy", fixdir, name);
     assert_int_equal(nd, 3);
     struct img im = { malloc((size_t)(sh[0] * sh[1] * sh[2])), (int)sh[1], (int)sh[0], (int)sh[2] };
     for (int64_t i = 0; i < sh[0] * sh[1] * sh[2]; i++)
@@ -36,33 +33,22 @@ static struct img load_img(const char *name)
     return im;
 }
 
-/* NaN-aware running maximum: once a NaN is seen the result stays NaN, so any
- * bound check on it (x < tol) fails; fmax() would silently drop the NaN. */
-static double max_nan(double m, double v)
-{
-    return isnan(m) || isnan(v) ? NAN : (v > m ? v : m);
-}
-
 /* Largest |got - ref| in 8-bit steps; NaN when either side has a NaN or an
  * Inf (|Inf - x| = Inf, Inf - Inf = NaN), so `< tol` fails on them. */
 static double max_err255(const float *got, const float *ref, size_t n)
 {
     double d = 0;
     for (size_t i = 0; i < n; i++)
-        d = max_nan(d, fabs((double)got[i] - ref[i]) * 255.0);
+        d = mt_max_nan(d, fabs((double)got[i] - ref[i]) * 255.0);
     return d;
 }
 
 /* max |c - ref| in units of 1/255 */
 static double diff255(const char *name, const float *got, int n, int H, int W)
 {
-    char path[1024];
-    struct f4d_err err = {0};
-    float *ref;
     int64_t sh[NPY_MAX_DIMS];
     int nd;
-    snprintf(path, sizeof path, "%s/prep/%s.npy", fixdir, name);
-    assert_int_equal(npy_load_f32(path, &ref, sh, &nd, &err), 0);
+    float *ref = mt_npy_load(sh, &nd, "%s/prep/%s.npy", fixdir, name);
     int64_t want = n > 1 ? sh[0] * sh[1] * sh[2] * sh[3] : sh[0] * sh[1] * sh[2];
     assert_int_equal(sh[nd - 2], H);
     assert_int_equal(sh[nd - 1], W);
