@@ -35,6 +35,15 @@ static void sim_board(struct hal_board *b)
     }
 }
 
+/* sim_board() opened as a rig; the board outlives the rig (which points at it). */
+static void open_sim_rig(struct hal_board *board, struct hal_rig *rig)
+{
+    struct f4d_err err = {0};
+    sim_board(board);
+    if (hal_rig_open(rig, board, &err) != 0)
+        fail_msg("hal_rig_open: %s", err.msg);
+}
+
 static int count_set(void *user, const struct hal_set *set)
 {
     (void)set;
@@ -57,10 +66,9 @@ static void start_failure_frees_nothing_queued(void **state)
 {
     (void)state;
     struct hal_board board;
-    sim_board(&board);
     struct hal_rig rig;
+    open_sim_rig(&board, &rig);
     struct f4d_err err = {0};
-    assert_int_equal(hal_rig_open(&rig, &board, &err), 0);
     assert_int_equal(hal_sim_fail_start(hal_rig_session(&rig, "sim"), 2, F4D_EIO), F4D_OK);
     uint64_t sets = 0;
     struct f4d_capture_config cfg = {.triggers = 10};
@@ -89,10 +97,9 @@ static void camera_never_streaming_is_named(void **state)
 {
     (void)state;
     struct hal_board board;
-    sim_board(&board);
     struct hal_rig rig;
+    open_sim_rig(&board, &rig);
     struct f4d_err err = {0};
-    assert_int_equal(hal_rig_open(&rig, &board, &err), 0);
     rig.cams[3].ops.streaming = never_streams;
     uint64_t sets = 0;
     struct f4d_capture_config cfg = {.triggers = 10, .ready_timeout_ns = 50000000ull};

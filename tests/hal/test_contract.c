@@ -9,8 +9,6 @@
  * id and trigger sequence (monotonic), stop handing every queued buffer back
  * ABORTED, trigger edges numbered 1, 2, 3..., and the whole rig delivering
  * synchronized sets through the capture loop with no mixed set. */
-#define _GNU_SOURCE /* unshare(CLONE_NEWNET): only this test builds a network namespace */
-#include <sched.h>
 
 #include <setjmp.h>
 #include <stdarg.h>
@@ -25,6 +23,7 @@
 #include <unistd.h>
 
 #include "f4d_capture.h"
+#include "f4d_netns.h"
 #include "f4d_test.h"
 #include "f4d_take.h"
 #include "hal_board.h"
@@ -388,34 +387,9 @@ static void contract_aravis(void **state)
 }
 
 /* Private network namespace with loopback aliases: camera traffic never leaves it. */
-static bool write_file(const char *path, const char *text)
-{
-    FILE *f = fopen(path, "w");
-    if (!f)
-        return false;
-    bool ok = fputs(text, f) >= 0;
-    return fclose(f) == 0 && ok;
-}
-
 static void make_netns(void)
 {
-    if (unshare(CLONE_NEWNET) != 0) {
-        /* not root: a user namespace in which this process is root (unshare -rn) */
-        char map[64];
-        unsigned uid = (unsigned)getuid(), gid = (unsigned)getgid();
-        if (unshare(CLONE_NEWUSER | CLONE_NEWNET) != 0 || !write_file("/proc/self/setgroups", "deny") ||
-            (snprintf(map, sizeof map, "0 %u 1", uid), !write_file("/proc/self/uid_map", map)) ||
-            (snprintf(map, sizeof map, "0 %u 1", gid), !write_file("/proc/self/gid_map", map))) {
-            snprintf(netns_why, sizeof netns_why, "cannot make a private network namespace (unshare: %s)",
-                     strerror(errno));
-            return;
-        }
-    }
-    netns_ok = system("ip link set lo up && ip addr add 127.0.0.2/8 dev lo && "
-                      "ip addr add 127.0.0.3/8 dev lo && ip addr add 127.0.0.4/8 dev lo && "
-                      "ip addr add 127.0.0.5/8 dev lo") == 0;
-    if (!netns_ok)
-        snprintf(netns_why, sizeof netns_why, "cannot configure lo and its 127.0.0.2-5 aliases in the namespace");
+    netns_ok = f4d_test_netns(4, netns_why, sizeof netns_why) == 0;
 }
 
 #endif /* HAL_TEST_ARAVIS */

@@ -15,8 +15,6 @@
  *
  *     test_trigger_arm [runs]      (default 1; prints one line per run)
  */
-#define _GNU_SOURCE /* unshare(CLONE_NEWNET) */
-#include <sched.h>
 
 #include <arv.h>
 #include <stdio.h>
@@ -25,37 +23,11 @@
 #include <unistd.h>
 
 #include "f4d_capture.h"
+#include "f4d_netns.h"
 #include "hal_board.h"
 #include "hal_registry.h"
 
 enum { NCAM = 4, TRIGGERS = 30, EXIT_SKIP = 77 };
-
-static bool write_file(const char *path, const char *text)
-{
-    FILE *f = fopen(path, "w");
-    if (!f)
-        return false;
-    bool ok = fputs(text, f) >= 0;
-    return fclose(f) == 0 && ok;
-}
-
-/* Private network namespace with lo up and 127.0.0.2..5: NULL, or why not. */
-static const char *make_netns(void)
-{
-    if (unshare(CLONE_NEWNET) != 0) {
-        /* not root: a user namespace in which this process is root (unshare -rn) */
-        char map[64];
-        unsigned uid = (unsigned)getuid(), gid = (unsigned)getgid();
-        if (unshare(CLONE_NEWUSER | CLONE_NEWNET) != 0 || !write_file("/proc/self/setgroups", "deny") ||
-            (snprintf(map, sizeof map, "0 %u 1", uid), !write_file("/proc/self/uid_map", map)) ||
-            (snprintf(map, sizeof map, "0 %u 1", gid), !write_file("/proc/self/gid_map", map)))
-            return "unshare(CLONE_NEWNET) failed (not root, and no user namespaces)";
-    }
-    if (system("ip link set lo up && ip addr add 127.0.0.2/8 dev lo && ip addr add 127.0.0.3/8 dev lo && "
-               "ip addr add 127.0.0.4/8 dev lo && ip addr add 127.0.0.5/8 dev lo") != 0)
-        return "cannot configure lo in the namespace (is iproute2 installed?)";
-    return NULL;
-}
 
 static void board_4cam(struct hal_board *b)
 {
@@ -163,8 +135,8 @@ int main(int argc, char **argv)
     if (runs < 1)
         runs = 1;
     /* before any thread exists: a namespace belongs to the thread that makes it */
-    const char *why = make_netns();
-    if (why) {
+    char why[256];
+    if (f4d_test_netns(NCAM, why, sizeof why) != 0) {
         printf("SKIPPED: test_trigger_arm: %s\n", why);
         return EXIT_SKIP;
     }
