@@ -656,17 +656,22 @@ size_t scene_count(const scene *s) { return s ? s->n : 0; }
 float scene_height(const scene *s) { return s ? 1.78f * s->s : 0.0f; }
 enum scene_preset scene_preset_of(const scene *s) { return s->preset; }
 
+/* Point i where its bone's transform X puts it: p + q * local. */
+static void place_point(const scene *S, const struct xform *X, size_t i, float pos[3])
+{
+    const struct xform *x = &X[S->bone[i]];
+    float w[3];
+    qrot(x->q, S->local + 3 * i, w);
+    for (int k = 0; k < 3; k++)
+        pos[k] = x->p[k] + w[k];
+}
+
 void scene_positions(const scene *S, double t, float *pos)
 {
     struct xform X[B_COUNT];
     pose_at(S, t, X);
-    for (size_t i = 0; i < S->n; i++) {
-        const struct xform *x = &X[S->bone[i]];
-        float w[3];
-        qrot(x->q, S->local + 3 * i, w);
-        for (int k = 0; k < 3; k++)
-            pos[3 * i + k] = x->p[k] + w[k];
-    }
+    for (size_t i = 0; i < S->n; i++)
+        place_point(S, X, i, pos + 3 * i);
 }
 
 int scene_eval(const scene *S, double t, double dt, struct splat_frame *f, struct f4d_err *err)
@@ -681,12 +686,8 @@ int scene_eval(const scene *S, double t, double dt, struct splat_frame *f, struc
     struct xform X[B_COUNT];
     pose_at(S, t, X);
     for (size_t i = 0; i < S->n; i++) {
-        const struct xform *x = &X[S->bone[i]];
-        float w[3];
-        qrot(x->q, S->local + 3 * i, w);
-        for (int k = 0; k < 3; k++)
-            f->pos[3 * i + k] = x->p[k] + w[k];
-        qmul(x->q, S->qlocal + 4 * i, f->rot + 4 * i);
+        place_point(S, X, i, f->pos + 3 * i);
+        qmul(X[S->bone[i]].q, S->qlocal + 4 * i, f->rot + 4 * i);
     }
     memcpy(f->scale, S->scale, 3 * S->n * sizeof(float));
     memcpy(f->rgb, S->rgb, 3 * S->n * sizeof(float));
