@@ -85,6 +85,18 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
 void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const int8_t *b1,
                             int32_t *c, int accumulate);
 
+/* Job planning shared by the ISA drivers (gemm_plan.c, plain C). */
+/* The row block for `threads` > 1: mc (a multiple of FK_GEMM_MR) shrunk so
+ * that the padded rows make about 4 blocks per thread, but not below min_mc
+ * where there are that many rows; then at most the padded rows. */
+int  fk__gemm_plan_mc(int threads, int m, int mc, int min_mc);
+/* Splits the `panels` 16-wide panels into chunks when the m blocks alone are
+ * too few tasks for the threads (about 4 tasks per thread, at least 4 panels
+ * per chunk): *n_chunks chunks of *panels_per_chunk panels (the last one may
+ * be short). */
+void fk__gemm_plan_chunks(int threads, int m_blocks, int panels, int *n_chunks,
+                          int *panels_per_chunk);
+
 /* Address of element (m, n) of the destination. */
 float *fk__cdst_ptr(const struct fk__cdst *c, int m, int n);
 #endif

@@ -329,22 +329,12 @@ int fk__gemm_neon(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
         mc = 144;
     if (mc < MR)
         mc = MR;
-    int threads = ctx->threads, m_pad = (int)fk__round_up((size_t)m, MR);
-    if (threads > 1 && m_pad < 4 * threads * mc) {
-        int want = (int)fk__round_up((size_t)((m_pad + 4 * threads - 1) / (4 * threads)), MR);
-        mc = want < mc ? want : mc;
-    }
-    if (mc > m_pad)
-        mc = m_pad;
+    /* enough tasks for all threads: shrink mc, then split the panels */
+    int threads = ctx->threads;
+    mc = fk__gemm_plan_mc(threads, m, mc, MR);
     j.mc = mc;
     int m_blocks = (m + mc - 1) / mc;
-    if (threads > 1 && m_blocks < 4 * threads) {
-        int chunks = (4 * threads + m_blocks - 1) / m_blocks;
-        int max_chunks = j.panels / 4 > 0 ? j.panels / 4 : 1;
-        j.n_chunks = chunks < max_chunks ? chunks : max_chunks;
-    }
-    j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
-    j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
+    fk__gemm_plan_chunks(threads, m_blocks, j.panels, &j.n_chunks, &j.panels_per_chunk);
 
     j.kc = fk_ctx_gemm_blocks(ctx).kc;
     if (j.kc < 8)

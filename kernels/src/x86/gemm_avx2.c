@@ -623,14 +623,9 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
      * 4 * MR). */
     int threads = ctx->threads;
     const int mc_scratch = threads > 1 && mc < 4 * MR ? 4 * MR : mc;
-    /* Enough tasks for both threads: shrink mc, then split the panels. */
-    int m_pad = (int)fk__round_up((size_t)m, MR);
-    if (threads > 1 && m_pad < 4 * threads * mc) {
-        int want = (int)fk__round_up((size_t)((m_pad + 4 * threads - 1) / (4 * threads)), MR);
-        mc = want < 4 * MR && m_pad >= 4 * MR ? 4 * MR : (want < mc ? want : mc);
-    }
-    if (mc > m_pad)
-        mc = m_pad;
+    /* Enough tasks for both threads: shrink mc (not below 4 * MR), then split
+     * the panels. */
+    mc = fk__gemm_plan_mc(threads, m, mc, 4 * MR);
     /* Near-equal blocks, as many as a multiple of the threads: a short last
      * block leaves a core idle at the end (1374 rows in blocks of 144 lost ~5 %). */
     if (threads > 1) {
@@ -642,13 +637,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     }
     j.mc = mc;
     j.m_blocks = (m + mc - 1) / mc;
-    if (threads > 1 && j.m_blocks < 4 * threads) {
-        int chunks = (4 * threads + j.m_blocks - 1) / j.m_blocks;
-        int max_chunks = j.panels / 4 > 0 ? j.panels / 4 : 1;
-        j.n_chunks = chunks < max_chunks ? chunks : max_chunks;
-    }
-    j.panels_per_chunk = (j.panels + j.n_chunks - 1) / j.n_chunks;
-    j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
+    fk__gemm_plan_chunks(threads, j.m_blocks, j.panels, &j.n_chunks, &j.panels_per_chunk);
     /* Scratch is laid out for mc_scratch and for the largest chunk of
      * panels, neither of which depends on m: one need measured at any size
      * covers every size (fk_ctx_measure). The C tile (mc x nc of fp32 /

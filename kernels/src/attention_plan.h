@@ -1,0 +1,59 @@
+/* attention_plan.h - the ISA-independent driver of the vector attention
+ * kernels (x86/attention_avx2.c, arm/attention_neon.c): job setup, padding,
+ * head grouping, the RoPE table, the scratch bound, the two parallel phases
+ * and the output normalisation live in attention_plan.c (plain C, no ISA
+ * flags); each ISA file supplies only its vector pieces through
+ * struct fk__attn_isa.
+ *
+ * Heads are processed in groups sized so that the group's transformed keys,
+ * values and queries fit a few MB of shared scratch:
+ *   phase 1 (parallel over token chunks): q/k LayerNorm and RoPE, q scaled by
+ *     scale * log2(e) (so the softmax uses exp2), keys packed as 16-wide
+ *     panels [d][16], values as rows [nk_pad][d], queries as 6-row panels;
+ *   phase 2 (parallel over head x 96-query blocks): for each 64-key block,
+ *     S = Q K^T by the GEMM's 6x16 register tile, the running max / sum
+ *     update, and O = alpha O + P V by a 6x16 tile, all in L1. Nothing
+ *     N_q x N_k is ever stored. Head dims that are not a multiple of 16 use
+ *     the reference. */
+#ifndef FK_ATTENTION_PLAN_H
+#define FK_ATTENTION_PLAN_H
+
+#include <stdint.h>
+
+#include "attention.h"
+
+enum {
+    FK_ATTN_MR = 6,  /* query rows per register tile / panel          */
+    FK_ATTN_NR = 16, /* keys per packed panel                         */
+    FK_ATTN_BK = 64, /* keys per block                                */
+    FK_ATTN_QB = 96  /* queries per task: 16 register tiles share each K/V block */
+};
+
+struct fk__rope_table {
+    int          on, lo, span, quarter;  /* positions lo .. lo + span - 1 */
+    const float *cos, *sin;              /* [span][quarter]               */
+};
+
+/* The vector pieces of one ISA. */
+struct fk__attn_isa {
+    /* LayerNorm over t[d] (d a multiple of 16); NULL w / b mean 1 / 0 */
+    void (*head_norm)(float *t, int d, const float *w, const float *b, float eps);
+    /* 2D RoPE of t[d] at pos[2] from the table */
+    void (*rope_apply)(const struct fk__rope_table *rt, float *t, int d, const int32_t *pos);
+    /* the GEMM's 6x16 tile: c[6][16] (ldc) = a[kc][6] panel . b[kc][16] panel */
+    void (*ukr_6x16)(int kc, const float *a, const float *b, float *c, int ldc, int accumulate);
+    /* online softmax over one 6 x BK block of log2-domain logits, in place:
+     * s becomes p = 2^(s - m_new); alpha = 2^(m_old - m_new) (alpha[8]);
+     * l = alpha l + sum p */
+    void (*softmax_block)(float *s, int valid, float *m, float *l, float *alpha);
+    /* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
+    void (*pv_tile)(int d, const float *p, const float *v, float *o, const float *alpha);
+};
+
+/* fk__attention_avx2 / _neon: validated arguments, the ISA's pieces. */
+int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
+                           const struct fk_attention_desc *a, const float *q, int ldq, int nq,
+                           const float *k, int ldk, const float *v, int ldv, int nk, float *out,
+                           int ldo);
+
+#endif
