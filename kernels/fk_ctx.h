@@ -42,8 +42,8 @@ enum fk_isa {
     FK_ISA_AVX2_VNNI = 3, /* AVX2 plus AVX-VNNI (VEX vpdpbusd) for int8 GEMM     */
     FK_ISA_NEON      = 4, /* AArch64 NEON (int8 GEMM with sdot where HWCAP_ASIMDDP) */
     FK_ISA_AVX512    = 5, /* AVX2_VNNI's set plus AVX-512 F/BW/VL/VNNI: 6x32 zmm
-                           * GEMM tiles (same packed layouts); forced only for
-                           * now, FK_ISA_AUTO does not pick it (see ctx.c)    */
+                           * GEMM tiles (same packed layouts); the other
+                           * kernels run their AVX2 code under it            */
 };
 
 /* CPU feature bits reported by fk_cpu_features(). */

@@ -649,8 +649,10 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     pj.lim_y_pos = ((float)r->height - cam->cy) / cam->fy + 0.3f * tany;
     pj.lim_y_neg = cam->cy / cam->fy + 0.3f * tany;
     enum fk_isa isa = fk_ctx_isa(r->ctx);
-    /* AVX2: vector preprocessing and compositing; NEON: vector compositing */
-    pj.simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI || isa == FK_ISA_NEON;
+    /* AVX2 (and the ISAs above it, which include it): vector preprocessing and
+     * compositing; NEON: vector compositing */
+    pj.simd = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI || isa == FK_ISA_AVX512 ||
+              isa == FK_ISA_NEON;
     pj.pv = (struct prep_view){ .f = f, .features = features, .proj = r->proj, .V = cam->w2c,
                                 .fx = cam->fx, .fy = cam->fy, .cx = cam->cx, .cy = cam->cy,
                                 .lim_x_pos = pj.lim_x_pos, .lim_x_neg = pj.lim_x_neg,
