@@ -24,6 +24,7 @@
 #ifndef F4D_STATUS_H
 #define F4D_STATUS_H
 
+#include <stdarg.h>
 #include <stddef.h>
 
 #ifdef __cplusplus
@@ -64,6 +65,8 @@ int f4d_fail(struct f4d_err *err, int code, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)))
 #endif
     ;
+/* f4d_fail with a va_list, for modules' own printf-style fail helpers. */
+int f4d_vfail(struct f4d_err *err, int code, const char *fmt, va_list ap);
 /* Prefixes an existing message: "<prefix>: <old message>" (keeps the code). */
 void f4d_err_prefix(struct f4d_err *err, const char *fmt, ...)
 #if defined(__GNUC__)

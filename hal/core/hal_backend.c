@@ -95,14 +95,11 @@ void hal_cam_name(struct hal_cam_state *s, const char *fmt, ...)
 int hal_cam_fail(struct hal_cam_state *s, int rc, const char *fmt, ...)
 {
     /* name is shorter than err, so the prefix always fits */
-    s->err.code = rc;
-    int n = snprintf(s->err.msg, sizeof s->err.msg, "%s: ", s->name);
-    if (n < 0 || (size_t)n >= sizeof s->err.msg)
-        return rc;
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(s->err.msg + n, sizeof s->err.msg - (size_t)n, fmt, ap);
+    f4d_vfail(&s->err, rc, fmt, ap);
     va_end(ap);
+    f4d_err_prefix(&s->err, "%s", s->name);
     return rc;
 }
 

@@ -34,16 +34,12 @@ std::mutex g_lock; // guards g_mgr and g_refs
 std::unique_ptr<CameraManager> g_mgr;
 uint32_t g_refs;
 
-/* f4d_fail's contract, for the shim's own messages. */
 __attribute__((format(printf, 3, 4))) int fail(struct f4d_err *err, int rc, const char *fmt, ...)
 {
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
-        err->code = rc;
-    }
+    va_list ap;
+    va_start(ap, fmt);
+    f4d_vfail(err, rc, fmt, ap);
+    va_end(ap);
     return rc;
 }
 

@@ -345,13 +345,10 @@ int fk__fail(fk_ctx *ctx, int status, const char *func, const char *fmt, ...)
     if (!ctx)
         return status;
     va_list ap;
-    int n = snprintf(ctx->err.msg, sizeof ctx->err.msg, "%s: ", func);
-    if (n < 0 || (size_t)n >= sizeof ctx->err.msg)
-        n = 0;
     va_start(ap, fmt);
-    vsnprintf(ctx->err.msg + n, sizeof ctx->err.msg - (size_t)n, fmt, ap);
+    f4d_vfail(&ctx->err, status, fmt, ap);
     va_end(ap);
-    ctx->err.code = status;
+    f4d_err_prefix(&ctx->err, "%s", func);
     return status;
 }
 

@@ -19,15 +19,21 @@ const char *f4d_status_name(int rc)
     return names[-rc];
 }
 
-int f4d_fail(struct f4d_err *err, int code, const char *fmt, ...)
+int f4d_vfail(struct f4d_err *err, int code, const char *fmt, va_list ap)
 {
     if (err) {
-        va_list ap;
-        va_start(ap, fmt);
         vsnprintf(err->msg, sizeof err->msg, fmt, ap);
-        va_end(ap);
         err->code = code;
     }
+    return code;
+}
+
+int f4d_fail(struct f4d_err *err, int code, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    f4d_vfail(err, code, fmt, ap);
+    va_end(ap);
     return code;
 }
 

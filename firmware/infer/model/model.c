@@ -21,9 +21,8 @@ int model_fail(struct model *m, int rc, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(m->err.msg, sizeof m->err.msg, fmt, ap);
+    f4d_vfail(&m->err, rc, fmt, ap);
     va_end(ap);
-    m->err.code = rc;
     return rc;
 }
 
