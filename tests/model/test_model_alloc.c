@@ -151,6 +151,12 @@ static void test_eval_never_allocates(void **state)
             assert_int_equal(model_eval(m, img, 1, 28, 56, &out), 0);
             assert_int_equal(model_eval(m, img, 2, 14, 70, &out), 0);
             assert_int_equal(model_eval(m, img, 2, 42, 70, &out), 0);
+            /* foreground-only Evals: a partial and an empty keep-list */
+            uint8_t keep[2 * 15] = { 1, 0, 1, 1, 0, 0, 0, 1 };
+            assert_int_equal(model_eval_masked(m, img, 2, 42, 70, keep, &out), 0);
+            assert_int_equal(out.masked, 1);
+            memset(keep, 0, sizeof keep);
+            assert_int_equal(model_eval_masked(m, img, 2, 42, 70, keep, &out), 0);
             if (n_allocs)
                 print_error("%s on %s: Eval made %ld allocations\n", files[f],
                             fk_isa_name(isas[i]), n_allocs);

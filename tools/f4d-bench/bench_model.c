@@ -99,7 +99,7 @@ static int gen_tensor(void *user, const struct model_tensor_info *t)
     return gguf_writer_write(g->w, g->buf, n * sizeof *g->buf);
 }
 
-static int write_random(const char *path, const struct model_config *c, unsigned groups)
+int bench_write_random_model(const char *path, const struct model_config *c, unsigned groups)
 {
     struct gen g = { gguf_writer_new(), { UINT64_C(0x9e3779b97f4a7c15) }, 0, NULL, 0 };
     int rc = -1;
@@ -296,7 +296,7 @@ int bench_model(int argc, char **argv)
     tiny.dpt_layer_idx[2] = 2; tiny.dpt_layer_idx[3] = 3;
     const int tS = 4, tH = 126, tW = 168;
     struct result tr;
-    if (write_random(path, &tiny, MODEL_G_ALL) < 0 ||
+    if (bench_write_random_model(path, &tiny, MODEL_G_ALL) < 0 ||
         run_model(ctx, path, FK_W_F32, tS, tH, tW, 5 * reps, tiny.depth - 1, &tr) < 0)
         goto done;
     remove(path);
@@ -343,7 +343,7 @@ int bench_model(int argc, char **argv)
         one.dino_depth = 1;
         for (int i = 0; i < 4; i++)
             one.dpt_layer_idx[i] = 0;
-        if (write_random(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
+        if (bench_write_random_model(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
             goto done;
         enum fk_wtype wts[6] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
         fk_ctx *rctx[6] = { ctx, ctx, ctx, xctx[0], xctx[1], xctx[2] };
