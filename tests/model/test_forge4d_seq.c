@@ -29,6 +29,7 @@
 #include <cmocka.h>
 
 #include "fk_ctx.h"
+#include "interp.h"
 #include "model.h"
 #include "model_test_util.h"
 #include "npy.h"
@@ -37,11 +38,22 @@ static const char *fixture_dir, *gguf_dir;
 
 enum { SEQ_T = 4, SEQ_S = 2, SEQ_H = 28, SEQ_W = 42, N_PAIRS = 64 };
 
-/* f32 from the issue. f16 / int8 measured on this fixture (worst over all
- * checkpoints and steps: see the printed table) and set with margin; the
- * drift floor is an absolute term for steps whose error is already tiny. */
-static const double budget_f32 = 1e-4, budget_f16 = 1e-2, budget_int8 = 1.5e-1,
+/* f32 from the issue. f16 / int8 measured on this fixture (worst over the
+ * steps, printed per step) and set with margin (f16 worst 1.2e-3, int8
+ * 5.0e-2 outside the scales; scales 6.2e-3 and 8.1e-2). The Gaussian scales carry
+ * the point head's error through the view depth z = R X + T, where terms
+ * cancel (as in test_forge4d.c): they get their own budget. The drift floor
+ * is an absolute term for steps whose error is already tiny. */
+static const double budget_f32 = 1e-4, budget_f16 = 5e-3, budget_int8 = 8e-2,
                     drift_floor = 1e-6;
+static const double budget_f16_scale = 1.5e-2, budget_int8_scale = 1.5e-1;
+
+static double ck_budget(const char *name, double base)
+{
+    if (!strcmp(name, "gaussians_scale"))
+        return base == budget_f16 ? budget_f16_scale : base == budget_int8 ? budget_int8_scale : base;
+    return base;
+}
 
 static fk_ctx *new_ctx(void)
 {
@@ -143,20 +155,28 @@ static void add_step(struct mt_run *r, const struct model_config *c, int t)
 /* Prints and asserts every checkpoint of a step; returns the worst. */
 static double report(struct mt_run *r, const char *tag, int t, double budget)
 {
-    double worst = 0;
+    double worst = 0, worst_sc = 0;
+    const char *wn = "-";
     for (int i = 0; i < r->n; i++) {
         struct mt_ck *c = &r->ck[i];
-        double e = mt_rel(c);
-        if (!c->seen || !(e <= budget))
+        double e = mt_rel(c), b = ck_budget(c->name, budget);
+        if (!c->seen || !(e <= b))
             printf("  %-12s t%d %-18s rel_err %.3e (budget %.1e)%s\n", tag, t, c->name, e,
-                   budget, !c->seen ? "  NOT SEEN" : "  OVER BUDGET");
+                   b, !c->seen ? "  NOT SEEN" : "  OVER BUDGET");
         assert_true(c->seen);
-        assert_true(e <= budget); /* NaN fails */
+        assert_true(e <= b); /* NaN fails */
+        if (!strcmp(c->name, "gaussians_scale")) {
+            worst_sc = mt_max_nan(worst_sc, e);
+            continue;
+        }
+        if (!(e <= worst))
+            wn = c->name;
         worst = mt_max_nan(worst, e);
     }
-    printf("  %-12s t%d: %2d checkpoints, worst rel_err %.3e (budget %.1e)\n", tag, t, r->n,
-           worst, budget);
-    return worst;
+    printf("  %-12s t%d: %2d checkpoints, worst rel_err %.3e (%s; budget %.1e), "
+           "gaussians_scale %.3e (budget %.1e)\n", tag, t, r->n, worst, wn, budget, worst_sc,
+           ck_budget("gaussians_scale", budget));
+    return mt_max_nan(worst, worst_sc);
 }
 
 /* ---- parity over the sequence ------------------------------------------ */
@@ -476,6 +496,51 @@ static void test_without_stream_parts(void **state)
     }
 }
 
+/* The fusion MLP plugs into interp as its fuse function (the same type), and
+ * with fc2 zeroed (untrained) it is interp_fuse_average: the first 10
+ * attributes bit for bit, the quaternion up to interp's normalisation. */
+static void test_zero_fusion_is_interp_average(void **state)
+{
+    (void)state;
+    const interp_fuse_fn fn = model_fusion_fuse; /* the signatures match */
+    struct mem_gguf mg;
+    mem_load(&mg, "tiny_f4d_seq_f32.gguf");
+    size_t nw, nb;
+    float *w = mem_tensor(&mg, "fusion.fc2.weight", &nw);
+    float *b = mem_tensor(&mg, "fusion.fc2.bias", &nb);
+    memset(w, 0, nw * sizeof *w);
+    memset(b, 0, nb * sizeof *b);
+    gguf_file *gf;
+    struct f4d_err err = {0};
+    if (gguf_open_memory(mg.buf, mg.size, &gf, &err) < 0)
+        fail_msg("%s", err.msg);
+    fk_ctx *ctx = new_ctx();
+    struct model *m;
+    if (model_init_gguf(ctx, gf, FK_W_F32, &m, &err) < 0)
+        fail_msg("%s", err.msg);
+    int64_t sh[NPY_MAX_DIMS];
+    int nd;
+    float *in = mt_npy_load(sh, &nd, "%s/tiny_f4d_seq/fusion_in.npy", fixture_dir);
+    for (int i = 0; i < N_PAIRS; i++) {
+        const float *x = in + (size_t)i * MODEL_FUSION_IN;
+        float got[INTERP_ATTRS], avg[INTERP_ATTRS];
+        fn(model_fusion(m), x, x + INTERP_ATTRS, x[28], x[29], got);
+        interp_fuse_average(NULL, x, x + INTERP_ATTRS, x[28], x[29], avg);
+        assert_memory_equal(got, avg, 10 * sizeof(float));
+        double n = 0;
+        for (int c = 10; c < 14; c++)
+            n += (double)avg[c] * avg[c];
+        n = sqrt(n);
+        for (int c = 10; c < 14; c++)
+            assert_true(fabs(got[c] - avg[c] / n) < 1e-6);
+    }
+    free(in);
+    model_free(m);
+    gguf_close(gf);
+    fk_ctx_free(ctx);
+    free(mg.buf);
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3) {
@@ -489,6 +554,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_seq_f16),
         cmocka_unit_test(test_seq_int8),
         cmocka_unit_test(test_fusion),
+        cmocka_unit_test(test_zero_fusion_is_interp_average),
         cmocka_unit_test(test_zero_motion),
         cmocka_unit_test(test_first_step_no_motion),
         cmocka_unit_test(test_reset_reproduces_first_step),
