@@ -13,7 +13,9 @@
  *   set alone, dropped rows reused) and the heads' outputs;
  * - every view empty: the patch rows are the previous Eval's bit for bit,
  *   the token counts are the special tokens only, the hook sees the packed
- *   stream. */
+ *   stream;
+ * - with Forge4D's state / motion blocks (tiny_f4d_seq) a keep-list is
+ *   ignored: every patch runs, bit for bit model_eval's steps. */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -320,6 +322,55 @@ static void test_size_change_runs_all(void **state)
     fix_close(&f);
 }
 
+/* Forge4D state / motion blocks read every token of a step: with them a
+ * keep-list is ignored, and the step is model_eval's (same state, same
+ * motion) bit for bit. tiny_f4d_seq: 2 views of 28x42 (2 x 3 patches). */
+static void test_stream_runs_all(void **state)
+{
+    (void)state;
+    char path[2200];
+    struct f4d_err err = {0};
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
+    struct model *m[2];
+    struct model_outputs o[2];
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+    snprintf(path, sizeof path, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    enum { S = 2, H = 28, W = 42 };
+    float *img = malloc((size_t)S * 3 * H * W * sizeof *img);
+    assert_non_null(img);
+    uint8_t keep[S * 6] = { 1, 0, 0, 0, 0, 0 };
+    for (int k = 0; k < 2; k++) {
+        int rc = model_init(ctx, path, FK_W_F32, &m[k], &err);
+        if (rc < 0)
+            print_error("%s\n", err.msg);
+        assert_int_equal(rc, 0);
+        assert_int_equal(model_prepare(m[k], S, H, W), 0);
+    }
+    for (int t = 0; t < 3; t++) {
+        for (size_t i = 0; i < (size_t)S * 3 * H * W; i++)
+            img[i] = (float)((i * 7 + (size_t)t * 13) % 97) / 97.0f;
+        for (int k = 0; k < 2; k++) {
+            int rc = model_eval_masked(m[k], img, S, H, W, k ? keep : NULL, &o[k]);
+            if (rc < 0)
+                print_error("%s\n", model_error(m[k]));
+            assert_int_equal(rc, 0);
+            assert_int_equal(o[k].masked, 0);
+            assert_int_equal(o[k].total_tokens, S * (1 + 2 + 6));
+        }
+        assert_int_equal(o[0].step, o[1].step);
+        assert_int_equal(o[0].has_motion, o[1].has_motion);
+        assert_memory_equal(o[0].depth, o[1].depth, (size_t)S * H * W * sizeof(float));
+        if (o[0].has_motion)
+            assert_memory_equal(o[0].motion_bwd, o[1].motion_bwd,
+                                (size_t)S * H * W * 3 * sizeof(float));
+    }
+    model_free(m[0]);
+    model_free(m[1]);
+    free(img);
+    fk_ctx_free(ctx);
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3) {
@@ -333,6 +384,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_masked_vs_reference),
         cmocka_unit_test(test_all_views_empty),
         cmocka_unit_test(test_size_change_runs_all),
+        cmocka_unit_test(test_stream_runs_all),
     };
     return cmocka_run_group_tests_name("/model/masked", tests, NULL, NULL);
 }

@@ -21,7 +21,8 @@
  * for key 150's Gaussians as they are: what reusing the whole last key
  * would give. Also the mask against the scene's ground-truth person pixels.
  * Configs (random weights, bench_model's generator; VGGT's layout, groups
- * VGGT + Forge4D's Gaussian and scale heads):
+ * VGGT + Forge4D's Gaussian and scale heads; no state / motion blocks, with
+ * which every patch runs):
  *   mid   embed 384, 6 heads, depth 8, DINO depth 4, 4 registers, DPT
  *         features 48 (out 48/96/192/384), layers 1/3/5/7: VGGT-1B's shape
  *         scaled down, each DPT head's FLOPs near VGGT-1B's share of the
@@ -275,7 +276,7 @@ static int bench_config(fk_ctx *ctx, const char *path, struct cfg_result *R, con
 {
     struct f4d_err err = {0};
     struct model *m = NULL;
-    if (bench_write_random_model(path, &R->c, MODEL_G_ALL) < 0)
+    if (bench_write_random_model(path, &R->c, MODEL_G_VGGT | MODEL_G_GAUSSIAN | MODEL_G_SCALE) < 0)
         return -1;
     if (model_init(ctx, path, FK_W_F32, &m, &err) < 0) {
         fprintf(stderr, "f4d-bench tokens: %s\n", err.msg);

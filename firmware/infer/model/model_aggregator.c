@@ -171,6 +171,8 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
     struct bump sb = { (unsigned char *)m->scratch, 0 };
     struct agg_bufs a;
     agg_layout(&sb, c, S, H, W, &a);
+    if (m->stream) /* Forge4D state / motion blocks: their scratch follows */
+        model_stream_scratch(m, &sb, S, H, W);
     float *x = a.x;
     int rc;
     double t0 = model_now();
@@ -180,6 +182,10 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
      * set; without one, every patch runs. The layers are then half-written
      * until the loop ends, so they count as invalid until it does. */
     if (!m->layers_valid || m->layers_S != S || m->layers_H != H || m->layers_W != W)
+        keep = NULL;
+    /* Forge4D's state write and motion blocks read every token of the step
+     * (their memory is [S*P', C]): with them, every patch runs. */
+    if (m->stream)
         keep = NULL;
     m->layers_valid = 0;
     const int n = plan_stream(m, S, w, P, ns, keep);
@@ -250,12 +256,16 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
             return rc;
         if (m->layers[i])
             store_layer(m, m->layers[i], x, n, C);
+        if (m->stream && (rc = model_stream_frame(m, i, x, n)) < 0)
+            return rc;
         double tb = model_now();
         m->st_sec[ST_FRAME] += tb - ta;
         m->flops = &m->st_flops[ST_GLOBAL];
         if ((rc = model_block_forward_seqs(m, &m->global[i], x, 1, all, m->pos, &a.bb)) < 0)
             return rc;
         m->st_sec[ST_GLOBAL] += model_now() - tb;
+        if (m->stream && (rc = model_stream_global(m, i, x, S, P1, &a.bb)) < 0)
+            return rc;
         if (m->hooks.after_global &&
             (rc = m->hooks.after_global(m->hooks.user, i, x, S, m->tok_masked ? 0 : P1, C)) < 0)
             return model_fail(m, F4D_EINVAL, "model: after_global hook failed at layer %d (%d)",
