@@ -44,7 +44,12 @@
  *     u32 magic "F4DC" (0x43443446)  u32 seq (the packet's)  u32 total length
  *     u16 index  u16 count           (all little-endian)
  * followed by bytes [index * stride, +len) of the packet, stride =
- * ceil(total / count), the last chunk shorter. SRT live mode delivers chunks
+ * ceil(total / count), the last chunk shorter. Each packet is followed by a
+ * probe, a bare header with total = count = 0 that receivers skip: SRT's
+ * live mode notices a loss only from a later sequence number, so a packet's
+ * lost last chunk would otherwise wait for the next packet (often longer than
+ * the latency window) to be retransmitted; drain sends more while it waits.
+ * SRT live mode delivers chunks
  * in order or not at all (too-late drop), so the receiver holds one packet in
  * assembly: a chunk of another seq ends it; if chunks were missing it is
  * dropped and counted (dropped_incomplete). A complete packet is checked by

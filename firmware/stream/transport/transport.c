@@ -335,6 +335,7 @@ struct transport_tx {
     size_t   max_packet;
     FILE    *file, *tee;
     uint8_t  chunk[TRANSPORT_PAYLOAD_MAX];
+    uint32_t last_seq;
     struct transport_stats st;
     struct f4d_err err;
 };
@@ -389,6 +390,31 @@ static int write_all(FILE *f, const uint8_t *b, size_t n, const char *what, stru
     return F4D_OK;
 }
 
+/* One SRT message; 0 or a failure (which ends the link on connection loss). */
+static int tx_msg(transport_tx *t, size_t n, uint32_t seq)
+{
+    if (srt_sendmsg2(t->link.sock, (const char *)t->chunk, (int)n, NULL) != SRT_ERROR)
+        return F4D_OK;
+    int e = srt_getlasterror(NULL);
+    if (e == SRT_EASYNCSND)
+        return f4d_fail(&t->err, F4D_ETIMEDOUT, "srt: send buffer still full after %d ms", t->link.u.timeout_ms);
+    int rc = f4d_fail(&t->err, e == SRT_ECONNLOST || e == SRT_ENOCONN ? F4D_EEOF : F4D_EIO,
+                      "srt: send of packet seq %u: %s", seq, srt_why());
+    link_lost(&t->link);
+    return rc;
+}
+
+/* The tail probe: SRT's live mode learns of a loss only from a later
+ * sequence number, so without it a packet's lost last chunk would wait for the
+ * next packet (often longer than the latency window) to be noticed. */
+static int tx_probe(transport_tx *t, uint32_t seq)
+{
+    memset(t->chunk, 0, TRANSPORT_CHUNK_HEADER);
+    put_u32(t->chunk, TRANSPORT_CHUNK_MAGIC);
+    put_u32(t->chunk + 4, seq);
+    return tx_msg(t, TRANSPORT_CHUNK_HEADER, seq);
+}
+
 int transport_tx_send(transport_tx *t, const uint8_t *pkt, size_t len)
 {
     if (!t)
@@ -430,18 +456,13 @@ int transport_tx_send(transport_tx *t, const uint8_t *pkt, size_t len)
         put_u16(t->chunk + 12, (uint32_t)i);
         put_u16(t->chunk + 14, (uint32_t)count);
         memcpy(t->chunk + TRANSPORT_CHUNK_HEADER, pkt + off, n);
-        if (srt_sendmsg2(t->link.sock, (const char *)t->chunk, (int)(TRANSPORT_CHUNK_HEADER + n), NULL) == SRT_ERROR) {
-            int e = srt_getlasterror(NULL);
-            if (e == SRT_EASYNCSND)
-                return f4d_fail(&t->err, F4D_ETIMEDOUT, "srt: send buffer still full after %d ms",
-                                t->link.u.timeout_ms);
-            rc = f4d_fail(&t->err, e == SRT_ECONNLOST || e == SRT_ENOCONN ? F4D_EEOF : F4D_EIO,
-                          "srt: send of packet seq %u: %s", p.seq, srt_why());
-            link_lost(&t->link);
+        if ((rc = tx_msg(t, TRANSPORT_CHUNK_HEADER + n, p.seq)) < 0)
             return rc;
-        }
         t->st.chunks++;
     }
+    if ((rc = tx_probe(t, p.seq)) < 0)
+        return rc;
+    t->last_seq = p.seq;
     t->st.packets++;
     t->st.bytes += len;
     struct transport_stats keep; /* SRT's counters vanish with a broken socket */
@@ -468,13 +489,20 @@ int transport_tx_drain(transport_tx *t, int timeout_ms)
     if (t->link.sock == SRT_INVALID_SOCK)
         return f4d_fail(&t->err, F4D_EEOF, "transport_tx_drain: the connection is closed");
     /* live mode does not linger: wait for the peer's ACKs */
-    int64_t deadline = now_ms() + timeout_ms;
+    int64_t deadline = now_ms() + timeout_ms, probe = now_ms();
     size_t blocks = 0, bytes = 0;
     while (srt_getsockstate(t->link.sock) == SRTS_CONNECTED && srt_getsndbuffer(t->link.sock, &blocks, &bytes) >= 0 &&
            blocks > 0) {
-        if (now_ms() >= deadline)
+        int64_t now = now_ms();
+        if (now >= deadline)
             return f4d_fail(&t->err, F4D_ETIMEDOUT, "srt: %zu messages still unacknowledged after %d ms", blocks,
                             timeout_ms);
+        if (now - probe >= 20) { /* the probes lost too: more until SRT sees the gap */
+            int rc = tx_probe(t, t->last_seq);
+            if (rc < 0)
+                return rc;
+            probe = now;
+        }
         sleep_us(2000);
     }
     if (blocks > 0)
@@ -609,6 +637,8 @@ static int on_chunk(transport_rx *r, const uint8_t *m, size_t n, struct codec_pa
         return 1;
     }
     uint32_t seq = get_u32(m + 4), total = get_u32(m + 8), index = get_u16(m + 12), count = get_u16(m + 14);
+    if (total == 0 && count == 0 && index == 0 && n == TRANSPORT_CHUNK_HEADER)
+        return 1; /* a tail probe */
     if (total < CODEC_PACKET_HEADER || count == 0 || index >= count || count > total) {
         r->st.chunks_bad++;
         return 1;
