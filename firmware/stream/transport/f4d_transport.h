@@ -31,6 +31,11 @@
  *     timeout=MS             connect timeout, and how long a listening sender
  *                            waits at open for its caller (default 3000)
  *     payload=BYTES          SRT payload per message, 64..1456 (default 1316)
+ *     rcvbuf=BYTES           SRT's receive and send buffers (default 32 MiB;
+ *                            must hold bitrate x (latency + RTT) plus a key
+ *                            frame, or packets are dropped without any loss;
+ *                            SRT's own default, ~10 MB, is too small for
+ *                            300k-Gaussian keys with a 1 s window)
  *     maxbw=BYTES_PER_S      sender bandwidth cap incl. retransmissions
  *                            (default: SRT's, 1 Gbit/s in live mode)
  *   file:PATH                a stream file (packets back to back): the sender
@@ -89,6 +94,7 @@ extern "C" {
 #define TRANSPORT_PAYLOAD_DEF   1316
 #define TRANSPORT_PAYLOAD_MAX   1456
 #define TRANSPORT_MAX_PACKET_DEF ((size_t)16 << 20)
+#define TRANSPORT_RCVBUF_DEF    (32ll << 20)
 
 enum transport_kind { TRANSPORT_SRT = 1, TRANSPORT_FILE = 2 };
 enum transport_mode { TRANSPORT_CALLER = 1, TRANSPORT_LISTENER = 2 };
@@ -103,6 +109,7 @@ struct transport_url {
     int  pbkeylen;           /* 0: SRT's default                       */
     int  timeout_ms;
     int  payload;
+    long long rcvbuf;        /* bytes                                  */
     long long maxbw;         /* 0: SRT's default                       */
     char path[4096];         /* file:                                  */
 };

@@ -83,13 +83,17 @@ static int param(struct transport_url *u, const char *url, const char *k, size_t
             return f4d_fail(err, F4D_EINVAL, "'%s': payload '%.*s' must be bytes in [64, %d]", url, (int)vn, v,
                             TRANSPORT_PAYLOAD_MAX);
         u->payload = (int)x;
+    } else if (KEY("rcvbuf")) {
+        if (number(v, vn, 1 << 20, 1 << 30, &x) < 0)
+            return f4d_fail(err, F4D_EINVAL, "'%s': rcvbuf '%.*s' must be bytes in [1 MiB, 1 GiB]", url, (int)vn, v);
+        u->rcvbuf = x;
     } else if (KEY("maxbw")) {
         if (number(v, vn, 1, (long long)1 << 40, &x) < 0)
             return f4d_fail(err, F4D_EINVAL, "'%s': maxbw '%.*s' must be bytes per second > 0", url, (int)vn, v);
         u->maxbw = x;
     } else {
         return f4d_fail(err, F4D_EINVAL, "'%s': unknown parameter '%.*s' (mode, latency, passphrase, pbkeylen, "
-                        "timeout, payload, maxbw)", url, (int)kn, k);
+                        "timeout, payload, rcvbuf, maxbw)", url, (int)kn, k);
     }
 #undef KEY
     return F4D_OK;
@@ -103,6 +107,7 @@ int transport_url_parse(const char *url, struct transport_url *u, struct f4d_err
     u->latency_ms = -1;
     u->timeout_ms = 3000;
     u->payload = TRANSPORT_PAYLOAD_DEF;
+    u->rcvbuf = TRANSPORT_RCVBUF_DEF;
     if (!strncmp(url, "file:", 5)) {
         const char *p = url + 5;
         if (!strncmp(p, "//", 2))

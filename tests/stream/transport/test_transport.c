@@ -243,6 +243,9 @@ static void test_url(void **state)
                                          &err), 0);
     assert_string_equal(u.host, "::1");
     assert_int_equal(u.payload, 1456);
+    assert_int_equal(u.rcvbuf, TRANSPORT_RCVBUF_DEF);
+    assert_int_equal(transport_url_parse("srt://h:1?rcvbuf=8388608", &u, &err), 0);
+    assert_int_equal(u.rcvbuf, 8388608);
     assert_int_equal(transport_url_parse("file:/tmp/x.f4ds", &u, &err), 0);
     assert_string_equal(u.path, "/tmp/x.f4ds");
     static const struct { const char *url, *says; } bad[] = {
@@ -257,6 +260,7 @@ static void test_url(void **state)
         { "srt://h:9000?passphrase=abcdefghij%zz", "escape" },
         { "srt://h:9000?pbkeylen=20", "pbkeylen '20'" },
         { "srt://h:9000?payload=2000", "payload '2000'" },
+        { "srt://h:9000?rcvbuf=1000", "rcvbuf '1000'" },
         { "srt://h:9000?colour=red", "unknown parameter 'colour'" },
         { "srt://h:9000?latency", "no =VALUE" },
         { "file:", "without a path" },
