@@ -12,7 +12,7 @@
 
 #include <srt.h>
 
-#include "f4d_transport.h"
+#include "transport_internal.h"
 
 #define RX_MSG_MAX 1500 /* > any SRT live payload */
 
@@ -553,17 +553,9 @@ void transport_srt_log_level(int level)
 
 struct transport_rx {
     struct link link;
-    size_t   max_packet;
+    struct transport_reasm a;  /* buffers planned at open */
     FILE    *file, *tee;
     int      pace;
-    uint8_t *buf;              /* max_packet: the packet in assembly / read  */
-    uint8_t *have;             /* bitmap of chunks received                  */
-    size_t   have_cap;         /* bits                                       */
-    /* the packet in assembly */
-    int      active;
-    uint32_t seq, total, count, got;
-    int      expect_valid;
-    uint32_t expect;           /* next seq */
     /* file pacing */
     int      pending;          /* pend was read and waits for its time      */
     struct codec_packet pend;
@@ -584,13 +576,8 @@ int transport_rx_open(const char *url, const struct transport_opts *o, transport
     if (!r)
         return f4d_fail(err, F4D_ENOMEM, "transport_rx_open: out of memory");
     link_init(&r->link);
-    r->max_packet = max_packet_of(o);
     r->pace = o ? o->pace : 0;
-    /* chunks of at least 64 - 16 bytes: the most a packet can need */
-    r->have_cap = r->max_packet / 48 + 2;
-    r->buf = malloc(r->max_packet);
-    r->have = calloc((r->have_cap + 7) / 8, 1);
-    int rc = !r->buf || !r->have ? f4d_fail(err, F4D_ENOMEM, "transport_rx_open: %zu bytes", r->max_packet) : 0;
+    int rc = transport_reasm_init(&r->a, max_packet_of(o), &r->st, err);
     if (rc == 0)
         rc = transport_url_parse(url, &r->link.u, err);
     if (rc == 0)
@@ -617,87 +604,16 @@ int transport_rx_open(const char *url, const struct transport_opts *o, transport
 
 const char *transport_rx_error(const transport_rx *r) { return r ? r->err.msg : "NULL receiver"; }
 
-static void drop_assembly(transport_rx *r)
+/* Archives a packet handed on and refreshes SRT's counters (they vanish
+ * with a broken socket). */
+static int handed_on(transport_rx *r, const struct codec_packet *p)
 {
-    if (r->active)
-        r->st.dropped_incomplete++;
-    r->active = 0;
-}
-
-/* Hands a complete packet on: 0 delivered, 1 dropped (counted). */
-static int deliver(transport_rx *r, size_t len, struct codec_packet *p)
-{
-    struct f4d_err e = { 0 };
-    if (codec_packet_parse(r->buf, len, p, &e) < 0 || p->size != len) {
-        r->st.dropped_corrupt++;
-        return 1;
-    }
     int rc;
-    if (r->tee && (rc = write_all(r->tee, r->buf, len, "the tee file", &r->err)) < 0)
+    if (r->tee && (rc = write_all(r->tee, r->a.buf, p->size, "the tee file", &r->err)) < 0)
         return rc;
-    r->st.packets++;
-    r->st.bytes += len;
-    struct transport_stats keep; /* SRT's counters vanish with a broken socket */
+    struct transport_stats keep;
     link_stats(&r->link, &keep);
-    return 0;
-}
-
-/* One SRT message: 0 a packet is complete in p, 1 consumed, < 0 error. */
-static int on_chunk(transport_rx *r, const uint8_t *m, size_t n, struct codec_packet *p)
-{
-    if (n < TRANSPORT_CHUNK_HEADER || get_u32(m) != TRANSPORT_CHUNK_MAGIC) {
-        r->st.chunks_bad++;
-        return 1;
-    }
-    uint32_t seq = get_u32(m + 4), total = get_u32(m + 8), index = get_u16(m + 12), count = get_u16(m + 14);
-    if (total == 0 && count == 0 && index == 0 && n == TRANSPORT_CHUNK_HEADER)
-        return 1; /* a tail probe */
-    if (total < CODEC_PACKET_HEADER || count == 0 || index >= count || count > total) {
-        r->st.chunks_bad++;
-        return 1;
-    }
-    uint32_t stride = (uint32_t)(((uint64_t)total + count - 1) / count);
-    uint64_t off = (uint64_t)index * stride;
-    uint64_t len = total - off < stride ? total - off : stride;
-    if (off >= total || n - TRANSPORT_CHUNK_HEADER != len) {
-        r->st.chunks_bad++;
-        return 1;
-    }
-    r->st.chunks++;
-    if (r->active && seq != r->seq)
-        drop_assembly(r);
-    if (!r->active) {
-        if (r->expect_valid) {
-            int32_t gap = (int32_t)(seq - r->expect);
-            if (gap > 0 && gap < (1 << 20))
-                r->st.missing += (uint64_t)gap;
-            else if (gap < 0 && gap > -4)
-                return 1; /* a chunk of a packet already handed on or dropped */
-        }
-        r->expect_valid = 1;
-        r->expect = seq + 1;
-        if (total > r->max_packet || count > r->have_cap) {
-            r->st.dropped_oversize++; /* counted once: later chunks fall in the late branch */
-            return 1;
-        }
-        r->active = 1;
-        r->seq = seq;
-        r->total = total;
-        r->count = count;
-        r->got = 0;
-        memset(r->have, 0, (count + 7) / 8);
-    } else if (total != r->total || count != r->count) {
-        r->st.chunks_bad++;
-        return 1;
-    }
-    if (r->have[index >> 3] & (1u << (index & 7)))
-        return 1; /* duplicate */
-    r->have[index >> 3] |= (uint8_t)(1u << (index & 7));
-    memcpy(r->buf + off, m + TRANSPORT_CHUNK_HEADER, (size_t)len);
-    if (++r->got < r->count)
-        return 1;
-    r->active = 0;
-    return deliver(r, r->total, p);
+    return F4D_OK;
 }
 
 static int rx_srt(transport_rx *r, int timeout_ms, struct codec_packet *p)
@@ -717,8 +633,7 @@ static int rx_srt(transport_rx *r, int timeout_ms, struct codec_packet *p)
             if (a == 0)
                 return f4d_fail(&r->err, F4D_ETIMEDOUT, "srt://%s:%d: no caller within %d ms", l->u.host,
                                 l->u.port, timeout_ms);
-            r->active = 0;
-            r->expect_valid = 0;
+            transport_reasm_reset(&r->a);
             continue;
         }
         SRT_MSGCTRL mc = srt_msgctrl_default;
@@ -726,9 +641,8 @@ static int rx_srt(transport_rx *r, int timeout_ms, struct codec_packet *p)
         if (n == 0)
             continue;
         if (n > 0) {
-            int rc = on_chunk(r, r->msg, (size_t)n, p);
-            if (rc <= 0)
-                return rc;
+            if (transport_reasm_push(&r->a, r->msg, (size_t)n, p) == 0)
+                return handed_on(r, p);
             continue;
         }
         int e = srt_getlasterror(NULL);
@@ -740,7 +654,7 @@ static int rx_srt(transport_rx *r, int timeout_ms, struct codec_packet *p)
                 return w;
             continue;
         }
-        drop_assembly(r);
+        transport_reasm_abort(&r->a);
         link_lost(l);
         return f4d_fail(&r->err, F4D_EEOF, "srt://%s:%d: the peer closed the connection", l->u.host, l->u.port);
     }
@@ -756,32 +670,35 @@ static int rx_file(transport_rx *r, int timeout_ms, struct codec_packet *p)
 {
     const char *path = r->link.u.path;
     while (!r->pending) {
-        if (read_exact(r->file, r->buf, CODEC_PACKET_HEADER) < 0)
+        uint8_t *buf = r->a.buf;
+        if (read_exact(r->file, buf, CODEC_PACKET_HEADER) < 0)
             return f4d_fail(&r->err, F4D_EEOF, "'%s': end of file", path);
-        if (get_u32(r->buf) != CODEC_PACKET_MAGIC) {
+        if (get_u32(buf) != CODEC_PACKET_MAGIC) {
             /* resync: slide byte by byte to the next magic (corrupt files only) */
             r->st.dropped_corrupt++;
             do {
-                memmove(r->buf, r->buf + 1, CODEC_PACKET_HEADER - 1);
-                if (read_exact(r->file, r->buf + CODEC_PACKET_HEADER - 1, 1) < 0)
+                memmove(buf, buf + 1, CODEC_PACKET_HEADER - 1);
+                if (read_exact(r->file, buf + CODEC_PACKET_HEADER - 1, 1) < 0)
                     return f4d_fail(&r->err, F4D_EEOF, "'%s': end of file", path);
-            } while (get_u32(r->buf) != CODEC_PACKET_MAGIC);
+            } while (get_u32(buf) != CODEC_PACKET_MAGIC);
         }
-        uint64_t n = get_u32(r->buf + 24);
-        if (CODEC_PACKET_HEADER + n > r->max_packet) {
+        uint64_t n = get_u32(buf + 24);
+        if (CODEC_PACKET_HEADER + n > r->a.max_packet) {
             r->st.dropped_oversize++;
             if (fseeko(r->file, (off_t)n, SEEK_CUR) != 0)
                 return f4d_fail(&r->err, F4D_EEOF, "'%s': end of file", path);
             continue;
         }
-        if (read_exact(r->file, r->buf + CODEC_PACKET_HEADER, (size_t)n) < 0) {
+        if (read_exact(r->file, buf + CODEC_PACKET_HEADER, (size_t)n) < 0) {
             r->st.dropped_incomplete++;
             return f4d_fail(&r->err, F4D_EEOF, "'%s': ends inside a packet", path);
         }
-        int rc = deliver(r, CODEC_PACKET_HEADER + (size_t)n, &r->pend);
-        if (rc < 0)
-            return rc;
-        r->pending = rc == 0;
+        if (transport_reasm_check(&r->a, CODEC_PACKET_HEADER + (size_t)n, &r->pend) == 0) {
+            int rc = handed_on(r, &r->pend);
+            if (rc < 0)
+                return rc;
+            r->pending = 1;
+        }
     }
     if (r->pace) {
         int64_t t = now_us();
@@ -831,7 +748,6 @@ void transport_rx_close(transport_rx *r)
         fclose(r->file);
     if (r->tee)
         fclose(r->tee);
-    free(r->buf);
-    free(r->have);
+    transport_reasm_free(&r->a);
     free(r);
 }
