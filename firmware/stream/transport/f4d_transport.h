@@ -14,6 +14,7 @@
  *     transport_rx *rx;                         // display side
  *     transport_rx_open("srt://:7000?mode=listener&passphrase=0123456789", &o, &rx, &err);
  *     struct codec_packet p;
+ *     int rc;
  *     while ((rc = transport_rx_next(rx, 500, &p)) != F4D_EEOF)
  *         if (rc == 0) codec_dec_packet(dec, &p);   // complete, CRC-valid
  *     transport_rx_close(rx);

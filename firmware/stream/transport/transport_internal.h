@@ -1,5 +1,5 @@
 /* transport_internal.h - the chunk reassembler of the SRT receiver, apart from
- * libsrt so that the libFuzzer harness (tests/stream/fuzz_chunks) can drive it
+ * libsrt so that the libFuzzer harness (tests/stream/transport/fuzz_chunks.c) can drive it
  * with arbitrary messages. See f4d_transport.h for the chunk format. */
 #ifndef F4D_TRANSPORT_INTERNAL_H
 #define F4D_TRANSPORT_INTERNAL_H

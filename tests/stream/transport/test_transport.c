@@ -426,6 +426,100 @@ static void test_file_urls(void **state)
     f4d_test_rmtree(dir);
 }
 
+static double mono_ms(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec * 1e3 + (double)t.tv_nsec * 1e-6;
+}
+
+/* file: with pace: packets come at their timestamps, a short wait times out */
+static void test_file_pace(void **state)
+{
+    (void)state;
+    char dir[256], path[300], url[320];
+    assert_int_equal(f4d_test_mkdtemp(dir, sizeof dir, "transport"), 0);
+    snprintf(path, sizeof path, "%s/s.f4ds", dir);
+    snprintf(url, sizeof url, "file:%s", path);
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(g_stream->bytes, 1, g_stream->off[4], f), g_stream->off[4]); /* header, keys 0..2 */
+    fclose(f);
+    struct transport_opts o = { .max_packet = g_stream->max_packet, .pace = 1 };
+    transport_rx *rx;
+    assert_int_equal(transport_rx_open(url, &o, &rx, NULL), 0);
+    struct codec_packet p;
+    double t0 = mono_ms();
+    assert_int_equal(transport_rx_next(rx, 0, &p), 0); /* header, t = 0 */
+    assert_int_equal(transport_rx_next(rx, 0, &p), 0); /* key 0, t = 0 */
+    assert_int_equal(transport_rx_next(rx, 10, &p), F4D_ETIMEDOUT); /* key 1 is due at 50 ms */
+    assert_int_equal(transport_rx_next(rx, 500, &p), 0);
+    assert_int_equal(p.seq, 2);
+    assert_true(mono_ms() - t0 >= 45);
+    assert_int_equal(transport_rx_next(rx, 500, &p), 0);
+    assert_int_equal(p.seq, 3);
+    assert_true(mono_ms() - t0 >= 95);
+    assert_int_equal(transport_rx_next(rx, 500, &p), F4D_EEOF);
+    transport_rx_close(rx);
+    f4d_test_rmtree(dir);
+}
+
+/* The roles reversed (a listening sender, a calling receiver: a display that
+ * dials the camera), AES-192 and 1456-byte payloads; then a listening
+ * receiver serves a second sender after the first one closed. */
+static void test_roles_and_reconnect(void **state)
+{
+    (void)state;
+    struct sender s;
+    memset(&s, 0, sizeof s);
+    snprintf(s.url, sizeof s.url, "srt://127.0.0.1:%d?mode=listener&timeout=5000&pbkeylen=24&payload=1456"
+             "&passphrase=" PASS, port(7));
+    pthread_t th;
+    assert_int_equal(pthread_create(&th, NULL, send_thread, &s), 0);
+    usleep(200000);
+    char url[200];
+    snprintf(url, sizeof url, "srt://127.0.0.1:%d?timeout=5000&passphrase=" PASS, port(7));
+    struct transport_opts o = { .max_packet = g_stream->max_packet };
+    transport_rx *rx;
+    struct f4d_err err = { 0 };
+    assert_int_equal(transport_rx_open(url, &o, &rx, &err), 0);
+    struct received r;
+    receive_all(rx, &r);
+    pthread_join(th, NULL);
+    assert_int_equal(s.rc, 0);
+    assert_int_equal(r.keys, KEYS);
+    assert_int_equal(r.mismatched, 0);
+    uint64_t chunks = 0; /* 1456-byte messages: 1440 bytes of packet each */
+    for (size_t i = 0; i < g_stream->n; i++)
+        chunks += (g_stream->off[i + 1] - g_stream->off[i] + 1439) / 1440;
+    assert_int_equal(r.st.chunks, chunks);
+    transport_rx_close(rx);
+
+    /* a listening receiver: sender 1 goes away, sender 2 is served */
+    snprintf(url, sizeof url, "srt://127.0.0.1:%d?mode=listener&passphrase=" PASS, port(7));
+    assert_int_equal(transport_rx_open(url, &o, &rx, &err), 0);
+    for (int k = 0; k < 2; k++) {
+        memset(&s, 0, sizeof s);
+        snprintf(s.url, sizeof s.url, "srt://127.0.0.1:%d?passphrase=" PASS, port(7));
+        assert_int_equal(pthread_create(&th, NULL, send_thread, &s), 0);
+        receive_all(rx, &r);
+        pthread_join(th, NULL);
+        assert_int_equal(s.rc, 0);
+        assert_true(r.ended);
+        assert_int_equal(r.keys, KEYS);
+        assert_int_equal(r.mismatched, 0);
+        /* the sender closes after its drain: the receiver sees the end */
+        struct codec_packet p;
+        int rc;
+        do
+            rc = transport_rx_next(rx, 3000, &p);
+        while (rc == 0);
+        assert_int_equal(rc, F4D_EEOF);
+        assert_non_null(strstr(transport_rx_error(rx), "closed"));
+    }
+    transport_rx_close(rx);
+}
+
 /* A caller -> proxy -> listener run with the proxy in a thread. */
 struct proxy_run {
     struct loss_proxy_cfg cfg;
@@ -517,6 +611,8 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_wrong_passphrase),
         cmocka_unit_test(test_unreachable),
         cmocka_unit_test(test_file_urls),
+        cmocka_unit_test(test_file_pace),
+        cmocka_unit_test(test_roles_and_reconnect),
         cmocka_unit_test(test_loss_recovered),
         cmocka_unit_test(test_outage_resync),
     };
