@@ -60,6 +60,25 @@ int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct f4
     return F4D_OK;
 }
 
+int interp_set_rig(interp *ip, const struct splat_rig *rig, struct f4d_err *err)
+{
+    if (!ip || !rig)
+        return fail(err, F4D_EINVAL, "interp_set_rig: NULL argument");
+    if (rig->count != ip->rig.count)
+        return f4d_fail(err, F4D_EINVAL, "interp_set_rig: %d cameras, the workspace has %d", rig->count,
+                        ip->rig.count);
+    for (int i = 0; i < rig->count; i++) {
+        int rc = splat_camera_validate(&rig->cams[i], err);
+        if (rc < 0)
+            return rc;
+        if (rig->cams[i].width != ip->W || rig->cams[i].height != ip->H)
+            return f4d_fail(err, F4D_EINVAL, "interp_set_rig: camera %d is %dx%d, the workspace %dx%d", i,
+                            rig->cams[i].width, rig->cams[i].height, ip->W, ip->H);
+    }
+    ip->rig = *rig;
+    return F4D_OK;
+}
+
 void interp_free(interp *ip)
 {
     if (!ip)
@@ -90,6 +109,7 @@ static long pixel_of(const struct splat_camera *cam, const float p[3], float *z)
     if (!(q[2] > SPLAT_NEAR))
         return -1;
     float u = cam->fx * q[0] / q[2] + cam->cx, v = cam->fy * q[1] / q[2] + cam->cy;
+    /* the comparisons are false for NaN: a non-finite point has no pixel */
     if (!(u >= 0.0f && v >= 0.0f && u < (float)cam->width && v < (float)cam->height))
         return -1;
     return (long)v * cam->width + (long)u;
@@ -132,6 +152,7 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
         ip->cap_pix = n + 1;
     }
     k->f = f;
+    k->rig = ip->rig;
     for (size_t g = 0; g < n; g++)
         k->origin[g] = -1;
     for (int v = 0; v < V; v++) {
@@ -164,6 +185,37 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
             start[p] = start[p - 1];
         start[0] = 0;
     }
+    return F4D_OK;
+}
+
+int interp_key_build_aligned(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err)
+{
+    if (!ip || !f || !k)
+        return fail(err, F4D_EINVAL, "interp_key_build_aligned: NULL argument");
+    const int V = ip->rig.count;
+    const size_t np = (size_t)ip->W * (size_t)ip->H, n = f->count;
+    if (n != (size_t)V * np)
+        return f4d_fail(err, F4D_EINVAL,
+                        "interp_key_build_aligned: %zu Gaussians, a pixel-aligned frame of %d views %dx%d has %zu",
+                        n, V, ip->W, ip->H, (size_t)V * np);
+    if (n > INT32_MAX)
+        return fail(err, F4D_EINVAL, "interp_key_build_aligned: too many Gaussians for 32-bit indices");
+    if (grow_i32(&k->cell_start, &k->cap_cells, (size_t)V * (np + 1)) < 0 ||
+        grow_i32(&k->cell_items, &k->cap_items, (size_t)V * n + 1) < 0 ||
+        grow_i32(&k->origin, &k->cap_origin, n + 1) < 0)
+        return fail(err, F4D_ENOMEM, "interp_key_build_aligned: out of memory for the pixel lists");
+    k->f = f;
+    k->rig = ip->rig;
+    /* one Gaussian per pixel: view v's list at pixel p is Gaussian v * np + p */
+    for (int v = 0; v < V; v++) {
+        int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
+        for (size_t p = 0; p <= np; p++)
+            start[p] = (int32_t)p;
+        for (size_t p = 0; p < np; p++)
+            items[p] = (int32_t)((size_t)v * np + p);
+    }
+    for (size_t g = 0; g < n; g++)
+        k->origin[g] = (int32_t)g;
     return F4D_OK;
 }
 
@@ -241,7 +293,8 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
     int v = (int)((size_t)o / np);
     const float *mu = self->f->pos + 3 * g;
     float X[3] = { mu[0] + motion[3 * g], mu[1] + motion[3 * g + 1], mu[2] + motion[3 * g + 2] }, z;
-    long p = pixel_of(&ip->rig.cams[v], X, &z);
+    /* X' lives at the other key's time: its cameras, its pixel lists */
+    long p = pixel_of(&other->rig.cams[v], X, &z);
     if (p < 0)
         return -1;
     const int32_t *start = other->cell_start + (size_t)v * (np + 1), *items = other->cell_items + (size_t)v * n;
