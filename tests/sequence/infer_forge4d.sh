@@ -61,10 +61,12 @@ check_key "$out/png/t0000" 2 $((n0 / 2 / 56)) 56
 check_key "$out/png/t0001" 2 $((n0 / 2 / 56)) 56
 [ -s "$out/png/at_0.250/gaussians.ply" ] || fail "png: no frame at 0.25"
 
-# 3. with the motion part (tiny_f4d_seq, 4 key times): motions and fused frames
-if [ -n "${SEQ_GGUF:-}" ]; then
+# 3. with the motion part (tiny_f4d_seq: state, motion, fusion; 4 key times):
+#    motions on the right keys, the frame between keys fused
+"$infer" --help 2>&1 | grep -q -- --forge4d || fail "usage does not name --forge4d"
+{
   s=$fix/tiny_f4d_seq
-  "$infer" --forge4d --weights "$SEQ_GGUF" --raw-input "$s/t0/input.npy" --raw-input "$s/t1/input.npy" \
+  "$infer" --forge4d --weights "$gg/tiny_f4d_seq_f32.gguf" --raw-input "$s/t0/input.npy" --raw-input "$s/t1/input.npy" \
     --raw-input "$s/t2/input.npy" --raw-input "$s/t3/input.npy" --at 1.5 --out "$out/seq" | tee "$out/seq.log"
   sh=$(npy_shape "$s/t0/input.npy"); S=$(echo "$sh" | tr -d '( )' | cut -d, -f1)
   H=$(echo "$sh" | tr -d '( )' | cut -d, -f3); W=$(echo "$sh" | tr -d '( )' | cut -d, -f4)
@@ -74,7 +76,7 @@ if [ -n "${SEQ_GGUF:-}" ]; then
   [ -s "$out/seq/t0001/motion_bwd.npy" ] && [ -s "$out/seq/t0001/motion_fwd.npy" ] || fail "seq: t1 motions"
   grep -q "at 1.500 (fused)" "$out/seq.log" || fail "seq: the frame at 1.5 is not fused"
   [ -s "$out/seq/at_1.500/gaussians.ply" ] || fail "seq: no frame at 1.5"
-fi
+}
 
 # 4. bad arguments name what is wrong
 if "$infer" --forge4d --weights "$gg/tiny_f4d_f32.gguf" --raw-input "$x" --raw-input "$x" --at 3 \

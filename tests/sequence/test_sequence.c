@@ -5,7 +5,12 @@
  *   - interpolation: in the mode the weights allow (INTERP_NEAREST without a
  *     motion part), at the keys' times and in between;
  *   - errors: a weight file without the Gaussian head, interpolation before
- *     two keys or outside the last interval, a mode the weights cannot do.
+ *     two keys or outside the last interval, a mode the weights cannot do;
+ *   - with the motion part (tiny_f4d_seq, 4 time steps): every key's
+ *     Gaussians, M1[t] on key t and M2[t-1] on key t-1 equal the reference
+ *     sequence, and frames between keys are fused by the weights' MLP;
+ *   - the fusion MLP with fc2 = 0 (weights zeroed in memory) gives exactly
+ *     what averaging gives, pair by pair and through interp_at.
  *
  *   test_sequence FIXTURE_DIR GGUF_DIR
  */
@@ -17,6 +22,7 @@
 
 #include "f4d_sequence.h"
 #include "f4d_test.h"
+#include "gguf.h"
 #include "npy.h"
 
 static const char *fix_dir, *gguf_dir;
@@ -201,6 +207,219 @@ static void errors(void **state)
     fk_ctx_free(ctx2);
 }
 
+static float *load_seq(const char *name, size_t want)
+{
+    char p[1024];
+    struct f4d_err err = { 0 };
+    float *d = NULL;
+    int64_t sh[8];
+    int nd;
+    snprintf(p, sizeof p, "%s/tiny_f4d_seq/%s.npy", fix_dir, name);
+    if (npy_load_f32(p, &d, sh, &nd, &err) < 0)
+        fail_msg("%s", err.msg);
+    size_t n = 1;
+    for (int k = 0; k < nd; k++)
+        n *= (size_t)sh[k];
+    if (want && n != want)
+        fail_msg("%s: %zu values, want %zu", p, n, want);
+    return d;
+}
+
+/* max |a - b| over the RMS of b: the model's parity measure */
+static double err_rms(const float *a, const float *b, size_t n)
+{
+    double m = 0, ss = 0;
+    for (size_t i = 0; i < n; i++) {
+        double d = fabs((double)a[i] - b[i]);
+        m = d > m ? d : m;
+        ss += (double)b[i] * b[i];
+    }
+    return m / (sqrt(ss / (double)n) + 1e-12);
+}
+
+static void motion_parity(void **state)
+{
+    (void)state;
+    char p[1024];
+    snprintf(p, sizeof p, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    fk_ctx *ctx;
+    f4d_sequence *sq;
+    struct f4d_err err = { 0 };
+    const int S = 2, H = 28, W = 42;
+    const size_t n = (size_t)S * H * W;
+    assert_int_equal(fk_ctx_new(&(struct fk_ctx_config){ .isa = FK_ISA_AUTO, .threads = 1 }, &ctx), 0);
+    if (f4d_sequence_open(ctx, p, FK_W_F32, S, H, W, &sq, &err) < 0)
+        fail_msg("open: %s", err.msg);
+    assert_true(f4d_sequence_has_motion(sq));
+    assert_true(f4d_sequence_has_fusion(sq));
+    assert_int_equal(f4d_sequence_mode(sq), INTERP_FUSED);
+    double worst = 0;
+    for (int t = 0; t < 4; t++) {
+        char name[64];
+        snprintf(name, sizeof name, "t%d/input", t);
+        float *x = load_seq(name, n * 3);
+        assert_int_equal(f4d_sequence_push(sq, x, &err), 0);
+        free(x);
+        struct f4d_seq_key k, kp;
+        assert_int_equal(f4d_sequence_key(sq, 0, &k, &err), 0);
+        assert_int_equal(k.t, t);
+        snprintf(name, sizeof name, "t%d/gaussians_pos", t);
+        float *pos = load_seq(name, 3 * n);
+        double e = err_rms(k.frame.pos, pos, 3 * n);
+        free(pos);
+        assert_null(k.frame.motion_fwd); /* comes with the next key */
+        if (!t) {
+            assert_null(k.frame.motion_bwd);
+            printf("t=0: pos %.2e\n", e);
+            worst = e > worst ? e : worst;
+            continue;
+        }
+        assert_int_equal(f4d_sequence_key(sq, 1, &kp, &err), 0);
+        assert_non_null(k.frame.motion_bwd);
+        assert_non_null(kp.frame.motion_fwd);
+        snprintf(name, sizeof name, "t%d/motion_bwd", t);
+        float *m1 = load_seq(name, 3 * n);
+        snprintf(name, sizeof name, "t%d/motion_fwd_prev", t);
+        float *m2 = load_seq(name, 3 * n);
+        double e1 = err_rms(k.frame.motion_bwd, m1, 3 * n), e2 = err_rms(kp.frame.motion_fwd, m2, 3 * n);
+        printf("t=%d: pos %.2e, M1[t] %.2e, M2[t-1] %.2e (max error / RMS)\n", t, e, e1, e2);
+        free(m1);
+        free(m2);
+        worst = e > worst ? e : worst;
+        worst = e1 > worst ? e1 : worst;
+        worst = e2 > worst ? e2 : worst;
+        const struct splat_frame *mid;
+        struct interp_stats st;
+        assert_int_equal(f4d_sequence_at(sq, t - 0.5, &mid, &st, &err), 0);
+        assert_int_equal(splat_frame_validate(mid, &err), 0);
+        assert_int_equal(st.fused + st.kept_t, n); /* every Gaussian of t: fused or kept */
+        assert_int_equal(st.dropped_tm1 + st.kept_tm1, n);
+        assert_int_equal(mid->count, st.fused + st.kept_t + st.kept_tm1);
+    }
+    assert_true(worst < 1e-4);
+    f4d_sequence_close(sq);
+    fk_ctx_free(ctx);
+}
+
+/* fusion.fc2 = 0: the MLP's output is the mean (q normalised), i.e. averaging. */
+static void fusion_fc2_zero_is_average(void **state)
+{
+    (void)state;
+    char p[1024];
+    snprintf(p, sizeof p, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    FILE *fp = fopen(p, "rb");
+    if (!fp)
+        fail_msg("%s is absent (model/convert_tiny_f4d_seq_f32 makes it)", p);
+    fseek(fp, 0, SEEK_END);
+    size_t sz = (size_t)ftell(fp);
+    fseek(fp, 0, SEEK_SET);
+    void *buf = aligned_alloc(GGUF_MAX_ALIGN, (sz + GGUF_MAX_ALIGN - 1) / GGUF_MAX_ALIGN * GGUF_MAX_ALIGN);
+    assert_int_equal(fread(buf, 1, sz, fp), sz);
+    fclose(fp);
+    gguf_file *gf;
+    struct f4d_err err = { 0 };
+    /* find fc2 in our copy of the file, zero it there, open the edited bytes */
+    size_t off[2], len[2];
+    assert_int_equal(gguf_open_memory(buf, sz, &gf, &err), 0);
+    for (int k = 0; k < 2; k++) {
+        const struct gguf_tensor *t = gguf_find_tensor(gf, k ? "fusion.fc2.bias" : "fusion.fc2.weight");
+        assert_non_null(t);
+        off[k] = (size_t)((const char *)t->data - (const char *)buf);
+        len[k] = t->nbytes;
+    }
+    gguf_close(gf);
+    for (int k = 0; k < 2; k++)
+        memset((char *)buf + off[k], 0, len[k]);
+    assert_int_equal(gguf_open_memory(buf, sz, &gf, &err), 0);
+    fk_ctx *ctx;
+    struct model *m;
+    assert_int_equal(fk_ctx_new(&(struct fk_ctx_config){ .isa = FK_ISA_AUTO, .threads = 1 }, &ctx), 0);
+    if (model_init_gguf(ctx, gf, FK_W_F32, &m, &err) < 0)
+        fail_msg("init: %s", err.msg);
+    void *fu = model_fusion(m);
+    assert_non_null(fu);
+    /* pair by pair, on the reference's fusion inputs (nonzero fc1) */
+    float *in = load_seq("fusion_in", 0);
+    double e = 0;
+    for (int i = 0; i < 64; i++) {
+        const float *x = in + 30 * i;
+        float o1[14], o2[14];
+        model_fusion_fuse(fu, x, x + 14, x[28], x[29], o1);
+        interp_fuse_average(NULL, x, x + 14, x[28], x[29], o2);
+        float n2 = sqrtf(o2[10] * o2[10] + o2[11] * o2[11] + o2[12] * o2[12] + o2[13] * o2[13]);
+        for (int c = 10; c < 14; c++) /* averaging leaves q unnormalised (interp normalises after) */
+            o2[c] = n2 > 1e-12f ? o2[c] / n2 : (c == 10);
+        for (int c = 0; c < 14; c++) {
+            double d = fabs((double)o1[c] - o2[c]);
+            e = d > e ? d : e;
+        }
+    }
+    free(in);
+    printf("fc2 = 0: MLP vs averaging, 64 reference pairs: max |diff| %.2e\n", e);
+    assert_true(e < 1e-6);
+    /* through the sequence: the fused frame equals the averaged one */
+    f4d_sequence *sq;
+    const int S = 2, H = 28, W = 42;
+    const size_t n = (size_t)S * H * W;
+    assert_int_equal(f4d_sequence_open_model(m, S, H, W, &sq, &err), 0);
+    assert_true(f4d_sequence_has_fusion(sq));
+    for (int t = 0; t < 2; t++) {
+        char name[64];
+        snprintf(name, sizeof name, "t%d/input", t);
+        float *x = load_seq(name, n * 3);
+        assert_int_equal(f4d_sequence_push(sq, x, &err), 0);
+        free(x);
+    }
+    struct f4d_seq_key kt, kp;
+    assert_int_equal(f4d_sequence_key(sq, 0, &kt, &err), 0);
+    assert_int_equal(f4d_sequence_key(sq, 1, &kp, &err), 0);
+    const struct splat_frame *mlp;
+    struct interp_stats st;
+    assert_int_equal(f4d_sequence_at(sq, 0.4, &mlp, &st, &err), 0);
+    interp *ip;
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    struct splat_frame avg = { 0 }, fus = { 0 };
+    assert_int_equal(interp_new(ctx, &kp.rig, &ip, &err), 0);
+    assert_int_equal(interp_key_build_aligned(ip, &kp.frame, &k0, &err), 0);
+    assert_int_equal(interp_set_rig(ip, &kt.rig, &err), 0);
+    assert_int_equal(interp_key_build_aligned(ip, &kt.frame, &k1, &err), 0);
+    /* the sequence hands interp the model's MLP: the same frame as interp_at with it */
+    struct interp_config cm = interp_config_default(), ca = interp_config_default();
+    cm.fuse = model_fusion_fuse;
+    cm.fuse_user = fu;
+    struct interp_stats sa;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.4f, &cm, &fus, &sa, &err), 0);
+    assert_int_equal(fus.count, mlp->count);
+    assert_memory_equal(fus.pos, mlp->pos, 3 * fus.count * sizeof(float));
+    /* The random tiny model's motions match no pixel within 5 cm: with tau
+     * raised every Gaussian of t with a partner is fused, by the MLP and by
+     * averaging (where the partner pixel exists). */
+    cm.tau = ca.tau = 1e9f;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.4f, &cm, &fus, &st, &err), 0);
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.4f, &ca, &avg, &sa, &err), 0);
+    printf("tau 1e9: fused %zu, kept %zu + %zu of %zu + %zu\n", st.fused, st.kept_t, st.kept_tm1, n, n);
+    assert_true(st.fused >= 100); /* 259 here: the others land outside or behind */
+    assert_int_equal(sa.fused, st.fused);
+    assert_int_equal(avg.count, fus.count);
+    double ef = max_rel(fus.pos, avg.pos, 3 * avg.count);
+    ef = fmax(ef, max_rel(fus.scale, avg.scale, 3 * avg.count));
+    ef = fmax(ef, max_rel(fus.rot, avg.rot, 4 * avg.count));
+    ef = fmax(ef, max_rel(fus.opacity, avg.opacity, avg.count));
+    ef = fmax(ef, max_rel(fus.rgb, avg.rgb, 3 * avg.count));
+    printf("fc2 = 0: fused frame vs averaged frame: max rel %.2e\n", ef);
+    assert_true(ef < 1e-5);
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    splat_frame_free(&avg);
+    splat_frame_free(&fus);
+    interp_free(ip);
+    f4d_sequence_close(sq);
+    model_free(m);
+    gguf_close(gf);
+    free(buf);
+    fk_ctx_free(ctx);
+}
+
 int main(int argc, char **argv)
 {
     argc = f4d_test_parse(argc, argv);
@@ -214,6 +433,8 @@ int main(int argc, char **argv)
         cmocka_unit_test(keys),
         cmocka_unit_test(interpolate),
         cmocka_unit_test(errors),
+        cmocka_unit_test(motion_parity),
+        cmocka_unit_test(fusion_fc2_zero_is_average),
     };
     return F4D_TEST_MAIN(argc, argv, "sequence", tests, setup, teardown);
 }

@@ -4,7 +4,8 @@
  * aligned_alloc are wrapped at link time (-Wl,--wrap, as test_model_alloc
  * does): every allocation of the statically linked sequence, model,
  * interpolator and kernels is counted with its size. The resident set
- * (/proc/self/statm) is compared as well.
+ * (/proc/self/statm) is compared as well. The weights are tiny_f4d_seq (state
+ * blocks, motion, fusion MLP): every step runs the whole streaming path.
  *
  *   test_sequence_mem GGUF_DIR STEPS
  *
@@ -58,10 +59,11 @@ static void flat(void **state)
 {
     (void)state;
     char p[1024];
-    snprintf(p, sizeof p, "%s/tiny_f4d_f32.gguf", gguf_dir);
+    /* the whole streaming path: state blocks, motion, fusion MLP in interp */
+    snprintf(p, sizeof p, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
     if (access(p, R_OK) != 0)
-        fail_msg("%s is absent (model/convert_tiny_f4d_f32 makes it)", p);
-    const int S = 2, H = 28, W = 42;
+        fail_msg("%s is absent (model/convert_tiny_f4d_seq_f32 makes it)", p);
+    const int S = 2, H = 14, W = 28; /* small: 10,000 steps in ~30 s of CPU */
     const size_t ni = (size_t)S * 3 * H * W;
     float *img[2] = { malloc(ni * sizeof(float)), malloc(ni * sizeof(float)) };
     unsigned seed = 1;
@@ -78,6 +80,7 @@ static void flat(void **state)
     size_t b_open = n_bytes;
     if (f4d_sequence_open(ctx, p, FK_W_F32, S, H, W, &sq, &err) < 0)
         fail_msg("open: %s", err.msg);
+    assert_true(f4d_sequence_has_motion(sq) && f4d_sequence_has_fusion(sq));
     long a0 = n_allocs;
     size_t b0 = n_bytes;
     const struct splat_frame *mid;
@@ -96,6 +99,8 @@ static void flat(void **state)
     struct f4d_seq_key k;
     assert_int_equal(f4d_sequence_key(sq, 0, &k, &err), 0);
     assert_int_equal(k.t, steps - 1);
+    assert_non_null(k.frame.motion_bwd); /* motion ran on the last step too */
+    assert_int_equal(splat_frame_validate(&k.frame, &err), 0);
     printf("open: %ld allocations, %zu bytes (model arena %zu, sequence %zu)\n", a0 - a_open, b0 - b_open,
            model_arena_bytes(f4d_sequence_model(sq)), f4d_sequence_bytes(sq));
     printf("after 2 steps: %ld allocations, %zu bytes since open; rss %ld KiB\n", a2 - a0, b2 - b0, rss2);

@@ -5,7 +5,6 @@
 #include <string.h>
 
 #include "f4d_sequence.h"
-#include "gguf.h"
 
 struct slot {
     long               t;
@@ -34,18 +33,6 @@ struct f4d_sequence {
     int                has_motion, has_fusion;
     size_t             bytes;
 };
-
-/* 1 when the weight file has a tensor whose name starts with prefix. */
-static int has_prefix(gguf_file *gf, const char *prefix)
-{
-    size_t len = strlen(prefix), nt = gguf_tensor_count(gf);
-    for (size_t i = 0; i < nt; i++) {
-        const struct gguf_tensor *t = gguf_tensor_at(gf, i);
-        if (t && !strncmp(t->name, prefix, len))
-            return 1;
-    }
-    return 0;
-}
 
 /* A pinhole placeholder until the first push brings the model's cameras. */
 static void placeholder_rig(struct splat_rig *rig, int S, int H, int W)
@@ -92,10 +79,9 @@ static int open_common(struct model *m, int own, int S, int H, int W, f4d_sequen
         return f4d_fail(err, F4D_EINVAL, "sequence: %d views, the rig takes 1..%d", S, MODEL_VIEWS_MAX);
     if (H < 1 || W < 1 || H > MODEL_IMG_MAX || W > MODEL_IMG_MAX)
         return f4d_fail(err, F4D_EINVAL, "sequence: image size %dx%d is outside 1..%d", W, H, MODEL_IMG_MAX);
-    gguf_file *gf = model_gguf(m);
-    if (!has_prefix(gf, "gaussian_head."))
+    if (!(model_groups(m) & MODEL_G_GAUSSIAN))
         return f4d_fail(err, F4D_EINVAL, "sequence: the weight file has no Gaussian head (gaussian_head.*)");
-    if (!has_prefix(gf, "camera_head."))
+    if (!(model_groups(m) & MODEL_G_CAMERA))
         return f4d_fail(err, F4D_EINVAL, "sequence: the weight file has no camera head (camera_head.*)");
     f4d_sequence *sq = calloc(1, sizeof *sq);
     if (!sq)
@@ -107,15 +93,21 @@ static int open_common(struct model *m, int own, int S, int H, int W, f4d_sequen
     sq->H = H;
     sq->W = W;
     sq->n = (size_t)S * (size_t)H * (size_t)W;
-    sq->has_motion = has_prefix(gf, "motion_head.") && has_prefix(gf, "motion.");
-    sq->has_fusion = sq->has_motion && has_prefix(gf, "fusion.");
+    const unsigned motion = MODEL_G_MOTION | MODEL_G_MOTION_HEAD;
+    sq->has_motion = (model_groups(m) & motion) == motion;
+    sq->has_fusion = sq->has_motion && model_fusion(m) != NULL;
     sq->icfg = interp_config_default();
     sq->icfg.mode = sq->has_motion ? INTERP_FUSED : INTERP_NEAREST;
+    if (sq->has_fusion) { /* the learned F_theta in place of averaging */
+        sq->icfg.fuse = model_fusion_fuse;
+        sq->icfg.fuse_user = model_fusion(m);
+    }
     int rc = model_prepare(m, S, H, W);
     if (rc < 0) {
         f4d_fail(err, rc, "sequence: %s", model_error(m));
         goto fail;
     }
+    model_state_reset(m); /* t = 0 */
     struct splat_rig rig;
     placeholder_rig(&rig, S, H, W);
     if ((rc = interp_new(sq->ctx, &rig, &sq->ip, err)) < 0)
@@ -193,8 +185,14 @@ int f4d_sequence_push(f4d_sequence *sq, const float *images, struct f4d_err *err
         return f4d_fail(err, F4D_EINVAL, "sequence_push: NULL argument");
     struct model_outputs o;
     int rc = model_eval(sq->m, images, sq->S, sq->H, sq->W, &o);
-    if (rc < 0)
-        return f4d_fail(err, rc, "sequence_push: %s", model_error(sq->m));
+    if (rc < 0) {
+        /* the model's state is undefined now: start over at the next push
+         * (its key time goes on counting) */
+        f4d_fail(err, rc, "sequence_push: %s (the sequence restarts)", model_error(sq->m));
+        model_state_reset(sq->m);
+        sq->steps = 0;
+        return rc;
+    }
     const struct model_gaussians *g = &o.gaussians;
     if (g->count != sq->n || !o.extrinsic || !o.intrinsic)
         return f4d_fail(err, F4D_EINVAL, "sequence_push: the model gave %zu Gaussians (want %zu) and %s cameras",
@@ -221,6 +219,13 @@ int f4d_sequence_push(f4d_sequence *sq, const float *images, struct f4d_err *err
     nw->gauge = o.gauge;
     nw->has_gauge = o.has_gauge;
     nw->t = sq->next_t++;
+    if (sq->has_motion && o.has_motion && o.motion_bwd && o.motion_fwd_prev && sq->steps) {
+        /* M1[t] for the new key, M2[t-1] for the key before it */
+        struct slot *pv = &sq->slot[sq->cur];
+        memcpy(f->motion_bwd, o.motion_bwd, 3 * n * sizeof(float));
+        memcpy(pv->f.motion_fwd, o.motion_fwd_prev, 3 * n * sizeof(float));
+        nw->has_bwd = pv->has_fwd = 1;
+    }
     if ((rc = interp_key_build_aligned(sq->ip, f, &nw->key, err)) < 0)
         return rc;
     if (sq->steps)
@@ -265,7 +270,10 @@ int f4d_sequence_at(f4d_sequence *sq, double t, const struct splat_frame **out, 
     if (!(a >= 0.0 && a <= 1.0))
         return f4d_fail(err, F4D_EINVAL, "sequence_at: t' = %g is outside the last keys [%ld, %ld]", t, prev->t,
                         next->t);
-    int rc = interp_at(sq->ip, &prev->key, &next->key, (float)a, &sq->icfg, &sq->out, stats, err);
+    struct interp_config cfg = sq->icfg;
+    if (cfg.mode != INTERP_NEAREST && !(prev->has_fwd && next->has_bwd))
+        cfg.mode = INTERP_NEAREST; /* a pair without motion (after a restart) */
+    int rc = interp_at(sq->ip, &prev->key, &next->key, (float)a, &cfg, &sq->out, stats, err);
     if (rc < 0)
         return rc;
     sq->outv = sq->out;
