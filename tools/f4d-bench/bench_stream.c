@@ -7,8 +7,9 @@
  * a smooth motion (M2[t-1] = m, M1[t] = -m, so the dual consistency finds
  * every partner) except a share (--occluded, 0.1) with large random motions
  * that disagree both ways (occluded: kept from both keys). Measured per N, best of --reps:
- *   - interp_at (fusion by averaging, and with a fusion MLP of the arch's
- *     size, 30 -> 64 -> 14, random weights) at a = 0.5: ms per step;
+ *   - interp_at (fusion by averaging, and with a fusion MLP: the model's
+ *     F_theta of --weights W.gguf (fusion.*), else one of the arch's size,
+ *     30 -> 64 -> 14, with random weights) at a = 0.5: ms per step;
  *   - the bytes one step must move at least: both keys' attributes and
  *     motions read once (17 floats per Gaussian), the output written once
  *     (14 floats per output Gaussian);
@@ -27,6 +28,7 @@
 
 #include "bench.h"
 #include "interp.h"
+#include "model.h"
 
 #define VIEWS 4
 
@@ -164,7 +166,7 @@ struct srow { size_t n, out; int side; double ms_avg, ms_mlp, ms_key, mbytes, ms
 
 int bench_stream(int argc, char **argv)
 {
-    const char *json = NULL;
+    const char *json = NULL, *weights = NULL;
     int reps = 5, nn = 0;
     long ns[8];
     float occluded = 0.1f;
@@ -175,10 +177,12 @@ int bench_stream(int argc, char **argv)
             reps = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--occluded") && i + 1 < argc)
             occluded = strtof(argv[++i], NULL);
+        else if (!strcmp(argv[i], "--weights") && i + 1 < argc)
+            weights = argv[++i];
         else if (!strcmp(argv[i], "--n") && i + 1 < argc && nn < 8)
             ns[nn++] = atol(argv[++i]);
         else {
-            fprintf(stderr, "usage: f4d-bench stream [--n GAUSSIANS]... [--reps N] [--occluded SHARE] [--json FILE]\n");
+            fprintf(stderr, "usage: f4d-bench stream [--n GAUSSIANS]... [--reps N] [--occluded SHARE] [--weights W.gguf] [--json FILE]\n");
             return 2;
         }
     }
@@ -221,7 +225,29 @@ int bench_stream(int argc, char **argv)
         fprintf(stderr, "f4d-bench stream: cannot create the kernel context\n");
         return 1;
     }
+    struct model *m = NULL;
+    interp_fuse_fn fuse = mlp_fuse;
+    void *fuse_user = NULL;
+    if (weights) {
+        struct f4d_err e = { 0 };
+        if (model_init(ctx, weights, FK_W_F32, &m, &e) < 0) {
+            fprintf(stderr, "f4d-bench stream: %s\n", e.msg);
+            fk_ctx_free(ctx);
+            return 1;
+        }
+        if (!model_fusion(m)) {
+            fprintf(stderr, "f4d-bench stream: '%s' has no fusion MLP (fusion.*)\n", weights);
+            model_free(m);
+            fk_ctx_free(ctx);
+            return 1;
+        }
+        fuse = model_fusion_fuse;
+        fuse_user = model_fusion(m);
+    }
+    printf("fusion MLP: %s\n", weights ? weights : "the arch's shape (30 -> 64 -> 14), random weights, in the bench");
     static struct mlp mlp;
+    if (!weights)
+        fuse_user = &mlp;
     for (int k = 0; k < 64 * 30; k++)
         mlp.w1[k] = 0.2f * (frand() - 0.5f);
     for (int k = 0; k < 14 * 64; k++)
@@ -266,8 +292,8 @@ int bench_stream(int argc, char **argv)
         for (int pass = 0; pass < 2 && !rc; pass++) {
             struct interp_config cfg = interp_config_default();
             if (pass) {
-                cfg.fuse = mlp_fuse;
-                cfg.fuse_user = &mlp;
+                cfg.fuse = fuse;
+                cfg.fuse_user = fuse_user;
             }
             double best = 1e30, bc = 1e30;
             for (int i = 0; i < reps + 1 && !rc; i++) { /* +1: the first touches the output */
@@ -305,6 +331,7 @@ int bench_stream(int argc, char **argv)
         splat_frame_free(&f1);
         splat_frame_free(&out);
     }
+    model_free(m);
     fk_ctx_free(ctx);
     if (rc)
         return 1;
