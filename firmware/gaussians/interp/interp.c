@@ -111,7 +111,8 @@ static inline long pixel_of(const struct splat_camera *cam, const float p[3], fl
     *z = q[2];
     if (!(q[2] > SPLAT_NEAR))
         return -1;
-    float u = cam->fx * q[0] / q[2] + cam->cx, v = cam->fy * q[1] / q[2] + cam->cy;
+    float iz = 1.0f / q[2]; /* one division for both coordinates */
+    float u = cam->fx * q[0] * iz + cam->cx, v = cam->fy * q[1] * iz + cam->cy;
     /* the comparisons are false for NaN: a non-finite point has no pixel */
     if (!(u >= 0.0f && v >= 0.0f && u < (float)cam->width && v < (float)cam->height))
         return -1;
@@ -328,7 +329,9 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
     if (o < 0)
         return -1;
     const size_t np = (size_t)ip->W * (size_t)ip->H, n = other->f->count;
-    int v = (int)((size_t)o / np);
+    int v = 0; /* o / np without a 64-bit division: at most SPLAT_RIG_MAX steps */
+    while ((size_t)o >= (size_t)(v + 1) * np)
+        v++;
     const float *mu = self->f->pos + 3 * g;
     float X[3] = { mu[0] + motion[3 * g], mu[1] + motion[3 * g + 1], mu[2] + motion[3 * g + 2] }, z;
     /* X' lives at the other key's time: its cameras, its pixel lists */

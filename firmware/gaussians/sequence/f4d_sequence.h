@@ -81,13 +81,17 @@ struct f4d_seq_key {
  * borrowed and gives the threads. */
 int  f4d_sequence_open(fk_ctx *ctx, const char *weights, enum fk_wtype wtype, int views, int height,
                        int width, f4d_sequence **out, struct f4d_err *err);
-/* The same on an initialised model (borrowed; it must outlive the sequence):
- * the sequence prepares it for (views, height, width). */
+/* The same on an initialised model that is not prepared yet (borrowed; it
+ * must outlive the sequence): the sequence prepares it for (views, height,
+ * width) and resets its state. */
 int  f4d_sequence_open_model(struct model *m, int views, int height, int width, f4d_sequence **out,
                              struct f4d_err *err);
 void f4d_sequence_close(f4d_sequence *sq);
 
-/* Runs the model on the next set: images [views, 3, height, width] in [0, 1]. */
+/* Runs the model on the next set: images [views, 3, height, width] in [0, 1].
+ * On failure (a model error, cameras that are not valid) the keys held are
+ * dropped and the model's state is reset: the next push starts over (its key
+ * time still counts on), as the model requires after a failed Eval. */
 int  f4d_sequence_push(f4d_sequence *sq, const float *images, struct f4d_err *err);
 /* Keys held: 0 before the first push, 1 after it, 2 from the second on. */
 int  f4d_sequence_steps(const f4d_sequence *sq);

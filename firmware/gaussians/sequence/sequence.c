@@ -194,16 +194,23 @@ int f4d_sequence_push(f4d_sequence *sq, const float *images, struct f4d_err *err
         return rc;
     }
     const struct model_gaussians *g = &o.gaussians;
-    if (g->count != sq->n || !o.extrinsic || !o.intrinsic)
+    if (g->count != sq->n || !o.extrinsic || !o.intrinsic) { /* cannot happen after open's checks */
+        model_state_reset(sq->m);
+        sq->steps = 0;
         return f4d_fail(err, F4D_EINVAL, "sequence_push: the model gave %zu Gaussians (want %zu) and %s cameras",
                         g->count, sq->n, o.extrinsic ? "its" : "no");
+    }
     const float *ext = o.extrinsic_metric ? o.extrinsic_metric : o.extrinsic;
     struct slot *nw = &sq->slot[sq->steps ? 1 - sq->cur : sq->cur];
     struct splat_rig rig;
     rig_from(&rig, ext, o.intrinsic, sq->S, sq->H, sq->W);
-    /* Cameras first: a bad one leaves both keys untouched. */
-    if ((rc = interp_set_rig(sq->ip, &rig, err)) < 0)
+    /* Cameras first: a bad one leaves both keys untouched. The model has
+     * moved on to this step, though: restart as after a failed Eval. */
+    if ((rc = interp_set_rig(sq->ip, &rig, err)) < 0) {
+        model_state_reset(sq->m);
+        sq->steps = 0;
         return rc;
+    }
     const size_t n = sq->n;
     struct splat_frame *f = &nw->f;
     memcpy(f->pos, g->pos, 3 * n * sizeof(float));
