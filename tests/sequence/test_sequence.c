@@ -301,6 +301,41 @@ static void motion_parity(void **state)
     fk_ctx_free(ctx);
 }
 
+/* The sequence's batched F_theta (fk GEMMs) against the model's per-pair
+ * one and the reference's outputs, on the fixture's 64 fusion pairs. */
+static void fusion_batch_parity(void **state)
+{
+    (void)state;
+    char p[1024];
+    snprintf(p, sizeof p, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    fk_ctx *ctx;
+    f4d_sequence *sq;
+    struct f4d_err err = { 0 };
+    assert_int_equal(fk_ctx_new(&(struct fk_ctx_config){ .isa = FK_ISA_AUTO, .threads = 2 }, &ctx), 0);
+    if (f4d_sequence_open(ctx, p, FK_W_F32, 2, 28, 42, &sq, &err) < 0)
+        fail_msg("open: %s", err.msg);
+    float *in = load_seq("fusion_in", 64 * 30), *ref = load_seq("fusion_out", 64 * 14), out[64 * 14], one[14];
+    assert_int_equal(f4d_sequence_fuse_batch(sq, in, 64, out), 0);
+    double e_model = 0, e_ref = 0, rms = 0;
+    for (int i = 0; i < 64; i++) {
+        const float *x = in + 30 * i;
+        model_fusion_fuse(model_fusion(f4d_sequence_model(sq)), x, x + 14, x[28], x[29], one);
+        for (int c = 0; c < 14; c++) {
+            e_model = fmax(e_model, fabs((double)out[14 * i + c] - one[c]));
+            e_ref = fmax(e_ref, fabs((double)out[14 * i + c] - ref[14 * i + c]));
+            rms += (double)ref[14 * i + c] * ref[14 * i + c];
+        }
+    }
+    rms = sqrt(rms / (64 * 14));
+    printf("batched fusion, 64 pairs: max |diff| vs per pair %.2e, vs reference %.2e (RMS %.3g)\n", e_model, e_ref, rms);
+    assert_true(e_model <= 1e-5 * rms && e_ref <= 1e-4 * rms);
+    assert_int_equal(f4d_sequence_fuse_batch(sq, in, INTERP_FUSE_BATCH + 1, out), F4D_EINVAL);
+    free(in);
+    free(ref);
+    f4d_sequence_close(sq);
+    fk_ctx_free(ctx);
+}
+
 /* fusion.fc2 = 0: the MLP's output is the mean (q normalised), i.e. averaging. */
 static void fusion_fc2_zero_is_average(void **state)
 {
@@ -390,7 +425,7 @@ static void fusion_fc2_zero_is_average(void **state)
     struct interp_stats sa;
     assert_int_equal(interp_at(ip, &k0, &k1, 0.4f, &cm, &fus, &sa, &err), 0);
     assert_int_equal(fus.count, mlp->count);
-    assert_memory_equal(fus.pos, mlp->pos, 3 * fus.count * sizeof(float));
+    assert_true(max_rel(fus.pos, mlp->pos, 3 * fus.count) < 1e-5); /* batched vs per pair */
     /* The random tiny model's motions match no pixel within 5 cm: with tau
      * raised every Gaussian of t with a partner is fused, by the MLP and by
      * averaging (where the partner pixel exists). */
@@ -407,6 +442,20 @@ static void fusion_fc2_zero_is_average(void **state)
     ef = fmax(ef, max_rel(fus.opacity, avg.opacity, avg.count));
     ef = fmax(ef, max_rel(fus.rgb, avg.rgb, 3 * avg.count));
     printf("fc2 = 0: fused frame vs averaged frame: max rel %.2e\n", ef);
+    assert_true(ef < 1e-5);
+    /* the same through interp's batched fusion (what at() runs) */
+    struct interp_config cb = cm;
+    cb.fuse = NULL;
+    cb.fuse_batch = f4d_sequence_fuse_batch;
+    cb.fuse_batch_user = sq;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.4f, &cb, &fus, &sa, &err), 0);
+    assert_int_equal(sa.fused, st.fused);
+    assert_int_equal(fus.count, avg.count);
+    ef = max_rel(fus.pos, avg.pos, 3 * avg.count);
+    ef = fmax(ef, max_rel(fus.scale, avg.scale, 3 * avg.count));
+    ef = fmax(ef, max_rel(fus.rot, avg.rot, 4 * avg.count));
+    ef = fmax(ef, max_rel(fus.opacity, avg.opacity, avg.count));
+    printf("fc2 = 0, batched: fused frame vs averaged frame: max rel %.2e\n", ef);
     assert_true(ef < 1e-5);
     interp_key_free(&k0);
     interp_key_free(&k1);
@@ -435,6 +484,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(errors),
         cmocka_unit_test(motion_parity),
         cmocka_unit_test(fusion_fc2_zero_is_average),
+        cmocka_unit_test(fusion_batch_parity),
     };
     return F4D_TEST_MAIN(argc, argv, "sequence", tests, setup, teardown);
 }

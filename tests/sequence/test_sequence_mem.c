@@ -84,15 +84,25 @@ static void flat(void **state)
     long a0 = n_allocs;
     size_t b0 = n_bytes;
     const struct splat_frame *mid;
+    /* the batched fusion MLP on a full batch, at step 1 and then every 100
+     * steps (the random tiny weights match few pairs within tau, so at()
+     * alone rarely reaches it); its buffers are the test's, touched here */
+    static float fx[INTERP_FUSE_BATCH * INTERP_FUSE_IN], fo[INTERP_FUSE_BATCH * INTERP_ATTRS];
+    for (size_t i = 0; i < sizeof fx / sizeof fx[0]; i++)
+        fx[i] = (float)(i % 7) * 0.1f;
+    memset(fo, 0, sizeof fo);
     /* steps 0 and 1: the first interval, interpolated at its middle */
     for (long t = 0; t < 2; t++)
         assert_int_equal(f4d_sequence_push(sq, img[t & 1], &err), 0);
     assert_int_equal(f4d_sequence_at(sq, 0.5, &mid, NULL, &err), 0);
+    assert_int_equal(f4d_sequence_fuse_batch(sq, fx, INTERP_FUSE_BATCH, fo), 0);
     long a2 = n_allocs, rss2 = rss_kib();
     size_t b2 = n_bytes;
     for (long t = 2; t < steps; t++) {
         if (f4d_sequence_push(sq, img[t & 1], &err) < 0 || f4d_sequence_at(sq, (double)t - 0.5, &mid, NULL, &err) < 0)
             fail_msg("step %ld: %s", t, err.msg);
+        if (t % 100 == 2)
+            assert_int_equal(f4d_sequence_fuse_batch(sq, fx, INTERP_FUSE_BATCH, fo), 0);
     }
     long an = n_allocs, rssn = rss_kib();
     size_t bn = n_bytes;

@@ -8,8 +8,10 @@
  * every partner) except a share (--occluded, 0.1) with large random motions
  * that disagree both ways (occluded: kept from both keys). Measured per N, best of --reps:
  *   - interp_at (fusion by averaging, and with a fusion MLP: the model's
- *     F_theta of --weights W.gguf (fusion.*), else one of the arch's size,
- *     30 -> 64 -> 14, with random weights) at a = 0.5: ms per step;
+ *     F_theta of --weights W.gguf (fusion.*) one pair at a time
+ *     (model_fusion_fuse) and batched (f4d_sequence_fuse_batch: fk GEMMs),
+ *     else one of the arch's size, 30 -> 64 -> 14, random weights, per pair)
+ *     at a = 0.5: ms per step;
  *   - the bytes one step must move at least: both keys' attributes and
  *     motions read once (17 floats per Gaussian), the output written once
  *     (14 floats per output Gaussian);
@@ -27,6 +29,7 @@
 #include <unistd.h>
 
 #include "bench.h"
+#include "f4d_sequence.h"
 #include "interp.h"
 #include "model.h"
 
@@ -162,7 +165,7 @@ static int make_keys(const struct splat_rig *rig, int s, float occluded, struct 
     return 0;
 }
 
-struct srow { size_t n, out; int side; double ms_avg, ms_mlp, ms_key, mbytes, ms_stream, ratio_avg, ratio_mlp, cpu_avg, cpu_mlp, cpu_stream, cratio_avg, cratio_mlp; };
+struct srow { size_t n, out; int side; double ms_avg, ms_mlp, ms_bat, ms_key, mbytes, ms_stream, ratio_avg, ratio_mlp, ratio_bat, cpu_avg, cpu_mlp, cpu_bat, cpu_stream, cratio_avg, cratio_mlp, cratio_bat; };
 
 int bench_stream(int argc, char **argv)
 {
@@ -244,6 +247,19 @@ int bench_stream(int argc, char **argv)
         fuse = model_fusion_fuse;
         fuse_user = model_fusion(m);
     }
+    /* The batched F_theta the sequence runs (fk GEMMs), on a sequence of the
+     * same weights opened at a small size: only its fusion is used here. */
+    f4d_sequence *sq = NULL;
+    if (weights) {
+        struct f4d_err e = { 0 };
+        if (f4d_sequence_open(ctx, weights, FK_W_F32, 1, 14, 14, &sq, &e) < 0 || !f4d_sequence_has_fusion(sq)) {
+            fprintf(stderr, "f4d-bench stream: %s\n", sq ? "no fusion MLP in the sequence" : e.msg);
+            f4d_sequence_close(sq);
+            model_free(m);
+            fk_ctx_free(ctx);
+            return 1;
+        }
+    }
     printf("fusion MLP: %s\n", weights ? weights : "the arch's shape (30 -> 64 -> 14), random weights, in the bench");
     static struct mlp mlp;
     if (!weights)
@@ -289,11 +305,14 @@ int bench_stream(int argc, char **argv)
             double t = 1e3 * (bench_now() - t0);
             w->ms_key = t < w->ms_key ? t : w->ms_key;
         }
-        for (int pass = 0; pass < 2 && !rc; pass++) {
+        for (int pass = 0; pass < (sq ? 3 : 2) && !rc; pass++) {
             struct interp_config cfg = interp_config_default();
-            if (pass) {
+            if (pass == 1) {
                 cfg.fuse = fuse;
                 cfg.fuse_user = fuse_user;
+            } else if (pass == 2) {
+                cfg.fuse_batch = f4d_sequence_fuse_batch;
+                cfg.fuse_batch_user = sq;
             }
             double best = 1e30, bc = 1e30;
             for (int i = 0; i < reps + 1 && !rc; i++) { /* +1: the first touches the output */
@@ -308,8 +327,8 @@ int bench_stream(int argc, char **argv)
                     bc = c < bc ? c : bc;
                 }
             }
-            *(pass ? &w->ms_mlp : &w->ms_avg) = best;
-            *(pass ? &w->cpu_mlp : &w->cpu_avg) = bc;
+            *(pass == 2 ? &w->ms_bat : pass ? &w->ms_mlp : &w->ms_avg) = best;
+            *(pass == 2 ? &w->cpu_bat : pass ? &w->cpu_mlp : &w->cpu_avg) = bc;
         }
         if (!rc) {
             w->out = out.count;
@@ -321,6 +340,8 @@ int bench_stream(int argc, char **argv)
             w->cpu_stream = bytes / (gc_copy * 1e9) * 1e3;
             w->cratio_avg = w->cpu_avg / w->cpu_stream;
             w->cratio_mlp = w->cpu_mlp / w->cpu_stream;
+            w->ratio_bat = w->ms_bat / w->ms_stream;
+            w->cratio_bat = w->cpu_bat / w->cpu_stream;
             printf("  N %zu (%d views %dx%d): fused %zu, kept %zu + %zu, dropped %zu -> %zu out\n", w->n, VIEWS, s,
                    s, st.fused, st.kept_t, st.kept_tm1, st.dropped_tm1, out.count);
         }
@@ -331,19 +352,23 @@ int bench_stream(int argc, char **argv)
         splat_frame_free(&f1);
         splat_frame_free(&out);
     }
+    f4d_sequence_close(sq);
     model_free(m);
     fk_ctx_free(ctx);
     if (rc)
         return 1;
-    printf("\n%-9s %-9s %-5s %12s %12s %10s %13s %10s %10s %10s\n", "N", "out", "clock", "interp avg", "interp MLP",
-           "MB/step", "stream once", "ratio avg", "ratio MLP", "key build");
+    printf("\n%-9s %-9s %-5s %11s %11s %11s %9s %11s %8s %8s %8s %9s\n", "N", "out", "clock", "avg", "MLP/pair",
+           "MLP batch", "MB/step", "stream", "r avg", "r pair", "r batch", "key");
     for (int r = 0; r < nn; r++) {
         const struct srow *w = &rows[r];
-        printf("%-9zu %-9zu %-5s %9.2f ms %9.2f ms %10.1f %10.2f ms %9.2fx %9.2fx %7.2f ms\n", w->n, w->out, "wall",
-               w->ms_avg, w->ms_mlp, w->mbytes, w->ms_stream, w->ratio_avg, w->ratio_mlp, w->ms_key);
-        printf("%-9s %-9s %-5s %9.2f ms %9.2f ms %10s %10.2f ms %9.2fx %9.2fx\n", "", "", "cpu", w->cpu_avg,
-               w->cpu_mlp, "", w->cpu_stream, w->cratio_avg, w->cratio_mlp);
+        printf("%-9zu %-9zu %-5s %8.2f ms %8.2f ms %8.2f ms %9.1f %8.2f ms %7.2fx %7.2fx %7.2fx %6.2f ms\n", w->n,
+               w->out, "wall", w->ms_avg, w->ms_mlp, w->ms_bat, w->mbytes, w->ms_stream, w->ratio_avg, w->ratio_mlp,
+               w->ratio_bat, w->ms_key);
+        printf("%-9s %-9s %-5s %8.2f ms %8.2f ms %8.2f ms %9s %8.2f ms %7.2fx %7.2fx %7.2fx\n", "", "", "cpu",
+               w->cpu_avg, w->cpu_mlp, w->cpu_bat, "", w->cpu_stream, w->cratio_avg, w->cratio_mlp, w->cratio_bat);
     }
+    if (!sq)
+        printf("(MLP batch: needs --weights with fusion.*; 0 here)\n");
     printf("goal: interpolation per step within 2x of streaming its bytes once (ratio <= 2)\n");
     if (json) {
         FILE *f = fopen(json, "w");
@@ -357,9 +382,11 @@ int bench_stream(int argc, char **argv)
             fprintf(f, "%s{\"n\": %zu, \"out\": %zu, \"ms_interp_avg\": %.4f, \"ms_interp_mlp\": %.4f, "
                        "\"mbytes\": %.3f, \"ms_stream\": %.4f, \"ratio_avg\": %.3f, \"ratio_mlp\": %.3f, "
                        "\"ms_key_build\": %.4f, \"cpu_ms_interp_avg\": %.4f, \"cpu_ms_interp_mlp\": %.4f, "
-                       "\"cpu_ms_stream\": %.4f, \"cpu_ratio_avg\": %.3f, \"cpu_ratio_mlp\": %.3f}",
+                       "\"cpu_ms_stream\": %.4f, \"cpu_ratio_avg\": %.3f, \"cpu_ratio_mlp\": %.3f, "
+                       "\"ms_interp_batch\": %.4f, \"cpu_ms_interp_batch\": %.4f, \"cpu_ratio_batch\": %.3f}",
                     r ? ", " : "", w->n, w->out, w->ms_avg, w->ms_mlp, w->mbytes, w->ms_stream, w->ratio_avg,
-                    w->ratio_mlp, w->ms_key, w->cpu_avg, w->cpu_mlp, w->cpu_stream, w->cratio_avg, w->cratio_mlp);
+                    w->ratio_mlp, w->ms_key, w->cpu_avg, w->cpu_mlp, w->cpu_stream, w->cratio_avg, w->cratio_mlp,
+                    w->ms_bat, w->cpu_bat, w->cratio_bat);
         }
         fprintf(f, "]}\n");
         fclose(f);

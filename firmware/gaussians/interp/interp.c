@@ -15,6 +15,8 @@ struct interp {
     float           *depth;   /* [H * W] scratch */
     long            *pix;     /* [count] scratch */
     size_t           cap_depth, cap_pix;
+    float           *bx, *bo; /* batched fusion: [BATCH * FUSE_IN], [BATCH * ATTRS] */
+    size_t          *bslot;   /* [BATCH] output slot of each row */
 };
 
 static int fail(struct f4d_err *err, int code, const char *msg)
@@ -51,9 +53,16 @@ int interp_new(fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct f4
     ip->rig = *rig;
     ip->W = rig->cams[0].width;
     ip->H = rig->cams[0].height;
+    ip->bx = malloc((size_t)INTERP_FUSE_BATCH * INTERP_FUSE_IN * sizeof *ip->bx);
+    ip->bo = malloc((size_t)INTERP_FUSE_BATCH * INTERP_ATTRS * sizeof *ip->bo);
+    ip->bslot = malloc((size_t)INTERP_FUSE_BATCH * sizeof *ip->bslot);
+    if (!ip->bx || !ip->bo || !ip->bslot) {
+        interp_free(ip);
+        return fail(err, F4D_ENOMEM, "interp_new: out of memory");
+    }
     int rc = splat_renderer_new(ctx, ip->W, ip->H, &ip->r, err);
     if (rc < 0) {
-        free(ip);
+        interp_free(ip);
         return rc;
     }
     *out = ip;
@@ -84,6 +93,9 @@ void interp_free(interp *ip)
     if (!ip)
         return;
     splat_renderer_free(ip->r);
+    free(ip->bx);
+    free(ip->bo);
+    free(ip->bslot);
     free(ip->depth);
     free(ip->pix);
     free(ip);
@@ -359,6 +371,17 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
     return best;
 }
 
+/* Runs the batched fusion on the nb rows collected and writes their slots. */
+static int flush_batch(interp *ip, const struct interp_config *cfg, int nb, struct splat_frame *out,
+                       struct f4d_err *err)
+{
+    if (cfg->fuse_batch(cfg->fuse_batch_user, ip->bx, nb, ip->bo) < 0)
+        return fail(err, F4D_EINVAL, "interp_at: the batched fusion failed");
+    for (int i = 0; i < nb; i++)
+        from_attrs(ip->bo + (size_t)i * INTERP_ATTRS, out, ip->bslot[i]);
+    return F4D_OK;
+}
+
 int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key *next, float a,
               const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
               struct f4d_err *err)
@@ -379,7 +402,7 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
     }
     if (!F0->motion_fwd || !F1->motion_bwd)
         return fail(err, F4D_EINVAL, "interp_at: key t-1 needs forward motion and key t backward motion");
-    if (cfg->mode == INTERP_FUSED && (!cfg->fuse || !(cfg->tau >= 0.0f)))
+    if (cfg->mode == INTERP_FUSED && ((!cfg->fuse && !cfg->fuse_batch) || !(cfg->tau >= 0.0f)))
         return fail(err, F4D_EINVAL, "interp_at: fusion needs a fuse function and tau >= 0");
     int rc = splat_frame_reserve(out, F0->count + F1->count, 0, err);
     if (rc < 0)
@@ -395,6 +418,7 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
         st.kept_tm1 = F0->count;
     } else {
         float at[INTERP_ATTRS], am[INTERP_ATTRS], af[INTERP_ATTRS];
+        int nb = 0; /* rows waiting for the batched fusion */
         for (size_t g = 0; g < F1->count; g++) {
             float D = 0.0f;
             int32_t h = partner(ip, next, prev, F1->motion_bwd, g, &D);
@@ -403,6 +427,19 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
             if (h < 0 || D > cfg->tau) {
                 copy_deformed(F1, g, F1->motion_bwd, kb, out, o++);
                 st.kept_t++;
+            } else if (cfg->fuse_batch) { /* a row now, the MLP per INTERP_FUSE_BATCH rows */
+                float *x = ip->bx + (size_t)nb * INTERP_FUSE_IN;
+                to_attrs(F1, g, F1->motion_bwd, kb, x);
+                to_attrs(F0, (size_t)h, F0->motion_fwd, kf, x + INTERP_ATTRS);
+                x[2 * INTERP_ATTRS] = a;
+                x[2 * INTERP_ATTRS + 1] = D;
+                ip->bslot[nb++] = o++;
+                st.fused++;
+                if (nb == INTERP_FUSE_BATCH) {
+                    if ((rc = flush_batch(ip, cfg, nb, out, err)) < 0)
+                        return rc;
+                    nb = 0;
+                }
             } else if (cfg->fuse == interp_fuse_average) {
                 average_pair(F1, g, F1->motion_bwd, kb, F0, (size_t)h, F0->motion_fwd, kf, out, o++);
                 st.fused++;
@@ -414,6 +451,8 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
                 st.fused++;
             }
         }
+        if (nb && (rc = flush_batch(ip, cfg, nb, out, err)) < 0)
+            return rc;
         for (size_t h = 0; h < F0->count; h++) {
             float D = 0.0f;
             int32_t g = partner(ip, prev, next, F0->motion_fwd, h, &D);

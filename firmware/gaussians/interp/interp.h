@@ -70,6 +70,15 @@ typedef void (*interp_fuse_fn)(void *user, const float a_t[INTERP_ATTRS], const 
 void interp_fuse_average(void *user, const float a_t[INTERP_ATTRS], const float a_tm1[INTERP_ATTRS],
                          float a, float D, float out[INTERP_ATTRS]);
 
+/* Batched fusion: n <= INTERP_FUSE_BATCH pairs in one call, so that a learned
+ * F_theta runs as two GEMMs instead of one small MLP per pair. x is [n,
+ * INTERP_FUSE_IN], each row a_t (14) | a_tm1 (14) | a | D; out [n, 14] gets
+ * what interp_fuse_fn would give for each row. Returns 0, or < 0 to fail
+ * interp_at (with F4D_EINVAL and a message naming the fusion). */
+#define INTERP_FUSE_IN    (2 * INTERP_ATTRS + 2)
+#define INTERP_FUSE_BATCH 1024
+typedef int (*interp_fuse_batch_fn)(void *user, const float *x, int n, float *out);
+
 enum interp_mode {
     INTERP_FUSED     = 0, /* Forge4D: occluded kept, matched pairs fused     */
     INTERP_KEEP_BOTH = 1, /* no fusion: every Gaussian of both keys, deformed */
@@ -81,6 +90,8 @@ struct interp_config {
     float            tau;       /* metres, 0.05 */
     interp_fuse_fn   fuse;      /* interp_fuse_average by default */
     void            *fuse_user;
+    interp_fuse_batch_fn fuse_batch; /* NULL by default; when set, used instead of fuse */
+    void            *fuse_batch_user;
 };
 struct interp_config interp_config_default(void);
 

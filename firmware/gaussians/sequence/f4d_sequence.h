@@ -102,6 +102,12 @@ int  f4d_sequence_key(const f4d_sequence *sq, int which, struct f4d_seq_key *out
 int  f4d_sequence_at(f4d_sequence *sq, double t, const struct splat_frame **out, struct interp_stats *stats,
                      struct f4d_err *err);
 
+/* The weights' fusion MLP F_theta as interp's batched fusion (user = the
+ * sequence): two GEMMs on the fk kernels per INTERP_FUSE_BATCH pairs instead
+ * of model_fusion_fuse's scalar MLP per pair; same result up to float
+ * rounding (tests/sequence). at() uses it when the weights have fusion.*. */
+int  f4d_sequence_fuse_batch(void *sq, const float *x, int n, float *out);
+
 /* What at() does (chosen at open from the weights; FUSED / KEEP_BOTH need
  * the motion part, F4D_EINVAL otherwise). */
 enum interp_mode f4d_sequence_mode(const f4d_sequence *sq);

@@ -32,7 +32,79 @@ struct f4d_sequence {
     struct interp_config icfg;
     int                has_motion, has_fusion;
     size_t             bytes;
+    /* F_theta batched: fc1 / fc2 packed f32 from the model's fusion.* tensors,
+     * run as GEMMs on INTERP_FUSE_BATCH pairs at a time */
+    struct fk_linear   fc1, fc2;
+    float             *hid;     /* [INTERP_FUSE_BATCH, MODEL_FUSION_HIDDEN] */
 };
+
+int f4d_sequence_fuse_batch(void *user, const float *x, int n, float *out)
+{
+    f4d_sequence *sq = user;
+    const struct fk_epilogue gelu = { .act = FK_ACT_GELU };
+    if (!sq || !sq->hid || n < 0 || n > INTERP_FUSE_BATCH)
+        return F4D_EINVAL;
+    int rc = fk_linear_forward(sq->ctx, &sq->fc1, x, n, INTERP_FUSE_IN, sq->hid, MODEL_FUSION_HIDDEN, &gelu);
+    if (rc == F4D_OK)
+        rc = fk_linear_forward(sq->ctx, &sq->fc2, sq->hid, n, MODEL_FUSION_HIDDEN, out, INTERP_ATTRS, NULL);
+    if (rc != F4D_OK)
+        return rc;
+    /* + the mean of both attribute vectors, the quaternion as the normalised
+     * sign-aligned sum: model_fusion_fuse's base, row by row */
+    for (int i = 0; i < n; i++) {
+        const float *at = x + (size_t)i * INTERP_FUSE_IN, *am = at + INTERP_ATTRS;
+        float *o = out + (size_t)i * INTERP_ATTRS, dot = 0.0f, q[4], ss = 0.0f;
+        for (int c = 0; c < 10; c++)
+            o[c] += 0.5f * (at[c] + am[c]);
+        for (int c = 0; c < 4; c++)
+            dot += at[10 + c] * am[10 + c];
+        const float sg = dot < 0.0f ? -1.0f : 1.0f;
+        for (int c = 0; c < 4; c++) {
+            q[c] = at[10 + c] + sg * am[10 + c];
+            ss += q[c] * q[c];
+        }
+        const float nq = sqrtf(ss);
+        for (int c = 0; c < 4; c++)
+            o[10 + c] += nq >= MODEL_GAUSS_QUAT_EPS ? q[c] / nq : (c == 0 ? 1.0f : 0.0f);
+    }
+    return F4D_OK;
+}
+
+/* Packs F_theta for the batched path and reserves its kernel scratch: the
+ * model froze the context at prepare, so the GEMMs are measured once here
+ * (fk_ctx_measure) and the context frozen again. */
+static int plan_fusion(f4d_sequence *sq, struct f4d_err *err)
+{
+    const float *w1, *b1, *w2, *b2;
+    struct model *m = sq->m;
+    if (model_load_vec(m, "fusion.fc1.weight", MODEL_FUSION_HIDDEN * MODEL_FUSION_IN, &w1) < 0 ||
+        model_load_vec(m, "fusion.fc1.bias", MODEL_FUSION_HIDDEN, &b1) < 0 ||
+        model_load_vec(m, "fusion.fc2.weight", MODEL_FUSION_ATTRS * MODEL_FUSION_HIDDEN, &w2) < 0 ||
+        model_load_vec(m, "fusion.fc2.bias", MODEL_FUSION_ATTRS, &b2) < 0)
+        return f4d_fail(err, F4D_EFORMAT, "sequence: %s", model_error(m));
+    sq->hid = malloc((size_t)INTERP_FUSE_BATCH * MODEL_FUSION_HIDDEN * sizeof *sq->hid);
+    if (!sq->hid)
+        return f4d_fail(err, F4D_ENOMEM, "sequence: out of memory for the fusion MLP");
+    if (fk_linear_pack(sq->ctx, &sq->fc1, FK_W_F32, w1, MODEL_FUSION_HIDDEN, MODEL_FUSION_IN, b1) != F4D_OK ||
+        fk_linear_pack(sq->ctx, &sq->fc2, FK_W_F32, w2, MODEL_FUSION_ATTRS, MODEL_FUSION_HIDDEN, b2) != F4D_OK)
+        return f4d_fail(err, F4D_ENOMEM, "sequence: cannot pack the fusion MLP");
+    float *x = calloc((size_t)INTERP_FUSE_BATCH * (INTERP_FUSE_IN + INTERP_ATTRS), sizeof *x);
+    if (!x)
+        return f4d_fail(err, F4D_ENOMEM, "sequence: out of memory for the fusion MLP");
+    fk_ctx_freeze(sq->ctx, 0);
+    fk_ctx_measure(sq->ctx, 1);
+    int rc = f4d_sequence_fuse_batch(sq, x, INTERP_FUSE_BATCH, x + (size_t)INTERP_FUSE_BATCH * INTERP_FUSE_IN);
+    fk_ctx_measure(sq->ctx, 0);
+    fk_ctx_freeze(sq->ctx, 1);
+    /* one real run: touches hid and the scratch now rather than at the first
+     * interpolation (resident memory is then flat from the first step) */
+    if (rc == F4D_OK)
+        rc = f4d_sequence_fuse_batch(sq, x, INTERP_FUSE_BATCH, x + (size_t)INTERP_FUSE_BATCH * INTERP_FUSE_IN);
+    free(x);
+    if (rc < 0)
+        return f4d_fail(err, rc, "sequence: cannot plan the fusion MLP's scratch");
+    return F4D_OK;
+}
 
 /* A pinhole placeholder until the first push brings the model's cameras. */
 static void placeholder_rig(struct splat_rig *rig, int S, int H, int W)
@@ -108,6 +180,12 @@ static int open_common(struct model *m, int own, int S, int H, int W, f4d_sequen
         goto fail;
     }
     model_state_reset(m); /* t = 0 */
+    if (sq->has_fusion) {
+        if ((rc = plan_fusion(sq, err)) < 0)
+            goto fail;
+        sq->icfg.fuse_batch = f4d_sequence_fuse_batch;
+        sq->icfg.fuse_batch_user = sq;
+    }
     struct splat_rig rig;
     placeholder_rig(&rig, S, H, W);
     if ((rc = interp_new(sq->ctx, &rig, &sq->ip, err)) < 0)
@@ -125,7 +203,8 @@ static int open_common(struct model *m, int own, int S, int H, int W, f4d_sequen
         goto fail;
     size_t frame_bytes = sq->n * 19 * sizeof(float); /* pos 3 scale 3 rot 4 opacity 1 rgb 3 motion 3+3 */
     size_t key_bytes = sq->slot[0].key.cap_cells * 4 + sq->slot[0].key.cap_items * 4 + sq->slot[0].key.cap_origin * 4;
-    sq->bytes = sizeof *sq + 2 * (frame_bytes + key_bytes) + 2 * frame_bytes;
+    sq->bytes = sizeof *sq + 2 * (frame_bytes + key_bytes) + 2 * frame_bytes + sq->fc1.bytes + sq->fc2.bytes +
+                (sq->hid ? (size_t)INTERP_FUSE_BATCH * MODEL_FUSION_HIDDEN * sizeof(float) : 0);
     *out = sq;
     return F4D_OK;
 fail:
@@ -174,6 +253,9 @@ void f4d_sequence_close(f4d_sequence *sq)
     }
     splat_frame_free(&sq->out);
     interp_free(sq->ip);
+    fk_linear_free(&sq->fc1);
+    fk_linear_free(&sq->fc2);
+    free(sq->hid);
     if (sq->own_model)
         model_free(sq->m);
     free(sq);
