@@ -29,6 +29,7 @@
 #include <cmocka.h>
 
 #include "fk_ctx.h"
+#include "gguf.h"
 #include "interp.h"
 #include "model.h"
 #include "model_test_util.h"
@@ -541,6 +542,95 @@ static void test_zero_fusion_is_interp_average(void **state)
     free(mg.buf);
 }
 
+/* The f32 stream file without the tensors whose names start with `drop`,
+ * written under GGUF_DIR as `out`. */
+static void write_without(const char *drop, const char *out)
+{
+    char src[1200], dst[1200];
+    struct f4d_err err = {0};
+    snprintf(src, sizeof src, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    snprintf(dst, sizeof dst, "%s/%s", gguf_dir, out);
+    gguf_file *gf;
+    if (gguf_open(src, &gf, &err) < 0)
+        fail_msg("%s", err.msg);
+    struct model_config c;
+    assert_int_equal(model_config_read(gf, &c, &err), 0);
+    gguf_writer *w = gguf_writer_new();
+    assert_non_null(w);
+    assert_int_equal(model_config_write(&c, w), 0);
+    assert_int_equal(gguf_writer_add_str(w, "forge4d.file_type", "f32"), 0);
+    const size_t nd = strlen(drop);
+    for (int pass = 0; pass < 2; pass++) {
+        for (size_t i = 0; i < gguf_tensor_count(gf); i++) {
+            const struct gguf_tensor *t = gguf_tensor_at(gf, i);
+            if (!strncmp(t->name, drop, nd))
+                continue;
+            if (pass) {
+                assert_int_equal(gguf_writer_write(w, t->data, t->nbytes), 0);
+                continue;
+            }
+            int64_t shape[GGUF_MAX_DIMS];
+            for (uint32_t d = 0; d < t->n_dims; d++)
+                shape[d] = (int64_t)t->ne[t->n_dims - 1 - d];
+            assert_int_equal(gguf_writer_add_tensor(w, t->name, t->type, (int)t->n_dims, shape), 0);
+        }
+        if (!pass && gguf_writer_begin(w, dst) < 0)
+            fail_msg("%s", gguf_writer_error(w));
+    }
+    if (gguf_writer_finish(w) < 0)
+        fail_msg("%s", gguf_writer_error(w));
+    gguf_writer_free(w);
+    gguf_close(gf);
+}
+
+/* Motion blocks without the motion head (or the head without the blocks)
+ * are refused at Init, naming what is missing; state alone runs: the state
+ * carries (a second Eval of the same input differs), never any motion. */
+static void test_partial_stream_files(void **state)
+{
+    (void)state;
+    static const struct { const char *drop, *file, *msg; } bad[] = {
+        { "motion_head.", "seq_no_motion_head.gguf", "motion_head" },
+        { "motion.", "seq_no_motion.gguf", "motion" },
+    };
+    fk_ctx *ctx = new_ctx();
+    for (int i = 0; i < 2; i++) {
+        char path[1200];
+        struct f4d_err err = {0};
+        struct model *m = NULL;
+        write_without(bad[i].drop, bad[i].file);
+        snprintf(path, sizeof path, "%s/%s", gguf_dir, bad[i].file);
+        assert_int_equal(model_init(ctx, path, FK_W_F32, &m, &err), F4D_EFORMAT);
+        assert_null(m);
+        printf("  without %s*: '%s'\n", bad[i].drop, err.msg);
+        assert_non_null(strstr(err.msg, bad[i].msg));
+    }
+    fk_ctx_free(ctx);
+    /* state only: drop motion.*, then motion_head.* from that copy */
+    write_without("motion", "seq_state_fusion.gguf");
+    ctx = new_ctx();
+    struct model *m = open_model(ctx, "seq_state_fusion.gguf", FK_W_F32);
+    assert_int_equal(model_groups(m), MODEL_G_ALL & ~(MODEL_G_MOTION | MODEL_G_MOTION_HEAD));
+    float *img = load_input(0);
+    const size_t n = (size_t)SEQ_S * SEQ_H * SEQ_W * 3;
+    float *p0 = malloc(n * sizeof *p0);
+    assert_non_null(p0);
+    struct model_outputs out;
+    for (int t = 0; t < 2; t++) {
+        assert_int_equal(model_eval(m, img, SEQ_S, SEQ_H, SEQ_W, &out), 0);
+        assert_int_equal(out.step, t + 1);
+        assert_int_equal(out.has_motion, 0);
+        assert_null(out.motion_bwd);
+        if (!t)
+            memcpy(p0, out.gaussians.pos, n * sizeof *p0);
+    }
+    assert_true(memcmp(p0, out.gaussians.pos, n * sizeof *p0) != 0);
+    free(p0);
+    free(img);
+    model_free(m);
+    fk_ctx_free(ctx);
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3) {
@@ -559,6 +649,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_first_step_no_motion),
         cmocka_unit_test(test_reset_reproduces_first_step),
         cmocka_unit_test(test_without_stream_parts),
+        cmocka_unit_test(test_partial_stream_files),
     };
     return cmocka_run_group_tests_name("/model/forge4d_seq", tests, NULL, NULL);
 }

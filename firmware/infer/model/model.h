@@ -187,7 +187,8 @@ struct model_outputs {
     struct model_gaussians gaussians;
     /* Forge4D streaming (forge4d-arch.md 4-5), when the file has them: */
     int          step;              /* Evals since model_state_reset, this one
-                                       included (1 on the first time step)      */
+                                       included (1 on the first time step; 0
+                                       without state / motion weights)          */
     int          has_motion;        /* motion ran: a previous step of the same
                                        S x H x W exists (0 on the first step)    */
     const float *motion_bwd;        /* [S, H, W, 3] M1[t]: moves the Gaussians of
