@@ -318,8 +318,9 @@ int bench_model(int argc, char **argv)
     tiny.dpt_out_channels[2] = 128; tiny.dpt_out_channels[3] = 128;
     tiny.dpt_layer_idx[0] = 0; tiny.dpt_layer_idx[1] = 1;
     tiny.dpt_layer_idx[2] = 2; tiny.dpt_layer_idx[3] = 3;
-    /* the motion head at the default's share of the DPT width (128 / 256) */
-    tiny.motion_dpt_features = tiny.dpt_features * 128 / 256;
+    /* the motion head as wide as the DPT heads: at 16 wide it measured no
+     * faster here (its 8-channel convolutions ran at 4.9 GFLOP/s) */
+    tiny.motion_dpt_features = tiny.dpt_features;
     const int tS = 4, tH = 126, tW = 168;
     struct result tr;
     if (write_random(path, &tiny, MODEL_G_ALL) < 0 ||
