@@ -460,6 +460,10 @@ int main(int argc, char **argv)
     }
     struct model_config cfg;
     model_config_default(&cfg);
+    /* a config without the motion keys (older checkpoints) means what a GGUF
+     * without them means: blocks at the DPT layers, the head at dpt_features */
+    cfg.motion_layers = 0;
+    cfg.motion_dpt_features = 0;
     struct f4d_err err = {0};
     if (cfg_path && read_config(cfg_path, &cfg) < 0)
         return 1;

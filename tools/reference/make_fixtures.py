@@ -296,7 +296,9 @@ def forge4d_seq_fixtures(out_root):
     # head at half the DPT width.
     cfg = dataclasses.replace(CONFIGS["tiny"]["cfg"], dpt_layer_idx=[1, 3, 3, 4],
                               motion_layers=[1, 2, 3, 4], motion_dpt_features=8)
-    gen = torch.Generator().manual_seed(5151)
+    # seed: random weights whose motions leave pairs to fuse (sequence/api needs >= 100;
+    # 5151 gave 1 with this config: the random cameras and motions put them out of view)
+    gen = torch.Generator().manual_seed(5153)
     model = Forge4D(cfg, stream=True).eval()
     seq_init(model, gen)
     d = os.path.join(out_root, "tiny_f4d_seq")
