@@ -126,6 +126,7 @@ struct run {
     _Atomic int done, capturing;
     uint64_t t0, t_end;
     double rss_start, rss_end;
+    bool rss_warm;
 };
 
 static uint64_t mono_ns(void)
@@ -499,8 +500,11 @@ static void *status_main(void *arg)
              * the slots, and the arena, codec and sink by the first key */
             bool warm = atomic_load(&r->sets_captured) >= r->board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS &&
                         (!r->have_infer || atomic_load(&r->keys) > 0);
-            if (isnan(r->rss_start) && warm)
-                r->rss_start = rss_mb();
+            if (!r->rss_warm && (warm || isnan(r->rss_start)) &&
+                (atomic_load(&r->keys) > 0 || (!r->have_infer && atomic_load(&r->sets_captured) > 0))) {
+                r->rss_start = rss_mb(); /* a short run keeps its first sample */
+                r->rss_warm = warm;
+            }
         }
     }
     if (!r->cfg->quiet && r->tty)
