@@ -694,7 +694,25 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
     r->board = &board;
     r->stop = stop;
     r->tty = isatty(2) != 0;
-    r->take_dir = cfg.record[0] ? cfg.record : NULL;
+    /* record = .../take-%Y%m%dT%H%M%SZ: one take per start (a restarted
+     * service must not meet its last take) */
+    char take_dir[sizeof cfg.record + 64];
+    if (strchr(cfg.record, '%')) {
+        time_t now = time(NULL);
+        struct tm tm;
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wformat-nonliteral" /* the pattern is the user's, by design */
+        size_t n = gmtime_r(&now, &tm) ? strftime(take_dir, sizeof take_dir, cfg.record, &tm) : 0;
+#pragma GCC diagnostic pop
+        if (n == 0) {
+            fprintf(stderr, "forge4d run: record = %s: bad time pattern\n", cfg.record);
+            free(r);
+            return 2;
+        }
+    } else {
+        snprintf(take_dir, sizeof take_dir, "%s", cfg.record);
+    }
+    r->take_dir = take_dir[0] ? take_dir : NULL;
     r->rss_start = r->rss_end = NAN;
     r->hb_capture.name = "capture";
     r->hb_record.name = "recorder";
