@@ -32,10 +32,9 @@
  * the mailbox is dropped (counted), the recorder writes what it holds and
  * closes the take, the stream gets its end packet and is closed. Exit 0.
  *
- * Memory: slots, keys, packet buffer, model arena and latency samples are
- * allocated before the trigger is armed; the per-set path does not allocate,
- * except budget_prune's sort scratch (firmware/gaussians/interp), one block
- * per key.
+ * Memory: slots, keys, packet buffer, model arena, budget scratch and latency
+ * samples are allocated before the trigger is armed; the per-set path does
+ * not allocate.
  *
  * Latency: trigger time to the key's packet handed to the sink, i.e. (rig
  * clock at on_set - trigger time) + wall time from on_set to the sink. With
@@ -52,6 +51,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -75,6 +75,10 @@
 #endif
 
 #define RUN_KEYS 3
+/* Inference (its thread and the kernel pool's) runs this much nicer than
+ * capture, recorder and stream: on a 2-core box the model would otherwise
+ * starve the capture thread and frames arrive late. */
+#define RUN_INFER_NICE 5
 #define RUN_LAT_MAX (1u << 16) /* latency samples kept (the last ones) */
 
 typedef _Atomic uint64_t counter;
@@ -318,6 +322,46 @@ static void *record_main(void *arg)
 }
 
 /* ---- inference thread ---- */
+
+/* Lowers the calling thread's priority (Linux: PRIO_PROCESS with 0 is the
+ * calling thread; threads it creates inherit the value). Raising nice needs
+ * no privilege; failure only leaves the priority as it was. */
+static void nicer(void)
+{
+    errno = 0;
+    int cur = getpriority(PRIO_PROCESS, 0);
+    if (errno == 0)
+        (void)setpriority(PRIO_PROCESS, 0, cur + RUN_INFER_NICE);
+}
+
+/* Builds the inference stage on its own thread at the lowered priority, so
+ * the kernel pool's threads (created with the context) inherit it. */
+struct infer_setup {
+    struct run_infer *st;
+    const struct run_infer_config *cfg;
+    const struct hal_board *board;
+    struct f4d_err *err;
+    int rc;
+};
+
+static void *infer_setup_main(void *arg)
+{
+    struct infer_setup *s = arg;
+    nicer();
+    s->rc = run_infer_model_new(s->st, s->cfg, s->board, s->err);
+    return NULL;
+}
+
+static int infer_new_nicer(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
+                           struct f4d_err *err)
+{
+    struct infer_setup s = {st, cfg, board, err, 0};
+    pthread_t th;
+    if (pthread_create(&th, NULL, infer_setup_main, &s) != 0)
+        return run_infer_model_new(st, cfg, board, err);
+    pthread_join(th, NULL);
+    return s.rc;
+}
 static struct run_key *key_buffer(struct run *r)
 {
     for (;;) {
@@ -336,6 +380,7 @@ static struct run_key *key_buffer(struct run *r)
 static void *infer_main(void *arg)
 {
     struct run *r = arg;
+    nicer();
     void *it;
     while (run_fifo_pop(&r->infer_box, &it) == 1) {
         struct run_slot *s = it;
@@ -617,19 +662,23 @@ static int run_threads(struct run *r, struct f4d_capture_stats *st, struct f4d_e
     pthread_sigmask(SIG_BLOCK, &block, &old); /* signals go to the capture thread */
     r->t0 = mono_ns();
     atomic_store(&r->capturing, 1);
-    pthread_create(&th_stat, NULL, status_main, r);
-    if (rec)
-        pthread_create(&th_rec, NULL, record_main, r);
-    if (r->have_infer) {
-        pthread_create(&th_inf, NULL, infer_main, r);
-        pthread_create(&th_str, NULL, stream_main, r);
-    }
+    bool ok_stat = pthread_create(&th_stat, NULL, status_main, r) == 0;
+    bool ok_rec = rec && pthread_create(&th_rec, NULL, record_main, r) == 0;
+    bool ok_inf = r->have_infer && pthread_create(&th_inf, NULL, infer_main, r) == 0;
+    bool ok_str = ok_inf && pthread_create(&th_str, NULL, stream_main, r) == 0;
     pthread_sigmask(SIG_SETMASK, &old, NULL);
 
+    int rc;
     struct f4d_capture_config cfg = {0};
     cfg.on_ready = on_ready;
-    int rc = f4d_capture_run(r->rig, &cfg, on_set, on_progress, r, r->stop, st, err);
-    on_progress(r, st, 0);
+    if (!ok_stat || ok_rec != rec || ok_inf != r->have_infer || ok_str != ok_inf) {
+        rc = f4d_fail(err, F4D_ENOMEM, "cannot start the stage threads");
+        if (ok_inf && !ok_str)
+            run_fifo_close(&r->key_q); /* nothing will drain it */
+    } else {
+        rc = f4d_capture_run(r->rig, &cfg, on_set, on_progress, r, r->stop, st, err);
+        on_progress(r, st, 0);
+    }
     atomic_store(&r->capturing, 0);
 
     /* stop: the set waiting for inference is dropped, the key in flight finishes */
@@ -640,15 +689,16 @@ static int run_threads(struct run *r, struct f4d_capture_stats *st, struct f4d_e
     }
     run_fifo_close(&r->infer_box);
     run_fifo_close(&r->rec_q);
-    if (r->have_infer) {
+    if (ok_inf)
         pthread_join(th_inf, NULL); /* closes key_q */
+    if (ok_str)
         pthread_join(th_str, NULL);
-    }
-    if (rec)
+    if (ok_rec)
         pthread_join(th_rec, NULL);
     r->t_end = mono_ns();
     atomic_store(&r->done, 1);
-    pthread_join(th_stat, NULL);
+    if (ok_stat)
+        pthread_join(th_stat, NULL);
     return rc;
 }
 
@@ -729,7 +779,7 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         const char *env = getenv("F4D_RUN_TEST_INFER_DELAY_MS");
         struct run_infer_config ic = {cfg.weights, FK_W_F32, cfg.threads, env ? (uint32_t)strtoul(env, NULL, 10) : 0};
         ic.wtype = !strcmp(cfg.precision, "f16") ? FK_W_F16 : !strcmp(cfg.precision, "int8") ? FK_W_Q8 : FK_W_F32;
-        if (run_infer_model_new(&r->infer, &ic, &board, &err) < 0 ||
+        if (infer_new_nicer(&r->infer, &ic, &board, &err) < 0 ||
             run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, &err) < 0)
             goto out;
         r->have_infer = true;

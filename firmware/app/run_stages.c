@@ -1,7 +1,6 @@
 /* run_stages.c: the stages `forge4d run` plugs into its threads
  * (run_internal.h): inference on the model, the stream codec, a file sink.
- * Everything is allocated at _new; key / write allocate nothing (the scene
- * budget's sort scratch aside: budget_prune, see the report in run.c). */
+ * Everything is allocated at _new; key / write allocate nothing. */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -30,6 +29,8 @@ struct infer_model {
     void *scratch;
     size_t scratch_bytes;
     float *input;
+    void *budget_scratch;
+    size_t budget_bytes;
     struct budget_config budget;
     uint32_t delay_ms;
 };
@@ -43,6 +44,7 @@ static void infer_free(void *self)
     fk_ctx_free(im->ctx);
     free(im->scratch);
     free(im->input);
+    free(im->budget_scratch);
     free(im);
 }
 
@@ -104,7 +106,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
                             o.gaussians.rot, o.gaussians.opacity, o.gaussians.rgb, NULL, NULL};
     struct splat_rig rig;
     rig_from_outputs(&o, &rig);
-    if ((rc = budget_prune(&g, &rig, &im->budget, &k->f, NULL, err)) < 0)
+    if ((rc = budget_prune_ws(&g, &rig, &im->budget, im->budget_scratch, im->budget_bytes, &k->f, NULL, err)) < 0)
         return rc;
     if (im->delay_ms) { /* test knob: a slow stage, end to end */
         struct timespec d = {im->delay_ms / 1000, (long)(im->delay_ms % 1000) * 1000000L};
@@ -176,6 +178,11 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
         goto fail;
     st->warm_ms = (double)(mono_ns() - t0) * 1e-6;
     st->capacity = o.gaussians.count;
+    im->budget_bytes = budget_scratch_bytes(o.gaussians.count);
+    if (!(im->budget_scratch = malloc(im->budget_bytes))) {
+        rc = f4d_fail(err, F4D_ENOMEM, "inference: out of memory");
+        goto fail;
+    }
     st->self = im;
     st->key = infer_key;
     st->free = infer_free;
