@@ -1,7 +1,7 @@
 /* run.c: `forge4d run`, the appliance daemon.
  *
  *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] [--record DIR]
- *               [--seconds S] [--stats-json FILE] [--precision f32|f16|int8]
+ *               [--seconds S] [--keys N] [--stats-json FILE] [--precision f32|f16|int8]
  *               [--quality low|medium|high] [--threads N] [--stall-ms MS]
  *               [--config FILE | --no-config] [--quiet]
  *
@@ -27,7 +27,7 @@
  *   status (once a second: the status line on stderr, the stall watchdog,
  *           cameras without frames, --seconds)
  *
- * Stop (SIGINT / SIGTERM, --seconds, the end of a replayed take): capture
+ * Stop (SIGINT / SIGTERM, --seconds, --keys, the end of a replayed take): capture
  * stops, the key being inferred finishes and is streamed, the set waiting in
  * the mailbox is dropped (counted), the recorder writes what it holds and
  * closes the take, the stream gets its end packet and is closed. Exit 0.
@@ -390,12 +390,13 @@ static void *infer_main(void *arg)
         int rc = r->infer.key(r->infer.self, &s->set, k, &err);
         k->arrive_wall_ns = s->arrive_wall_ns;
         k->delivery_ns = s->delivery_ns;
-        slot_release(r, s);
+        uint64_t seq = s->set.seq;
+        slot_release(r, s); /* capture may reuse it from here */
         hb_idle(&r->hb_infer);
         if (rc < 0) {
             uint64_t n = atomic_fetch_add(&r->infer_errors, 1);
             if (n < 3 || n % 100 == 0)
-                say(r, "key from set %llu failed (%llu so far): %s", (unsigned long long)s->set.seq,
+                say(r, "key from set %llu failed (%llu so far): %s", (unsigned long long)seq,
                     (unsigned long long)n + 1, err.msg);
             run_fifo_try_push(&r->free_keys, k);
             continue;
@@ -455,7 +456,8 @@ static void *stream_main(void *arg)
             double ms = (double)(k->delivery_ns + (now - k->arrive_wall_ns)) * 1e-6;
             uint64_t i = atomic_fetch_add(&r->lat_n, 1);
             r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
-            atomic_fetch_add(&r->keys, 1);
+            if (atomic_fetch_add(&r->keys, 1) + 1 == r->cfg->keys)
+                *r->stop = 1; /* --keys: enough streamed */
         }
         run_fifo_try_push(&r->free_keys, k);
         hb_idle(&r->hb_stream);
@@ -538,18 +540,22 @@ static void *status_main(void *arg)
         if (now >= next) {
             status_tick(r, now, &prev_sets, &prev_keys, &prev_bytes, &prev_t);
             next += 1000000000u;
-            if (atomic_load(&r->capturing)) /* the end: the last sample while every stage runs */
-                r->rss_end = rss_mb();
-            /* RSS at start: once every buffer was touched: the capture buffers
-             * (pending_max + spares per camera, first written as they cycle),
-             * the slots, and the arena, codec and sink by the first key */
-            bool warm = atomic_load(&r->sets_captured) >= r->board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS &&
-                        (!r->have_infer || atomic_load(&r->keys) > 0);
-            if (!r->rss_warm && (warm || isnan(r->rss_start)) &&
-                (atomic_load(&r->keys) > 0 || (!r->have_infer && atomic_load(&r->sets_captured) > 0))) {
-                r->rss_start = rss_mb(); /* a short run keeps its first sample */
-                r->rss_warm = warm;
-            }
+        }
+        /* RSS every 50 ms (a read of /proc, no allocation). The end: the last
+         * sample taken while capture still ran (it frees its buffers when it
+         * stops). The start: once every buffer was touched: the capture
+         * buffers (pending_max + spares per camera, first written as they
+         * cycle), the slots, and arena, codec and sink by the first key; a
+         * run too short for that keeps its first sample after the first key. */
+        double rss = rss_mb();
+        if (atomic_load(&r->capturing))
+            r->rss_end = rss;
+        bool warm = atomic_load(&r->sets_captured) >= r->board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS &&
+                    (!r->have_infer || atomic_load(&r->keys) > 0);
+        if (!r->rss_warm && (warm || isnan(r->rss_start)) &&
+            (atomic_load(&r->keys) > 0 || (!r->have_infer && atomic_load(&r->sets_captured) > 0))) {
+            r->rss_start = rss;
+            r->rss_warm = warm;
         }
     }
     if (!r->cfg->quiet && r->tty)
@@ -608,7 +614,7 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
 static int usage(void)
 {
     fprintf(stderr, "usage: forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream file:PATH]\n"
-                    "                   [--record DIR] [--seconds S] [--stats-json FILE]\n"
+                    "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE]\n"
                     "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
                     "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
                     "  settings absent from the command line come from the config file (default "

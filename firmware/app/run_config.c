@@ -71,6 +71,8 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
         c->threads = (int)t;
         return rc;
     }
+    if (!strcmp(key, "keys"))
+        return set_uint(&c->keys, key, v, 0, 1000000000, err);
     if (!strcmp(key, "stall_ms"))
         return set_uint(&c->stall_ms, key, v, 100, 3600000, err);
     if (!strcmp(key, "intra_every"))

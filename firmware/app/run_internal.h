@@ -107,6 +107,7 @@ struct run_config {
     char board[512], replay[512], weights[512], stream[512], record[512], stats_json[512];
     char precision[16], quality[16];
     double seconds;            /* 0: until SIGINT / SIGTERM */
+    uint32_t keys;             /* stop after this many keys were streamed (0: no limit) */
     int threads;
     uint32_t stall_ms;         /* watchdog: a stage busy this long on one item is reported */
     uint32_t intra_every;      /* keys between forced intra keys */

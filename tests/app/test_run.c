@@ -2,7 +2,7 @@
  *
  *   test_run FORGE4D F4D_CODEC WEIGHTS.gguf [--case NAME]...
  *
- * sim_short:   the sim board (walk scene) for a few seconds with a tiny
+ * sim_short:   the sim board (walk scene) for 3 keys (--keys) with a tiny
  *              random-weight Forge4D model: the stats JSON has exactly the
  *              issue's keys, key_frames > 0, the take verifies and closed
  *              cleanly, the stream file decodes key for key.
@@ -27,6 +27,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -147,7 +148,7 @@ static void sim_short(void **state)
     (void)state;
     char out[4096], path[512];
     int rc = sh(out, sizeof out,
-                "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --seconds 4 "
+                "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --keys 3 "
                 "--record %s/take --stream file:%s/s.f4ds --stats-json %s/stats.json 2>&1",
                 forge4d, F4D_BOARD_DIR, weights, tmp, tmp, tmp);
     if (rc != 0)
@@ -155,7 +156,7 @@ static void sim_short(void **state)
     snprintf(path, sizeof path, "%s/stats.json", tmp);
     cJSON *st = check_stats(path);
     double keys = num(st, "key_frames"), sets = num(st, "sets_captured");
-    assert_true(keys > 0);
+    assert_true(keys >= 3 && keys <= 4); /* --keys 3, plus at most the key in flight */
     assert_true(sets >= keys);
     assert_true(num(st, "key_hz") > 0);
     assert_true(num(st, "latency_ms_p50") > 0 && num(st, "latency_ms_p95") >= num(st, "latency_ms_p50"));
@@ -209,7 +210,18 @@ static void sigterm(void **state)
     char *argv[] = {(char *)forge4d, "run", "--no-config", "--board", board, "--weights", (char *)weights,
                     "--record", take, "--stream", stream, "--stats-json", stats, NULL};
     pid_t pid = spawn(argv, log, NULL);
-    sleep_ms(4000);
+    /* mid-run: once a key is in the stream (header packet + an intra key) */
+    char sp[300];
+    snprintf(sp, sizeof sp, "%s/term.f4ds", tmp);
+    for (int i = 0; i < 1200; i++) {
+        struct stat sb;
+        if (stat(sp, &sb) == 0 && sb.st_size > 224)
+            break;
+        if (waitpid(pid, NULL, WNOHANG) == pid)
+            fail_msg("forge4d run exited before SIGTERM; see %s", log);
+        sleep_ms(100);
+    }
+    sleep_ms(1000);
     kill(pid, SIGTERM);
     assert_int_equal(wait_exit(pid), 0);
     cJSON *st = check_stats(stats);
@@ -253,7 +265,7 @@ static void config(void **state)
     snprintf(path, sizeof path, "%s/forge4d.conf", tmp);
     FILE *f = fopen(path, "w");
     assert_non_null(f);
-    fprintf(f, "# the appliance's settings\nboard = %s/sim-4cam.json\nweights=%s\nseconds = 2\n"
+    fprintf(f, "# the appliance's settings\nboard = %s/sim-4cam.json\nweights=%s\nkeys = 2\n"
                "stats_json = %s/conf.json   # at exit\nprecision = int8\n",
             F4D_BOARD_DIR, weights, tmp);
     fclose(f);
@@ -356,12 +368,14 @@ static void load_faults(void **state)
     sh(out, sizeof out, "cat %s", log);
     cJSON *st = check_stats(stats);
     double sets = num(st, "sets_captured"), keys = num(st, "key_frames");
-    /* capture keeps up with the 30 Hz trigger (less the missing pulses) */
-    if (sets < 0.9 * 30.0 * seconds)
+    /* capture ran the whole time (a floor, not a speed goal: a loaded or
+     * sanitized build delivers fewer of the 30 Hz sets, late frames counted) */
+    if (sets < 0.3 * 30.0 * seconds)
         fail_msg("%g sets in %d s at 30 Hz:\n%s", sets, seconds, out);
-    /* recording never drops: every set captured is in the take */
-    if (!strstr(out, "(0 left out)"))
-        fail_msg("sets left out of the take:\n%s", out);
+    /* capture kept every set the synchronizer delivered, and recording never
+     * dropped one: every set captured is in the take */
+    if (!strstr(out, "lost for want of a slot 0;") || !strstr(out, "(0 left out)"))
+        fail_msg("sets lost by the daemon:\n%s", out);
     assert_true(verify_take(take) == sets);
     /* the slow stage skipped sets, counted; the synchronizer counted the faults */
     assert_true(num(st, "sets_skipped_by_inference") > 0);
