@@ -9,7 +9,7 @@
  *
  *   capture (main thread: rig -> synchronizer -> on_set copies the set into a
  *   |        preallocated slot; it never waits on anything downstream)
- *   |-- rec_q (FIFO, at most rec_cap slots, about 1 s of sets): recorder thread
+ *   |-- rec_q (FIFO, at most rec_cap slots, about 2 s of sets): recorder thread
  *   |     appends every set to the take. Never drops while it keeps up; when
  *   |     the disk falls behind by a whole queue, the set is left out of the
  *   |     take and counted (record_overflow) rather than stalling capture.
@@ -810,9 +810,10 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         fprintf(stderr, "[forge4d run] no weights: capture%s only, no inference or stream\n",
                 r->take_dir ? " and recording" : "");
     }
-    /* about one second of sets for the recorder, three for inference */
-    uint32_t rate = (board.trigger.rate_mhz + 999) / 1000;
-    r->rec_cap = r->take_dir ? (rate < 8 ? 8 : rate > 32 ? 32 : rate) : 0;
+    /* about two seconds of sets for the recorder (a disk's fdatasync on a
+     * busy machine can take a second), three for inference */
+    uint32_t rate2 = 2 * ((board.trigger.rate_mhz + 999) / 1000);
+    r->rec_cap = r->take_dir ? (rate2 < 8 ? 8 : rate2 > 64 ? 64 : rate2) : 0;
     r->n_slots = r->rec_cap + 3;
     r->slots = calloc(r->n_slots, sizeof *r->slots);
     if (!r->slots || run_fifo_init(&r->free_slots, r->n_slots, &err) < 0 ||

@@ -213,13 +213,18 @@ static void sigterm(void **state)
     /* mid-run: once a key is in the stream (header packet + an intra key) */
     char sp[300];
     snprintf(sp, sizeof sp, "%s/term.f4ds", tmp);
-    for (int i = 0; i < 1200; i++) {
+    bool keyed = false;
+    for (int i = 0; i < 3000 && !keyed; i++) {
         struct stat sb;
-        if (stat(sp, &sb) == 0 && sb.st_size > 224)
-            break;
+        keyed = stat(sp, &sb) == 0 && sb.st_size > 224;
         if (waitpid(pid, NULL, WNOHANG) == pid)
             fail_msg("forge4d run exited before SIGTERM; see %s", log);
         sleep_ms(100);
+    }
+    if (!keyed) {
+        kill(pid, SIGKILL);
+        waitpid(pid, NULL, 0);
+        fail_msg("no key in the stream after 300 s; see %s", log);
     }
     sleep_ms(1000);
     kill(pid, SIGTERM);
@@ -373,10 +378,23 @@ static void load_faults(void **state)
     if (sets < 0.3 * 30.0 * seconds)
         fail_msg("%g sets in %d s at 30 Hz:\n%s", sets, seconds, out);
     /* capture kept every set the synchronizer delivered, and recording never
-     * dropped one: every set captured is in the take */
-    if (!strstr(out, "lost for want of a slot 0;") || !strstr(out, "(0 left out)"))
-        fail_msg("sets lost by the daemon:\n%s", out);
-    assert_true(verify_take(take) == sets);
+     * dropped one: every set captured is in the take. A sanitized build
+     * (F4D_RUN_LOAD_STRICT=0) is too slow to record 30 sets/s: there every
+     * set must be accounted for (in the take, or counted as left out). */
+    const char *strict = getenv("F4D_RUN_LOAD_STRICT");
+    double taken = -1, left_out = -1;
+    const char *tk = strstr(out, "; take ");
+    if (!tk || sscanf(tk, "; take %lf sets (%lf left out)", &taken, &left_out) != 2)
+        fail_msg("summary without the take's counts:\n%s", out);
+    double in_take = verify_take(take);
+    assert_true(in_take == taken);
+    if (!strict || strcmp(strict, "0")) {
+        if (!strstr(out, "lost for want of a slot 0;") || !strstr(out, "(0 left out)"))
+            fail_msg("sets lost by the daemon: %s", strstr(out, "[forge4d run] done in"));
+        assert_true(in_take == sets);
+    } else if (in_take + left_out != sets) {
+        fail_msg("take %g sets + %g left out != %g captured:\n%s", in_take, left_out, sets, out);
+    }
     /* the slow stage skipped sets, counted; the synchronizer counted the faults */
     assert_true(num(st, "sets_skipped_by_inference") > 0);
     assert_true(keys > 0 && keys + num(st, "sets_skipped_by_inference") <= sets);
