@@ -22,7 +22,8 @@
  *   |     inference takes back the oldest queued key (counted, keys_dropped):
  *   |     the encoder predicts from its own reconstruction, so a missing key
  *   |     costs bits, never a broken stream.
- *   stream (encoder -> sink: file:PATH now, srt:// later); a forced intra key
+ *   stream (encoder -> sink: srt://HOST:PORT?... or file:PATH through the
+ *          transport; SRT's send blocking only holds this thread); a forced intra key
  *          every intra_every keys lets a receiver join.
  *   status (once a second: the status line on stderr, the stall watchdog,
  *           cameras without frames, --seconds)
@@ -790,7 +791,7 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             goto out;
         r->have_infer = true;
         if (cfg.stream[0]) {
-            if (run_sink_open(&r->sink, cfg.stream, &err) < 0)
+            if (run_sink_open(&r->sink, cfg.stream, r->enc.packet_cap, &err) < 0)
                 goto out;
             r->have_sink = true;
         }

@@ -93,14 +93,16 @@ struct run_encoder {
 };
 int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, struct f4d_err *err);
 
-/* ---- stage: packets -> somewhere (file now, SRT later) ---- */
+/* ---- stage: packets -> the stream transport (srt://, file:) ---- */
 struct run_sink {
     void *self;
     int (*write)(void *self, const uint8_t *pkt, size_t len, struct f4d_err *err);
     int (*close)(void *self, struct f4d_err *err); /* frees self, also on error */
 };
-/* "file:PATH" (or a plain path). Other schemes: F4D_ENOTSUP naming them. */
-int run_sink_open(struct run_sink *st, const char *url, struct f4d_err *err);
+/* "srt://HOST:PORT?..." or "file:PATH" through f4d_transport (a plain path
+ * is a file); max_packet: the largest packet that will be written. Other
+ * schemes: F4D_ENOTSUP naming them. */
+int run_sink_open(struct run_sink *st, const char *url, size_t max_packet, struct f4d_err *err);
 
 /* ---- configuration: command line over the config file over defaults ---- */
 struct run_config {

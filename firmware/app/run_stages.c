@@ -8,6 +8,9 @@
 #include <time.h>
 
 #include "f4d_codec.h"
+#ifdef F4D_RUN_HAVE_TRANSPORT
+#include "f4d_transport.h"
+#endif
 #include "fk_ctx.h"
 #include "interp.h"
 #include "model.h"
@@ -241,8 +244,8 @@ int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *q
     return 0;
 }
 
-/* ---- sink: a stream file (packets back to back, flushed per packet so a
- * reader can follow it) ---- */
+/* ---- sink without the transport: a stream file (packets back to back,
+ * flushed per packet so a reader can follow it) ---- */
 struct file_sink {
     FILE *f;
     char path[512];
@@ -264,15 +267,49 @@ static int file_close(void *self, struct f4d_err *err)
     return rc;
 }
 
-int run_sink_open(struct run_sink *st, const char *url, struct f4d_err *err)
+#ifdef F4D_RUN_HAVE_TRANSPORT
+/* ---- sink: the stream transport (srt://..., file:PATH) ---- */
+static int tx_write(void *self, const uint8_t *pkt, size_t len, struct f4d_err *err)
+{
+    transport_tx *tx = self;
+    int rc = transport_tx_send(tx, pkt, len);
+    return rc < 0 ? f4d_fail(err, rc, "stream: %s", transport_tx_error(tx)) : 0;
+}
+
+static int tx_close(void *self, struct f4d_err *err)
+{
+    (void)err;
+    transport_tx_close(self, 2000); /* drains what SRT still holds */
+    return 0;
+}
+#endif
+
+int run_sink_open(struct run_sink *st, const char *url, size_t max_packet, struct f4d_err *err)
 {
     memset(st, 0, sizeof *st);
     const char *path = url;
+#ifdef F4D_RUN_HAVE_TRANSPORT
+    if (!strncmp(url, "srt://", 6) || !strncmp(url, "file:", 5)) {
+        transport_tx *tx;
+        struct transport_opts o = {.max_packet = max_packet};
+        int rc = transport_tx_open(url, &o, &tx, err);
+        if (rc < 0)
+            return rc;
+        st->self = tx;
+        st->write = tx_write;
+        st->close = tx_close;
+        return 0;
+    }
+    if (strstr(url, "://"))
+        return f4d_fail(err, F4D_ENOTSUP, "stream %s: srt://HOST:PORT or file:PATH", url);
+#else
+    (void)max_packet;
     if (!strncmp(url, "file:", 5))
         path = url + 5;
     else if (strstr(url, "://"))
-        return f4d_fail(err, F4D_ENOTSUP, "stream %s: only file:PATH is built in (srt:// comes with the transport)",
+        return f4d_fail(err, F4D_ENOTSUP, "stream %s: only file:PATH is built in (built without the SRT transport)",
                         url);
+#endif
     if (!*path || strlen(path) >= sizeof ((struct file_sink *)0)->path)
         return f4d_fail(err, F4D_EINVAL, "stream %s: bad file path", url);
     struct file_sink *s = calloc(1, sizeof *s);

@@ -1,6 +1,6 @@
 /* test_run.c: `forge4d run`, the appliance daemon, end to end.
  *
- *   test_run FORGE4D F4D_CODEC WEIGHTS.gguf [--case NAME]...
+ *   test_run FORGE4D F4D_CODEC WEIGHTS.gguf F4D_STREAM|"" [--case NAME]...
  *
  * sim_short:   the sim board (walk scene) for 3 keys (--keys) with a tiny
  *              random-weight Forge4D model: the stats JSON has exactly the
@@ -9,6 +9,8 @@
  * sigterm:     SIGTERM mid-run on the faulty board: exit 0, a closed take,
  *              a stream with its end packet.
  * replay:      the daemon fed from a recorded take.
+ * srt:         the stream over SRT on loopback to `f4d-stream recv`, which
+ *              gets every key (skipped when built without the transport).
  * config:      settings from a config file; bad keys, bad values, --stream
  *              without weights and an unknown stream scheme are refused.
  * load_faults: (ctest label "load", ~90 s) the faulty board, every fault on,
@@ -34,7 +36,7 @@
 
 extern char **environ;
 
-static const char *forge4d, *codec, *weights;
+static const char *forge4d, *codec, *weights, *streamtool;
 static char tmp[256];
 
 /* Runs a shell command; returns its exit status, stdout in out (if given). */
@@ -263,6 +265,47 @@ static void replay(void **state)
     cJSON_Delete(st);
 }
 
+static void srt(void **state)
+{
+    (void)state;
+    if (!streamtool[0] || access(streamtool, X_OK) != 0)
+        f4d_skip("built without the SRT transport (no f4d-stream)");
+    char out[4096], path[512];
+    int port = 21000 + (int)(getpid() % 20000);
+    /* the receiver listens; the daemon calls it */
+    int rc = sh(NULL, 0, "%s recv 'srt://:%d?mode=listener' -o %s/srt_rx.f4ds --timeout 300000 --quiet "
+                "> %s/srt_rx.json 2> %s/srt_rx.log & echo $! > %s/srt_rx.pid",
+                streamtool, port, tmp, tmp, tmp, tmp);
+    assert_int_equal(rc, 0);
+    sleep_ms(500);
+    rc = sh(out, sizeof out,
+            "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --keys 3 "
+            "--stream 'srt://127.0.0.1:%d?timeout=10000' --stats-json %s/srt.json 2>&1",
+            forge4d, F4D_BOARD_DIR, weights, port, tmp);
+    char pidbuf[32];
+    sh(pidbuf, sizeof pidbuf, "cat %s/srt_rx.pid", tmp);
+    pid_t rx = (pid_t)atoi(pidbuf);
+    if (rc != 0) {
+        kill(rx, SIGTERM);
+        fail_msg("forge4d run --stream srt://: exit %d: %s", rc, out);
+    }
+    /* the receiver ends at the end-of-stream packet */
+    bool gone = false;
+    for (int i = 0; i < 300 && !gone; i++) {
+        gone = kill(rx, 0) != 0;
+        sleep_ms(100);
+    }
+    if (!gone) {
+        kill(rx, SIGTERM);
+        fail_msg("f4d-stream recv did not end after the stream's end packet");
+    }
+    snprintf(path, sizeof path, "%s/srt.json", tmp);
+    cJSON *st = check_stats(path);
+    snprintf(path, sizeof path, "%s/srt_rx.f4ds", tmp);
+    assert_int_equal(decode_stream(path, "dec_srt"), (int)num(st, "key_frames"));
+    cJSON_Delete(st);
+}
+
 static void config(void **state)
 {
     (void)state;
@@ -302,7 +345,8 @@ static void config(void **state)
     rc = sh(out, sizeof out, "%s run --no-config --board %s/sim-4cam.json --weights %s --stream udp://x 2>&1",
             forge4d, F4D_BOARD_DIR, weights);
     assert_int_not_equal(rc, 0);
-    assert_non_null(strstr(out, "only file:PATH is built in"));
+    assert_non_null(strstr(out, "udp://x"));
+    assert_non_null(strstr(out, "file:PATH"));
     rc = sh(out, sizeof out, "%s run --config %s/does-not-exist.conf 2>&1", forge4d, tmp);
     assert_int_not_equal(rc, 0);
     assert_non_null(strstr(out, "does-not-exist.conf"));
@@ -429,17 +473,18 @@ static int teardown(void **state)
 int main(int argc, char **argv)
 {
     argc = f4d_test_parse(argc, argv);
-    if (argc != 4) {
-        fprintf(stderr, "usage: test_run FORGE4D F4D_CODEC WEIGHTS.gguf [--case NAME]...\n");
+    if (argc != 5) {
+        fprintf(stderr, "usage: test_run FORGE4D F4D_CODEC WEIGHTS.gguf F4D_STREAM|\"\" [--case NAME]...\n");
         return 2;
     }
     forge4d = argv[1];
     codec = argv[2];
     weights = argv[3];
+    streamtool = argv[4];
     signal(SIGPIPE, SIG_IGN);
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(sim_short), cmocka_unit_test(sigterm), cmocka_unit_test(replay),
-        cmocka_unit_test(config),    cmocka_unit_test(load_faults),
+        cmocka_unit_test(sim_short), cmocka_unit_test(sigterm),     cmocka_unit_test(replay),
+        cmocka_unit_test(srt),       cmocka_unit_test(config),      cmocka_unit_test(load_faults),
     };
     return F4D_TEST_MAIN(argc, argv, "app/run", tests, setup, teardown);
 }
