@@ -388,9 +388,9 @@ static void *infer_main(void *arg)
         struct run_key *k = key_buffer(r);
         struct f4d_err err = {0};
         hb_busy(&r->hb_infer);
-        int rc = r->infer.key(r->infer.self, &s->set, k, &err);
         k->arrive_wall_ns = s->arrive_wall_ns;
         k->delivery_ns = s->delivery_ns;
+        int rc = r->infer.key(r->infer.self, &s->set, k, &err);
         uint64_t seq = s->set.seq;
         slot_release(r, s); /* capture may reuse it from here */
         hb_idle(&r->hb_infer);
@@ -402,8 +402,20 @@ static void *infer_main(void *arg)
             run_fifo_try_push(&r->free_keys, k);
             continue;
         }
+        if (rc == 0) { /* the stage holds this set's key until the next set (its forward motion) */
+            run_fifo_try_push(&r->free_keys, k);
+            continue;
+        }
         atomic_store(&r->key_us_last, (uint64_t)(k->infer_ms * 1000.0));
         run_fifo_try_push(&r->key_q, k); /* RUN_KEYS buffers, RUN_KEYS places: always fits */
+    }
+    if (r->infer.flush) { /* the key the stage still holds (no forward motion) */
+        struct run_key *k = key_buffer(r);
+        struct f4d_err err = {0};
+        int rc = r->infer.flush(r->infer.self, k, &err);
+        if (rc < 0)
+            say(r, "last key failed: %s", err.msg);
+        run_fifo_try_push(rc == 1 ? &r->key_q : &r->free_keys, k);
     }
     run_fifo_close(&r->key_q);
     return NULL;
@@ -784,7 +796,8 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
 
     if (cfg.weights[0]) {
         const char *env = getenv("F4D_RUN_TEST_INFER_DELAY_MS");
-        struct run_infer_config ic = {cfg.weights, FK_W_F32, cfg.threads, env ? (uint32_t)strtoul(env, NULL, 10) : 0};
+        struct run_infer_config ic = {.weights = cfg.weights, .wtype = FK_W_F32, .threads = cfg.threads,
+                                      .delay_ms = env ? (uint32_t)strtoul(env, NULL, 10) : 0};
         ic.wtype = !strcmp(cfg.precision, "f16") ? FK_W_F16 : !strcmp(cfg.precision, "int8") ? FK_W_Q8 : FK_W_F32;
         if (infer_new_nicer(&r->infer, &ic, &board, &err) < 0 ||
             run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, &err) < 0)
@@ -801,12 +814,19 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             f4d_fail(&err, F4D_ENOMEM, "out of memory");
             goto out;
         }
-        for (int i = 0; i < RUN_KEYS; i++)
-            if (splat_frame_reserve(&r->kbuf[i].f, r->infer.capacity, 0, &err) < 0)
+        for (int i = 0; i < RUN_KEYS; i++) {
+            if (splat_frame_reserve(&r->kbuf[i].f, r->infer.capacity, r->infer.motion, &err) < 0)
                 goto out;
+            if (!(r->kbuf[i].match = malloc(r->infer.capacity * sizeof *r->kbuf[i].match))) {
+                f4d_fail(&err, F4D_ENOMEM, "out of memory");
+                goto out;
+            }
+        }
         if (!cfg.quiet)
-            fprintf(stderr, "[forge4d run] %s (%s): %zu Gaussians per key before the budget, one key %.0f ms at start\n",
-                    cfg.weights, cfg.precision, r->infer.capacity, r->infer.warm_ms);
+            fprintf(stderr, "[forge4d run] %s (%s): %zu Gaussians per key before the budget, one key %.0f ms at start; "
+                    "%s\n", cfg.weights, cfg.precision, r->infer.capacity, r->infer.warm_ms,
+                    r->infer.motion ? "motion M1/M2 encoded with the keys (a key leaves one set late)"
+                                    : "no motion in the weights (keys without motion)");
     } else if (!cfg.quiet) {
         fprintf(stderr, "[forge4d run] no weights: capture%s only, no inference or stream\n",
                 r->take_dir ? " and recording" : "");
@@ -904,8 +924,10 @@ cleanup:
         r->infer.free(r->infer.self);
     if (r->enc.free)
         r->enc.free(r->enc.self);
-    for (int i = 0; i < RUN_KEYS; i++)
+    for (int i = 0; i < RUN_KEYS; i++) {
         splat_frame_free(&r->kbuf[i].f);
+        free(r->kbuf[i].match);
+    }
     run_fifo_destroy(&r->free_slots);
     run_fifo_destroy(&r->rec_q);
     run_fifo_destroy(&r->infer_box);

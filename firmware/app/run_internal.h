@@ -21,6 +21,7 @@
 
 #include "f4d_status.h"
 #include "hal.h"
+#include "interp.h"
 #include "splat.h"
 
 /* ---- bounded FIFO of pointers (mutex + condvar; storage allocated once) ---- */
@@ -56,20 +57,29 @@ struct run_slot {
 
 /* ---- one key frame on its way to the encoder ---- */
 struct run_key {
-    struct splat_frame f;      /* metric Gaussians after the scene budget */
+    struct splat_frame f;      /* metric Gaussians after the scene budget (with motion when the weights have it) */
+    int32_t *match;            /* [capacity] codec match: index in key match_ref, -1 new (NULL: identity) */
+    uint64_t match_ref;        /* seq of the key match refers to (UINT64_MAX: none) */
     uint64_t seq, t_us;        /* trigger sequence and time */
     uint64_t arrive_wall_ns, delivery_ns;
     double infer_ms;           /* preprocessing + model + budget */
 };
 
 /* ---- stage: synchronized set -> metric Gaussians (one key) ----
- * Today: preprocess + model_eval (Gaussian head) + scene budget. Tomorrow: the
- * sequence API (state between keys, motions) behind the same table. */
+ * Preprocess + the Forge4D sequence (state between keys, motions M1 / M2,
+ * metric cameras) + scene budget (motion carried through it). With motion
+ * weights a key leaves one set late (its forward motion needs the next set).
+ * key: the caller sets out->arrive_wall_ns / delivery_ns for `set` first;
+ * returns 1 with a key in *out (all its fields set, possibly an older set's),
+ * 0 when none is ready yet, < 0 on error. flush (NULL: nothing held): the key
+ * still held at the end, same returns. */
 struct run_infer {
     void *self;
     size_t capacity;           /* most Gaussians one key can hold */
+    bool motion;               /* keys carry motion arrays */
     double warm_ms;            /* one key's time at start (warm-up eval) */
     int (*key)(void *self, const struct hal_set *set, struct run_key *out, struct f4d_err *err);
+    int (*flush)(void *self, struct run_key *out, struct f4d_err *err);
     void (*free)(void *self);
 };
 struct run_infer_config {
@@ -77,6 +87,7 @@ struct run_infer_config {
     int wtype;                 /* enum fk_wtype */
     int threads;               /* fk_ctx threads, 0 = all CPUs */
     uint32_t delay_ms;         /* test knob: added to every key (F4D_RUN_TEST_INFER_DELAY_MS) */
+    const struct budget_config *budget; /* NULL: budget_config_default() */
 };
 int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
                         struct f4d_err *err);

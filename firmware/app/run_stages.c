@@ -11,6 +11,7 @@
 #ifdef F4D_RUN_HAVE_TRANSPORT
 #include "f4d_transport.h"
 #endif
+#include "f4d_sequence.h"
 #include "fk_ctx.h"
 #include "interp.h"
 #include "model.h"
@@ -24,10 +25,15 @@ static uint64_t mono_ns(void)
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
-/* ---- inference: preprocess -> model (Gaussian head, metric) -> scene budget ---- */
-struct infer_model {
+/* ---- inference: preprocess -> Forge4D sequence (state, motions, metric
+ * cameras) -> scene budget ----
+ * With motion weights a key leaves one push late: key t-1 gets its forward
+ * motion M2[t-1] only when set t has run, and the codec predicts key t from
+ * key t-1 moved by that motion, so key t-1 must carry it when encoded. */
+struct infer_seq {
     fk_ctx *ctx;
     struct model *m;
+    f4d_sequence *sq;
     int S, T, H, W;
     void *scratch;
     size_t scratch_bytes;
@@ -35,55 +41,73 @@ struct infer_model {
     void *budget_scratch;
     size_t budget_bytes;
     struct budget_config budget;
+    uint32_t *origin;          /* [n] budget output -> pixel-aligned index */
+    int32_t *pix[2];           /* [n] pixel -> output index of the last two keys out (ping-pong) */
+    int cur;                   /* pix[cur]: the last key out */
+    bool have_prev;            /* pix[cur] and prev_seq are valid */
+    uint64_t prev_seq;
+    size_t n;                  /* views * H * W */
+    bool motion, held;         /* held: the newest key waits for its forward motion */
+    uint64_t held_seq, held_t_us, held_arrive, held_delivery;
+    double held_ms;
     uint32_t delay_ms;
 };
 
 static void infer_free(void *self)
 {
-    struct infer_model *im = self;
+    struct infer_seq *im = self;
     if (!im)
         return;
+    f4d_sequence_close(im->sq);
     model_free(im->m);
     fk_ctx_free(im->ctx);
     free(im->scratch);
     free(im->input);
     free(im->budget_scratch);
+    free(im->origin);
+    free(im->pix[0]);
+    free(im->pix[1]);
     free(im);
 }
 
-/* The model's cameras (metric when the scale head ran) as the budget's rig:
- * it prunes Gaussians no view sees and merges sub-pixel ones. */
-static void rig_from_outputs(const struct model_outputs *o, struct splat_rig *rig)
+/* Key `which` of the sequence through the budget into k, with the codec's
+ * match against the key out before it (same pixel origin). */
+static int infer_emit(struct infer_seq *im, int which, struct run_key *k, struct f4d_err *err)
 {
-    const float *ext = o->extrinsic_metric ? o->extrinsic_metric : o->extrinsic;
-    rig->count = o->S;
-    for (int s = 0; s < o->S; s++) {
-        struct splat_camera *c = &rig->cams[s];
-        memset(c, 0, sizeof *c);
-        snprintf(c->name, sizeof c->name, "view%d", s);
-        c->width = o->W;
-        c->height = o->H;
-        const float *K = o->intrinsic + 9 * s, *E = ext + 12 * s;
-        c->fx = K[0], c->fy = K[4], c->cx = K[2], c->cy = K[5];
-        memcpy(c->w2c, E, 12 * sizeof *E);
-        c->w2c[15] = 1.0f;
+    struct f4d_seq_key sk;
+    int rc = f4d_sequence_key(im->sq, which, &sk, err);
+    if (rc < 0)
+        return rc;
+    if ((rc = budget_prune_origin_ws(&sk.frame, &sk.rig, &im->budget, im->budget_scratch, im->budget_bytes, &k->f,
+                                     im->origin, NULL, err)) < 0)
+        return rc;
+    int32_t *prev = im->pix[im->cur], *next = im->pix[1 - im->cur];
+    for (size_t i = 0; i < im->n; i++)
+        next[i] = -1;
+    for (size_t j = 0; j < k->f.count; j++) {
+        uint32_t p = im->origin[j];
+        next[p] = (int32_t)j;
+        if (k->match)
+            k->match[j] = im->have_prev ? prev[p] : -1;
     }
+    k->match_ref = im->have_prev ? im->prev_seq : UINT64_MAX;
+    im->cur = 1 - im->cur;
+    im->have_prev = true;
+    return 0;
 }
 
-static int infer_eval(struct infer_model *im, int H, int W, struct model_outputs *o, struct f4d_err *err)
+static void infer_delay(const struct infer_seq *im)
 {
-    if (model_eval(im->m, im->input, im->S, H, W, o) < 0)
-        return f4d_fail(err, F4D_EINVAL, "inference: %s", model_error(im->m));
-    if (o->gaussians.count == 0 || !o->intrinsic || (!o->extrinsic && !o->extrinsic_metric))
-        return f4d_fail(err, F4D_EFORMAT,
-                        "inference: the weights give no Gaussians or no cameras (need Forge4D weights: "
-                        "gaussian_head and camera_head)");
-    return 0;
+    if (im->delay_ms) { /* test knob: a slow stage, end to end */
+        struct timespec d = {im->delay_ms / 1000, (long)(im->delay_ms % 1000) * 1000000L};
+        while (nanosleep(&d, &d) < 0 && errno == EINTR) {
+        }
+    }
 }
 
 static int infer_key(void *self, const struct hal_set *set, struct run_key *k, struct f4d_err *err)
 {
-    struct infer_model *im = self;
+    struct infer_seq *im = self;
     uint64_t t0 = mono_ns();
     struct prep_image ims[MODEL_VIEWS_MAX];
     for (int i = 0; i < im->S; i++) {
@@ -99,27 +123,63 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     int rc = prep_batch(ims, im->S, PREP_CROP, im->T, im->scratch, im->scratch_bytes, im->input, &H, &W, err);
     if (rc < 0)
         return rc;
-    if (H > im->H || W > im->W)
-        return f4d_fail(err, F4D_EINVAL, "inference: frames preprocess to %dx%d, planned for %dx%d", W, H, im->W,
-                        im->H);
-    struct model_outputs o;
-    if ((rc = infer_eval(im, H, W, &o, err)) < 0)
+    if (H != im->H || W != im->W)
+        return f4d_fail(err, F4D_EINVAL, "inference: frames preprocess to %dx%d, the sequence runs at %dx%d", W, H,
+                        im->W, im->H);
+    if ((rc = f4d_sequence_push(im->sq, im->input, err)) < 0) {
+        im->held = im->have_prev = false; /* the sequence restarted: no key to finish, no reference */
         return rc;
-    struct splat_frame g = {o.gaussians.count, o.gaussians.count, o.gaussians.pos, o.gaussians.scale,
-                            o.gaussians.rot, o.gaussians.opacity, o.gaussians.rgb, NULL, NULL};
-    struct splat_rig rig;
-    rig_from_outputs(&o, &rig);
-    if ((rc = budget_prune_ws(&g, &rig, &im->budget, im->budget_scratch, im->budget_bytes, &k->f, NULL, err)) < 0)
-        return rc;
-    if (im->delay_ms) { /* test knob: a slow stage, end to end */
-        struct timespec d = {im->delay_ms / 1000, (long)(im->delay_ms % 1000) * 1000000L};
-        while (nanosleep(&d, &d) < 0 && errno == EINTR) {
-        }
     }
-    k->seq = set->seq;
-    k->t_us = set->trigger_ts_ns / 1000u;
-    k->infer_ms = (double)(mono_ns() - t0) * 1e-6;
-    return 0;
+    infer_delay(im);
+    double ms = (double)(mono_ns() - t0) * 1e-6;
+    uint64_t seq = set->seq, t_us = set->trigger_ts_ns / 1000u, arrive = k->arrive_wall_ns,
+             delivery = k->delivery_ns;
+    if (!im->motion) {
+        if ((rc = infer_emit(im, 0, k, err)) < 0)
+            return rc;
+        k->seq = seq;
+        k->t_us = t_us;
+        k->infer_ms = (double)(mono_ns() - t0) * 1e-6;
+        return 1;
+    }
+    bool out = im->held && f4d_sequence_steps(im->sq) >= 2;
+    if (out) { /* key t-1, now with both motions, under its own set's times */
+        uint64_t b0 = mono_ns();
+        if ((rc = infer_emit(im, 1, k, err)) < 0) {
+            im->held = false;
+            return rc;
+        }
+        k->seq = im->held_seq;
+        k->t_us = im->held_t_us;
+        k->arrive_wall_ns = im->held_arrive;
+        k->delivery_ns = im->held_delivery;
+        k->infer_ms = im->held_ms + (double)(mono_ns() - b0) * 1e-6;
+    }
+    im->held = true;
+    im->held_seq = seq;
+    im->held_t_us = t_us;
+    im->held_arrive = arrive;
+    im->held_delivery = delivery;
+    im->held_ms = ms;
+    return out ? 1 : 0;
+}
+
+static int infer_flush(void *self, struct run_key *k, struct f4d_err *err)
+{
+    struct infer_seq *im = self;
+    if (!im->held)
+        return 0;
+    im->held = false;
+    uint64_t b0 = mono_ns();
+    int rc = infer_emit(im, 0, k, err); /* the newest key: no forward motion (zero) */
+    if (rc < 0)
+        return rc;
+    k->seq = im->held_seq;
+    k->t_us = im->held_t_us;
+    k->arrive_wall_ns = im->held_arrive;
+    k->delivery_ns = im->held_delivery;
+    k->infer_ms = im->held_ms + (double)(mono_ns() - b0) * 1e-6;
+    return 1;
 }
 
 int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
@@ -129,12 +189,12 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
     if (board->n_cams > MODEL_VIEWS_MAX)
         return f4d_fail(err, F4D_EINVAL, "inference: %u cameras, the model takes at most %d views", board->n_cams,
                         MODEL_VIEWS_MAX);
-    struct infer_model *im = calloc(1, sizeof *im);
+    struct infer_seq *im = calloc(1, sizeof *im);
     if (!im)
         return f4d_fail(err, F4D_ENOMEM, "inference: out of memory");
     im->S = (int)board->n_cams;
     im->delay_ms = cfg->delay_ms;
-    im->budget = budget_config_default();
+    im->budget = cfg->budget ? *cfg->budget : budget_config_default();
     int rc;
     if (fk_ctx_new(&(struct fk_ctx_config){.isa = FK_ISA_AUTO, .threads = cfg->threads}, &im->ctx) != F4D_OK) {
         rc = f4d_fail(err, F4D_ENOMEM, "inference: cannot create the kernel context");
@@ -156,8 +216,13 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
                           c->width, c->height, im->T);
             goto fail;
         }
-        im->H = oh > im->H ? oh : im->H;
-        im->W = ow > im->W ? ow : im->W;
+        if (i > 0 && (ow != im->W || oh != im->H)) {
+            rc = f4d_fail(err, F4D_ENOTSUP, "inference: camera %s preprocesses to %dx%d, camera %s to %dx%d; the "
+                          "sequence takes one size", c->id, ow, oh, board->cams[0].id, im->W, im->H);
+            goto fail;
+        }
+        im->H = oh;
+        im->W = ow;
         size_t sb = prep_scratch_bytes((int)c->width, (int)c->height, im->T);
         im->scratch_bytes = sb > im->scratch_bytes ? sb : im->scratch_bytes;
     }
@@ -167,27 +232,37 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
         rc = f4d_fail(err, F4D_ENOMEM, "inference: out of memory");
         goto fail;
     }
-    if (model_prepare(im->m, im->S, im->H, im->W) < 0) {
-        rc = f4d_fail(err, F4D_ENOMEM, "inference: %s", model_error(im->m));
+    if ((rc = f4d_sequence_open_model(im->m, im->S, im->H, im->W, &im->sq, err)) < 0)
         goto fail;
-    }
-    /* Warm-up on a grey set: checks the weights give Gaussians and cameras,
+    im->motion = f4d_sequence_has_motion(im->sq) != 0;
+    /* Warm-up on a grey set straight on the model (not a key: the state is
+     * reset after it): checks the weights give Gaussians and cameras,
      * touches the arena (flat RSS from here) and times one key. */
     for (size_t i = 0; i < (size_t)im->S * 3 * im->H * im->W; i++)
         im->input[i] = 0.5f;
     uint64_t t0 = mono_ns();
     struct model_outputs o;
-    if ((rc = infer_eval(im, im->H, im->W, &o, err)) < 0)
+    if (model_eval(im->m, im->input, im->S, im->H, im->W, &o) < 0) {
+        rc = f4d_fail(err, F4D_EINVAL, "inference: %s", model_error(im->m));
         goto fail;
+    }
     st->warm_ms = (double)(mono_ns() - t0) * 1e-6;
-    st->capacity = o.gaussians.count;
-    im->budget_bytes = budget_scratch_bytes(o.gaussians.count);
-    if (!(im->budget_scratch = malloc(im->budget_bytes))) {
+    model_state_reset(im->m);
+    im->n = (size_t)im->S * (size_t)im->H * (size_t)im->W;
+    st->capacity = im->n;
+    st->motion = im->motion;
+    im->budget_bytes = budget_scratch_bytes(im->n);
+    im->budget_scratch = malloc(im->budget_bytes);
+    im->origin = malloc(im->n * sizeof *im->origin);
+    im->pix[0] = malloc(im->n * sizeof *im->pix[0]);
+    im->pix[1] = malloc(im->n * sizeof *im->pix[1]);
+    if (!im->budget_scratch || !im->origin || !im->pix[0] || !im->pix[1]) {
         rc = f4d_fail(err, F4D_ENOMEM, "inference: out of memory");
         goto fail;
     }
     st->self = im;
     st->key = infer_key;
+    st->flush = infer_flush;
     st->free = infer_free;
     return 0;
 fail:
@@ -196,9 +271,15 @@ fail:
 }
 
 /* ---- encoder: the stream codec ---- */
+struct enc {
+    codec_enc *e;
+    uint64_t last_seq;  /* the key the decoder holds (the codec's reference) */
+    bool have_last;
+};
+
 static int enc_header(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, struct f4d_err *err)
 {
-    codec_enc *e = self;
+    codec_enc *e = ((struct enc *)self)->e;
     size_t cap = *len;
     int rc = codec_enc_stream_header(e, t_us, pkt, cap, len);
     return rc < 0 ? f4d_fail(err, rc, "encoder: %s", codec_enc_error(e)) : 0;
@@ -206,15 +287,26 @@ static int enc_header(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, stru
 
 static int enc_key(void *self, const struct run_key *k, bool intra, uint8_t *pkt, size_t *len, struct f4d_err *err)
 {
-    codec_enc *e = self;
+    struct enc *en = self;
     size_t cap = *len;
-    int rc = codec_enc_key(e, &k->f, k->t_us, intra ? CODEC_KEY_INTRA : CODEC_KEY_AUTO, NULL, pkt, cap, len);
-    return rc < 0 ? f4d_fail(err, rc, "encoder: key %llu: %s", (unsigned long long)k->seq, codec_enc_error(e)) : 0;
+    /* The match names the key inference put out before this one; when the
+     * stream dropped that key the reference differs: code this key intra. */
+    if (k->match && !(en->have_last && en->last_seq == k->match_ref))
+        intra = true;
+    int rc = codec_enc_key(en->e, &k->f, k->t_us, intra ? CODEC_KEY_INTRA : CODEC_KEY_AUTO, intra ? NULL : k->match,
+                           pkt, cap, len);
+    if (rc < 0) {
+        en->have_last = false;
+        return f4d_fail(err, rc, "encoder: key %llu: %s", (unsigned long long)k->seq, codec_enc_error(en->e));
+    }
+    en->last_seq = k->seq;
+    en->have_last = true;
+    return 0;
 }
 
 static int enc_end(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, struct f4d_err *err)
 {
-    codec_enc *e = self;
+    codec_enc *e = ((struct enc *)self)->e;
     size_t cap = *len;
     int rc = codec_enc_end(e, t_us, pkt, cap, len);
     return rc < 0 ? f4d_fail(err, rc, "encoder: %s", codec_enc_error(e)) : 0;
@@ -222,7 +314,10 @@ static int enc_end(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, struct 
 
 static void enc_free(void *self)
 {
-    codec_enc_free(self);
+    struct enc *en = self;
+    if (en)
+        codec_enc_free(en->e);
+    free(en);
 }
 
 int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, struct f4d_err *err)
@@ -231,11 +326,15 @@ int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *q
     int q = codec_quality_from_name(quality, err);
     if (q < 0)
         return q;
-    codec_enc *e;
-    int rc = codec_enc_new(capacity ? capacity : 1, (enum codec_quality)q, &e, err);
-    if (rc < 0)
+    struct enc *en = calloc(1, sizeof *en);
+    if (!en)
+        return f4d_fail(err, F4D_ENOMEM, "encoder: out of memory");
+    int rc = codec_enc_new(capacity ? capacity : 1, (enum codec_quality)q, &en->e, err);
+    if (rc < 0) {
+        free(en);
         return rc;
-    st->self = e;
+    }
+    st->self = en;
     st->packet_cap = codec_packet_bound(capacity ? capacity : 1);
     st->header = enc_header;
     st->key = enc_key;

@@ -299,6 +299,71 @@ static void test_budget_ws(void **state)
     splat_frame_free(&b);
 }
 
+/* Motion survives the budget: a kept Gaussian keeps its motion, a merged one
+ * gets its members' opacity-weighted mean motion, a motion array the input
+ * lacks is zero, origin names each output's most opaque member, and output
+ * motion is freed when the next input has none. */
+static void test_budget_motion(void **state)
+{
+    (void)state;
+    struct splat_rig rig;
+    small_rig(&rig);
+    struct splat_frame f = { 0 }, out = { 0 };
+    assert_int_equal(splat_frame_resize(&f, 3, 1, NULL), 0);
+    for (int i = 0; i < 3; i++) {
+        for (int c = 0; c < 3; c++) {
+            f.pos[3 * i + c] = 0.0f;
+            f.scale[3 * i + c] = 0.05f;
+            f.motion_fwd[3 * i + c] = 0.01f * (float)(i + 1) * (float)(c + 1);
+            f.motion_bwd[3 * i + c] = -0.02f * (float)(i + 1);
+        }
+    }
+    f.opacity[0] = 0.3f;
+    f.opacity[1] = 0.9f;  /* 0 and 1 share a voxel: merged, 1 the most opaque */
+    f.pos[1] = 0.001f;
+    f.opacity[2] = 0.5f;  /* 2 alone */
+    f.pos[6] = 0.5f;
+    struct budget_config cfg = budget_config_default();
+    struct budget_stats st;
+    struct f4d_err err;
+    uint32_t origin[3] = { 99, 99, 99 };
+    void *scratch = malloc(budget_scratch_bytes(3));
+    assert_non_null(scratch);
+    assert_int_equal(budget_prune_origin_ws(&f, &rig, &cfg, scratch, budget_scratch_bytes(3), &out, origin, &st,
+                                            &err), 0);
+    assert_int_equal(out.count, 2);
+    assert_non_null(out.motion_fwd);
+    assert_non_null(out.motion_bwd);
+    size_t m = out.pos[0] < 0.25f ? 0 : 1, k = 1 - m;
+    assert_int_equal(origin[m], 1);
+    assert_int_equal(origin[k], 2);
+    double w0 = 0.3 + 1e-6, w1 = 0.9 + 1e-6;
+    for (int c = 0; c < 3; c++) {
+        assert_float_equal(out.motion_fwd[3 * m + c], (w0 * 0.01 * (c + 1) + w1 * 0.02 * (c + 1)) / (w0 + w1), 1e-6);
+        assert_float_equal(out.motion_bwd[3 * m + c], (w0 * -0.02 + w1 * -0.04) / (w0 + w1), 1e-6);
+        assert_float_equal(out.motion_fwd[3 * k + c], 0.03f * (float)(c + 1), 0);
+        assert_float_equal(out.motion_bwd[3 * k + c], -0.06f, 0);
+    }
+    /* only motion_fwd in (key 0 has no backward motion): bwd comes out zero */
+    float *bwd = f.motion_bwd;
+    f.motion_bwd = NULL;
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
+    assert_non_null(out.motion_bwd);
+    assert_float_equal(out.motion_bwd[3 * k], 0.0f, 0);
+    assert_float_equal(out.motion_fwd[3 * k + 2], 0.09f, 1e-7);
+    /* no motion in: none out */
+    float *fwd = f.motion_fwd;
+    f.motion_fwd = NULL;
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &out, &st, &err), 0);
+    assert_null(out.motion_fwd);
+    assert_null(out.motion_bwd);
+    f.motion_bwd = bwd;
+    f.motion_fwd = fwd;
+    free(scratch);
+    splat_frame_free(&f);
+    splat_frame_free(&out);
+}
+
 /* ---- the merged Gaussian's shape (budget_prune's moment matching) -------- */
 
 struct gauss {
@@ -503,6 +568,7 @@ int main(void)
         cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
         cmocka_unit_test(test_budget),
         cmocka_unit_test(test_budget_ws),
+        cmocka_unit_test(test_budget_motion),
         cmocka_unit_test(test_merge_identical_keeps_shape),
         cmocka_unit_test(test_merge_offset_pair_covariance),
         cmocka_unit_test(test_merge_rotated_pair),

@@ -598,6 +598,32 @@ int budget_prune_ws(const struct splat_frame *in, const struct splat_rig *rig, c
                     void *scratch, size_t scratch_bytes, struct splat_frame *out, struct budget_stats *stats,
                     struct f4d_err *err)
 {
+    return budget_prune_origin_ws(in, rig, cfg, scratch, scratch_bytes, out, NULL, stats, err);
+}
+
+/* Opacity-weighted mean of the members' motion (zeros where in lacks it). */
+static void merge_motion(const float *m, const struct vox *vx, size_t s, size_t e, const float *opacity, float *dst)
+{
+    if (!m) {
+        dst[0] = dst[1] = dst[2] = 0.0f;
+        return;
+    }
+    double w = 0, a[3] = { 0, 0, 0 };
+    for (size_t k = s; k < e; k++) {
+        uint32_t i = vx[k].i;
+        double wi = opacity[i] + 1e-6;
+        w += wi;
+        for (int c = 0; c < 3; c++)
+            a[c] += wi * m[3 * i + c];
+    }
+    for (int c = 0; c < 3; c++)
+        dst[c] = (float)(a[c] / w);
+}
+
+int budget_prune_origin_ws(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
+                           void *scratch, size_t scratch_bytes, struct splat_frame *out, uint32_t *origin,
+                           struct budget_stats *stats, struct f4d_err *err)
+{
     if (!in || !rig || !cfg || !out || in == out)
         return fail(err, F4D_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");
     if (!(cfg->voxel >= 0.0f) || !(cfg->min_footprint >= 0.0f) || !(cfg->min_opacity >= 0.0f))
@@ -659,7 +685,13 @@ int budget_prune_ws(const struct splat_frame *in, const struct splat_rig *rig, c
     size_t groups = 0;
     for (size_t s = 0; s < nv; s++)
         groups += s == 0 || vx[s].key != vx[s - 1].key || (vx[s].key >> 58) == 63;
-    int rc = splat_frame_resize(out, groups, 0, err);
+    int motion = in->motion_bwd || in->motion_fwd;
+    if (!motion) { /* out's motion follows in's (freeing allocates nothing) */
+        free(out->motion_bwd);
+        free(out->motion_fwd);
+        out->motion_bwd = out->motion_fwd = NULL;
+    }
+    int rc = splat_frame_resize(out, groups, motion, err);
     if (rc < 0)
         return rc;
     size_t o = 0;
@@ -723,6 +755,12 @@ int budget_prune_ws(const struct splat_frame *in, const struct splat_rig *rig, c
             }
         }
         out->opacity[o] = omax;
+        if (motion) {
+            merge_motion(in->motion_bwd, vx, s, e, in->opacity, out->motion_bwd + 3 * o);
+            merge_motion(in->motion_fwd, vx, s, e, in->opacity, out->motion_fwd + 3 * o);
+        }
+        if (origin)
+            origin[o] = best;
         st.merged += e - s - 1;
         o++;
         s = e;

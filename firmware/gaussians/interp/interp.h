@@ -162,7 +162,11 @@ struct budget_stats {
  * R diag(s²) Rᵀ plus the weighted spread of their centres, and the merged
  * rotation is that covariance's eigenvector frame (as a quaternion), the
  * scale the square roots of its eigenvalues, so that it covers its members.
- * A cell of one Gaussian keeps it unchanged. */
+ * A cell of one Gaussian keeps it unchanged. Motion: when `in` has either
+ * motion array, `out` gets both, each the members' opacity-weighted mean
+ * motion (the same weights as the position, so a merged Gaussian moves with
+ * its members' centre); an array `in` lacks is zero in `out`. When `in` has
+ * no motion, `out`'s motion arrays are freed (NULL). */
 int  budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                   struct splat_frame *out, struct budget_stats *stats, struct f4d_err *err);
 /* The same with caller scratch of budget_scratch_bytes(in->count): no
@@ -172,6 +176,13 @@ size_t budget_scratch_bytes(size_t count);
 int  budget_prune_ws(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                      void *scratch, size_t scratch_bytes, struct splat_frame *out, struct budget_stats *stats,
                      struct f4d_err *err);
+/* The same, also writing origin[k] (room for in->count) = the index in `in`
+ * of out Gaussian k's most opaque member: for pixel-aligned input, the pixel
+ * it comes from (a stream encoder matches keys through it). */
+int  budget_prune_origin_ws(const struct splat_frame *in, const struct splat_rig *rig,
+                            const struct budget_config *cfg, void *scratch, size_t scratch_bytes,
+                            struct splat_frame *out, uint32_t *origin, struct budget_stats *stats,
+                            struct f4d_err *err);
 
 #ifdef __cplusplus
 }
