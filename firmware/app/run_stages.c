@@ -72,7 +72,7 @@ static void infer_free(void *self)
 
 /* Key `which` of the sequence through the budget into k, with the codec's
  * match against the key out before it (same pixel origin). */
-static int infer_emit(struct infer_seq *im, int which, struct run_key *k, struct f4d_err *err)
+static int infer_emit(struct infer_seq *im, int which, uint64_t seq, struct run_key *k, struct f4d_err *err)
 {
     struct f4d_seq_key sk;
     int rc = f4d_sequence_key(im->sq, which, &sk, err);
@@ -91,6 +91,8 @@ static int infer_emit(struct infer_seq *im, int which, struct run_key *k, struct
             k->match[j] = im->have_prev ? prev[p] : -1;
     }
     k->match_ref = im->have_prev ? im->prev_seq : UINT64_MAX;
+    k->seq = seq;
+    im->prev_seq = seq;
     im->cur = 1 - im->cur;
     im->have_prev = true;
     return 0;
@@ -135,9 +137,8 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     uint64_t seq = set->seq, t_us = set->trigger_ts_ns / 1000u, arrive = k->arrive_wall_ns,
              delivery = k->delivery_ns;
     if (!im->motion) {
-        if ((rc = infer_emit(im, 0, k, err)) < 0)
+        if ((rc = infer_emit(im, 0, seq, k, err)) < 0)
             return rc;
-        k->seq = seq;
         k->t_us = t_us;
         k->infer_ms = (double)(mono_ns() - t0) * 1e-6;
         return 1;
@@ -145,11 +146,10 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     bool out = im->held && f4d_sequence_steps(im->sq) >= 2;
     if (out) { /* key t-1, now with both motions, under its own set's times */
         uint64_t b0 = mono_ns();
-        if ((rc = infer_emit(im, 1, k, err)) < 0) {
+        if ((rc = infer_emit(im, 1, im->held_seq, k, err)) < 0) {
             im->held = false;
             return rc;
         }
-        k->seq = im->held_seq;
         k->t_us = im->held_t_us;
         k->arrive_wall_ns = im->held_arrive;
         k->delivery_ns = im->held_delivery;
@@ -171,10 +171,9 @@ static int infer_flush(void *self, struct run_key *k, struct f4d_err *err)
         return 0;
     im->held = false;
     uint64_t b0 = mono_ns();
-    int rc = infer_emit(im, 0, k, err); /* the newest key: no forward motion (zero) */
+    int rc = infer_emit(im, 0, im->held_seq, k, err); /* the newest key: no forward motion (zero) */
     if (rc < 0)
         return rc;
-    k->seq = im->held_seq;
     k->t_us = im->held_t_us;
     k->arrive_wall_ns = im->held_arrive;
     k->delivery_ns = im->held_delivery;
