@@ -242,7 +242,9 @@ static int do_encode(const char **in, int nin, const char *out, int quality, dou
             }
         }
         uint64_t t = (uint64_t)((double)i * 1e6 / rate + 0.5);
-        enum codec_key_mode m = (intra_every > 0 && i % intra_every == 0) ? CODEC_KEY_INTRA : CODEC_KEY_AUTO;
+        /* one frame alone: a still key (Morton-reordered, smaller) */
+        enum codec_key_mode m = nin == 1 ? CODEC_KEY_STILL
+                                : (intra_every > 0 && i % intra_every == 0) ? CODEC_KEY_INTRA : CODEC_KEY_AUTO;
         if (codec_enc_key(e, &f, t, m, NULL, pkt, pcap, &n) < 0) {
             fprintf(stderr, "f4d-codec: '%s': %s\n", in[i], codec_enc_error(e));
             rc = 1;

@@ -297,6 +297,7 @@ struct codec_enc {
     uint32_t *idx;     /* [cap] reference-index deltas             */
     uint32_t *flags;   /* [cap]                                    */
     struct morton mo;  /* order of the changed Gaussians' residuals */
+    int last_still;    /* mo.perm holds a still key's order           */
     struct planebuf pb;
     void *zws;
     ZSTD_CCtx *z;
@@ -413,6 +414,7 @@ const struct splat_frame *codec_enc_recon(const codec_enc *e)
     return e ? key_view((struct keystate *)&e->key[e->cur]) : NULL;
 }
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e) { return e ? &e->st : NULL; }
+const uint32_t *codec_enc_order(const codec_enc *e) { return e && e->last_still ? e->mo.perm : NULL; }
 
 int codec_enc_stream_header(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t *len)
 {
@@ -729,7 +731,9 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     const int motion = f->motion_bwd && f->motion_fwd;
     const int nch = motion ? NCH : CH_MB;
     struct keystate *ref = &e->key[e->cur], *dst = &e->key[e->cur ^ 1];
-    int intra = mode == CODEC_KEY_INTRA || !e->have_ref;
+    if ((unsigned)mode > CODEC_KEY_STILL)
+        return f4d_fail(&e->err, F4D_EINVAL, "codec_enc_key: mode %d out of range", (int)mode);
+    int intra = mode != CODEC_KEY_AUTO || !e->have_ref, still = mode == CODEC_KEY_STILL;
     if (match && !intra)
         for (size_t i = 0; i < n; i++)
             if (match[i] < -1 || (match[i] >= 0 && (size_t)match[i] >= ref->count))
@@ -763,6 +767,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     z[6] = make_qz(0.0f, 1.0f, qi->opacity_bits, 0);
 
     memset(&e->st, 0, sizeof e->st);
+    e->last_still = 0;
     uint8_t *pl = out + CODEC_PACKET_HEADER;
     size_t off = FHDR + 8 * NQZ;
     if (cap < CODEC_PACKET_HEADER + off)
@@ -776,9 +781,19 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     dst->motion = motion;
 
     if (intra) {
-        for (size_t i = 0; i < n; i++) {
-            intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, i);
-            intra_recon(e->rec, stride, i, z, qi->rot_bits, motion, dst, i);
+        if (still && n > 1) {
+            /* Morton order of the positions: neighbours in space get
+             * neighbouring indices, so every plane's deltas shrink */
+            for (size_t i = 0; i < n; i++)
+                e->mo.key[i] = morton_key(z, f->pos + 3 * i);
+            morton_sort(&e->mo, n);
+        } else {
+            for (size_t i = 0; i < n; i++)
+                e->mo.perm[i] = (uint32_t)i;
+        }
+        for (size_t j = 0; j < n; j++) {
+            intra_record(f, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
+            intra_recon(e->rec, stride, j, z, qi->rot_bits, motion, dst, j);
         }
         n_new = n;
         for (int c = 0; c < nch; c++) {
@@ -991,7 +1006,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     e->seq++;
     e->ref_seq = s;
     e->cur ^= 1;
-    e->have_ref = 1;
+    e->have_ref = !still; /* a still key's order is not the input's: never a reference */
+    e->last_still = still;
     return F4D_OK;
 }
 

@@ -180,6 +180,10 @@ typedef struct codec_enc codec_enc;
 enum codec_key_mode {
     CODEC_KEY_AUTO  = 0, /* predicted when a reference exists, else intra */
     CODEC_KEY_INTRA = 1,
+    CODEC_KEY_STILL = 2, /* intra, Gaussians reordered (Morton order of their
+                          * positions) for size: decoded Gaussian j is input
+                          * Gaussian codec_enc_order(e)[j], and the next key
+                          * is intra (for still files, SPZ-like use) */
 };
 
 /* Bytes of the last encoded key by group (payload, before the packet header)
@@ -212,6 +216,10 @@ int  codec_enc_end  (codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size
 /* What a decoder holds after the last key (the encoder's reconstruction). */
 const struct splat_frame *codec_enc_recon(const codec_enc *e);
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e);
+/* Input index of each decoded Gaussian of the last key when it was
+ * CODEC_KEY_STILL; NULL when the order is the input's. Valid until the next
+ * call. */
+const uint32_t *codec_enc_order(const codec_enc *e);
 
 /* ---- decoder ---- */
 typedef struct codec_dec codec_dec;
