@@ -429,7 +429,7 @@ static int do_info(const char *path)
                     hi[c] = i == 0 || v > hi[c] ? v : hi[c];
                 }
             printf("%s: %s, %zu bytes, %zu Gaussians (%.2f B/G)%s, bounds [%.3f %.3f %.3f] .. [%.3f %.3f %.3f] m\n",
-                   path, k == K_SPZ ? "SPZ" : "PLY", n, f.count, f.count ? (double)n / (double)f.count : 0.0,
+                   path, k != K_SPZ ? "PLY" : b[0] == 0x1f ? "SPZ (v2/v3, gzip)" : "SPZ v4", n, f.count, f.count ? (double)n / (double)f.count : 0.0,
                    f.motion_fwd ? ", with motion" : "", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
         }
         splat_frame_free(&f);
