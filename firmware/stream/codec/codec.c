@@ -701,6 +701,66 @@ static void fit_predictor(const struct keystate *ref, const struct splat_frame *
     }
 }
 
+/* Keyed mf residual on axis c: kept (0) while this decoded position plus the
+ * predicted mf lands within 0.9 position bounds of the true next position,
+ * else the step count towards it (see codec_enc_key). */
+static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos, float pmf, struct qz z,
+                        float tol)
+{
+    double dt = ((double)f->pos[3 * i + c] + f->motion_fwd[3 * i + c]) - ((double)rpos + pmf);
+    double u = dt / (double)z.step;
+    return fabs(dt) <= 0.9 * tol ? 0 : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
+}
+
+/* With keyed motions, the temporal mf prediction carries each Gaussian's own
+ * reconstruction error (its decoded position and motions, up to about two
+ * position bounds, amplified by the fitted coefficients), which no order
+ * makes compressible; predicting nothing instead codes the velocity field
+ * itself, whose neighbours in Morton order agree wherever a part moves
+ * rigidly. Which wins depends on the take (smooth slow motion: temporal;
+ * fast articulated motion: spatial), so both are tried on the mf residuals
+ * alone: Morton order of the predicted positions, cost sum log2(1 + |delta|)
+ * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Uses the residual
+ * planes and the Morton buffers as scratch. */
+static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
+                                const int32_t *match, const struct qz *z, const float *pos_tol, float *cf)
+{
+    const size_t stride = e->cap ? e->cap : 1;
+    size_t m = 0;
+    for (size_t i = 0; i < f->count; i++) {
+        int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
+        if (r < 0)
+            continue;
+        struct pred p;
+        predict(ref, (size_t)r, cf, &p);
+        for (int c = 0; c < 3; c++) {
+            int32_t rp = resid(z[c], f->pos[3 * i + c], p.pos[c]);
+            if (fabsf(f->pos[3 * i + c] - p.pos[c]) <= pos_tol[c])
+                rp = 0;
+            float rpos = dres(p.pos[c], z[c], rp);
+            e->res[(size_t)c * stride + m] = zig(mf_resid(f, i, c, rpos, p.mf[c], z[QZ_MF + c], pos_tol[c]));
+            e->res[(size_t)(3 + c) * stride + m] = zig(mf_resid(f, i, c, rpos, 0.0f, z[QZ_MF + c], pos_tol[c]));
+        }
+        e->mo.key[m++] = morton_key(z, p.pos);
+    }
+    if (m < 2)
+        return;
+    morton_sort(&e->mo, m);
+    double cost[2] = { 0, 0 };
+    for (int k = 0; k < 2; k++)
+        for (int c = 0; c < 3; c++) {
+            const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
+            int32_t prev = 0;
+            for (size_t j = 0; j < m; j++) {
+                int32_t x = unzig(v[e->mo.perm[j]]);
+                cost[k] += log2(1.0 + fabs((double)x - (double)prev));
+                prev = x;
+            }
+        }
+    if (cost[1] < cost[0])
+        cf[2] = cf[3] = 0.0f;
+}
+
 static void put_qz(uint8_t *p, const struct qz *z)
 {
     for (int k = 0; k < NQZ; k++) {
@@ -830,6 +890,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             cf[6] = 1.0f;
         }
         const float mb_tol = 2.0f * fmaxf(pos_tol[0], fmaxf(pos_tol[1], pos_tol[2])) + 0.5f * qi->motion_step;
+        if (keyed && motion && n > 1)
+            choose_mf_predictor(e, ref, f, match, z, pos_tol, cf);
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -874,11 +936,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                      * up from key to key, and the decoded positions' own
                      * quantization noise is not re-coded in every mf. */
                     if (keyed) {
-                        double dt = ((double)f->pos[3 * i + c] + f->motion_fwd[3 * i + c]) -
-                                    ((double)rpos[c] + p.mf[c]);
-                        double u = dt / (double)z[QZ_MF + c].step;
-                        res[CH_MF + c] = fabs(dt) <= 0.9 * pos_tol[c] ? 0
-                                         : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
+                        res[CH_MF + c] = mf_resid(f, i, c, rpos[c], p.mf[c], z[QZ_MF + c], pos_tol[c]);
                     } else {
                         res[CH_MF + c] = resid(z[QZ_MF + c], f->motion_fwd[3 * i + c], p.mf[c]);
                     }
