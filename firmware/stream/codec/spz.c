@@ -307,9 +307,21 @@ static int spz4_decode(const uint8_t *buf, size_t len, struct splat_frame *f, st
         return f4d_fail(err, F4D_EFORMAT, "spz: %d streams, %zu points at SH degree %d need %d", ns, n, shd, expect);
     if (toc < SPZ4_HDR || toc > len || (len - toc) / 16 < (size_t)ns)
         return f4d_fail(err, F4D_EFORMAT, "spz: TOC at byte %zu (%d entries) outside the %zu-byte file", toc, ns, len);
-    size_t total = 0;
-    for (int k = 0; k < 6; k++)
+    /* the whole TOC first: sizes as implied, streams inside the file, so a
+     * short file claiming many points is refused before any allocation */
+    size_t total = 0, end = toc + 16 * (size_t)ns;
+    for (int k = 0, s = 0; k < 6; k++) {
         total += want[k];
+        if (!want[k])
+            continue;
+        uint64_t zc = codec__u64(buf + toc + 16 * (size_t)s), zu = codec__u64(buf + toc + 16 * (size_t)s + 8);
+        s++;
+        if (zu != want[k] || zc > len - end)
+            return f4d_fail(err, F4D_EFORMAT, "spz: stream %d: %llu bytes (%llu compressed at byte %zu), expected "
+                            "%zu in a %zu-byte file", k, (unsigned long long)zu, (unsigned long long)zc, end,
+                            want[k], len);
+        end += (size_t)zc;
+    }
     uint8_t *raw = malloc(total ? total : 1);
     if (!raw)
         return f4d_fail(err, F4D_ENOMEM, "spz: out of memory for %zu points", n);
