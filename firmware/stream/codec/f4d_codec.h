@@ -90,12 +90,14 @@
  * bounds of the true next position (so mf is within 2 position bounds), and
  * mb, predicted as the way back to the decoded reference, is kept within 2
  * position bounds + half a motion step.
- * Measured (f4d-bench codec; walk preset, 37.6k Gaussians with motion, 10 Hz
- * keys, render PSNR vs uncompressed, 4 rig cameras 518x518, float renders):
- *   LOW    intra 4.54 B/G, predicted 1.81 B/G, 51.3 dB (min 50.7)
- *   MEDIUM intra 6.84 B/G, predicted 3.33 B/G, 60.7 dB (min 59.1)
- *   HIGH   intra 8.46 B/G, predicted 4.36 B/G, 72.0 dB (min 70.1)
- *   (SPZ v3 by codec_spz_encode, same key: 6.83 B/G, 56.5 dB, no motion.)
+ * Measured, version 2 (f4d-bench codec; walk preset, 37.6k Gaussians with
+ * motion over the key interval, 10 Hz keys, render PSNR vs uncompressed, 4
+ * rig cameras 518x518, float renders; version 1 in brackets):
+ *   COMPACT intra 3.87 B/G, predicted 1.34 B/G, 48.4 dB (min 47.4)
+ *   LOW     intra 4.54 B/G, predicted 1.59 B/G [1.81], 51.1 dB (min 50.2)
+ *   MEDIUM  intra 6.85 B/G, predicted 2.52 B/G [3.33], 60.6 dB (min 59.3)
+ *   HIGH    intra 8.46 B/G, predicted 3.36 B/G [4.36], 71.9 dB (min 69.6)
+ *   (SPZ v4 by codec_spz_encode, same key: 5.98 B/G, 56.5 dB, no motion.)
  *
  * Non-finite input: the encoder refuses a frame with a NaN or Inf anywhere
  * (F4D_EINVAL naming the Gaussian and attribute); the decoders never produce
