@@ -1,7 +1,7 @@
 /* f4d_codec_tool.c - f4d-codec: encode / decode / info on INRIA PLY, SPZ and
  * our stream files (.f4ds: packets back to back, see f4d_codec.h).
  *
- *   f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds [--quality low|medium|high]
+ *   f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds [--quality compact|low|medium|high]
  *                    [--key-rate HZ] [--intra-every N]
  *   f4d-codec encode IN.ply -o OUT.spz        (or IN.spz -o OUT.ply: conversion)
  *   f4d-codec decode IN.f4ds -o OUT.ply|OUT.spz [--frame K]   (K-th key, default 0)
@@ -23,7 +23,7 @@ enum kind { K_NONE, K_PLY, K_SPZ, K_STREAM };
 
 static void usage(FILE *f)
 {
-    fprintf(f, "usage: f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds|OUT.spz|OUT.ply [--quality low|medium|high]\n"
+    fprintf(f, "usage: f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds|OUT.spz|OUT.ply [--quality compact|low|medium|high]\n"
                "                        [--key-rate HZ] [--intra-every N] [--spz-version 3|4] [--motion-from-keys]\n"
                "       f4d-codec decode IN.f4ds|IN.spz|IN.ply -o OUT.ply|OUT.spz|'OUT_%%04d.ply' [--frame K]\n"
                "       f4d-codec info FILE...\n");
