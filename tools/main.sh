@@ -11,6 +11,7 @@
 #   novel.gif      left: the stream from the novel camera, right: ground truth
 #   novel.png      the last pair; novel.json per-key PSNR
 #   run.json       forge4d run's stats; summary.txt the run in a few lines
+#   model-cameras.json  the model's cameras at the last key (aligns the novel view)
 # Weights: WEIGHTS=FILE, else the shipped default, else a random-weight model
 # (labelled UNTRAINED everywhere it shows). SECONDS_RUN (default 20) sets the
 # length; extra arguments go to `forge4d run`.
@@ -40,7 +41,7 @@ fi
 echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label)"
 "$bin/firmware/app/forge4d" run --no-config --board board/sim-4cam.json --weights "$weights" \
   --seconds "${SECONDS_RUN:-20}" --record "$out/take" --stream "file:$out/stream.f4ds" \
-  --stats-json "$out/run.json" "$@"
+  --stats-json "$out/run.json" --rig-json "$out/model-cameras.json" "$@"
 "$bin/firmware/app/forge4d" verify "$out/take"
 
 displayed=null
@@ -58,7 +59,9 @@ else
 fi
 
 echo "main: the stream from a camera the rig lacks, beside ground truth"
-"$bin/tools/f4d-novel/f4d-novel" "$out/stream.f4ds" -o "$out" --scene walk --seed 1 --views 4 --size 518
+rigarg=()
+[ -f "$out/model-cameras.json" ] && rigarg=(--rig "$out/model-cameras.json")
+"$bin/tools/f4d-novel/f4d-novel" "$out/stream.f4ds" -o "$out" "${rigarg[@]}" --scene walk --seed 1 --views 4 --size 518
 
 field() { sed -n "s/.*\"$1\":[[:space:]]*\([-0-9.eE+]*\|null\).*/\1/p" "$2" | head -1; }
 {

@@ -627,7 +627,7 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
 static int usage(void)
 {
     fprintf(stderr, "usage: forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream file:PATH]\n"
-                    "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE]\n"
+                    "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE] [--rig-json FILE]\n"
                     "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
                     "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
                     "  settings absent from the command line come from the config file (default "
@@ -881,6 +881,14 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         struct f4d_err e = {0};
         r->have_sink = false;
         if (r->sink.close(r->sink.self, &e) < 0) {
+            fprintf(stderr, "forge4d run: %s\n", e.msg);
+            status = 1;
+        }
+    }
+    if (cfg.rig_json[0] && r->have_infer && r->infer.rig) {
+        struct splat_rig kr;
+        struct f4d_err e = {0};
+        if (r->infer.rig(r->infer.self, &kr) == 1 && splat_rig_save(cfg.rig_json, &kr, &e) < 0) {
             fprintf(stderr, "forge4d run: %s\n", e.msg);
             status = 1;
         }

@@ -46,6 +46,7 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
     STR(stream);
     STR(record);
     STR(stats_json);
+    STR(rig_json);
 #undef STR
     if (!strcmp(key, "precision")) {
         if (strcmp(v, "f32") && strcmp(v, "f16") && strcmp(v, "int8"))

@@ -80,6 +80,9 @@ struct run_infer {
     double warm_ms;            /* one key's time at start (warm-up eval) */
     int (*key)(void *self, const struct hal_set *set, struct run_key *out, struct f4d_err *err);
     int (*flush)(void *self, struct run_key *out, struct f4d_err *err);
+    /* The cameras of the last key put out (model world: its first camera,
+     * metric): 1 with *out set, 0 before any key. */
+    int (*rig)(void *self, struct splat_rig *out);
     void (*free)(void *self);
 };
 struct run_infer_config {
@@ -118,6 +121,7 @@ int run_sink_open(struct run_sink *st, const char *url, size_t max_packet, struc
 /* ---- configuration: command line over the config file over defaults ---- */
 struct run_config {
     char board[512], replay[512], weights[512], stream[512], record[512], stats_json[512];
+    char rig_json[512];        /* at exit: the last key's metric cameras (splat rig JSON) */
     char precision[16], quality[16];
     double seconds;            /* 0: until SIGINT / SIGTERM */
     uint32_t keys;             /* stop after this many keys were streamed (0: no limit) */

@@ -51,6 +51,8 @@ struct infer_seq {
     uint64_t held_seq, held_t_us, held_arrive, held_delivery;
     double held_ms;
     uint32_t delay_ms;
+    struct splat_rig rig;      /* cameras of the last key out */
+    bool have_rig;
 };
 
 static void infer_free(void *self)
@@ -92,6 +94,8 @@ static int infer_emit(struct infer_seq *im, int which, uint64_t seq, struct run_
     }
     k->match_ref = im->have_prev ? im->prev_seq : UINT64_MAX;
     k->seq = seq;
+    im->rig = sk.rig;
+    im->have_rig = true;
     im->prev_seq = seq;
     im->cur = 1 - im->cur;
     im->have_prev = true;
@@ -181,6 +185,15 @@ static int infer_flush(void *self, struct run_key *k, struct f4d_err *err)
     return 1;
 }
 
+static int infer_rig(void *self, struct splat_rig *out)
+{
+    struct infer_seq *im = self;
+    if (!im->have_rig)
+        return 0;
+    *out = im->rig;
+    return 1;
+}
+
 int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
                         struct f4d_err *err)
 {
@@ -262,6 +275,7 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
     st->self = im;
     st->key = infer_key;
     st->flush = infer_flush;
+    st->rig = infer_rig;
     st->free = infer_free;
     return 0;
 fail:

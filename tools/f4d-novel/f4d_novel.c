@@ -1,7 +1,7 @@
 /* f4d-novel: a stream seen from a camera the rig does not have, beside the
  * synthetic scene's ground truth of the same view and time.
  *
- *   f4d-novel STREAM.f4ds -o DIR [--scene walk] [--seed 1] [--views 4] [--size 518]
+ *   f4d-novel STREAM.f4ds -o DIR [--rig PRED.json] [--scene walk] [--seed 1] [--views 4] [--size 518]
  *
  * Decodes every key of the stream (firmware/stream/codec), renders it from
  * the novel camera (the front camera of the scene's 5-view rig, between the
@@ -10,10 +10,14 @@
  * stream, right: ground truth, looping at the keys' own pace), DIR/novel.png
  * (the last pair) and DIR/novel.json (per key time and PSNR, their mean).
  *
- * Frames: the reconstruction's world is its camera 0 (the VGGT convention the
- * model keeps), in metres when the weights have a scale head, so the novel
- * camera maps into it as w2c_novel * inverse(w2c_rig_cam0). With untrained
- * weights the left side shows what they make of the scene: noise.
+ * Frames: the novel camera is carried into the reconstruction's world
+ * through camera 0: with --rig (the model's cameras, `forge4d run
+ * --rig-json`), w2c = [Ra Rb | Ra tb + s ta] where [Ra|ta] = w2c_novel *
+ * inverse(w2c_rig_cam0) (ground truth), [Rb|tb] the model's camera 0 and s
+ * the model's camera baselines over the rig's (its scale error); a uniformly
+ * scaled camera frame renders the same image. Without --rig the model's
+ * camera 0 is taken as its world origin (the VGGT convention) at scale 1.
+ * With untrained weights the left side shows what they make of the scene.
  */
 #include <errno.h>
 #include <math.h>
@@ -30,7 +34,8 @@
 
 static int usage(void)
 {
-    fprintf(stderr, "usage: f4d-novel STREAM.f4ds -o DIR [--scene walk] [--seed 1] [--views 4] [--size 518]\n");
+    fprintf(stderr, "usage: f4d-novel STREAM.f4ds -o DIR [--rig PRED.json] [--scene walk] [--seed 1] [--views 4] "
+                    "[--size 518]\n");
     return 2;
 }
 
@@ -90,13 +95,15 @@ static int read_all(const char *path, uint8_t **buf, size_t *len, struct f4d_err
 
 int main(int argc, char **argv)
 {
-    const char *in = NULL, *dir = NULL, *preset = "walk";
+    const char *in = NULL, *dir = NULL, *preset = "walk", *pred_path = NULL;
     unsigned long long seed = 1;
     int views = 4, size = 518;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "-o") && i + 1 < argc)
             dir = argv[++i];
+        else if (!strcmp(a, "--rig") && i + 1 < argc)
+            pred_path = argv[++i];
         else if (!strcmp(a, "--scene") && i + 1 < argc)
             preset = argv[++i];
         else if (!strcmp(a, "--seed") && i + 1 < argc)
@@ -142,9 +149,40 @@ int main(int argc, char **argv)
     scene_default_rig(sc, views + 1, size, size, &wide);
     struct splat_camera novel = wide.cams[views / 2], novel_rec = novel;
     snprintf(novel.name, sizeof novel.name, "novel");
-    float inv0[16];
+    float inv0[16], A[16];
     rigid_inverse(rig.cams[0].w2c, inv0);
-    mat4_mul(novel.w2c, inv0, novel_rec.w2c);
+    mat4_mul(novel.w2c, inv0, A);
+    memcpy(novel_rec.w2c, A, sizeof A);
+    double scale = 1.0;
+    if (pred_path) {
+        struct splat_rig pred;
+        if (splat_rig_load(pred_path, &pred, &err) < 0)
+            goto out;
+        if (pred.count != rig.count) {
+            f4d_fail(&err, F4D_EINVAL, "%s: %d cameras, the rig has %d", pred_path, pred.count, rig.count);
+            goto out;
+        }
+        double bm = 0, bg = 0; /* baselines to camera 0: the model's scale over the truth's */
+        float c0m[3], c0g[3];
+        splat_camera_center(&pred.cams[0], c0m);
+        splat_camera_center(&rig.cams[0], c0g);
+        for (int i = 1; i < rig.count; i++) {
+            float cm[3], cg[3];
+            splat_camera_center(&pred.cams[i], cm);
+            splat_camera_center(&rig.cams[i], cg);
+            bm += sqrt(pow(cm[0] - c0m[0], 2) + pow(cm[1] - c0m[1], 2) + pow(cm[2] - c0m[2], 2));
+            bg += sqrt(pow(cg[0] - c0g[0], 2) + pow(cg[1] - c0g[1], 2) + pow(cg[2] - c0g[2], 2));
+        }
+        scale = bg > 0 && bm > 0 ? bm / bg : 1.0;
+        const float *B = pred.cams[0].w2c;
+        for (int r = 0; r < 3; r++) {
+            for (int c = 0; c < 3; c++)
+                novel_rec.w2c[4 * r + c] = A[4 * r] * B[c] + A[4 * r + 1] * B[4 + c] + A[4 * r + 2] * B[8 + c];
+            novel_rec.w2c[4 * r + 3] = A[4 * r] * B[3] + A[4 * r + 1] * B[7] + A[4 * r + 2] * B[11] +
+                                       (float)scale * A[4 * r + 3];
+        }
+        fprintf(stderr, "[f4d-novel] model cameras from %s: scale %.3f of the rig's\n", pred_path, scale);
+    }
     size_t px = (size_t)size * size * 3;
     left = malloc(px * sizeof *left);
     right = malloc(px * sizeof *right);
@@ -168,7 +206,8 @@ int main(int argc, char **argv)
         goto out;
     }
     fprintf(js, "{\"stream\": \"%s\", \"scene\": \"%s\", \"seed\": %llu, \"camera\": \"front of the %d-view rig "
-            "(not in the %d-view rig)\", \"keys\": [", in, preset, seed, views + 1, views);
+            "(not in the %d-view rig)\", \"model_cameras\": %s, \"model_scale\": %.4f, \"keys\": [", in, preset, seed,
+            views + 1, views, pred_path ? "true" : "false", scale);
     size_t off = 0, keys = 0;
     double psnr_sum = 0, last_t = -1;
     int pending = 0; /* frames rendered but not yet written: their delay is the next key's gap */
