@@ -484,7 +484,8 @@ def main():
     ap.add_argument("--steps", type=int, default=0, help="stop after this many steps (0: time only)")
     ap.add_argument("--lr", type=float, default=3e-4)
     ap.add_argument("--warmup", type=int, default=100)
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1,
+                    help="1: under a shared CPU two OpenMP threads ran 10x slower than one")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--max-views", type=int, default=3)
     ap.add_argument("--max-takes", type=int, default=0)
