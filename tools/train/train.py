@@ -245,7 +245,7 @@ def motion_targets(take, k, views, smp):
     return mb, mf
 
 
-def run_motion(model, take, k, views):
+def run_motion(model, take, k, views, mid_weight=2.0):
     """Stage 3: keys k-1 and k through the frozen base; M1[k] and M2[k-1] by the motion
     blocks and head; losses against exact motion and the mid-time render."""
     cfg = model.cfg
@@ -264,7 +264,7 @@ def run_motion(model, take, k, views):
     L["m1"] = (m1 - mb_gt).abs().sum(-1)[b.mask].mean()
     L["m2"] = (m2 - mf_gt).abs().sum(-1)[a.mask].mean()
     # mid time: both key frames' Gaussians moved half way, drawn together
-    if take.mid_rgb is not None and hasattr(a, "eval_rel"):
+    if mid_weight and take.mid_rgb is not None and hasattr(a, "eval_rel"):
         i = random.randrange(len(views) + a.eval_rel.shape[0])
         if i < len(views):
             w2c, K, gt = a.rel[i], a.K[i], take.mid_rgb[k - 1][views[i]]
@@ -282,7 +282,7 @@ def run_motion(model, take, k, views):
                           bg=a.sky)
         L["mid"] = image_loss(r["rgb"], gt)
     # model units are ~3-4 m, a key interval moves ~1 cm: weight 100 puts L1 motion on a cm scale
-    total = 100.0 * (L["m1"] + L["m2"]) + 2.0 * L.get("mid", 0.0)
+    total = 100.0 * (L["m1"] + L["m2"]) + mid_weight * L.get("mid", 0.0)
     return total, {kk: float(v) for kk, v in L.items()}
 
 
