@@ -81,7 +81,11 @@ def project(pos, scale, rot, w2c, fx, fy, cx, cy, W, H):
 SUB = 8  # the PyTorch side evaluates 8x8 sub-tiles of the firmware's 16x16 tiles
 
 
-def pair_lists(mx, my, conic_abc, radius, tz, ok, opacity, W, H):
+class PairBudget(RuntimeError):
+    """More (sub-tile, Gaussian) pairs than the caller allows (huge Gaussians)."""
+
+
+def pair_lists(mx, my, conic_abc, radius, tz, ok, opacity, W, H, max_pairs=600_000):
     """(sub-tile, Gaussian) pairs: sub-tiles inside the Gaussian's 16x16-tile rectangle
     (the firmware's binning) that meet the box where its alpha can reach 1/255
     (|dx| <= sqrt(k2 a), k2 = 2 ln(255 o)): every other pixel skips it in the firmware too.
@@ -113,6 +117,8 @@ def pair_lists(mx, my, conic_abc, radius, tz, ok, opacity, W, H):
         if gid.numel() == 0 or int(cnt.sum()) == 0:
             e = torch.zeros(0, dtype=torch.int64)
             return e, e
+        if int(cnt.sum()) > max_pairs:
+            raise PairBudget(f"{int(cnt.sum())} (sub-tile, Gaussian) pairs, budget {max_pairs}")
         g = torch.repeat_interleave(gid, cnt)
         rank = torch.repeat_interleave(torch.arange(gid.numel()), cnt)
         start = torch.cumsum(cnt, 0) - cnt
@@ -123,10 +129,11 @@ def pair_lists(mx, my, conic_abc, radius, tz, ok, opacity, W, H):
     return sub[srt], g[srt]
 
 
-def render(pos, scale, rot, opacity, rgb, w2c, K, W, H, bg=None, want_depth=False):
+def render(pos, scale, rot, opacity, rgb, w2c, K, W, H, bg=None, want_depth=False, max_pairs=600_000):
     """pos, scale [N,3] (metres, std dev), rot [N,4] (w,x,y,z), opacity [N] in [0,1], rgb
     [N,3]; w2c [4,4] (or [3,4]), K [3,3]; bg [3] or None (black). Returns rgb [H,W,3],
-    alpha [H,W] and, with want_depth, the expected depth [H,W] (0 where nothing drew)."""
+    alpha [H,W] and, with want_depth, the expected depth [H,W] (0 where nothing drew).
+    Raises PairBudget beyond max_pairs (sub-tile, Gaussian) pairs (memory ~ 64 x 40 B each)."""
     dt = pos.dtype
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     mx, my, conic, tz, radius, ok = project(pos, scale, rot, w2c, fx, fy, cx, cy, W, H)
@@ -134,7 +141,7 @@ def render(pos, scale, rot, opacity, rgb, w2c, K, W, H, bg=None, want_depth=Fals
     with torch.no_grad():
         det = 1.0 / (conic[:, 0] * conic[:, 2] - conic[:, 1] ** 2)  # dilated a c - b^2
         a_, c_ = conic[:, 2] * det, conic[:, 0] * det
-    sub, g = pair_lists(mx, my, (a_, c_), radius, tz, ok, opacity, W, H)
+    sub, g = pair_lists(mx, my, (a_, c_), radius, tz, ok, opacity, W, H, max_pairs)
     sx_n, sy_n = (W + SUB - 1) // SUB, (H + SUB - 1) // SUB
     n_sub, P = sx_n * sy_n, SUB * SUB
     oy = torch.div(sub, sx_n, rounding_mode="floor") * SUB

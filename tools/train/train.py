@@ -47,6 +47,10 @@ from vggt_ref import Config, pose_to_extri_intri  # noqa: E402
 
 SSIM_W = 0.25
 CONF_ALPHA = 0.05
+# Gaussian scale logits above this (e^1.5 = 4.5 pixel footprints) are clamped while
+# training and penalised: one wide Gaussian per pixel covers the whole image, and the
+# (sub-tile, Gaussian) pairs of the PyTorch rasterizer then grow without bound.
+SCALE_TRAIN_MAX = 1.5
 
 # The shipped model's shape (README: why this size).
 SMALL = dict(img_size=112, patch_size=14, embed_dim=96, depth=4, num_heads=4, mlp_ratio=4.0,
@@ -136,7 +140,10 @@ def run_base(model, images, after_global=None):
     pts, pconf = model.point_head(layers, H, W, {}, "point_head")
     raw, _ = model.gaussian_head(layers, H, W, {}, "gaussian_head")
     g = model.scale_head(layers[-1])
-    act = gaussian_activate(raw, pts, images, ext, K)
+    rs = raw[..., 7:10]
+    raw_t = torch.cat([raw[..., :7], torch.clamp(rs, max=SCALE_TRAIN_MAX), raw[..., 10:]], -1)
+    act = gaussian_activate(raw_t, pts, images, ext, K)
+    act["scale_excess"] = F.relu(rs - SCALE_TRAIN_MAX).mean()
     return dict(layers=layers, poses=poses, ext=ext, K=K, depth=depth[..., 0], dconf=dconf, pts=pts,
                 pconf=pconf, raw=raw, gauge=g, act=act)
 
@@ -186,6 +193,7 @@ def stage1_losses(model, smp, render=True, n_eval=1):
     L["gauge"] = (torch.log(out["gauge"]) - torch.log(1.0 / s)).abs()
     op = out["act"]["opacity"].clamp(1e-4, 1 - 1e-4)
     L["sky"] = F.binary_cross_entropy(op, smp.mask.float())
+    L["scale_reg"] = out["act"]["scale_excess"]
     H, W = smp.images.shape[2:]
     if render:
         i = random.randrange(len(smp.views))
@@ -195,7 +203,7 @@ def stage1_losses(model, smp, render=True, n_eval=1):
             for e in random.sample(range(smp.eval_rel.shape[0]), min(n_eval, smp.eval_rel.shape[0])):
                 r = render_view(out["act"], s, smp.eval_rel[e], smp.eval_K[e], H, W, smp.sky)
                 L["render_eval"] = image_loss(r["rgb"], smp.eval_rgb[e])
-    W8 = dict(cam=1.0, depth=1.0, points=1.0, gauge=1.0, sky=0.1, render_in=4.0, render_eval=4.0)
+    W8 = dict(cam=1.0, depth=1.0, points=1.0, gauge=1.0, sky=0.1, scale_reg=1.0, render_in=4.0, render_eval=4.0)
     total = sum(W8[k] * v for k, v in L.items())
     return total, {k: float(v) for k, v in L.items()}, out
 
@@ -319,7 +327,10 @@ def validate(model, takes, n=8):
         g = out["gauge"]
         H, W = smp.images.shape[2:]
         for e in range(smp.eval_rel.shape[0]):
-            r = render_view(out["act"], 1.0 / g, smp.eval_rel[e], smp.eval_K[e], H, W, smp.sky)
+            try:
+                r = render_view(out["act"], 1.0 / g, smp.eval_rel[e], smp.eval_K[e], H, W, smp.sky)
+            except raster.PairBudget:
+                continue
             ps.append(raster.psnr(r["rgb"].clamp(0, 1), smp.eval_rgb[e]))
             ss.append(float(raster.ssim(r["rgb"].clamp(0, 1).permute(2, 0, 1), smp.eval_rgb[e].permute(2, 0, 1))))
         pd.append(float((out["pts"] / g - smp.points).norm(dim=-1)[smp.mask].mean()))
@@ -392,14 +403,18 @@ def train(args):
             gp["lr"] = lr
         t = take(random.choice(paths))
         views = pick_views(t, 2, args.max_views)
-        if args.stage == 1:
-            k = random.randrange(t.T)
-            render = random.random() < args.render_frac
-            loss, logs, _ = stage1_losses(model, Sample(t, k, views), render=render)
-        elif args.stage == 2:
-            loss, logs = run_state_seq(model, t, views)
-        else:
-            loss, logs = run_motion(model, t, random.randrange(1, t.T), views)
+        try:
+            if args.stage == 1:
+                k = random.randrange(t.T)
+                render = random.random() < args.render_frac
+                loss, logs, _ = stage1_losses(model, Sample(t, k, views), render=render)
+            elif args.stage == 2:
+                loss, logs = run_state_seq(model, t, views)
+            else:
+                loss, logs = run_motion(model, t, random.randrange(1, t.T), views)
+        except raster.PairBudget as e:  # a degenerate render: skip the sample, keep going
+            print(f"stage {args.stage} step {step}: skipped ({e})", flush=True)
+            continue
         opt.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(params, 1.0)
