@@ -190,6 +190,9 @@ def stage1_losses(model, smp, render=True, n_eval=1):
     # depth in each view's own camera (model units), points in view 0's frame
     L["depth"] = conf_l1(out["depth"], smp.depth / s, out["dconf"], smp.mask)
     L["points"] = conf_l1(out["pts"], smp.points / s, out["pconf"], smp.mask)
+    # Gaussian centres on the true surface: without it the rendering loss alone drove the
+    # offsets dp to metres (Gaussians pushed out of view instead of coloured right)
+    L["mu"] = (out["act"]["mu"] - smp.points / s).abs().sum(-1)[smp.mask].mean() if smp.mask.any() else out["pts"].sum() * 0
     L["gauge"] = (torch.log(out["gauge"]) - torch.log(1.0 / s)).abs()
     op = out["act"]["opacity"].clamp(1e-4, 1 - 1e-4)
     L["sky"] = F.binary_cross_entropy(op, smp.mask.float())
@@ -203,7 +206,7 @@ def stage1_losses(model, smp, render=True, n_eval=1):
             for e in random.sample(range(smp.eval_rel.shape[0]), min(n_eval, smp.eval_rel.shape[0])):
                 r = render_view(out["act"], s, smp.eval_rel[e], smp.eval_K[e], H, W, smp.sky)
                 L["render_eval"] = image_loss(r["rgb"], smp.eval_rgb[e])
-    W8 = dict(cam=1.0, depth=1.0, points=1.0, gauge=1.0, sky=0.1, scale_reg=1.0, render_in=4.0, render_eval=4.0)
+    W8 = dict(cam=1.0, depth=1.0, points=1.0, mu=1.0, gauge=1.0, sky=0.1, scale_reg=1.0, render_in=4.0, render_eval=4.0)
     total = sum(W8[k] * v for k, v in L.items())
     return total, {k: float(v) for k, v in L.items()}, out
 
