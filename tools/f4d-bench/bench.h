@@ -11,6 +11,7 @@ int bench_render(int argc, char **argv);
 int bench_interp(int argc, char **argv);
 int bench_hal(int argc, char **argv);
 int bench_codec(int argc, char **argv);
+int bench_display(int argc, char **argv);
 
 /* Seconds on CLOCK_MONOTONIC. */
 double bench_now(void);

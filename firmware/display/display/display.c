@@ -270,6 +270,8 @@ static int plan(display *d, const struct splat_frame *first)
         orbit_camera(d, first);
     d->cam0 = d->cam;
     pose_from_camera(d);
+    if ((rc = display_player_prepare(d->player, &d->cam)) < 0)
+        return f4d_fail(&d->err, rc, "%s", display_player_error(d->player));
     d->planned = 1;
     return F4D_OK;
 }
@@ -374,17 +376,19 @@ int display_step(display *d, display_source *src)
         return rc;
     uint64_t tp, tn;
     display_player_keys(d->player, &tp, &tn);
-    if (d->eof && t_us > tn && d->refresh > 0)
-        return 0; /* the stream ended and its last key was shown */
+    display_source_get_stats(src, &d->st.source);
+    d->st.player = *display_player_get_stats(d->player);
+    /* the stream ended and its last key was shown (half a refresh of slack:
+     * key times and refresh times are both rounded to microseconds) */
+    if (d->eof && d->refresh > 0 && (double)t_us > (double)tn + 0.5e6 / d->cfg.fps)
+        return 0;
     const struct splat_frame *f;
     if ((rc = display_player_frame(d->player, t_us, &d->cam, &f)) < 0)
         return f4d_fail(&d->err, rc, "%s", display_player_error(d->player));
     double t_draw = display__now_ms();
     if ((rc = draw(d, d->renderer, f)) < 0)
         return rc;
-    /* stats for the line: what the stream brought so far */
-    display_source_get_stats(src, &d->st.source);
-    d->st.player = *display_player_get_stats(d->player);
+    d->st.player = *display_player_get_stats(d->player); /* interp time of this frame */
     double span_s = (double)(tn - d->t0_us) * 1e-6;
     d->st.bitrate_mbps = span_s > 0 ? (double)d->st.source.bytes * 8e-6 / span_s : 0.0;
     d->st.latency_ms = (tn > t_us ? (double)(tn - t_us) * 1e-3 : 0.0) +
@@ -395,10 +399,12 @@ int display_step(display *d, display_source *src)
                                   STATUS_H, &d->err)) < 0)
         return rc;
     double t_present = display__now_ms();
-    if (d->cfg.png_dir) {
+    if (d->cfg.png_dir || d->cfg.read_back) {
         if ((rc = display__gl_read(d->gl, d->rgb8, d->rgba, &d->err)) < 0)
             return rc;
         d->have_readback = 1;
+    }
+    if (d->cfg.png_dir) {
         size_t n = 3 * (size_t)d->W * (size_t)d->H;
         for (size_t i = 0; i < n; i++)
             d->rgbf[i] = (float)d->rgb8[i] / 255.0f;

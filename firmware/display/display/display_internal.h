@@ -8,6 +8,7 @@
 #include "f4d_display.h"
 
 #define DISPLAY_GLYPH_ADVANCE 6 /* 5 columns + 1 of spacing */
+#define DISPLAY_LOOKUP_PX     518 /* longest side of the default lookup view */
 
 double display__now_ms(void);
 

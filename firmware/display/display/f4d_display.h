@@ -43,12 +43,16 @@
  * Camera: cfg.camera (fixed, e.g. a rig camera scaled to the display size);
  * without one the first key's bounds place an orbit camera (world z up, as
  * the synthetic scenes). The interpolation's pixel lookup uses cfg.lookup_rig
- * (the capture rig, as interp expects) or, without one, the starting camera.
+ * (the capture rig, as interp expects) or, without one, the starting camera
+ * scaled to 518 pixels on its longest side (the model's working size).
  *
  * Memory: everything is sized when the first key arrives from the stream
- * header's capacity (or, when joining after it, that key's count); after it a
- * refresh allocates nothing in this module (a larger key is refused and
- * counted, F4D_ERANGE). Errors: 0 / negative F4D_E* with display_error().
+ * header's capacity (or, when joining after it, 5/4 of that key's count):
+ * decoder, key slots, interp's pixel lists (warmed up once on a frame of the
+ * capacity), the rasterizer and the GL instance buffers; after it a refresh
+ * allocates nothing in this code (a larger key is refused and counted,
+ * F4D_ERANGE; the GL driver's and libpng's own allocations are theirs).
+ * Errors: 0 / negative F4D_E* with display_error().
  */
 #ifndef F4D_DISPLAY_H
 #define F4D_DISPLAY_H
@@ -117,6 +121,11 @@ const char *display_player_error(const display_player *p);
 int  display_player_push(display_player *p, const struct codec_packet *pkt);
 /* Keys held: 0, 1 or 2; times of the older and the newer. */
 int  display_player_keys(const display_player *p, uint64_t *t_prev, uint64_t *t_next);
+/* Creates the interpolation's workspace (its lookup view is cam when the
+ * player has no rig) and sizes it for the capacity once; needs one key.
+ * display_player_frame calls it when needed; call it earlier to keep its
+ * allocations out of the refreshes. */
+int  display_player_prepare(display_player *p, const struct splat_camera *cam);
 /* The Gaussians at stream time t_us (needs one key; two to interpolate). The
  * frame is owned by the player and valid until the next call. cam is the
  * lookup view when the player has no rig (the first call fixes it). */
@@ -137,6 +146,7 @@ struct display_config {
     int         realtime;           /* pace refreshes to fps (window default)    */
     int         status_line;        /* draw the on-screen status line            */
     const char *png_dir;            /* write frame_%06d.png of each refresh, or NULL */
+    int         read_back;          /* keep each refresh for display_read_back   */
     const struct splat_camera *camera;     /* NULL: orbit camera from the first key */
     const struct splat_rig    *lookup_rig; /* NULL: the starting camera         */
     enum interp_mode interp;        /* INTERP_FUSED                              */
@@ -169,7 +179,7 @@ const char *display_error(const display *d);
 int  display_step(display *d, display_source *src);
 const struct display_stats *display_get_stats(const display *d);
 /* The last presented picture read back as RGB8 [H * W * 3], top row first
- * (what png_dir writes); NULL before the first frame. */
+ * (what png_dir writes); NULL unless png_dir or read_back is set. */
 const uint8_t *display_read_back(display *d, int *width, int *height);
 /* The camera in use (after the first key for the orbit camera). */
 const struct splat_camera *display_camera(const display *d);

@@ -25,6 +25,7 @@ struct display_player {
     int              nkeys, newest;   /* slot[newest] is the newer key */
     uint64_t         disc_mark;       /* decoder lost + skipped + refused at the last key */
     struct splat_frame out;
+    int              warm;            /* interp sized for the capacity */
     struct display_player_stats st;
     struct f4d_err   err;
 };
@@ -206,6 +207,74 @@ static int ensure_built(display_player *p, struct key_slot *ks, enum interp_mode
     return F4D_OK;
 }
 
+/* Runs the lookup and interp_at once on a frame of `cap` Gaussians (the newest
+ * key repeated), so that interp's pixel lists, scratch and renderer reach
+ * their largest size now and later keys allocate nothing. */
+static int warm_up(display_player *p)
+{
+    const struct splat_frame *k = &p->slot[p->newest].f;
+    if (k->count == 0)
+        return F4D_OK;
+    struct splat_frame tmp = { 0 };
+    int rc = splat_frame_resize(&tmp, p->cap, 1, &p->err);
+    for (size_t i = 0; rc == 0 && i < p->cap; i++) {
+        size_t j = i % k->count;
+        memcpy(tmp.pos + 3 * i, k->pos + 3 * j, 3 * sizeof(float));
+        memcpy(tmp.scale + 3 * i, k->scale + 3 * j, 3 * sizeof(float));
+        memcpy(tmp.rot + 4 * i, k->rot + 4 * j, 4 * sizeof(float));
+        memcpy(tmp.rgb + 3 * i, k->rgb + 3 * j, 3 * sizeof(float));
+        tmp.opacity[i] = k->opacity[j];
+    }
+    if (rc == 0)
+        rc = interp_key_build(p->ip, &tmp, &p->slot[0].k, &p->err);
+    if (rc == 0)
+        rc = interp_key_build(p->ip, &tmp, &p->slot[1].k, &p->err);
+    if (rc == 0) {
+        struct interp_config cfg = interp_config_default();
+        rc = interp_at(p->ip, &p->slot[0].k, &p->slot[1].k, 0.5f, &cfg, &p->out, NULL, &p->err);
+    }
+    splat_frame_free(&tmp);
+    p->slot[0].built = p->slot[1].built = 0;
+    return rc;
+}
+
+int display_player_prepare(display_player *p, const struct splat_camera *cam)
+{
+    if (!p)
+        return F4D_EINVAL;
+    if (p->mode == INTERP_NEAREST || p->warm)
+        return F4D_OK;
+    if (p->nkeys == 0)
+        return f4d_fail(&p->err, F4D_ESTATE, "display_player_prepare: no key decoded yet");
+    if (!p->ip) {
+        if (!cam)
+            return f4d_fail(&p->err, F4D_EINVAL, "display_player_prepare: no lookup rig and no camera");
+        /* the model's Gaussians are pixel-aligned at its 518-pixel working size:
+         * look them up in the starting view at that size, not the display's */
+        struct splat_camera lc = *cam;
+        int longest = lc.width > lc.height ? lc.width : lc.height;
+        if (longest > DISPLAY_LOOKUP_PX) {
+            float s = (float)DISPLAY_LOOKUP_PX / (float)longest;
+            lc.width = (int)((float)lc.width * s + 0.5f);
+            lc.height = (int)((float)lc.height * s + 0.5f);
+            lc.fx *= s; lc.fy *= s; lc.cx *= s; lc.cy *= s;
+        }
+        p->rig.count = 1;
+        p->rig.cams[0] = lc;
+        p->have_rig = 1;
+        int rc = interp_new(p->ctx, &p->rig, &p->ip, &p->err);
+        if (rc < 0)
+            return rc;
+    }
+    int rc;
+    if (p->mode == INTERP_FUSED) {
+        if ((rc = warm_up(p)) < 0)
+            return rc;
+    }
+    p->warm = 1;
+    return F4D_OK;
+}
+
 int display_player_frame(display_player *p, uint64_t t_us, const struct splat_camera *cam,
                          const struct splat_frame **out)
 {
@@ -230,17 +299,9 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
         *out = a < 0.5 ? &prev->f : &next->f;
         return F4D_OK;
     }
-    if (!p->ip) {
-        if (!cam)
-            return f4d_fail(&p->err, F4D_EINVAL, "display_player_frame: no lookup rig and no camera");
-        p->rig.count = 1;
-        p->rig.cams[0] = *cam;
-        p->have_rig = 1;
-        int rc = interp_new(p->ctx, &p->rig, &p->ip, &p->err);
-        if (rc < 0)
-            return rc;
-    }
     int rc;
+    if ((rc = display_player_prepare(p, cam)) < 0)
+        return rc;
     if ((rc = ensure_built(p, prev, mode)) < 0 || (rc = ensure_built(p, next, mode)) < 0)
         return rc;
     struct interp_config cfg = interp_config_default();
