@@ -23,7 +23,7 @@ struct drow {
     size_t n;
     int    W, H;
     const char *renderer;
-    double fps, decode_ms, lookup_ms, interp_ms, render_ms, present_ms, mbps;
+    double fps, decode_ms, lookup_ms, interp_ms, render_ms, raster_ms, present_ms, mbps;
     unsigned long long frames, keys;
 };
 
@@ -126,6 +126,7 @@ static int run_row(fk_ctx *ctx, const uint8_t *buf, size_t len, int W, int H, en
     row->lookup_ms = p->lookup_ms / keys;
     row->interp_ms = p->interp_ms / fr;
     row->render_ms = st->render_ms / fr;
+    row->raster_ms = st->raster_ms / fr;
     row->present_ms = st->present_ms / fr;
     row->mbps = st->bitrate_mbps;
     display_free(d);
@@ -138,7 +139,7 @@ int bench_display(int argc, char **argv)
     const char *json = NULL;
     int runs = 2;
     double seconds = 2.0;
-    int sizes[2][2] = { { 960, 540 }, { 1280, 720 } }, nsizes = 2;
+    int sizes[2][2] = { { 960, 540 }, { 1280, 720 } }, nsizes = 2, r0 = DISPLAY_RENDER_CPU, r1 = DISPLAY_RENDER_GLES;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
@@ -148,9 +149,17 @@ int bench_display(int argc, char **argv)
             seconds = atof(argv[++i]);
         else if (!strcmp(argv[i], "--quick"))
             nsizes = 1;
+        else if (!strcmp(argv[i], "--renderer") && i + 1 < argc && !strcmp(argv[i + 1], "cpu"))
+            r1 = DISPLAY_RENDER_CPU, i++;
+        else if (!strcmp(argv[i], "--renderer") && i + 1 < argc && !strcmp(argv[i + 1], "gles"))
+            r0 = DISPLAY_RENDER_GLES, i++;
+        else if (!strcmp(argv[i], "--size") && i + 1 < argc &&
+                 sscanf(argv[i + 1], "%dx%d", &sizes[0][0], &sizes[0][1]) == 2)
+            nsizes = 1, i++;
         else {
-            fprintf(stderr, "usage: f4d-bench display [--runs N] [--seconds S] [--quick] [--json FILE]\n"
-                            "  --quick: 960x540 only\n");
+            fprintf(stderr, "usage: f4d-bench display [--runs N] [--seconds S] [--quick] [--size WxH]\n"
+                            "                         [--renderer cpu|gles] [--json FILE]\n"
+                            "  --quick: 960x540 only; --size: that size only; --renderer: that one only\n");
             return 2;
         }
     }
@@ -171,7 +180,7 @@ int bench_display(int argc, char **argv)
         if (make_stream(counts[c], seconds, &buf, &len, &n) < 0)
             return 1;
         for (int z = 0; z < nsizes; z++)
-            for (int r = DISPLAY_RENDER_CPU; r <= DISPLAY_RENDER_GLES; r++) {
+            for (int r = r0; r <= r1; r++) {
                 struct drow best = { 0 };
                 for (int k = 0; k < runs; k++) {
                     struct drow row = { 0 };
@@ -186,10 +195,10 @@ int bench_display(int argc, char **argv)
                 best.renderer = r == DISPLAY_RENDER_CPU ? "cpu" : "gles";
                 rows[nrows++] = best;
                 printf("display %7zu Gaussians %4dx%-4d %-4s: %6.2f fps displayed (%llu frames, %llu keys, %.1f "
-                       "Mbit/s)  per key: decode %.1f lookup %.1f ms; per frame: interp %.1f draw %.1f present %.1f "
-                       "ms\n",
+                       "Mbit/s)  per key: decode %.1f lookup %.1f ms; per frame: interp %.1f draw %.1f (raster %.1f) "
+                       "present %.1f ms\n",
                        n, best.W, best.H, best.renderer, best.fps, best.frames, best.keys, best.mbps, best.decode_ms,
-                       best.lookup_ms, best.interp_ms, best.render_ms, best.present_ms);
+                       best.lookup_ms, best.interp_ms, best.render_ms, best.raster_ms, best.present_ms);
                 fflush(stdout);
             }
         free(buf);

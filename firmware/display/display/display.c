@@ -28,6 +28,7 @@ struct display {
     uint64_t          t0_us;            /* stream time of refresh 0 */
     uint64_t          refresh;          /* refreshes since the first key */
     double            next_ms;          /* realtime pacing deadline */
+    double            wall0_ms;         /* realtime: wall clock of refresh 0 */
     double            fps_avg, last_ms;
     int               eof;
     float            *rgbf;             /* [H W 3] CPU render / PNG staging */
@@ -218,8 +219,10 @@ static void apply_input(display *d, const struct display_input *in)
 static int draw_cpu(display *d, const struct splat_frame *f)
 {
     struct splat_render_out o = { .rgb = d->rgbf };
+    double t0 = display__now_ms();
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &o) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));
+    d->st.raster_ms += display__now_ms() - t0;
     size_t n = 3 * (size_t)d->W * (size_t)d->H;
     for (size_t i = 0; i < n; i++) { /* as splat_png_write_rgb quantises */
         float v = d->rgbf[i];
@@ -251,6 +254,7 @@ static int choose_renderer(display *d, const struct splat_frame *f)
             if (k > 0 && dt < best[r])
                 best[r] = dt;
         }
+    d->st.raster_ms = 0.0;
     d->st.auto_cpu_ms = best[DISPLAY_RENDER_CPU];
     d->st.auto_gles_ms = best[DISPLAY_RENDER_GLES];
     d->renderer = best[DISPLAY_RENDER_CPU] <= best[DISPLAY_RENDER_GLES] ? DISPLAY_RENDER_CPU : DISPLAY_RENDER_GLES;
@@ -371,7 +375,13 @@ int display_step(display *d, display_source *src)
     apply_input(d, &in);
     pace(d);
     double t_start = display__now_ms();
-    uint64_t t_us = d->t0_us + (uint64_t)((double)d->refresh * 1e6 / d->cfg.fps + 0.5);
+    /* stream time: paced, the wall clock since the first refresh (a slow
+     * refresh skips ahead, as a live display must); unpaced, refresh k shows
+     * k / fps (every refresh, as fast as the machine goes) */
+    if (d->cfg.realtime && d->refresh == 0)
+        d->wall0_ms = t_start;
+    double k = d->cfg.realtime ? (t_start - d->wall0_ms) * 1e-3 * d->cfg.fps : (double)d->refresh;
+    uint64_t t_us = d->t0_us + (uint64_t)(k * 1e6 / d->cfg.fps + 0.5);
     if ((rc = pump(d, src, t_us, 0)) < 0)
         return rc;
     uint64_t tp, tn;

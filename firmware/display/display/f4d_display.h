@@ -19,9 +19,13 @@
  * waited for), decode them, then interpolate between the last two keys with
  * interp_at (Forge4D's dual-consistency maths, keys' pixel lookups built once
  * per key) at a = (t - t_prev) / (t_next - t_prev), clamped to [0, 1] (a late
- * key holds the picture at the newest key), draw and present. Stream time of
- * refresh k is t_first_key + k / fps: the display shows the interval between
- * the last two keys, so its latency is one key interval plus the source's.
+ * key holds the picture at the newest key), draw and present. Stream time:
+ * unpaced (headless default), refresh k shows t_first_key + k / fps, every
+ * refresh as fast as the machine goes; paced (cfg.realtime, window and KMS
+ * default), refreshes start every 1 / fps and show t_first_key + the wall
+ * time since the first, so a slow machine skips ahead instead of falling
+ * behind a live stream. The display shows the interval between the last two
+ * keys, so its latency is up to one key interval plus the source's.
  *
  * Renderers (both present through EGL):
  *   DISPLAY_RENDER_GLES: GLES 3 instanced quads, the reference 3DGS shading
@@ -159,7 +163,8 @@ struct display_config display_config_default(void);
 struct display_stats {
     uint64_t frames;                /* refreshes presented                        */
     double   seconds;               /* wall time of those refreshes               */
-    double   render_ms, present_ms; /* totals                                     */
+    double   render_ms, present_ms; /* totals: draw (+ upload), compose + present  */
+    double   raster_ms;             /* of render_ms: splat_render (CPU path)       */
     double   bitrate_mbps;          /* received bits over the stream time seen    */
     double   latency_ms;            /* newest key time minus displayed time (+ source) */
     enum display_renderer renderer; /* the one in use (AUTO resolved)             */
