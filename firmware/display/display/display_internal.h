@@ -37,8 +37,9 @@ int  display__gl_plan(display_gl *g, size_t n, struct f4d_err *err);
 /* GLES splats of f seen by cam into the scene target (back to front). */
 int  display__gl_draw_splats(display_gl *g, const struct splat_camera *cam, const struct splat_frame *f,
                              const float bg[3], struct f4d_err *err);
-/* RGB8 image (top row first, width x height of the output) as the scene. */
-int  display__gl_upload(display_gl *g, const uint8_t *rgb, struct f4d_err *err);
+/* RGBA8 image (top row first, width x height of the output) as the scene
+ * (RGBA: the layout the driver keeps, so the upload is a copy). */
+int  display__gl_upload(display_gl *g, const uint8_t *rgba, struct f4d_err *err);
 /* Draws the scene (from the last draw_splats or upload) and the overlay
  * (RGBA8, width x overlay_h, premultiplied, top row first; NULL = none) into
  * the output's framebuffer. */

@@ -455,7 +455,7 @@ static int gl_objects(display_gl *g, struct f4d_err *err)
     }
     if (glCheckFramebufferStatus(GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
         return gl_fail(err, "the scene framebuffer is incomplete");
-    g->cpu_tex = texture(GL_RGB8, g->W, g->H, GL_RGB, GL_UNSIGNED_BYTE);
+    g->cpu_tex = texture(GL_RGBA8, g->W, g->H, GL_RGBA, GL_UNSIGNED_BYTE);
     g->overlay_tex = 0;
     if (g->out == DISPLAY_HEADLESS) {
         glGenFramebuffers(1, &g->out_fbo);
@@ -721,11 +721,11 @@ int display__gl_draw_splats(display_gl *g, const struct splat_camera *cam, const
     return glGetError() == GL_NO_ERROR ? F4D_OK : gl_fail(err, "drawing the splats failed");
 }
 
-int display__gl_upload(display_gl *g, const uint8_t *rgb, struct f4d_err *err)
+int display__gl_upload(display_gl *g, const uint8_t *rgba, struct f4d_err *err)
 {
     glBindTexture(GL_TEXTURE_2D, g->cpu_tex);
-    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, g->W, g->H, GL_RGB, GL_UNSIGNED_BYTE, rgb);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, g->W, g->H, GL_RGBA, GL_UNSIGNED_BYTE, rgba);
     return glGetError() == GL_NO_ERROR ? F4D_OK : gl_fail(err, "uploading the image failed");
 }
 
