@@ -25,6 +25,8 @@ struct display_player {
     int              nkeys, newest;   /* slot[newest] is the newer key */
     uint64_t         disc_mark;       /* decoder lost + skipped + refused at the last key */
     struct splat_frame out;
+    struct interp_pair pair;          /* partners of the current key pair */
+    int              pair_ok;         /* pair holds (slot[newest ^ 1], slot[newest]) */
     int              warm;            /* interp sized for the capacity */
     struct display_player_stats st;
     struct f4d_err   err;
@@ -80,6 +82,7 @@ void display_player_free(display_player *p)
         splat_frame_free(&p->slot[i].f);
     }
     splat_frame_free(&p->out);
+    interp_pair_free(&p->pair);
     free(p);
 }
 
@@ -168,6 +171,7 @@ int display_player_push(display_player *p, const struct codec_packet *pkt)
     ks->motion = f->motion_bwd && f->motion_fwd;
     ks->t_us = codec_dec_time(p->dec);
     ks->built = 0;
+    p->pair_ok = 0;
     uint64_t mark = disc_count(p);
     /* across a loss the older key is not this one's neighbour: hold one key */
     int continuous = p->nkeys > 0 && mark == p->disc_mark && ks->t_us > p->slot[p->newest].t_us;
@@ -229,12 +233,14 @@ static int warm_up(display_player *p)
         rc = interp_key_build(p->ip, &tmp, &p->slot[0].k, &p->err);
     if (rc == 0)
         rc = interp_key_build(p->ip, &tmp, &p->slot[1].k, &p->err);
-    if (rc == 0) {
-        struct interp_config cfg = interp_config_default();
-        rc = interp_at(p->ip, &p->slot[0].k, &p->slot[1].k, 0.5f, &cfg, &p->out, NULL, &p->err);
-    }
+    struct interp_config cfg = interp_config_default();
+    if (rc == 0)
+        rc = interp_pair_build(p->ip, &p->slot[0].k, &p->slot[1].k, &cfg, &p->pair, &p->err);
+    if (rc == 0)
+        rc = interp_pair_at(&p->pair, 0.5f, &cfg, &p->out, NULL, &p->err);
     splat_frame_free(&tmp);
     p->slot[0].built = p->slot[1].built = 0;
+    p->pair_ok = 0;
     return rc;
 }
 
@@ -306,8 +312,17 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
         return rc;
     struct interp_config cfg = interp_config_default();
     cfg.mode = mode;
+    if (mode == INTERP_FUSED && !p->pair_ok) { /* the partners, once per key pair */
+        double t0 = display__now_ms();
+        rc = interp_pair_build(p->ip, &prev->k, &next->k, &cfg, &p->pair, &p->err);
+        p->st.lookup_ms += display__now_ms() - t0;
+        if (rc < 0)
+            return rc;
+        p->pair_ok = 1;
+    }
     double t0 = display__now_ms();
-    rc = interp_at(p->ip, &prev->k, &next->k, (float)a, &cfg, &p->out, NULL, &p->err);
+    rc = mode == INTERP_FUSED ? interp_pair_at(&p->pair, (float)a, &cfg, &p->out, NULL, &p->err)
+                              : interp_at(p->ip, &prev->k, &next->k, (float)a, &cfg, &p->out, NULL, &p->err);
     p->st.interp_ms += display__now_ms() - t0;
     if (rc < 0)
         return rc;
