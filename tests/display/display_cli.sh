@@ -43,6 +43,9 @@ if "$disp" --camera 3 "$dir/s.f4ds" 2> "$dir/e2.txt"; then echo "--camera withou
 grep -q "rig" "$dir/e2.txt"
 if "$disp" --renderer vulkan "$dir/s.f4ds" 2> "$dir/e3.txt"; then echo "bad renderer accepted"; exit 1; fi
 grep -q "vulkan" "$dir/e3.txt"
+# KMS is built but there is no DRM device here: the error names the device
+if "$disp" --kms --kms-device "$dir/no-card" "$dir/s.f4ds" 2> "$dir/e5.txt"; then echo "KMS without a device"; exit 1; fi
+grep -q "no-card" "$dir/e5.txt"
 head -c 20 "$dir/s.f4ds" > "$dir/cut.f4ds"
 if "$disp" --headless "$dir/cut.f4ds" > /dev/null 2> "$dir/e4.txt"; then echo "a stream without keys was shown"; exit 1; fi
 grep -q "no key frame" "$dir/e4.txt"

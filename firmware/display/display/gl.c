@@ -541,7 +541,14 @@ void display__gl_close(display_gl *g)
         }
         if (g->surf != EGL_NO_SURFACE)
             eglDestroySurface(g->dpy, g->surf);
-        eglTerminate(g->dpy);
+        /* The surfaceless display is one per process (eglGetPlatformDisplay
+         * hands the same one to every caller): terminating it would unload
+         * Mesa's driver under any other user of it, and Mesa's llvmpipe keeps
+         * blocks that only its unloaded code referenced (LeakSanitizer then
+         * reports them against an unknown module). It stays initialised until
+         * exit, as EGL allows; window and KMS displays are ours to end. */
+        if (g->out != DISPLAY_HEADLESS)
+            eglTerminate(g->dpy);
     }
 #ifdef F4D_DISPLAY_KMS
     if (g->saved_crtc) { /* give the console its picture back */
