@@ -91,11 +91,7 @@ int display_new(fk_ctx *ctx, const struct display_config *cfg, display **out, st
     if (rc < 0)
         goto fail;
     display__gl_size(d->gl, &d->W, &d->H); /* KMS: the mode's size */
-    if (cfg->camera && (cfg->camera->width != d->W || cfg->camera->height != d->H)) {
-        rc = f4d_fail(err, F4D_EINVAL, "display_new: the camera is %dx%d, the output %dx%d", cfg->camera->width,
-                      cfg->camera->height, d->W, d->H);
-        goto fail;
-    }
+
     snprintf(d->st.gl_renderer, sizeof d->st.gl_renderer, "%s", display__gl_renderer(d->gl));
     if ((rc = display_player_new(ctx, cfg->lookup_rig, cfg->interp, cfg->capacity, &d->player, err)) < 0 ||
         (rc = splat_renderer_new(ctx, d->W, d->H, &d->cpu, err)) < 0)
@@ -118,7 +114,12 @@ int display_new(fk_ctx *ctx, const struct display_config *cfg, display **out, st
         goto fail;
     }
     if (cfg->camera) {
+        /* the same view at the output's size (KMS: the mode's): intrinsics scale */
         d->cam = *cfg->camera;
+        float sx = (float)d->W / (float)d->cam.width, sy = (float)d->H / (float)d->cam.height;
+        d->cam.fx *= sx; d->cam.cx *= sx; d->cam.fy *= sy; d->cam.cy *= sy;
+        d->cam.width = d->W;
+        d->cam.height = d->H;
         d->have_cam = 1;
     }
     d->renderer = cfg->renderer;
@@ -363,6 +364,7 @@ int display_step(display *d, display_source *src)
         return 0;
     int rc;
     if (!d->planned) {
+        pace(d); /* a paced display waiting for its first key does not spin */
         if ((rc = pump(d, src, 0, 1)) < 0)
             return rc;
         uint64_t tp, tn;

@@ -151,7 +151,8 @@ struct display_config {
     int         status_line;        /* draw the on-screen status line            */
     const char *png_dir;            /* write frame_%06d.png of each refresh, or NULL */
     int         read_back;          /* keep each refresh for display_read_back   */
-    const struct splat_camera *camera;     /* NULL: orbit camera from the first key */
+    const struct splat_camera *camera;     /* NULL: orbit camera from the first key;
+                                               scaled to the output's size      */
     const struct splat_rig    *lookup_rig; /* NULL: the starting camera         */
     enum interp_mode interp;        /* INTERP_FUSED                              */
     size_t      capacity;           /* 0: from the stream                        */
