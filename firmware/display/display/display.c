@@ -362,9 +362,10 @@ int display_step(display *d, display_source *src)
     display__gl_poll(d->gl, &in);
     if (in.quit)
         return 0;
-    int rc;
+    int rc, paced = 0;
     if (!d->planned) {
         pace(d); /* a paced display waiting for its first key does not spin */
+        paced = 1;
         if ((rc = pump(d, src, 0, 1)) < 0)
             return rc;
         uint64_t tp, tn;
@@ -384,7 +385,8 @@ int display_step(display *d, display_source *src)
         d->st.renderer = d->renderer;
     }
     apply_input(d, &in);
-    pace(d);
+    if (!paced)
+        pace(d);
     double t_start = display__now_ms();
     /* stream time: paced, the wall clock since the first refresh (a slow
      * refresh skips ahead, as a live display must); unpaced, refresh k shows
@@ -445,7 +447,6 @@ int display_step(display *d, display_source *src)
         double inst = 1e3 / fmax(1e-3, t_end - d->last_ms);
         d->fps_avg = d->fps_avg > 0 ? 0.9 * d->fps_avg + 0.1 * inst : inst;
     }
-    (void)t_start;
     d->last_ms = t_end;
     d->st.frames++;
     d->refresh++;
