@@ -3,8 +3,9 @@
 #
 # Ranks, low to high: kernels; hal/core; hal/take, hal/board; the backends;
 # hal/registry; the stages in data-path order (capture: sync, then capture;
-# infer: gguf/npy/preprocess, then model; gaussians: splat, then interp;
-# stream; display), the synthetic world beside them; firmware/app; tools.
+# infer: gguf/npy/preprocess, then model; gaussians: splat, then interp,
+# then sequence (which runs the model and interp);
+# stream: codec, then transport; display), the synthetic world beside them; firmware/app; tools.
 #
 # Every quoted #include in kernels/, hal/, firmware/ and tools/ is resolved to
 # the header it names (by file name: headers are unique across the tree) and
@@ -30,8 +31,10 @@ rank() {
     firmware/infer/model/*)         echo "61 firmware/infer/model" ;;
     firmware/infer/*)               m=${1#firmware/infer/};   echo "60 firmware/infer/${m%%/*}" ;;
     firmware/gaussians/splat/*)     echo "70 firmware/gaussians/splat" ;;
+    firmware/gaussians/sequence/*)  echo "72 firmware/gaussians/sequence" ;;
     firmware/gaussians/*)           m=${1#firmware/gaussians/}; echo "71 firmware/gaussians/${m%%/*}" ;;
-    firmware/stream/*)              m=${1#firmware/stream/};  echo "80 firmware/stream/${m%%/*}" ;;
+    firmware/stream/codec/*)        echo "80 firmware/stream/codec" ;;
+    firmware/stream/*)              m=${1#firmware/stream/};  echo "81 firmware/stream/${m%%/*}" ;;
     firmware/display/*)             m=${1#firmware/display/}; echo "90 firmware/display/${m%%/*}" ;;
     firmware/synth/scene/*)         echo "75 firmware/synth/scene" ;;
     firmware/synth/*)               m=${1#firmware/synth/};   echo "76 firmware/synth/${m%%/*}" ;;

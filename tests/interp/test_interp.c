@@ -199,6 +199,16 @@ static void test_gt_interpolation_beats_nearest_on_every_preset(void **state)
     fk_ctx_free(ctx);
 }
 
+static int batch_average(void *user, const float *x, int n, float *out)
+{
+    for (int i = 0; i < n; i++) {
+        const float *r = x + (size_t)i * INTERP_FUSE_IN;
+        interp_fuse_average(user, r, r + INTERP_ATTRS, r[2 * INTERP_ATTRS], r[2 * INTERP_ATTRS + 1],
+                            out + (size_t)i * INTERP_ATTRS);
+    }
+    return 0;
+}
+
 /* interp_pair_at (partners found once per key pair) gives interp_at's frame
  * bit for bit at every a, on a real scene with fused, kept and dropped ones. */
 static void test_pair_matches_interp_at(void **state)
@@ -227,7 +237,7 @@ static void test_pair_matches_interp_at(void **state)
     for (int i = 0; i < 4; i++) {
         struct interp_stats sa, sb;
         assert_int_equal(interp_at(ip, &k0, &k1, as[i], &cfg, &a, &sa, &err), 0);
-        assert_int_equal(interp_pair_at(&pr, as[i], &cfg, &b, &sb, &err), 0);
+        assert_int_equal(interp_pair_at(ip, &pr, as[i], &cfg, &b, &sb, &err), 0);
         assert_true(sa.fused > 0 && sa.kept_t + sa.kept_tm1 > 0);
         assert_memory_equal(&sa, &sb, sizeof sa);
         assert_int_equal(a.count, b.count);
@@ -237,8 +247,19 @@ static void test_pair_matches_interp_at(void **state)
         assert_memory_equal(a.rgb, b.rgb, 3 * a.count * sizeof(float));
         assert_memory_equal(a.opacity, b.opacity, a.count * sizeof(float));
     }
+    /* the batched fusion hook (rows averaged here) takes the same path */
+    cfg.fuse_batch = batch_average;
+    for (int i = 0; i < 4; i++) {
+        assert_int_equal(interp_at(ip, &k0, &k1, as[i], &cfg, &a, NULL, &err), 0);
+        assert_int_equal(interp_pair_at(ip, &pr, as[i], &cfg, &b, NULL, &err), 0);
+        assert_int_equal(a.count, b.count);
+        assert_memory_equal(a.pos, b.pos, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.rot, b.rot, 4 * a.count * sizeof(float));
+        assert_memory_equal(a.opacity, b.opacity, a.count * sizeof(float));
+    }
+    cfg.fuse_batch = NULL;
     cfg.tau = 0.01f; /* built with another tau: refused */
-    assert_int_equal(interp_pair_at(&pr, 0.5f, &cfg, &b, NULL, &err), F4D_EINVAL);
+    assert_int_equal(interp_pair_at(ip, &pr, 0.5f, &cfg, &b, NULL, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "tau"));
     interp_pair_free(&pr);
     interp_key_free(&k0);

@@ -162,7 +162,9 @@ static double run_parity(const char *type, enum fk_wtype wt, double budget)
         fail_msg("%s", model_error(m));
     /* one arena, as planned from the groups without weights */
     assert_int_equal(model_arena_bytes(m),
-                     model_plan_bytes(model_get_config(m), MODEL_G_ALL, FIX_S, FIX_H, FIX_W));
+                     model_plan_bytes(model_get_config(m),
+                                      MODEL_G_VGGT | MODEL_G_GAUSSIAN | MODEL_G_SCALE, FIX_S,
+                                      FIX_H, FIX_W));
     static struct mt_run r;
     memset(&r, 0, sizeof r);
     char nm[64];

@@ -9,6 +9,7 @@
  *
  *   test_model_alloc GGUF_DIR
  */
+#include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -119,6 +120,57 @@ static void test_init_prepare_oom(void **state)
     oom_sweep("tiny_f32.gguf", FK_W_F32, FK_ISA_AUTO);
     oom_sweep("tiny_int8.gguf", FK_W_Q8, FK_ISA_AUTO);
     oom_sweep("tiny_conv_f16.gguf", FK_W_F16, FK_ISA_REF);
+    /* Forge4D's state / motion blocks, motion head and fusion MLP too */
+    oom_sweep("tiny_f4d_seq_f32.gguf", FK_W_F32, FK_ISA_AUTO);
+}
+
+/* Forge4D streaming: memory is flat over time. 200 time steps of the tiny
+ * stream model (state blocks, motion, fusion) make no allocation, the arena
+ * keeps its size, and the carried state stays finite. */
+static void test_stream_flat_memory(void **state)
+{
+    (void)state;
+    enum { S = 2, H = 28, W = 42, STEPS = 200 };
+    char path[1024];
+    struct f4d_err err = {0};
+    snprintf(path, sizeof path, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+    struct model *m;
+    assert_int_equal(model_init(ctx, path, FK_W_F32, &m, &err), 0);
+    assert_int_equal(model_prepare(m, S, H, W), 0);
+    const size_t arena = model_arena_bytes(m), n_img = (size_t)S * 3 * H * W;
+    float *img = calloc(n_img, sizeof *img);
+    assert_non_null(img);
+    void *fu = model_fusion(m);
+    assert_non_null(fu);
+    float at[MODEL_FUSION_ATTRS] = { 0.1f, 0.2f, 0.3f, 0.5f, 0.5f, 0.5f, 2.0f, -4.0f, -4.0f,
+                                     -4.0f, 1.0f, 0.0f, 0.0f, 0.0f };
+    float fo[MODEL_FUSION_ATTRS];
+    struct model_outputs out;
+    n_allocs = 0;
+    for (int t = 0; t < STEPS; t++) {
+        for (size_t j = 0; j < n_img; j++) /* a pattern drifting with t */
+            img[j] = (float)((j * 7 + (size_t)t * 13) % 251) / 251.0f;
+        if (t == STEPS / 2)
+            model_state_reset(m);
+        assert_int_equal(model_eval(m, img, S, H, W, &out), 0);
+        assert_int_equal(out.has_motion, t != 0 && t != STEPS / 2);
+        model_fusion_fuse(fu, at, at, 0.5f, 0.01f, fo);
+        assert_int_equal(model_arena_bytes(m), arena);
+    }
+    if (n_allocs)
+        print_error("%d stream steps made %ld allocations\n", STEPS, n_allocs);
+    assert_int_equal(n_allocs, 0);
+    assert_int_equal(out.step, STEPS / 2);
+    for (size_t i = 0; i < (size_t)3 * S * H * W; i++)
+        assert_true(isfinite(out.gaussians.pos[i]) && isfinite(out.motion_bwd[i]) &&
+                    isfinite(out.motion_fwd_prev[i]));
+    printf("  %d stream steps: arena %zu bytes throughout, no allocation\n", STEPS, arena);
+    free(img);
+    model_free(m);
+    fk_ctx_free(ctx);
 }
 
 /* After Prepare, no Eval up to the planned size allocates: not the first one
@@ -171,6 +223,7 @@ int main(int argc, char **argv)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_init_prepare_oom),
         cmocka_unit_test(test_eval_never_allocates),
+        cmocka_unit_test(test_stream_flat_memory),
     };
     return cmocka_run_group_tests_name("/model/alloc", tests, NULL, NULL);
 }

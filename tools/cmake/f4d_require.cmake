@@ -25,6 +25,7 @@ set(F4D_DEB_OF_libcjson     libcjson-dev)
 set(F4D_DEB_OF_libpng       libpng-dev)
 set(F4D_DEB_OF_cmocka       libcmocka-dev)
 set(F4D_DEB_OF_libzstd      libzstd-dev)
+set(F4D_DEB_OF_srt          libsrt-openssl-dev)
 
 macro(f4d_require_pkg _prefix _module _deb _option)
   pkg_check_modules(${_prefix} QUIET IMPORTED_TARGET ${_module})

@@ -9,6 +9,7 @@ int bench_kernels(int argc, char **argv);
 int bench_model(int argc, char **argv);
 int bench_render(int argc, char **argv);
 int bench_interp(int argc, char **argv);
+int bench_stream(int argc, char **argv);
 int bench_hal(int argc, char **argv);
 int bench_codec(int argc, char **argv);
 int bench_display(int argc, char **argv);

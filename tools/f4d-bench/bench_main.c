@@ -16,6 +16,7 @@ static const struct subcommand table[] = {
     { "model",   bench_model,   "VGGT forward per stage (tiny) and full size extrapolated, f32/f16/int8" },
     { "render",  bench_render,  "CPU Gaussian rasterizer vs Mesa llvmpipe (EGL) on 100k/300k/1M Gaussians" },
     { "interp",  bench_interp,  "4D interpolation quality/speed vs nearest key frame, and the scene budget" },
+    { "stream",  bench_stream,  "Forge4D playback: interpolation per step (100k/300k Gaussians) vs streaming its bytes at the measured bandwidth" },
     { "hal",     bench_hal,     "synchronizer, sim capture and take writer throughput vs raw write()" },
 #ifdef F4D_BENCH_CODEC
     { "codec",   bench_codec,   "stream codec rate-distortion (intra/predicted keys, motion, Mbit/s, render PSNR) vs SPZ" },

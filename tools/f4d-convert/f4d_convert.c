@@ -472,11 +472,13 @@ int main(int argc, char **argv)
     if (!w || model_config_write(&cfg, w) < 0 ||
         gguf_writer_add_str(w, "forge4d.file_type", type) < 0)
         goto done;
+    /* in enum model_group order from MODEL_G_CAMERA on */
     static const char *heads[] = { "camera_head", "depth_head", "point_head", "gaussian_head",
-                                   "scale_head" };
-    const char *present[5];
+                                   "scale_head", "state", "motion", "motion_head", "fusion" };
+    enum { N_HEADS = sizeof heads / sizeof heads[0] };
+    const char *present[N_HEADS];
     size_t np = 0;
-    for (int i = 0; i < 5; i++)
+    for (int i = 0; i < N_HEADS; i++)
         if (groups & (MODEL_G_CAMERA << i))
             present[np++] = heads[i];
     printf("config: %s patch embed, embed_dim %d, depth %d, heads %d; groups: aggregator",

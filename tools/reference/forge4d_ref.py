@@ -12,18 +12,55 @@ Implemented so far (stage 1 of forge4d-arch.md):
   - gauge_from_translations: the paper's training target p_gauge = mean_i |T_i| / |T_hat_i|
                       over views whose translations are not near zero (the C runtime has
                       the same function for calibrated rigs).
-State blocks, motion blocks / head and fusion are later work (issue 10).
+Stages 2-3 (forge4d-arch.md 4-6), built with Forge4D(cfg, stream=True) and run one time
+step at a time by Forge4D.step(images, stream) (stream = Forge4D.new_stream()):
+  - state.tokens [16, C]      the state of every layer at t = 0;
+  - state.blocks.{l}.*        after global block l, on x [S*P', C] (all views) and s_l:
+        norm_x, norm_s, attn_r.{q, kv, proj}, ls_r.gamma      read:
+            x  = x + ls_r * Attn_r(q = norm_x(x), kv = norm_s(s_l))
+        norm_s2, norm_x2, attn_w.{q, kv, proj}, ls_w.gamma    write (on the x after the read):
+            s' = s_l + ls_w * Attn_w(q = norm_s2(s_l), kv = norm_x2(x))
+        norm_m, mlp.{fc1, fc2}, ls_m.gamma
+            s' = s' + ls_m * MLP(norm_m(s'))          s' is s_l of the next step;
+  - motion.in_proj.{l}        Linear D -> C: z_l(t) = in_proj_l(F_l(t)) on all P' tokens;
+  - motion.blocks.{l}.*       norm1, norm_kv, attn.{q, kv, proj}, ls1.gamma, norm2,
+                              mlp.{fc1, fc2}, ls2.gamma; per view, h = z_0(q side), then
+            h = h + zq_l (l > 0)
+            h = h + ls1 * CrossAttn(q = norm1(h), kv = norm_kv(zk_l))   2-D RoPE on q, k
+            h = h + ls2 * MLP(norm2(h))
+        M1[t] runs zq = z(t), zk = z(t-1); M2[t-1] runs zq = z(t-1), zk = z(t), same weights;
+  - motion_head.*             a DPT head (vggt_ref.DPTHead, input width C) reading h after
+                              the blocks of dpt_layer_idx, 3 raw output channels;
+  - fusion.fc1 (30 -> 64), fusion.fc2 (64 -> 14): fuse_pairs().
+Cross-attention (CrossAttention): q Linear C -> C, kv Linear C -> 2C (k = the first C
+outputs, v the next C, head-major, d contiguous per head), proj Linear C -> C;
+num_heads heads of C / num_heads (C/64 = 16 in VGGT-1B), no qk-norm; RoPE only in the
+motion blocks. Every LayerNorm of these modules has eps 1e-5; MLP hidden width
+int(C * mlp_ratio), exact GELU. LayerScales and the last layers (motion_head's
+output_conv2.2, fusion.fc2) are zero-initialised: untrained, state blocks are the identity,
+motion is 0 and fusion is averaging.
+
+Order inside one step (the C runtime does the same):
+  1. aggregator, state block l right after global block l (read with s_l(t-1), write);
+  2. VGGT heads, scale head (gauge g(t)), Gaussian head;
+  3. z_l(t) for every layer; with a previous step of the same S x H x W: M1[t], M2[t-1]
+     in model units, metric = / g(t) (this step's gauge for both);
+  4. z(t) is kept (not recomputed) as the next step's z(t-1).
 
 Choices where forge4d-arch.md leaves a detail open (the C runtime does the same):
   - the scale footprint uses |z| / |f| (z the view depth of X, f = (fx + fy) / 2), so a
     point behind its camera (random or untrained weights) still gets a positive scale;
-  - q = (1, 0, 0, 0) + q_raw is normalised when |q| >= 1e-12, else it is the identity.
+  - q = (1, 0, 0, 0) + q_raw is normalised when |q| >= 1e-12, else it is the identity;
+  - the fusion output's quaternion: the sign-aligned sum (sign of the dot product, +1 at
+    0) normalised, the identity when its norm is below 1e-12, then + fc2[10:14]; the
+    output stays pre-activation in the attribute convention of interp (the consumer
+    normalises q, exponentiates scales and takes the sigmoid of the opacity logit).
 """
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from vggt_ref import VGGT, DPTHead, Config  # noqa: F401
+from vggt_ref import VGGT, DPTHead, Config, LayerScale, Mlp, rope2d  # noqa: F401
 
 GAUSS_CH = 14            # dp 3 | dc 3 | o 1 | s 3 | q 4
 SH_C0 = 0.28209479177387814
@@ -31,6 +68,10 @@ OPACITY_BIAS = 4.0
 SCALE_LOG_MIN, SCALE_LOG_MAX = -8.0, 4.0
 QUAT_EPS = 1e-12
 GAUGE_T_EPS = 1e-6       # |T| below this (model units / metres): no ratio from that view
+STATE_TOKENS = 16        # N_s
+MOTION_CH = 3
+FUSION_ATTRS = 14        # mu 3 | colour 3 | logit(opacity) 1 | log(scale) 3 | q 4
+FUSION_HIDDEN = 64
 
 
 class ScaleHead(nn.Module):
@@ -48,6 +89,132 @@ class ScaleHead(nn.Module):
         c = last[:, 0].mean(dim=0)                    # camera tokens, mean over views
         x = self.fc2(F.gelu(self.fc1(self.norm(c))))  # exact GELU
         return torch.exp(x[0])
+
+
+class CrossAttention(nn.Module):
+    """Queries from one token set, keys / values from another: q, kv, proj Linears."""
+
+    def __init__(self, dim, heads):
+        super().__init__()
+        self.heads = heads
+        self.q = nn.Linear(dim, dim)
+        self.kv = nn.Linear(dim, 2 * dim)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, xq, xkv, pos=None):
+        """xq [n, tq, C], xkv [n, tk, C]; pos [n, T, 2] for q and k (tq == tk) or None."""
+        n, tq, c = xq.shape
+        tk, d = xkv.shape[1], c // self.heads
+        q = self.q(xq).reshape(n, tq, self.heads, d).transpose(1, 2)
+        kv = self.kv(xkv).reshape(n, tk, 2, self.heads, d).permute(2, 0, 3, 1, 4)
+        k, v = kv[0], kv[1]
+        if pos is not None:
+            q = rope2d(q, pos)
+            k = rope2d(k, pos)
+        a = torch.softmax((q @ k.transpose(-1, -2)) * d ** -0.5, dim=-1)
+        return self.proj((a @ v).transpose(1, 2).reshape(n, tq, c))
+
+
+def zero_ls(dim):
+    ls = LayerScale(dim)
+    nn.init.zeros_(ls.gamma)
+    return ls
+
+
+class StateBlock(nn.Module):
+    def __init__(self, cfg):
+        super().__init__()
+        c, hd = cfg.embed_dim, cfg.num_heads
+        ln = lambda: nn.LayerNorm(c, eps=1e-5)  # noqa: E731
+        self.norm_x, self.norm_s = ln(), ln()
+        self.attn_r = CrossAttention(c, hd)
+        self.ls_r = zero_ls(c)
+        self.norm_s2, self.norm_x2 = ln(), ln()
+        self.attn_w = CrossAttention(c, hd)
+        self.ls_w = zero_ls(c)
+        self.norm_m = ln()
+        self.mlp = Mlp(c, int(c * cfg.mlp_ratio))
+        self.ls_m = zero_ls(c)
+
+    def forward(self, x, s):
+        """x [N, C] (all views), s [N_s, C] (the state of t-1) -> x, s'."""
+        x = x + self.ls_r(self.attn_r(self.norm_x(x)[None], self.norm_s(s)[None])[0])
+        s = s + self.ls_w(self.attn_w(self.norm_s2(s)[None], self.norm_x2(x)[None])[0])
+        return x, s + self.ls_m(self.mlp(self.norm_m(s)))
+
+
+class State(nn.Module):
+    def __init__(self, cfg):
+        super().__init__()
+        self.tokens = nn.Parameter(torch.zeros(STATE_TOKENS, cfg.embed_dim))
+        nn.init.normal_(self.tokens, std=0.02)
+        self.blocks = nn.ModuleList([StateBlock(cfg) for _ in range(cfg.depth)])
+
+
+class MotionBlock(nn.Module):
+    def __init__(self, cfg):
+        super().__init__()
+        c = cfg.embed_dim
+        self.norm1 = nn.LayerNorm(c, eps=1e-5)
+        self.norm_kv = nn.LayerNorm(c, eps=1e-5)
+        self.attn = CrossAttention(c, cfg.num_heads)
+        self.ls1 = zero_ls(c)
+        self.norm2 = nn.LayerNorm(c, eps=1e-5)
+        self.mlp = Mlp(c, int(c * cfg.mlp_ratio))
+        self.ls2 = zero_ls(c)
+
+    def forward(self, h, zk, pos):
+        """h, zk [S, P', C] (per view); pos [P', 2], the same for q and k."""
+        p = pos[None].expand(h.shape[0], -1, -1)
+        h = h + self.ls1(self.attn(self.norm1(h), self.norm_kv(zk), p))
+        return h + self.ls2(self.mlp(self.norm2(h)))
+
+
+class Motion(nn.Module):
+    def __init__(self, cfg):
+        super().__init__()
+        c = cfg.embed_dim
+        self.in_proj = nn.ModuleList([nn.Linear(2 * c, c) for _ in range(cfg.depth)])
+        self.blocks = nn.ModuleList([MotionBlock(cfg) for _ in range(cfg.depth)])
+
+    def inputs(self, layers):
+        """z_l = in_proj_l(F_l) for every layer; layers [S, P', D]."""
+        return [p(f) for p, f in zip(self.in_proj, layers)]
+
+    def forward(self, zq, zk, pos):
+        """The motion stream h after every block (queries from zq, keys from zk)."""
+        h, hs = zq[0], []
+        for i, b in enumerate(self.blocks):
+            if i > 0:
+                h = h + zq[i]
+            h = b(h, zk[i], pos)
+            hs.append(h)
+        return hs
+
+
+class FusionMLP(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.fc1 = nn.Linear(2 * FUSION_ATTRS + 2, FUSION_HIDDEN)
+        self.fc2 = nn.Linear(FUSION_HIDDEN, FUSION_ATTRS)
+        nn.init.zeros_(self.fc2.weight)
+        nn.init.zeros_(self.fc2.bias)
+
+
+def fuse_pairs(fusion, at, am, a, D):
+    """forge4d-arch.md 6. at, am [N, 14] (attrs of t and t-1, deformed to t'), a, D [N]
+    -> [N, 14] pre-activation: mean (q: normalised sign-aligned sum) + fc2(GELU(fc1(x)))."""
+    x = torch.cat([at, am, a[:, None], D[:, None]], dim=-1)
+    y = fusion.fc2(F.gelu(fusion.fc1(x)))
+    mean = 0.5 * (at[:, :10] + am[:, :10])
+    qt, qm = at[:, 10:], am[:, 10:]
+    sg = torch.where((qt * qm).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(at.dtype)
+    qs = qt + sg * qm
+    n = qs.norm(dim=-1, keepdim=True)
+    ident = torch.zeros_like(qs)
+    ident[:, 0] = 1.0
+    q = torch.where(n >= QUAT_EPS, qs / torch.clamp(n, min=QUAT_EPS), ident)
+    return torch.cat([mean, q], dim=-1) + y
 
 
 def gaussian_activate(raw, world_points, images, extrinsic, intrinsic):
@@ -93,21 +260,72 @@ def gauge_from_translations(t_true, t_pred, eps=GAUGE_T_EPS):
 
 
 class Forge4D(VGGT):
-    """VGGT + Forge4D's stage-1 heads. forward() returns VGGT's dict plus the new
-    checkpoints (see make_fixtures.py)."""
+    """VGGT + Forge4D's stage-1 heads; with stream=True also the state blocks, motion
+    blocks, motion head and fusion MLP (stages 2-3). forward() returns VGGT's dict plus
+    the new checkpoints (see make_fixtures.py); step() runs one time step."""
 
-    def __init__(self, cfg=None):
+    def __init__(self, cfg=None, stream=False):
         super().__init__(cfg)
         self.gaussian_head = DPTHead(self.cfg, GAUSS_CH, "none")
         last = self.gaussian_head.scratch.output_conv2[2]
         nn.init.zeros_(last.weight)
         nn.init.zeros_(last.bias)
         self.scale_head = ScaleHead(self.cfg)
+        self.stream = stream
+        if stream:
+            self.state = State(self.cfg)
+            self.motion = Motion(self.cfg)
+            self.motion_head = DPTHead(self.cfg, MOTION_CH, "none", in_dim=self.cfg.embed_dim)
+            last = self.motion_head.scratch.output_conv2[2]
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
+            self.fusion = FusionMLP()
+
+    def new_stream(self):
+        """t = 0: every layer's state is state.tokens, no previous step."""
+        return {"s": [self.state.tokens.detach().clone() for _ in range(self.cfg.depth)],
+                "z": None, "shape": None}
 
     @torch.no_grad()
-    def forward(self, images):
+    def step(self, images, st):
+        """One time step; st (new_stream) is updated in place."""
         S, _, H, W = images.shape
-        out = super().forward(images)
+        s_new = list(st["s"])
+
+        def after_global(i, x, pos):
+            x, s_new[i] = self.state.blocks[i](x, st["s"][i].to(x.dtype))
+            return x
+
+        out = self.forward(images, after_global)
+        layers = out.pop("_layers")
+        st["s"] = s_new
+        for i, s in enumerate(s_new):
+            out[f"state{i}"] = s
+        ns = 1 + self.cfg.num_register_tokens
+        h, w = H // self.cfg.patch_size, W // self.cfg.patch_size
+        pos = torch.zeros(ns + h * w, 2, dtype=torch.int64)
+        rr, cc = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+        pos[ns:, 0] = rr.flatten() + 1
+        pos[ns:, 1] = cc.flatten() + 1
+        z = self.motion.inputs(layers)
+        out["has_motion"] = st["z"] is not None and st["shape"] == (S, H, W)
+        if out["has_motion"]:
+            g = out["gauge"][0]
+            for tag, zq, zk, key in (("m1h", z, st["z"], "m1"), ("m2h", st["z"], z, "m2")):
+                hs = self.motion(zq, zk, pos)
+                for L in self.cfg.dpt_layer_idx:
+                    out[f"motion.{tag}{L}"] = hs[L]
+                m, _ = self.motion_head(hs, H, W, {}, "motion_head")
+                out[f"motion_head.{key}"] = m
+            out["motion_bwd"] = out["motion_head.m1"] / g
+            out["motion_fwd_prev"] = out["motion_head.m2"] / g
+        st["z"], st["shape"] = z, (S, H, W)
+        return out
+
+    @torch.no_grad()
+    def forward(self, images, after_global=None):
+        S, _, H, W = images.shape
+        out = super().forward(images, after_global)
         layers = [out.get(f"layer{L}") for L in range(self.cfg.depth)]
         raw, _ = self.gaussian_head(layers, H, W, out, "gaussian_head")
         out["gaussian_raw"] = raw

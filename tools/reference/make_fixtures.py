@@ -242,12 +242,120 @@ def forge4d_fixtures(out_root):
             f"{k} |max| {o2[k].abs().max().item():.3g}" for k in keys))
 
 
+# Forge4D stages 2-3 (forge4d-arch.md 4-6): the tiny VGGT + every Forge4D module, a
+# sequence of SEQ_T time steps of 2 views at 28x42 (small files). Per step t/<name>.npy:
+# the aggregator layers the heads read (state blocks included), the state of every layer
+# after the step, gauge, Gaussian positions and scales (metric), and from step 1 on the
+# motion stream at the DPT layers of both runs, M1[t] / M2[t-1] in model units and metric.
+SEQ_T, SEQ_S, SEQ_H, SEQ_W, SEQ_PAIRS = 4, 2, 28, 42, 64
+
+
+def seq_init(model, gen):
+    """init_weights, then the LayerScales of the new modules and their zero-initialised
+    last layers set to nonzero random values: untrained they are the identity / zero /
+    averaging, and parity would prove nothing."""
+    init_weights(model, gen)
+    sd = model.state_dict()
+    for name in sd:
+        if name.startswith(("state.", "motion.")) and name.endswith(".gamma"):
+            sd[name] = (0.3 + 0.4 * torch.rand(sd[name].shape, generator=gen)).to(torch.float32)
+    sd["motion_head.scratch.output_conv2.2.weight"] = \
+        (torch.randn(sd["motion_head.scratch.output_conv2.2.weight"].shape, generator=gen) * 0.1).float()
+    sd["fusion.fc2.weight"] = (torch.randn(sd["fusion.fc2.weight"].shape, generator=gen) * 0.05).float()
+    sd["fusion.fc2.bias"] = (torch.randn(sd["fusion.fc2.bias"].shape, generator=gen) * 0.05).float()
+    model.load_state_dict(sd)
+
+
+def fusion_pairs(gen, n):
+    """Attribute pairs in interp's convention: positions near each other, colours in
+    [0, 1], opacity logits, log-scales of centimetres, unit quaternions (half of the
+    t-1 ones sign-flipped), a in (0, 1), D in [0, 0.05]."""
+    def attrs(mu):
+        q = torch.randn(n, 4, generator=gen, dtype=torch.float64)
+        q = q / q.norm(dim=-1, keepdim=True)
+        return torch.cat([mu, torch.rand(n, 3, generator=gen, dtype=torch.float64),
+                          2 * torch.randn(n, 1, generator=gen, dtype=torch.float64),
+                          -4 + torch.randn(n, 3, generator=gen, dtype=torch.float64), q], dim=-1)
+    mu = torch.randn(n, 3, generator=gen, dtype=torch.float64)
+    at = attrs(mu)
+    am = attrs(mu + 0.02 * torch.randn(n, 3, generator=gen, dtype=torch.float64))
+    am[::2, 10:] = -am[::2, 10:]
+    am[1] = at[1]                 # identical pair
+    am[3, 10:] = -at[3, 10:]      # opposite quaternion: the sign alignment cancels nothing
+    a = torch.rand(n, generator=gen, dtype=torch.float64)
+    D = 0.05 * torch.rand(n, generator=gen, dtype=torch.float64)
+    # float32-representable inputs: the C side reads them as float32
+    return [v.float().double() for v in (at, am, a, D)]
+
+
+def forge4d_seq_fixtures(out_root):
+    from forge4d_ref import fuse_pairs
+    cfg = CONFIGS["tiny"]["cfg"]
+    gen = torch.Generator().manual_seed(5151)
+    model = Forge4D(cfg, stream=True).eval()
+    seq_init(model, gen)
+    d = os.path.join(out_root, "tiny_f4d_seq")
+    os.makedirs(d, exist_ok=True)
+    sd = {k: v.clone() for k, v in model.state_dict().items()}
+    write_safetensors(os.path.join(d, "weights.safetensors"), sd)
+    with open(os.path.join(d, "config.json"), "w") as f:
+        json.dump({k: getattr(cfg, k) for k in cfg.__dataclass_fields__}, f, indent=1)
+        f.write("\n")
+    # a slowly moving scene: a base image plus a small change per step
+    base = torch.rand(SEQ_S, 3, SEQ_H, SEQ_W, generator=gen)
+    frames = []
+    for t in range(SEQ_T):
+        dt = 0.1 * torch.rand(SEQ_S, 3, SEQ_H, SEQ_W, generator=gen)
+        frames.append(torch.clamp(base + dt * t, 0, 1).to(torch.float32))
+    m64 = model.double()
+    st = m64.new_stream()
+    keep = sorted(set(cfg.dpt_layer_idx) | {cfg.depth - 1})
+    for t in range(SEQ_T):
+        out = m64.step(frames[t].double(), st)
+        tdir = os.path.join(d, f"t{t}")
+        os.makedirs(tdir, exist_ok=True)
+        names = ["gauge", "gaussians_pos", "gaussians_scale"] + [f"layer{L}" for L in keep] + \
+                [f"state{i}" for i in range(cfg.depth)]
+        if out["has_motion"]:
+            names += [f"motion.{tag}{L}" for tag in ("m1h", "m2h") for L in cfg.dpt_layer_idx]
+            names += ["motion_head.m1", "motion_head.m2", "motion_bwd", "motion_fwd_prev"]
+        assert out["has_motion"] == (t > 0)
+        np.save(os.path.join(tdir, "input.npy"), frames[t].numpy())
+        for k in names:
+            v = out[k].to(torch.float32).contiguous().numpy()
+            assert np.isfinite(v).all(), (t, k)
+            np.save(os.path.join(tdir, f"{k}.npy"), v)
+        msg = f"tiny_f4d_seq t={t}: gauge {out['gauge'].item():.4g}"
+        if out["has_motion"]:
+            msg += f", |M1| max {out['motion_head.m1'].abs().max().item():.3g}" \
+                   f", |M2| max {out['motion_head.m2'].abs().max().item():.3g}"
+        print(msg)
+    at, am, a, D = fusion_pairs(gen, SEQ_PAIRS)
+    with torch.no_grad():
+        fo = fuse_pairs(m64.fusion, at, am, a, D)
+    fin = torch.cat([at, am, a[:, None], D[:, None]], dim=-1)
+    np.save(os.path.join(d, "fusion_in.npy"), fin.to(torch.float32).numpy())
+    np.save(os.path.join(d, "fusion_out.npy"), fo.to(torch.float32).numpy())
+    print(f"tiny_f4d_seq fusion: {SEQ_PAIRS} pairs, |out - mean| max "
+          f"{(fo - fuse_pairs_mean(at, am)).abs().max().item():.3g}")
+
+
+def fuse_pairs_mean(at, am):
+    """The averaging part alone (fc2 = 0), to show the MLP's share in the log."""
+    from forge4d_ref import FusionMLP, fuse_pairs
+    return fuse_pairs(FusionMLP().double(), at, am, torch.zeros(len(at), dtype=torch.float64),
+                      torch.zeros(len(at), dtype=torch.float64))
+
+
 def main():
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     out_root = args[0] if args else os.path.join(
         os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "model", "fixtures")
     if "--forge4d-only" in sys.argv:  # only tiny_f4d/ (the VGGT fixtures stay as committed)
         forge4d_fixtures(out_root)
+        return
+    if "--forge4d-seq-only" in sys.argv:  # only tiny_f4d_seq/
+        forge4d_seq_fixtures(out_root)
         return
     check_aa_bicubic()
     prep_fixtures(out_root)
@@ -281,6 +389,7 @@ def main():
                   f"{out['depth'].min().item():.3g}..{out['depth'].max().item():.3g}")
         model.float()
     forge4d_fixtures(out_root)
+    forge4d_seq_fixtures(out_root)
 
 
 if __name__ == "__main__":

@@ -218,7 +218,9 @@ class Aggregator(nn.Module):
         self.frame_blocks = mk()
         self.global_blocks = mk()
 
-    def forward(self, images, out):
+    def forward(self, images, out, after_global=None):
+        """after_global(i, x [S*P', C], pos [P', 2]) -> x: a callback after global block i
+        (Forge4D's state blocks), None for VGGT."""
         S, _, H, W = images.shape
         p = self.cfg.patch_size
         h, w = H // p, W // p
@@ -244,6 +246,8 @@ class Aggregator(nn.Module):
             tok = self.frame_blocks[i](tok, pos[None].expand(S, -1, -1))
             fr = tok
             tok = self.global_blocks[i](tok.reshape(1, S * P1, C), pos.repeat(S, 1)[None]).reshape(S, P1, C)
+            if after_global is not None:
+                tok = after_global(i, tok.reshape(S * P1, C), pos).reshape(S, P1, C)
             layers.append(torch.cat([fr, tok], dim=-1))
         return layers
 
@@ -350,9 +354,9 @@ class Scratch(nn.Module):
 
 
 class DPTHead(nn.Module):
-    def __init__(self, cfg, output_dim, activation):
+    def __init__(self, cfg, output_dim, activation, in_dim=None):
         super().__init__()
-        d = 2 * cfg.embed_dim
+        d = in_dim or 2 * cfg.embed_dim  # Forge4D's motion head reads C-wide tokens
         f, oc = cfg.dpt_features, cfg.dpt_out_channels
         self.cfg, self.activation = cfg, activation
         self.norm = nn.LayerNorm(d, eps=1e-5)
@@ -418,11 +422,14 @@ class VGGT(nn.Module):
         self.depth_head = DPTHead(cfg, 2, "exp")
 
     @torch.no_grad()
-    def forward(self, images):
-        """images [S, 3, H, W] in [0, 1] -> dict of outputs and intermediates."""
+    def forward(self, images, after_global=None):
+        """images [S, 3, H, W] in [0, 1] -> dict of outputs and intermediates
+        (all aggregator layers under "_layers" when after_global is given)."""
         S, _, H, W = images.shape
         out = {}
-        layers = self.aggregator(images, out)
+        layers = self.aggregator(images, out, after_global)
+        if after_global is not None:
+            out["_layers"] = layers
         for L in sorted(set(self.cfg.dpt_layer_idx) | {self.cfg.depth - 1}):
             out[f"layer{L}"] = layers[L]
         poses = self.camera_head(layers[-1])

@@ -237,7 +237,7 @@ static int warm_up(display_player *p)
     if (rc == 0)
         rc = interp_pair_build(p->ip, &p->slot[0].k, &p->slot[1].k, &cfg, &p->pair, &p->err);
     if (rc == 0)
-        rc = interp_pair_at(&p->pair, 0.5f, &cfg, &p->out, NULL, &p->err);
+        rc = interp_pair_at(p->ip, &p->pair, 0.5f, &cfg, &p->out, NULL, &p->err);
     splat_frame_free(&tmp);
     p->slot[0].built = p->slot[1].built = 0;
     p->pair_ok = 0;
@@ -321,7 +321,7 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
         p->pair_ok = 1;
     }
     double t0 = display__now_ms();
-    rc = mode == INTERP_FUSED ? interp_pair_at(&p->pair, (float)a, &cfg, &p->out, NULL, &p->err)
+    rc = mode == INTERP_FUSED ? interp_pair_at(p->ip, &p->pair, (float)a, &cfg, &p->out, NULL, &p->err)
                               : interp_at(p->ip, &prev->k, &next->k, (float)a, &cfg, &p->out, NULL, &p->err);
     p->st.interp_ms += display__now_ms() - t0;
     if (rc < 0)

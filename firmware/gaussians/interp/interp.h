@@ -31,6 +31,19 @@
  * exactly one Gaussian there, as in the paper; a denser frame (the synthetic
  * ground truth) may have several and the one nearest to X' is taken.
  * Gaussians that are visible nowhere have no origin and no partner: kept.
+ * interp_key_build_aligned skips the render for a frame that IS pixel aligned
+ * (the model's output, Gaussian (s * H + y) * W + x from view s, pixel
+ * (x, y)): its lookup is the identity, exactly the paper's "read the Gaussian
+ * at u'", and it costs no render.
+ *
+ * Cameras may change from key to key (Forge4D predicts them per time):
+ * interp_set_rig swaps them in without allocating, and each key keeps the
+ * cameras it was built with. A moved point X' is projected with the cameras
+ * of the key whose pixel lists it reads (X' lives at that key's time).
+ *
+ * Hard cases: a moved point at camera depth <= SPLAT_NEAR (behind the camera)
+ * or landing outside the image, or not finite, has no partner (kept, no NaN);
+ * a zero quaternion reaching fusion leaves as the identity rotation.
  */
 #ifndef F4D_INTERP_H
 #define F4D_INTERP_H
@@ -57,6 +70,15 @@ typedef void (*interp_fuse_fn)(void *user, const float a_t[INTERP_ATTRS], const 
 void interp_fuse_average(void *user, const float a_t[INTERP_ATTRS], const float a_tm1[INTERP_ATTRS],
                          float a, float D, float out[INTERP_ATTRS]);
 
+/* Batched fusion: n <= INTERP_FUSE_BATCH pairs in one call, so that a learned
+ * F_theta runs as two GEMMs instead of one small MLP per pair. x is [n,
+ * INTERP_FUSE_IN], each row a_t (14) | a_tm1 (14) | a | D; out [n, 14] gets
+ * what interp_fuse_fn would give for each row. Returns 0, or < 0 to fail
+ * interp_at (with F4D_EINVAL and a message naming the fusion). */
+#define INTERP_FUSE_IN    (2 * INTERP_ATTRS + 2)
+#define INTERP_FUSE_BATCH 1024
+typedef int (*interp_fuse_batch_fn)(void *user, const float *x, int n, float *out);
+
 enum interp_mode {
     INTERP_FUSED     = 0, /* Forge4D: occluded kept, matched pairs fused     */
     INTERP_KEEP_BOTH = 1, /* no fusion: every Gaussian of both keys, deformed */
@@ -68,6 +90,8 @@ struct interp_config {
     float            tau;       /* metres, 0.05 */
     interp_fuse_fn   fuse;      /* interp_fuse_average by default */
     void            *fuse_user;
+    interp_fuse_batch_fn fuse_batch; /* NULL by default; when set, used instead of fuse */
+    void            *fuse_batch_user;
 };
 struct interp_config interp_config_default(void);
 
@@ -80,6 +104,9 @@ typedef struct interp interp;
 /* A workspace for the rig's cameras; ctx (borrowed) gives the threads. */
 int  interp_new (fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct f4d_err *err);
 void interp_free(interp *ip);
+/* New cameras for the keys built from now on: same count and image size as
+ * the rig of interp_new (F4D_EINVAL otherwise); never allocates. */
+int  interp_set_rig(interp *ip, const struct splat_rig *rig, struct f4d_err *err);
 
 /* One key frame with its pixel lookup: per-view maps of the pixel's Gaussian
  * and each Gaussian's origin. Zero-initialise, build, reuse, free. The frame
@@ -90,8 +117,15 @@ struct interp_key {
     int32_t *cell_items;   /* [views * count] Gaussian indices, by pixel        */
     int32_t *origin;       /* [count] view * H * W + pixel, -1 none            */
     size_t   cap_cells, cap_items, cap_origin;
+    struct splat_rig rig;  /* the cameras the key was built with              */
+    int      aligned;      /* built by interp_key_build_aligned               */
 };
 int  interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err);
+/* The same for a pixel-aligned frame: f->count must be views * H * W of the
+ * rig. Allocates only when the key's arrays are smaller than the frame (build
+ * once at full size to plan; later builds allocate nothing). */
+int  interp_key_build_aligned(interp *ip, const struct splat_frame *f, struct interp_key *k,
+                              struct f4d_err *err);
 void interp_key_free (struct interp_key *k);
 
 /* The Gaussians at t' = t - 1 + a into out (resized, no motion). prev needs
@@ -118,9 +152,10 @@ struct interp_pair {
 };
 int  interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
                        const struct interp_config *cfg, struct interp_pair *pr, struct f4d_err *err);
-/* INTERP_FUSED only (build and evaluate with the same cfg). */
-int  interp_pair_at(const struct interp_pair *pr, float a, const struct interp_config *cfg, struct splat_frame *out,
-                    struct interp_stats *stats, struct f4d_err *err);
+/* INTERP_FUSED only (build and evaluate with the same cfg; ip: the batched
+ * fusion's scratch). */
+int  interp_pair_at(interp *ip, const struct interp_pair *pr, float a, const struct interp_config *cfg,
+                    struct splat_frame *out, struct interp_stats *stats, struct f4d_err *err);
 void interp_pair_free(struct interp_pair *pr);
 
 /* ---- scene budget ---------------------------------------------------------- */

@@ -9,12 +9,12 @@
 #include "model_internal.h"
 
 /* Built-in heads, in evaluation order (vggt.md 0: camera, depth, point; then
- * Forge4D's scale head, whose gauge the Gaussian head divides by). A head
- * whose tensors are not in the file is skipped: a plain VGGT file runs the
- * first three only. */
+ * Forge4D's scale head, whose gauge the Gaussian and motion heads divide by).
+ * A head whose tensors are not in the file is skipped: a plain VGGT file runs
+ * the first three only. */
 static const struct model_head_ops *const builtin_heads[] = {
     &model_camera_head_ops, &model_depth_head_ops, &model_point_head_ops,
-    &model_scale_head_ops,  &model_gaussian_head_ops,
+    &model_scale_head_ops,  &model_gaussian_head_ops, &model_motion_head_ops,
 };
 
 int model_fail(struct model *m, int rc, const char *fmt, ...)
@@ -261,7 +261,8 @@ static int init_file(struct model *m)
         in_groups += model_group_of(gguf_tensor_at(m->gf, i)->name) != 0;
     if (in_groups != cc.n_schema)
         return name_extra(m);
-    if ((rc = model_aggregator_load(m)) < 0)
+    if ((rc = model_aggregator_load(m)) < 0 || (rc = model_stream_load(m)) < 0 ||
+        (rc = model_fusion_load(m)) < 0)
         return rc;
     for (size_t i = 0; i < sizeof builtin_heads / sizeof builtin_heads[0]; i++)
         if ((rc = model_register_head(m, builtin_heads[i])) < 0)
@@ -413,10 +414,16 @@ static int name_extra(struct model *m)
 
 /* ------------------------------------------------------------ plan */
 
-static void plan_sizes(const struct model_config *c, uint64_t keep, int S, int H, int W,
-                       size_t *persist, size_t *scratch)
+/* The aggregator's part, with Forge4D's state / motion memory (persistent
+ * after the aggregator's, scratch stacked on the aggregator's). */
+static void plan_sizes(const struct model_config *c, unsigned groups, uint64_t keep, int S, int H,
+                       int W, size_t *persist, size_t *scratch)
 {
+    size_t p, s;
     model_aggregator_plan(c, keep, S, H, W, persist, scratch);
+    model_stream_plan(c, groups, S, H, W, &p, &s);
+    *persist += p;
+    *scratch += s;
 }
 
 size_t model_plan_bytes(const struct model_config *c, unsigned groups, int views, int h, int w)
@@ -430,7 +437,7 @@ size_t model_plan_bytes(const struct model_config *c, unsigned groups, int views
         for (int i = 0; i < 4; i++)
             keep |= UINT64_C(1) << c->dpt_layer_idx[i];
     size_t persist, scratch, p, s;
-    plan_sizes(c, keep, views, h, w, &persist, &scratch);
+    plan_sizes(c, groups, keep, views, h, w, &persist, &scratch);
     if (groups & MODEL_G_CAMERA) {
         model_camera_plan(c, views, &p, &s);
         persist += p;
@@ -449,6 +456,11 @@ size_t model_plan_bytes(const struct model_config *c, unsigned groups, int views
     }
     if (groups & MODEL_G_GAUSSIAN) {
         model_gaussian_plan(c, views, h, w, &p, &s);
+        persist += (p + MODEL_ALIGN - 1) / MODEL_ALIGN * MODEL_ALIGN;
+        scratch = scratch > s ? scratch : s;
+    }
+    if (groups & MODEL_G_MOTION_HEAD) {
+        model_motion_head_plan(c, views, h, w, &p, &s);
         persist += (p + MODEL_ALIGN - 1) / MODEL_ALIGN * MODEL_ALIGN;
         scratch = scratch > s ? scratch : s;
     }
@@ -484,14 +496,18 @@ static int reserve_kernel_scratch(struct model *m)
     memset(&m->hooks, 0, sizeof m->hooks);
     fk_ctx_freeze(m->ctx, 0);
     fk_ctx_measure(m->ctx, 1);
+    m->measuring = 1;
     struct model_outputs out;
     int rc = model_eval(m, img, m->max_S, m->max_H, m->max_W, &out);
+    m->measuring = 0;
     fk_ctx_measure(m->ctx, 0);
     m->tap = tap;
     m->hooks = hooks;
     free(img);
-    /* the measuring pass computed nothing: forget its pos-embed grid and stats */
+    /* the measuring pass computed nothing: forget its pos-embed grid, stats
+     * and time step */
     m->pe_h = m->pe_w = 0;
+    model_state_reset(m);
     for (int i = 0; i < ST_COUNT; i++)
         m->st_sec[i] = m->st_flops[i] = 0;
     if (rc < 0)
@@ -509,7 +525,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
     if ((rc = check_shape(m, max_views, max_h, max_w)) < 0 || (rc = check_unknown(m)) < 0)
         return rc;
     size_t persist, scratch;
-    plan_sizes(&m->cfg, m->keep, max_views, max_h, max_w, &persist, &scratch);
+    plan_sizes(&m->cfg, m->groups, m->keep, max_views, max_h, max_w, &persist, &scratch);
     size_t agg_persist = persist;
     for (int i = 0; i < m->n_heads; i++) {
         size_t p, s;
@@ -540,6 +556,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
         m->pe_grid = BUMP_F(&b, (size_t)P * c->embed_dim);
     for (int l = 0; l < c->depth; l++)
         m->layers[l] = (m->keep >> l & 1) ? BUMP_F(&b, n * 2 * c->embed_dim) : NULL;
+    model_stream_place(m, &b);
     if (b.off != agg_persist)
         return model_fail(m, F4D_EINVAL, "model: internal plan mismatch");
     for (int i = 0; i < m->n_heads; i++)
@@ -555,6 +572,9 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
 }
 
 /* ------------------------------------------------------------ eval */
+
+static int run_network(struct model *m, const float *images, int S, int H, int W, int P1,
+                       struct model_outputs *out);
 
 int model_eval(struct model *m, const float *images, int S, int H, int W,
                struct model_outputs *out)
@@ -577,7 +597,7 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
     const size_t P1 = (size_t)(1 + m->cfg.num_register_tokens + (H / p) * (W / p));
     const size_t P1max = (size_t)(1 + m->cfg.num_register_tokens + (m->max_H / p) * (m->max_W / p));
     size_t ap, as;
-    plan_sizes(&m->cfg, m->keep, S, H, W, &ap, &as);
+    plan_sizes(&m->cfg, m->groups, m->keep, S, H, W, &ap, &as);
     int fits = (size_t)S * P1 <= (size_t)m->max_S * P1max && as <= m->scratch_bytes &&
                (size_t)(H / p) * (W / p) <= (size_t)(m->max_H / p) * (m->max_W / p);
     for (int i = 0; fits && i < m->n_heads; i++) {
@@ -590,6 +610,19 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
                           "for %d views of %dx%d", S, W, H, m->max_S, m->max_W, m->max_H);
     for (int i = 0; i < ST_COUNT; i++)
         m->st_sec[i] = m->st_flops[i] = 0;
+    if (m->stream)
+        model_stream_begin(m, S, H, W);
+    rc = run_network(m, images, S, H, W, (int)P1, out);
+    if (m->stream) /* a failed step leaves no usable motion inputs */
+        model_stream_end(m, S, H, W, rc == 0, out);
+    return rc;
+}
+
+static int run_network(struct model *m, const float *images, int S, int H, int W, int P1,
+                       struct model_outputs *out)
+{
+    const int p = m->cfg.patch_size;
+    int rc;
     if ((rc = model_aggregator_eval(m, images, S, H, W)) < 0)
         return rc;
     out->S = S;
@@ -598,7 +631,7 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
     out->gauge = 1.0f;
     struct model_run run = {
         .m = m, .cfg = &m->cfg, .S = S, .H = H, .W = W, .h = H / p, .w = W / p,
-        .P = (H / p) * (W / p), .tokens = (int)P1, .layers = (const float *const *)m->layers,
+        .P = (H / p) * (W / p), .tokens = P1, .layers = (const float *const *)m->layers,
         .images = images,
         .scratch = m->scratch, .scratch_bytes = m->scratch_bytes, .out = out,
     };
@@ -615,10 +648,13 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
 int model_stages(const struct model *m, struct model_stage *st, int cap)
 {
     static const char *names[ST_HEAD0] = { "patch_embed", "dino_blocks", "frame_blocks",
-                                           "global_blocks" };
+                                           "global_blocks", "state_blocks", "motion_blocks" };
     int n = 0;
     for (int i = 0; i < ST_HEAD0 + m->n_heads && n < cap; i++) {
         if (i == ST_DINO && m->cfg.patch_embed != MODEL_PATCH_DINO)
+            continue;
+        if ((i == ST_STATE && !(m->groups & MODEL_G_STATE)) ||
+            (i == ST_MOTION && !(m->groups & MODEL_G_MOTION)))
             continue;
         st[n].name = i < ST_HEAD0 ? names[i] : m->head_ops[i - ST_HEAD0]->prefix;
         st[n].seconds = m->st_sec[i];
@@ -635,6 +671,8 @@ void model_free(struct model *m)
     for (int i = 0; i < m->n_heads; i++)
         m->head_ops[i]->free(m->head[i]);
     model_aggregator_free(m);
+    model_stream_free(m);
+    model_fusion_free(m);
     if (m->froze_ctx)
         fk_ctx_freeze(m->ctx, 0);
     free(m->arena);
@@ -649,6 +687,7 @@ fk_ctx *model_ctx(struct model *m) { return m->ctx; }
 enum fk_wtype model_wtype(const struct model *m) { return m->wtype; }
 size_t model_arena_bytes(const struct model *m) { return m->arena_bytes; }
 size_t model_weight_bytes(const struct model *m) { return m->weight_bytes; }
+unsigned model_groups(const struct model *m) { return m->groups; }
 
 const float *model_layer(const struct model *m, int l)
 {

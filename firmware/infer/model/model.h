@@ -27,9 +27,10 @@
  *     output l (frame || global, [S*P', 2C]) for every layer a head reads,
  *     and a tap callback sees every checkpoint (patch embed, layers, camera
  *     iterations, DPT levels) as it is produced;
- *   - state carried between time steps is explicit: struct model_hooks gives
- *     a callback after each global block with the token stream, where a state
- *     block reads and writes its own state (the model itself keeps none);
+ *   - state carried between time steps lives in the arena: Forge4D's state
+ *     blocks and motion inputs (forge4d-arch.md 4-5, model_state_reset), and
+ *     struct model_hooks gives a callback after each global block with the
+ *     token stream for anything else;
  *   - heads are added by registration: struct model_head_ops (init / layers /
  *     plan / eval / free) in a static table of built-in heads (camera, depth,
  *     point) plus model_register_head() for more before model_prepare.
@@ -92,10 +93,21 @@ enum model_group {
     MODEL_G_POINT      = 1u << 3,
     MODEL_G_GAUSSIAN   = 1u << 4,   /* Forge4D gaussian_head.* (forge4d-arch.md 1) */
     MODEL_G_SCALE      = 1u << 5,   /* Forge4D scale_head.*    (forge4d-arch.md 2) */
+    MODEL_G_STATE      = 1u << 6,   /* Forge4D state.*         (forge4d-arch.md 4) */
+    MODEL_G_MOTION     = 1u << 7,   /* Forge4D motion.*        (forge4d-arch.md 5) */
+    MODEL_G_MOTION_HEAD = 1u << 8,  /* Forge4D motion_head.*   (forge4d-arch.md 5) */
+    MODEL_G_FUSION     = 1u << 9,   /* Forge4D fusion.*        (forge4d-arch.md 6) */
 };
 #define MODEL_G_VGGT    0xfu        /* aggregator + camera, depth, point heads */
-#define MODEL_G_FORGE4D 0x30u       /* Forge4D's heads */
-#define MODEL_G_ALL     0x3fu
+#define MODEL_G_FORGE4D 0x3f0u      /* Forge4D's heads and modules */
+#define MODEL_G_ALL     0x3ffu
+
+/* Forge4D's stage-2/3 sizes fixed by forge4d-arch.md 4-6 (not in the config). */
+#define MODEL_STATE_TOKENS  16  /* N_s state tokens per aggregator layer        */
+#define MODEL_MOTION_CH     3   /* motion head output: 3-D motion per pixel     */
+#define MODEL_FUSION_ATTRS  14  /* mu 3 | colour 3 | logit(opacity) 1 | log(scale) 3 | q 4 */
+#define MODEL_FUSION_IN     30  /* attrs(t) | attrs(t-1) | a | D                */
+#define MODEL_FUSION_HIDDEN 64
 
 enum model_tclass {
     MODEL_T_F32    = 0, /* kept f32: norms, biases, LayerScale, tokens, pos-embeds,
@@ -173,9 +185,27 @@ struct model_outputs {
      * arena: read-only, valid until the next Eval or model_free; a splat_frame
      * wrapping them must never be passed to splat_frame_reserve / _free. */
     struct model_gaussians gaussians;
+    /* Forge4D streaming (forge4d-arch.md 4-5), when the file has them: */
+    int          step;              /* Evals since model_state_reset, this one
+                                       included (1 on the first time step; 0
+                                       without state / motion weights)          */
+    int          has_motion;        /* motion ran: a previous step of the same
+                                       S x H x W exists (0 on the first step)    */
+    const float *motion_bwd;        /* [S, H, W, 3] M1[t]: moves the Gaussians of
+                                       this step towards t-1                     */
+    const float *motion_fwd_prev;   /* [S, H, W, 3] M2[t-1]: moves the Gaussians
+                                       of the PREVIOUS Eval towards this step    */
+    /* Both motion maps are pixel-aligned like the Gaussians, in metres (divided
+     * by this step's gauge; model units without a scale head), NULL when
+     * has_motion is 0; arena memory, valid until the next Eval. */
 };
 
 /* Checkpoint callback. Names and layouts (f = frame, -1 = all frames):
+ *   "state<l>"          f=-1 [16, C]          state of layer l after its write (for t+1)
+ *   "motion.h<l>"       f=-1 [S, P', C]       motion stream after block l (M1 run), for
+ *   "motion.h2_<l>"     f=-1 [S, P', C]       the layers the motion head reads; M2 run
+ *   "motion_head.m1"    f [H, W, 3]     M1[t], model units
+ *   "motion_head.m2"    f [H, W, 3]     M2[t-1], model units
  *   "gaussian_head.mu"    f [H, W, 3]     Gaussian centres, model units
  *   "gaussian_head.sigma" f [H, W, 3]     Gaussian std devs, model units
  *   "scale_head.gauge"  f=-1 [1]          p_gauge_hat
@@ -188,7 +218,7 @@ struct model_outputs {
 typedef void (*model_tap_fn)(void *user, const char *name, int frame,
                              const float *data, size_t count);
 
-/* Extension points between layers (the hook for Forge4D state blocks). */
+/* Extension points between layers (after the built-in state blocks). */
 struct model_hooks {
     /* After global block `layer`: x is the token stream [S*P', C] (row
      * f*P' + t), which the hook may update in place; a kept layer's global
@@ -272,6 +302,43 @@ gguf_file *model_gguf   (struct model *m);
 int   model_load_vec    (struct model *m, const char *name, int n, const float **v);
 int   model_load_linear (struct model *m, struct fk_linear *L, const char *wname,
                          const char *bname, int n, int k);
+
+/* ---- Forge4D streaming (forge4d-arch.md 4-6) ------------------------------
+ *
+ * With state.* weights, every Eval is one time step: state block l runs right
+ * after global block l (before any model_hooks callback) and carries its
+ * state to the next Eval; with motion.* / motion_head.* weights the model
+ * keeps every layer's motion input z_l of the last Eval and, from the second
+ * step on, gives M1[t] and M2[t-1] (struct model_outputs). All of it lives in
+ * the arena (planned by model_prepare): memory does not grow with time.
+ *
+ *     model_state_reset(m);                          // t = 0 (also after prepare)
+ *     for (t = 0; ; t++) {
+ *         model_eval(m, frames[t], S, H, W, &out);    // out.has_motion from t = 1
+ *         ... out.gaussians, out.motion_bwd, out.motion_fwd_prev ...
+ *     }
+ *
+ * A frame set of another S x H x W than the last Eval restarts the motion
+ * (has_motion 0) but keeps the state. A failed Eval leaves the state and
+ * the motion inputs undefined: call model_state_reset. */
+
+/* Groups present in the weight file (enum model_group bits). */
+unsigned model_groups(const struct model *m);
+/* Back to t = 0: every layer's state to state.tokens, no previous step. */
+void  model_state_reset(struct model *m);
+
+/* The fusion MLP F_theta (forge4d-arch.md 6) of the weight file, or NULL
+ * without fusion.* tensors. Read-only after Init: any thread may call
+ * model_fusion_fuse on it, and it outlives nothing but the model. */
+void *model_fusion(struct model *m);
+/* The signature of interp_fuse_fn (firmware/gaussians/interp/interp.h): pass
+ * model_fusion_fuse with user = model_fusion(m). Attribute vectors in interp's
+ * convention, pre-activation: mu (3), colour (3), logit(opacity) (1),
+ * log(scale) (3), quaternion (4). out = mean of both vectors (q: the
+ * normalised, sign-aligned sum) + fc2(GELU(fc1([a_t, a_tm1, a, D]))). */
+void  model_fusion_fuse(void *fusion, const float a_t[MODEL_FUSION_ATTRS],
+                        const float a_tm1[MODEL_FUSION_ATTRS], float a, float D,
+                        float out[MODEL_FUSION_ATTRS]);
 
 /* The paper's metric gauge (training target, or a calibrated rig's scale):
  * p = mean over views of |t_true[i]| / |t_pred[i]| (metres over model units),

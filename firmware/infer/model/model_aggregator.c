@@ -132,6 +132,8 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
     struct bump sb = { (unsigned char *)m->scratch, 0 };
     struct agg_bufs a;
     agg_layout(&sb, c, S, H, W, &a);
+    if (m->stream) /* Forge4D state / motion blocks: their scratch follows */
+        model_stream_scratch(m, &sb, S, H, W);
     float *x = a.x;
     int rc;
     double t0 = model_now();
@@ -198,12 +200,16 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
             return rc;
         if (m->layers[i])
             copy_rows(m->layers[i], 2 * C, x, C, n, C);
+        if (m->stream && (rc = model_stream_frame(m, i, x, n)) < 0)
+            return rc;
         double tb = model_now();
         m->st_sec[ST_FRAME] += tb - ta;
         m->flops = &m->st_flops[ST_GLOBAL];
         if ((rc = model_block_forward(m, &m->global[i], x, 1, n, m->pos, &a.bb)) < 0)
             return rc;
         m->st_sec[ST_GLOBAL] += model_now() - tb;
+        if (m->stream && (rc = model_stream_global(m, i, x, S, P1, &a.bb)) < 0)
+            return rc;
         if (m->hooks.after_global &&
             (rc = m->hooks.after_global(m->hooks.user, i, x, S, P1, C)) < 0)
             return model_fail(m, F4D_EINVAL, "model: after_global hook failed at layer %d (%d)",

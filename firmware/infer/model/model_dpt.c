@@ -15,7 +15,7 @@ struct rcu {
 struct dpt_head {
     struct model_config cfg;
     const char         *prefix;
-    int                 out_dim, act, n_packed;
+    int                 out_dim, act, n_packed, in_dim;  /* in_dim: 2C, C for motion */
     const float        *norm_w, *norm_b;
     struct fk_conv2d    proj[4], rs3, rn[4], out_conv[4], oc1, oc2a, oc2b;
     struct fk_conv_transpose2d rs0, rs1;
@@ -50,7 +50,8 @@ static int conv(struct model *m, struct dpt_head *h, struct fk_conv2d *c, const 
     return rc;
 }
 
-static int dpt_init_common(struct model *m, void **out, const char *prefix, int out_dim, int act)
+static int dpt_init_common(struct model *m, void **out, const char *prefix, int out_dim, int act,
+                           int in_dim)
 {
     const struct model_config *c = model_get_config(m);
     char nm[MODEL_NAME_MAX];
@@ -64,7 +65,8 @@ static int dpt_init_common(struct model *m, void **out, const char *prefix, int 
     h->prefix = prefix;
     h->out_dim = out_dim;
     h->act = act;
-    const int D = 2 * c->embed_dim, F = c->dpt_features;
+    h->in_dim = in_dim;
+    const int D = in_dim, F = c->dpt_features;
     const int *oc = c->dpt_out_channels;
     int rc;
     char b[MODEL_NAME_MAX];
@@ -121,12 +123,12 @@ fail:
 
 static int depth_init(struct model *m, void **out)
 {
-    return dpt_init_common(m, out, "depth_head", 2, DPT_EXP);
+    return dpt_init_common(m, out, "depth_head", 2, DPT_EXP, 2 * model_get_config(m)->embed_dim);
 }
 
 static int point_init(struct model *m, void **out)
 {
-    return dpt_init_common(m, out, "point_head", 4, DPT_INV_LOG);
+    return dpt_init_common(m, out, "point_head", 4, DPT_INV_LOG, 2 * model_get_config(m)->embed_dim);
 }
 
 static uint64_t dpt_layers(const void *hp)
@@ -263,7 +265,7 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
     const struct model_config *c = &h->cfg;
     fk_ctx *ctx = model_ctx(m);
     const int H = run->H, W = run->W, hh = run->h, ww = run->w, P = run->P, P1 = run->tokens;
-    const int D = 2 * c->embed_dim, F = c->dpt_features, ns = 1 + c->num_register_tokens;
+    const int D = h->in_dim, F = c->dpt_features, ns = 1 + c->num_register_tokens;
     int lh[4], lw[4], rc;
     char nm[MODEL_NAME_MAX];
     for (int l = 0; l < 4; l++) {
@@ -389,7 +391,13 @@ const struct model_head_ops model_point_head_ops = {
 
 int model_dpt_raw_init(struct model *m, void **head, const char *prefix, int out_dim)
 {
-    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW);
+    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW, 2 * model_get_config(m)->embed_dim);
+}
+
+int model_dpt_raw_init_dim(struct model *m, void **head, const char *prefix, int out_dim,
+                           int in_dim)
+{
+    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW, in_dim);
 }
 
 void model_dpt_raw_plan(const struct model_config *c, int out_dim, int S, int H, int W,

@@ -43,7 +43,7 @@ struct blk_bufs {
 };
 
 enum model_stage_id {
-    ST_PATCH = 0, ST_DINO, ST_FRAME, ST_GLOBAL, ST_HEAD0,
+    ST_PATCH = 0, ST_DINO, ST_FRAME, ST_GLOBAL, ST_STATE, ST_MOTION, ST_HEAD0,
     ST_COUNT = ST_HEAD0 + MODEL_HEADS_MAX,
 };
 
@@ -82,6 +82,11 @@ struct model {
     size_t              head_persist_bytes[MODEL_HEADS_MAX];
     float              *scratch;
     int                 froze_ctx;          /* model_prepare froze m->ctx */
+
+    /* Forge4D stages 2-3 (model_stream.c, model_fusion.c); NULL when absent */
+    struct model_stream *stream;
+    struct model_fusion *fusion;
+    int                 measuring;          /* the measuring Eval of model_prepare */
 
     model_tap_fn        tap;
     void               *tap_user;
@@ -145,11 +150,46 @@ void model_scale_plan(const struct model_config *c, int S, size_t *persist, size
 void model_gaussian_plan(const struct model_config *c, int S, int H, int W, size_t *persist,
                          size_t *scratch);
 
+/* Forge4D's state and motion blocks (model_stream.c), run inside the
+ * aggregator: _frame after frame block l (keeps its output for the motion
+ * input), _global after global block l (state block, then motion block l),
+ * both before the model_hooks callback. The arena holds the state, z(t-1)
+ * and the kept motion streams (persistent, placed after the aggregator's
+ * part) and the streams' scratch (after the aggregator's scratch). */
+struct model_stream;
+int  model_stream_load   (struct model *m);
+void model_stream_free   (struct model *m);
+void model_stream_plan   (const struct model_config *c, unsigned groups, int S, int H, int W,
+                          size_t *persist, size_t *scratch);
+void model_stream_place  (struct model *m, struct bump *b);
+void model_stream_scratch(struct model *m, struct bump *b, int S, int H, int W);
+void model_stream_begin  (struct model *m, int S, int H, int W);
+void model_stream_end    (struct model *m, int S, int H, int W, int ok, struct model_outputs *out);
+int  model_stream_frame  (struct model *m, int layer, const float *x, int n);
+int  model_stream_global (struct model *m, int layer, float *x, int S, int P1,
+                          const struct blk_bufs *bb);
+int  model_stream_motion_now(const struct model *m);
+/* Motion stream of run r (0: M1, 1: M2) after block dpt_layer_idx[i], [S*P', C]. */
+const float *model_stream_h(const struct model *m, int run, int i);
+
+/* Forge4D's motion head (model_motion.c), registered after the Gaussian head. */
+extern const struct model_head_ops model_motion_head_ops;
+void model_motion_head_plan(const struct model_config *c, int S, int H, int W, size_t *persist,
+                            size_t *scratch);
+
+/* Forge4D's fusion MLP (model_fusion.c). */
+struct model_fusion;
+int  model_fusion_load(struct model *m);
+void model_fusion_free(struct model *m);
+
 /* A DPT head giving its raw output channels (no activation, no confidence):
  * the Gaussian head's trunk. init returns 1 when `prefix` is not in the file.
  * The raw maps [S, H, W, out_dim] sit at the start of the head's persist part,
  * whose size model_dpt_raw_plan gives. */
 int      model_dpt_raw_init (struct model *m, void **head, const char *prefix, int out_dim);
+/* The same on tokens in_dim wide (the motion head: C). */
+int      model_dpt_raw_init_dim(struct model *m, void **head, const char *prefix, int out_dim,
+                                int in_dim);
 void     model_dpt_raw_plan (const struct model_config *c, int out_dim, int S, int H, int W,
                              size_t *persist, size_t *scratch);
 uint64_t model_dpt_head_layers(const void *head);

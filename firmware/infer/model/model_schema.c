@@ -1,5 +1,5 @@
 /* model_schema.c - every parameter name and shape of VGGT (vggt.md 2-6) and of
- * Forge4D's heads (forge4d-arch.md 1-2), from the config. The converter checks a checkpoint against it and the loader reads
+ * Forge4D's modules (forge4d-arch.md 1-7), from the config. The converter checks a checkpoint against it and the loader reads
  * the weight file through it, so there is one table of names. */
 #include <stdarg.h>
 #include <stdio.h>
@@ -75,10 +75,38 @@ static void block(struct emit *e, const char *p, int dim, int heads, int hidden,
     put(e, MODEL_T_F32, 0, 1, S1(dim), "%s.ls2.gamma", p);
 }
 
-static void dpt(struct emit *e, const char *h, const struct model_config *c, int out_dim)
+/* A DPT head on tokens `D` wide (2C for the VGGT heads, C for the motion head). */
+/* "<p>.<sub>" into buf (names are far shorter than MODEL_NAME_MAX; a longer
+ * one is cut and then fails every lookup). */
+static const char *sub(char *buf, const char *p, const char *suffix)
+{
+    if (snprintf(buf, MODEL_NAME_MAX, "%s.%s", p, suffix) >= MODEL_NAME_MAX)
+        buf[MODEL_NAME_MAX - 1] = 0;
+    return buf;
+}
+
+/* Cross-attention of forge4d-arch.md 4-5: q (C -> C), kv (C -> 2C: k then v), proj. */
+static void xattn(struct emit *e, const char *p, int dim)
 {
     char b[MODEL_NAME_MAX];
-    const int *oc = c->dpt_out_channels, F = c->dpt_features, D = 2 * c->embed_dim;
+    linear(e, sub(b, p, "q"), dim, dim);
+    linear(e, sub(b, p, "kv"), 2 * dim, dim);
+    linear(e, sub(b, p, "proj"), dim, dim);
+}
+
+/* The MLP of a Forge4D block and the LayerScale after it. */
+static void mlp_ls(struct emit *e, const char *p, int dim, int hidden, const char *ls)
+{
+    char b[MODEL_NAME_MAX];
+    linear(e, sub(b, p, "mlp.fc1"), hidden, dim);
+    linear(e, sub(b, p, "mlp.fc2"), dim, hidden);
+    put(e, MODEL_T_F32, 0, 1, S1(dim), "%s.%s.gamma", p, ls);
+}
+
+static void dpt(struct emit *e, const char *h, const struct model_config *c, int out_dim, int D)
+{
+    char b[MODEL_NAME_MAX];
+    const int *oc = c->dpt_out_channels, F = c->dpt_features;
     snprintf(b, sizeof b, "%s.norm", h); norm(e, b, D);
     for (int i = 0; i < 4; i++) {
         snprintf(b, sizeof b, "%s.projects.%d", h, i);
@@ -164,22 +192,70 @@ int model_schema_foreach(const struct model_config *c, unsigned groups, model_te
     }
     if (groups & MODEL_G_DEPTH) {
         e.group = MODEL_G_DEPTH;
-        dpt(&e, "depth_head", c, 2);
+        dpt(&e, "depth_head", c, 2, D);
     }
     if (groups & MODEL_G_POINT) {
         e.group = MODEL_G_POINT;
-        dpt(&e, "point_head", c, 4);
+        dpt(&e, "point_head", c, 4, D);
     }
     /* Forge4D (forge4d-arch.md 1-2) */
     if (groups & MODEL_G_GAUSSIAN) {
         e.group = MODEL_G_GAUSSIAN;
-        dpt(&e, "gaussian_head", c, MODEL_GAUSS_CH);
+        dpt(&e, "gaussian_head", c, MODEL_GAUSS_CH, D);
     }
     if (groups & MODEL_G_SCALE) {
         e.group = MODEL_G_SCALE;
         norm(&e, "scale_head.norm", D);
         linear(&e, "scale_head.fc1", C, D);
         linear(&e, "scale_head.fc2", 1, C);
+    }
+    /* Forge4D stages 2-3 (forge4d-arch.md 4-6; sub-names in forge4d_ref.py) */
+    if (groups & MODEL_G_STATE) {
+        e.group = MODEL_G_STATE;
+        put(&e, MODEL_T_F32, 0, 2, S2(MODEL_STATE_TOKENS, C), "state.tokens");
+        for (int i = 0; i < c->depth; i++) {
+            char q[MODEL_NAME_MAX];
+            snprintf(b, sizeof b, "state.blocks.%d", i);
+            norm(&e, sub(q, b, "norm_x"), C);
+            norm(&e, sub(q, b, "norm_s"), C);
+            xattn(&e, sub(q, b, "attn_r"), C);
+            put(&e, MODEL_T_F32, 0, 1, S1(C), "%s.ls_r.gamma", b);
+            norm(&e, sub(q, b, "norm_s2"), C);
+            norm(&e, sub(q, b, "norm_x2"), C);
+            xattn(&e, sub(q, b, "attn_w"), C);
+            put(&e, MODEL_T_F32, 0, 1, S1(C), "%s.ls_w.gamma", b);
+            norm(&e, sub(q, b, "norm_m"), C);
+            mlp_ls(&e, b, C, hid, "ls_m");
+        }
+    }
+    if (groups & MODEL_G_MOTION) {
+        e.group = MODEL_G_MOTION;
+        for (int i = 0; i < c->depth; i++) {
+            snprintf(b, sizeof b, "motion.in_proj.%d", i);
+            linear(&e, b, C, D);
+        }
+        for (int i = 0; i < c->depth; i++) {
+            char q[MODEL_NAME_MAX];
+            snprintf(b, sizeof b, "motion.blocks.%d", i);
+            norm(&e, sub(q, b, "norm1"), C);
+            norm(&e, sub(q, b, "norm_kv"), C);
+            xattn(&e, sub(q, b, "attn"), C);
+            put(&e, MODEL_T_F32, 0, 1, S1(C), "%s.ls1.gamma", b);
+            norm(&e, sub(q, b, "norm2"), C);
+            mlp_ls(&e, b, C, hid, "ls2");
+        }
+    }
+    if (groups & MODEL_G_MOTION_HEAD) {
+        e.group = MODEL_G_MOTION_HEAD;
+        dpt(&e, "motion_head", c, MODEL_MOTION_CH, C);
+    }
+    if (groups & MODEL_G_FUSION) {
+        /* Kept f32 in every precision: 2.8 k MACs per fused pair, scalar code. */
+        e.group = MODEL_G_FUSION;
+        put(&e, MODEL_T_F32, 0, 2, S2(MODEL_FUSION_HIDDEN, MODEL_FUSION_IN), "fusion.fc1.weight");
+        put(&e, MODEL_T_F32, 0, 1, S1(MODEL_FUSION_HIDDEN), "fusion.fc1.bias");
+        put(&e, MODEL_T_F32, 0, 2, S2(MODEL_FUSION_ATTRS, MODEL_FUSION_HIDDEN), "fusion.fc2.weight");
+        put(&e, MODEL_T_F32, 0, 1, S1(MODEL_FUSION_ATTRS), "fusion.fc2.bias");
     }
     return e.rc;
 }
@@ -188,6 +264,8 @@ static const struct { unsigned g; const char *prefix; } groups_tab[] = {
     { MODEL_G_AGGREGATOR, "aggregator." }, { MODEL_G_CAMERA, "camera_head." },
     { MODEL_G_DEPTH, "depth_head." },      { MODEL_G_POINT, "point_head." },
     { MODEL_G_GAUSSIAN, "gaussian_head." }, { MODEL_G_SCALE, "scale_head." },
+    { MODEL_G_STATE, "state." },           { MODEL_G_MOTION, "motion." },
+    { MODEL_G_MOTION_HEAD, "motion_head." }, { MODEL_G_FUSION, "fusion." },
 };
 
 unsigned model_group_of(const char *name)

@@ -1,0 +1,489 @@
+/* model_stream.c - Forge4D's state blocks and motion blocks (forge4d-arch.md
+ * 4-5), run inside the aggregator, with their memory carried between Evals.
+ *
+ * State block l (after global block l, on x [S*P', C] and the state s_l of
+ * the last step, [16, C], kept in the arena):
+ *   x  = x  + ls_r * Attn_r(q = norm_x(x),   kv = norm_s(s_l))      read
+ *   s' = s_l + ls_w * Attn_w(q = norm_s2(s_l), kv = norm_x2(x))     write
+ *   s' = s' + ls_m * MLP(norm_m(s'))                               (s_l <- s')
+ * Motion, per layer l: z_l(t) = in_proj_l(F_l(t)) (F_l = frame || global
+ * half, the global half after the state block); with a previous step, two
+ * streams run block l (per view, 2-D RoPE on q and k):
+ *   M1 run: h  = z_0(t)   | h  + z_l(t),   kv = z_l(t-1)
+ *   M2 run: h' = z_0(t-1) | h' + z_l(t-1), kv = z_l(t)
+ *   h = h + ls1 * CrossAttn(q = norm1(h), kv = norm_kv(kv)); h = h + ls2 * MLP(norm2(h))
+ * then z_l(t) replaces z_l(t-1) (each is read by block l only, so one copy per
+ * layer suffices). The streams after the blocks the motion head reads are kept
+ * for it (model_motion.c).
+ *
+ * Cross-attention: q Linear C -> C, kv Linear C -> 2C (k then v), proj;
+ * num_heads heads, no qk-norm. LayerNorm eps 1e-5 throughout. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "model_internal.h"
+
+struct xattn {
+    struct fk_linear q, kv, proj;
+};
+
+struct state_blk {
+    const float *nxw, *nxb, *nsw, *nsb, *ns2w, *ns2b, *nx2w, *nx2b, *nmw, *nmb;
+    const float *ls_r, *ls_w, *ls_m;
+    struct xattn r, w;
+    struct fk_linear fc1, fc2;
+};
+
+struct motion_blk {
+    const float *n1w, *n1b, *nkw, *nkb, *n2w, *n2b, *g1, *g2;
+    struct xattn a;
+    struct fk_linear fc1, fc2, in_proj;
+};
+
+struct model_stream {
+    int                has_state, has_motion;
+    const float       *tokens;            /* [16, C] */
+    struct state_blk  *sb;                /* [depth] */
+    struct motion_blk *mb;                /* [depth] */
+    int                n_sb, n_mb;        /* loaded (for freeing) */
+    /* arena, persistent */
+    float             *state;             /* [depth][16][C] */
+    float             *zprev;             /* [depth][nmax][C] */
+    float             *hkeep[2][4];       /* [nmax][C] after block dpt_layer_idx[i] */
+    size_t             nmax;
+    /* arena, aggregator-phase scratch */
+    float             *cat, *zc, *h[2], *lnk, *s_ln, *s_q, *s_kv, *s_o, *s_hid;
+    /* time */
+    int                has_prev, prev_S, prev_H, prev_W, step, motion_now;
+};
+
+/* ---- load ---------------------------------------------------------------- */
+
+static int load_xattn(struct model *m, struct xattn *a, const char *p, int C)
+{
+    char wn[MODEL_NAME_MAX + 32], bn[MODEL_NAME_MAX + 32];
+    int rc;
+#define LIN(field, sub, nout) \
+    snprintf(wn, sizeof wn, "%s." sub ".weight", p); \
+    snprintf(bn, sizeof bn, "%s." sub ".bias", p); \
+    if ((rc = model_load_linear(m, &a->field, wn, bn, nout, C)) < 0) return rc;
+    LIN(q, "q", C) LIN(kv, "kv", 2 * C) LIN(proj, "proj", C)
+#undef LIN
+    return 0;
+}
+
+static void free_xattn(struct xattn *a)
+{
+    fk_linear_free(&a->q);
+    fk_linear_free(&a->kv);
+    fk_linear_free(&a->proj);
+}
+
+static int load_state_blk(struct model *m, struct state_blk *b, int l)
+{
+    const int C = m->cfg.embed_dim, hid = model_mlp_hidden(&m->cfg, C);
+    char p[MODEL_NAME_MAX], n1[MODEL_NAME_MAX + 32], n2[MODEL_NAME_MAX + 32];
+    int rc;
+    snprintf(p, sizeof p, "state.blocks.%d", l);
+#define VEC(field, suffix) \
+    snprintf(n1, sizeof n1, "%s." suffix, p); \
+    if ((rc = model_load_f32(m, n1, (size_t)C, &b->field)) < 0) return rc;
+    VEC(nxw, "norm_x.weight") VEC(nxb, "norm_x.bias") VEC(nsw, "norm_s.weight")
+    VEC(nsb, "norm_s.bias") VEC(ns2w, "norm_s2.weight") VEC(ns2b, "norm_s2.bias")
+    VEC(nx2w, "norm_x2.weight") VEC(nx2b, "norm_x2.bias") VEC(nmw, "norm_m.weight")
+    VEC(nmb, "norm_m.bias") VEC(ls_r, "ls_r.gamma") VEC(ls_w, "ls_w.gamma")
+    VEC(ls_m, "ls_m.gamma")
+#undef VEC
+    snprintf(n1, sizeof n1, "%s.attn_r", p);
+    if ((rc = load_xattn(m, &b->r, n1, C)) < 0)
+        return rc;
+    snprintf(n1, sizeof n1, "%s.attn_w", p);
+    if ((rc = load_xattn(m, &b->w, n1, C)) < 0)
+        return rc;
+    snprintf(n1, sizeof n1, "%s.mlp.fc1.weight", p);
+    snprintf(n2, sizeof n2, "%s.mlp.fc1.bias", p);
+    if ((rc = model_load_linear(m, &b->fc1, n1, n2, hid, C)) < 0)
+        return rc;
+    snprintf(n1, sizeof n1, "%s.mlp.fc2.weight", p);
+    snprintf(n2, sizeof n2, "%s.mlp.fc2.bias", p);
+    return model_load_linear(m, &b->fc2, n1, n2, C, hid);
+}
+
+static int load_motion_blk(struct model *m, struct motion_blk *b, int l)
+{
+    const int C = m->cfg.embed_dim, hid = model_mlp_hidden(&m->cfg, C);
+    char p[MODEL_NAME_MAX], n1[MODEL_NAME_MAX + 32], n2[MODEL_NAME_MAX + 32];
+    int rc;
+    snprintf(n1, sizeof n1, "motion.in_proj.%d.weight", l);
+    snprintf(n2, sizeof n2, "motion.in_proj.%d.bias", l);
+    if ((rc = model_load_linear(m, &b->in_proj, n1, n2, C, 2 * C)) < 0)
+        return rc;
+    snprintf(p, sizeof p, "motion.blocks.%d", l);
+#define VEC(field, suffix) \
+    snprintf(n1, sizeof n1, "%s." suffix, p); \
+    if ((rc = model_load_f32(m, n1, (size_t)C, &b->field)) < 0) return rc;
+    VEC(n1w, "norm1.weight") VEC(n1b, "norm1.bias") VEC(nkw, "norm_kv.weight")
+    VEC(nkb, "norm_kv.bias") VEC(n2w, "norm2.weight") VEC(n2b, "norm2.bias")
+    VEC(g1, "ls1.gamma") VEC(g2, "ls2.gamma")
+#undef VEC
+    snprintf(n1, sizeof n1, "%s.attn", p);
+    if ((rc = load_xattn(m, &b->a, n1, C)) < 0)
+        return rc;
+    snprintf(n1, sizeof n1, "%s.mlp.fc1.weight", p);
+    snprintf(n2, sizeof n2, "%s.mlp.fc1.bias", p);
+    if ((rc = model_load_linear(m, &b->fc1, n1, n2, hid, C)) < 0)
+        return rc;
+    snprintf(n1, sizeof n1, "%s.mlp.fc2.weight", p);
+    snprintf(n2, sizeof n2, "%s.mlp.fc2.bias", p);
+    return model_load_linear(m, &b->fc2, n1, n2, C, hid);
+}
+
+int model_stream_load(struct model *m)
+{
+    const int has_state = !!(m->groups & MODEL_G_STATE);
+    const int has_motion = !!(m->groups & MODEL_G_MOTION);
+    if (has_motion != !!(m->groups & MODEL_G_MOTION_HEAD))
+        return model_fail(m, F4D_EFORMAT, "model: motion.* and motion_head.* must come together "
+                          "(the file has only %s)", has_motion ? "motion.*" : "motion_head.*");
+    if (!has_state && !has_motion)
+        return 0;
+    const int depth = m->cfg.depth, C = m->cfg.embed_dim;
+    if ((C / m->cfg.num_heads) % 4)
+        return model_fail(m, F4D_EFORMAT, "model: motion blocks need a head dim that is a "
+                          "multiple of 4 (2-D RoPE), got %d", C / m->cfg.num_heads);
+    struct model_stream *s = calloc(1, sizeof *s);
+    if (!s)
+        return model_fail(m, F4D_ENOMEM, "model: out of memory for the state / motion blocks");
+    m->stream = s;
+    s->has_state = has_state;
+    s->has_motion = has_motion;
+    int rc;
+    if (has_state) {
+        if ((rc = model_load_f32(m, "state.tokens", (size_t)MODEL_STATE_TOKENS * C, &s->tokens)) < 0)
+            return rc;
+        if (!(s->sb = calloc((size_t)depth, sizeof *s->sb)))
+            return model_fail(m, F4D_ENOMEM, "model: out of memory for the state blocks");
+        for (int l = 0; l < depth; l++, s->n_sb++)
+            if ((rc = load_state_blk(m, &s->sb[l], l)) < 0) {
+                s->n_sb++; /* partly packed: freed too (zeroed fields are fine) */
+                return rc;
+            }
+    }
+    if (has_motion) {
+        if (!(s->mb = calloc((size_t)depth, sizeof *s->mb)))
+            return model_fail(m, F4D_ENOMEM, "model: out of memory for the motion blocks");
+        for (int l = 0; l < depth; l++, s->n_mb++)
+            if ((rc = load_motion_blk(m, &s->mb[l], l)) < 0) {
+                s->n_mb++;
+                return rc;
+            }
+    }
+    return 0;
+}
+
+void model_stream_free(struct model *m)
+{
+    struct model_stream *s = m->stream;
+    if (!s)
+        return;
+    for (int l = 0; l < s->n_sb; l++) {
+        free_xattn(&s->sb[l].r);
+        free_xattn(&s->sb[l].w);
+        fk_linear_free(&s->sb[l].fc1);
+        fk_linear_free(&s->sb[l].fc2);
+    }
+    for (int l = 0; l < s->n_mb; l++) {
+        free_xattn(&s->mb[l].a);
+        fk_linear_free(&s->mb[l].fc1);
+        fk_linear_free(&s->mb[l].fc2);
+        fk_linear_free(&s->mb[l].in_proj);
+    }
+    free(s->sb);
+    free(s->mb);
+    free(s);
+    m->stream = NULL;
+}
+
+/* ---- memory -------------------------------------------------------------- */
+
+static size_t rows_of(const struct model_config *c, int S, int H, int W)
+{
+    const int p = c->patch_size;
+    return (size_t)S * (size_t)(1 + c->num_register_tokens + (H / p) * (W / p));
+}
+
+/* Persistent part, in this order: state, z(t-1), the kept motion streams. */
+static void persist_layout(struct bump *b, const struct model_config *c, int has_state,
+                           int has_motion, size_t nmax, struct model_stream *s)
+{
+    const size_t C = (size_t)c->embed_dim;
+    float *p = has_state ? BUMP_F(b, (size_t)c->depth * MODEL_STATE_TOKENS * C) : NULL;
+    if (s)
+        s->state = p;
+    if (!has_motion)
+        return;
+    p = BUMP_F(b, (size_t)c->depth * nmax * C);
+    if (s)
+        s->zprev = p;
+    for (int r = 0; r < 2; r++)
+        for (int i = 0; i < 4; i++) {
+            p = BUMP_F(b, nmax * C);
+            if (s)
+                s->hkeep[r][i] = p;
+        }
+}
+
+/* Aggregator-phase scratch, after the aggregator's own buffers. */
+static void scratch_layout(struct bump *b, const struct model_config *c, int has_state,
+                           int has_motion, size_t n, struct model_stream *s)
+{
+    const size_t C = (size_t)c->embed_dim, hid = (size_t)model_mlp_hidden(c, c->embed_dim);
+    const size_t Ns = MODEL_STATE_TOKENS;
+    struct model_stream tmp;
+    if (!s)
+        s = &tmp;
+    s->cat = s->zc = s->h[0] = s->h[1] = s->lnk = NULL;
+    s->s_ln = s->s_q = s->s_kv = s->s_o = s->s_hid = NULL;
+    if (has_state) {
+        s->s_ln = BUMP_F(b, Ns * C);
+        s->s_q = BUMP_F(b, Ns * C);
+        s->s_kv = BUMP_F(b, Ns * 2 * C);
+        s->s_o = BUMP_F(b, Ns * C);
+        s->s_hid = BUMP_F(b, Ns * hid);
+    }
+    if (has_motion) {
+        s->cat = BUMP_F(b, n * 2 * C);
+        s->zc = BUMP_F(b, n * C);
+        s->h[0] = BUMP_F(b, n * C);
+        s->h[1] = BUMP_F(b, n * C);
+        s->lnk = BUMP_F(b, n * C);
+    }
+}
+
+void model_stream_plan(const struct model_config *c, unsigned groups, int S, int H, int W,
+                       size_t *persist, size_t *scratch)
+{
+    const int st = !!(groups & MODEL_G_STATE), mo = !!(groups & MODEL_G_MOTION);
+    struct bump pb = { NULL, 0 }, sb = { NULL, 0 };
+    persist_layout(&pb, c, st, mo, rows_of(c, S, H, W), NULL);
+    scratch_layout(&sb, c, st, mo, rows_of(c, S, H, W), NULL);
+    *persist = pb.off;
+    *scratch = sb.off;
+}
+
+void model_stream_place(struct model *m, struct bump *b)
+{
+    struct model_stream *s = m->stream;
+    if (!s)
+        return;
+    s->nmax = rows_of(&m->cfg, m->max_S, m->max_H, m->max_W);
+    persist_layout(b, &m->cfg, s->has_state, s->has_motion, s->nmax, s);
+}
+
+void model_stream_scratch(struct model *m, struct bump *b, int S, int H, int W)
+{
+    struct model_stream *s = m->stream;
+    scratch_layout(b, &m->cfg, s->has_state, s->has_motion, rows_of(&m->cfg, S, H, W), s);
+}
+
+void model_state_reset(struct model *m)
+{
+    struct model_stream *s = m->stream;
+    if (!s)
+        return;
+    const size_t sz = (size_t)MODEL_STATE_TOKENS * (size_t)m->cfg.embed_dim;
+    if (s->has_state && s->state)
+        for (int l = 0; l < m->cfg.depth; l++)
+            memcpy(s->state + (size_t)l * sz, s->tokens, sz * sizeof(float));
+    s->has_prev = 0;
+    s->step = 0;
+    s->motion_now = 0;
+}
+
+void model_stream_begin(struct model *m, int S, int H, int W)
+{
+    struct model_stream *s = m->stream;
+    /* The measuring pass of model_prepare runs the motion too: its kernels'
+     * scratch is reserved like every other's. */
+    s->motion_now = s->has_motion &&
+                    (m->measuring || (s->has_prev && s->prev_S == S && s->prev_H == H &&
+                                      s->prev_W == W));
+}
+
+void model_stream_end(struct model *m, int S, int H, int W, int ok, struct model_outputs *out)
+{
+    struct model_stream *s = m->stream;
+    s->has_prev = ok && s->has_motion;
+    s->prev_S = S;
+    s->prev_H = H;
+    s->prev_W = W;
+    if (ok)
+        s->step++;
+    if (out)
+        out->step = s->step;
+}
+
+int model_stream_motion_now(const struct model *m)
+{
+    return m->stream && m->stream->motion_now;
+}
+
+const float *model_stream_h(const struct model *m, int run, int i)
+{
+    return m->stream->hkeep[run][i];
+}
+
+/* ---- eval ---------------------------------------------------------------- */
+
+/* out [nq, C] = Attn(q [nq, C] (ld C), k / v [nk, C] (ld 2C, v at +C)); pos
+ * (RoPE) for both sides or NULL. */
+static int attend(struct model *m, const float *q, int nq, const float *kv, int nk,
+                  const int32_t *pos, float *out)
+{
+    const int C = m->cfg.embed_dim, heads = m->cfg.num_heads;
+    struct fk_attention_desc a = {
+        .heads = heads, .head_dim = C / heads, .pos_q = pos, .pos_k = pos, .rope_base = 100.0f,
+    };
+    if (fk_attention(m->ctx, &a, q, C, nq, kv, 2 * C, kv + C, 2 * C, nk, out, C) != F4D_OK)
+        return model_kfail(m, "cross-attention");
+    *m->flops += 4.0 * nq * (double)nk * C;
+    return 0;
+}
+
+static int ln(struct model *m, const float *x, int rows, const float *w, const float *b, float *y)
+{
+    const int C = m->cfg.embed_dim;
+    if (fk_layernorm(m->ctx, x, rows, C, C, w, b, 1e-5f, y, C) != F4D_OK)
+        return model_kfail(m, "layernorm");
+    return 0;
+}
+
+static int state_block(struct model *m, const struct state_blk *b, float *x, int n, float *st,
+                       const struct blk_bufs *bb)
+{
+    struct model_stream *s = m->stream;
+    const int C = m->cfg.embed_dim, hid = model_mlp_hidden(&m->cfg, C), Ns = MODEL_STATE_TOKENS;
+    struct fk_epilogue acc_r = { .gamma = b->ls_r, .accumulate = 1 };
+    struct fk_epilogue acc_w = { .gamma = b->ls_w, .accumulate = 1 };
+    struct fk_epilogue acc_m = { .gamma = b->ls_m, .accumulate = 1 };
+    struct fk_epilogue gelu = { .act = FK_ACT_GELU };
+    int rc;
+    /* read: the stream attends to the state of t-1 */
+    if ((rc = ln(m, x, n, b->nxw, b->nxb, bb->ln)) < 0 ||
+        (rc = ln(m, st, Ns, b->nsw, b->nsb, s->s_ln)) < 0 ||
+        (rc = model_linear(m, &b->r.q, bb->ln, n, C, bb->qkv, C, NULL)) < 0 ||
+        (rc = model_linear(m, &b->r.kv, s->s_ln, Ns, C, s->s_kv, 2 * C, NULL)) < 0 ||
+        (rc = attend(m, bb->qkv, n, s->s_kv, Ns, NULL, bb->o)) < 0 ||
+        (rc = model_linear(m, &b->r.proj, bb->o, n, C, x, C, &acc_r)) < 0)
+        return rc;
+    /* write: the state attends to the stream after the read */
+    if ((rc = ln(m, st, Ns, b->ns2w, b->ns2b, s->s_ln)) < 0 ||
+        (rc = ln(m, x, n, b->nx2w, b->nx2b, bb->ln)) < 0 ||
+        (rc = model_linear(m, &b->w.q, s->s_ln, Ns, C, s->s_q, C, NULL)) < 0 ||
+        (rc = model_linear(m, &b->w.kv, bb->ln, n, C, bb->qkv, 2 * C, NULL)) < 0 ||
+        (rc = attend(m, s->s_q, Ns, bb->qkv, n, NULL, s->s_o)) < 0 ||
+        (rc = model_linear(m, &b->w.proj, s->s_o, Ns, C, st, C, &acc_w)) < 0)
+        return rc;
+    if ((rc = ln(m, st, Ns, b->nmw, b->nmb, s->s_ln)) < 0 ||
+        (rc = model_linear(m, &b->fc1, s->s_ln, Ns, C, s->s_hid, hid, &gelu)) < 0)
+        return rc;
+    return model_linear(m, &b->fc2, s->s_hid, Ns, hid, st, C, &acc_m);
+}
+
+/* h [S*P', C] += block(h, kv = zk), per view. */
+static int motion_block(struct model *m, const struct motion_blk *b, float *h, const float *zk,
+                        int S, int P1, const struct blk_bufs *bb)
+{
+    struct model_stream *s = m->stream;
+    const int C = m->cfg.embed_dim, hid = model_mlp_hidden(&m->cfg, C), n = S * P1;
+    struct fk_epilogue acc1 = { .gamma = b->g1, .accumulate = 1 };
+    struct fk_epilogue acc2 = { .gamma = b->g2, .accumulate = 1 };
+    struct fk_epilogue gelu = { .act = FK_ACT_GELU };
+    float *q = bb->qkv, *kv = bb->qkv + (size_t)n * C;
+    int rc;
+    if ((rc = ln(m, h, n, b->n1w, b->n1b, bb->ln)) < 0 ||
+        (rc = ln(m, zk, n, b->nkw, b->nkb, s->lnk)) < 0 ||
+        (rc = model_linear(m, &b->a.q, bb->ln, n, C, q, C, NULL)) < 0 ||
+        (rc = model_linear(m, &b->a.kv, s->lnk, n, C, kv, 2 * C, NULL)) < 0)
+        return rc;
+    for (int f = 0; f < S; f++) /* same positions in every view and at t-1 */
+        if ((rc = attend(m, q + (size_t)f * P1 * C, P1, kv + (size_t)f * P1 * 2 * C, P1, m->pos,
+                         bb->o + (size_t)f * P1 * C)) < 0)
+            return rc;
+    if ((rc = model_linear(m, &b->a.proj, bb->o, n, C, h, C, &acc1)) < 0 ||
+        (rc = ln(m, h, n, b->n2w, b->n2b, bb->ln)) < 0 ||
+        (rc = model_linear(m, &b->fc1, bb->ln, n, C, bb->hid, hid, &gelu)) < 0)
+        return rc;
+    return model_linear(m, &b->fc2, bb->hid, n, hid, h, C, &acc2);
+}
+
+int model_stream_frame(struct model *m, int layer, const float *x, int n)
+{
+    struct model_stream *s = m->stream;
+    (void)layer;
+    if (!s->has_motion)
+        return 0;
+    const size_t C = (size_t)m->cfg.embed_dim;
+    for (int r = 0; r < n; r++)
+        memcpy(s->cat + (size_t)r * 2 * C, x + (size_t)r * C, C * sizeof(float));
+    return 0;
+}
+
+/* Tap "<what><l>" with the whole tensor (frame -1). */
+static void tap_rows(struct model *m, const char *what, int l, const float *p, size_t count)
+{
+    if (!m->tap)
+        return;
+    char nm[48];
+    snprintf(nm, sizeof nm, "%.24s%d", what, l);
+    m->tap(m->tap_user, nm, -1, p, count);
+}
+
+int model_stream_global(struct model *m, int l, float *x, int S, int P1,
+                        const struct blk_bufs *bb)
+{
+    struct model_stream *s = m->stream;
+    const struct model_config *c = &m->cfg;
+    const int C = c->embed_dim, n = S * P1;
+    const size_t nC = (size_t)n * C;
+    int rc;
+    if (s->has_state) {
+        double t0 = model_now();
+        m->flops = &m->st_flops[ST_STATE];
+        float *st = s->state + (size_t)l * MODEL_STATE_TOKENS * C;
+        if ((rc = state_block(m, &s->sb[l], x, n, st, bb)) < 0)
+            return rc;
+        tap_rows(m, "state", l, st, (size_t)MODEL_STATE_TOKENS * C);
+        m->st_sec[ST_STATE] += model_now() - t0;
+    }
+    if (!s->has_motion)
+        return 0;
+    double t0 = model_now();
+    m->flops = &m->st_flops[ST_MOTION];
+    for (int r = 0; r < n; r++)
+        memcpy(s->cat + (size_t)r * 2 * C + C, x + (size_t)r * C, (size_t)C * sizeof(float));
+    const struct motion_blk *b = &s->mb[l];
+    if ((rc = model_linear(m, &b->in_proj, s->cat, n, 2 * C, s->zc, C, NULL)) < 0)
+        return rc;
+    float *zp = s->zprev + (size_t)l * s->nmax * C;
+    if (s->motion_now) {
+        /* run 0 (M1): queries z(t), keys z(t-1); run 1 (M2): the roles swapped */
+        const float *zq[2] = { s->zc, zp }, *zk[2] = { zp, s->zc };
+        for (int r = 0; r < 2; r++) {
+            if (l == 0)
+                memcpy(s->h[r], zq[r], nC * sizeof(float));
+            else if (fk_residual_add(m->ctx, s->h[r], C, zq[r], C, NULL, n, C) != F4D_OK)
+                return model_kfail(m, "motion input add");
+            if ((rc = motion_block(m, b, s->h[r], zk[r], S, P1, bb)) < 0)
+                return rc;
+            for (int i = 0; i < 4; i++)
+                if (c->dpt_layer_idx[i] == l) {
+                    memcpy(s->hkeep[r][i], s->h[r], nC * sizeof(float));
+                    tap_rows(m, r ? "motion.m2h" : "motion.m1h", l, s->h[r], nC);
+                }
+        }
+    }
+    memcpy(zp, s->zc, nC * sizeof(float)); /* z_l(t) is the next step's z_l(t-1) */
+    m->st_sec[ST_MOTION] += model_now() - t0;
+    return 0;
+}
