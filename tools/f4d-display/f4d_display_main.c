@@ -6,8 +6,10 @@
  *               [--interp fused|both|nearest] [--offset BYTES] [--no-status]
  *               [--realtime|--no-realtime] [--threads N] [--json FILE] INPUT
  *
- * INPUT is a stream file (.f4ds); packet sources are pluggable (f4d_display.h),
- * so a network source adds a scheme here. --offset starts reading at a byte in
+ * INPUT is a stream file (.f4ds), or srt://HOST:PORT?... / file:PATH through
+ * the stream transport (f4d_transport.h: caller or listener, latency,
+ * passphrase; the display's source stats then carry SRT's drops and latency).
+ * --offset starts reading a plain file at a byte in
  * the middle (a join: the display waits for the next intra key). Without a
  * camera the first key places an orbit camera. Prints a JSON summary on stdout
  * (and into --json FILE). Exit 0, 1 on error, 2 on bad usage. */
@@ -203,7 +205,15 @@ int main(int argc, char **argv)
     display_source *src = NULL;
     display *d = NULL;
     int rc = 1;
-    if (display_source_file(input, (size_t)offset, &src, &err) < 0 || display_new(ctx, &cfg, &d, &err) < 0) {
+    int net = !strncmp(input, "srt://", 6) || !strncmp(input, "file:", 5);
+#ifdef F4D_DISPLAY_TRANSPORT
+    int src_rc = net ? display_source_transport(input, 0, &src, &err)
+                     : display_source_file(input, (size_t)offset, &src, &err);
+#else
+    int src_rc = net ? f4d_fail(&err, F4D_ENOTSUP, "'%s': built without the stream transport", input)
+                     : display_source_file(input, (size_t)offset, &src, &err);
+#endif
+    if (src_rc < 0 || display_new(ctx, &cfg, &d, &err) < 0) {
         fprintf(stderr, "f4d-display: %s\n", err.msg);
         goto done;
     }

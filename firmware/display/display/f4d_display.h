@@ -1,11 +1,12 @@
 /* f4d_display.h - the display stage: container packets in, pictures out at the
  * display's own refresh rate. Library f4d_display; depends on
- * firmware/stream/codec (packets, decoder), firmware/gaussians/interp (the
+ * firmware/stream/codec (packets, decoder), firmware/stream/transport (SRT,
+ * when built), firmware/gaussians/interp (the
  * maths between keys), firmware/gaussians/splat (the CPU rasterizer), EGL and
  * GLES 3 (Mesa), X11 for the window and, when built, libgbm + libdrm for KMS.
  *
  *     display_source *src;
- *     display_source_file("walk.f4ds", 0, &src, &err);      // or a future srt:// source
+ *     display_source_file("walk.f4ds", 0, &src, &err);      // or display_source_transport("srt://...")
  *     struct display_config cfg = display_config_default();
  *     cfg.output = DISPLAY_HEADLESS;  cfg.png_dir = "frames";  cfg.fps = 30;
  *     display *d;
@@ -99,6 +100,11 @@ int  display_source_new (const struct display_source_ops *ops, void *impl, displ
 /* A stream file read through mmap, starting at byte `offset` (a join in the
  * middle: the source resynchronises to the next packet). */
 int  display_source_file(const char *path, size_t offset, display_source **out, struct f4d_err *err);
+/* Packets over firmware/stream/transport: "srt://HOST:PORT?mode=...&latency=
+ * MS&passphrase=..." or "file:PATH" (f4d_transport.h has the URL syntax);
+ * max_packet: the largest packet (0: the transport's default). Built when
+ * the transport is (F4D_DISPLAY_TRANSPORT defined). next() waits up to 2 ms. */
+int  display_source_transport(const char *url, size_t max_packet, display_source **out, struct f4d_err *err);
 /* Packets in a caller-owned buffer that outlives the source. */
 int  display_source_memory(const uint8_t *buf, size_t len, display_source **out, struct f4d_err *err);
 int  display_source_next (display_source *s, struct codec_packet *p, struct f4d_err *err);
