@@ -206,6 +206,11 @@ int main(int argc, char **argv)
     display *d = NULL;
     int rc = 1;
     int net = !strncmp(input, "srt://", 6) || !strncmp(input, "file:", 5);
+    if (net && offset > 0) {
+        fprintf(stderr, "f4d-display: --offset applies to a plain stream file, not to '%s'\n", input);
+        fk_ctx_free(ctx);
+        return 2;
+    }
 #ifdef F4D_DISPLAY_TRANSPORT
     int src_rc = net ? display_source_transport(input, 0, &src, &err)
                      : display_source_file(input, (size_t)offset, &src, &err);
