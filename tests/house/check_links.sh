@@ -44,7 +44,7 @@ forbid hal_core  '^hal_(sim|replay|aravis|gpiod|usb|libcamera|registry|take|boar
 forbid f4d_sync  'ARAVIS|GPIOD|GLIB|ZLIB|LIBUSB|LIBCAMERA|^hal_(sim|replay|aravis|gpiod|usb|libcamera|registry)$' "the synchronizer is pure logic"
 forbid hal_take  'ARAVIS|GPIOD|LIBUSB|LIBCAMERA|^hal_(sim|replay|aravis|gpiod|usb|libcamera|registry)$' "the take format needs only zlib"
 forbid fk        '^(hal_|f4d_)|PkgConfig' "kernels sit at the bottom"
-for stage in f4d_sync f4d_capture f4d_gguf f4d_model f4d_preprocess f4d_splat f4d_interp; do
+for stage in f4d_sync f4d_capture f4d_gguf f4d_model f4d_preprocess f4d_foreground f4d_splat f4d_interp; do
   forbid "$stage" '^f4d_(scene|simscene)$' "no product stage links the synthetic world"
 done
 (( bad )) && exit 1

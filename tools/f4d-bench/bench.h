@@ -13,6 +13,12 @@ int bench_stream(int argc, char **argv);
 int bench_hal(int argc, char **argv);
 int bench_codec(int argc, char **argv);
 int bench_display(int argc, char **argv);
+int bench_tokens(int argc, char **argv);
+
+struct model_config;
+/* A GGUF weight file of `groups` (model.h MODEL_G_*) with random weights that
+ * keep activations in a realistic range (bench_model.c); 0 or -1 (printed). */
+int bench_write_random_model(const char *path, const struct model_config *c, unsigned groups);
 
 /* Seconds on CLOCK_MONOTONIC. */
 double bench_now(void);

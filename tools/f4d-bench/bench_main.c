@@ -18,6 +18,9 @@ static const struct subcommand table[] = {
     { "interp",  bench_interp,  "4D interpolation quality/speed vs nearest key frame, and the scene budget" },
     { "stream",  bench_stream,  "Forge4D playback: interpolation per step (100k/300k Gaussians) vs streaming its bytes at the measured bandwidth" },
     { "hal",     bench_hal,     "synchronizer, sim capture and take writer throughput vs raw write()" },
+#ifdef F4D_BENCH_TOKENS
+    { "tokens",  bench_tokens,  "foreground-only key frames (walk take): time, tokens and error at 2 mask margins vs all patches" },
+#endif
 #ifdef F4D_BENCH_CODEC
     { "codec",   bench_codec,   "stream codec rate-distortion (intra/predicted keys, motion, Mbit/s, render PSNR) vs SPZ" },
 #endif

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """make_fixtures.py - tiny random-weight VGGT parity fixtures for tests/model/.
 
-    /usr/bin/python3 tools/reference/make_fixtures.py [OUT_DIR] [--forge4d-only]
+    /usr/bin/python3 tools/reference/make_fixtures.py [OUT_DIR] [--forge4d-only | --masked-only]
 
 For each tiny config it writes OUT_DIR/<config>/:
     config.json            the f4d-convert config (the issue's keys)
@@ -13,6 +13,7 @@ The model runs in float64 on float32-representable weights and inputs, so the
 fixtures are the exact answer and a C port in float32 is judged by its own
 rounding only. Results are saved as float32.
 """
+import dataclasses
 import json
 import os
 import struct
@@ -242,6 +243,57 @@ def forge4d_fixtures(out_root):
             f"{k} |max| {o2[k].abs().max().item():.3g}" for k in keys))
 
 
+def read_safetensors(path):
+    with open(path, "rb") as f:
+        n = struct.unpack("<Q", f.read(8))[0]
+        header = json.loads(f.read(n))
+        blob = f.read()
+    sd = {}
+    for name, e in header.items():
+        if name == "__metadata__":
+            continue
+        assert e["dtype"] == "F32", name
+        a, b = e["data_offsets"]
+        sd[name] = torch.from_numpy(np.frombuffer(blob[a:b], dtype="<f4").copy().reshape(e["shape"]))
+    return sd
+
+
+# Foreground-only Eval (model_eval_masked) on the committed `tiny` weights, 3 views:
+# the previous Eval is the full run on s3/input.npy; this one runs a new input with
+# view 0 partly kept, view 1 empty (special tokens only) and view 2 all kept.
+MASKED_KEEP = [[0, 1, 0, 1, 1, 0, 0, 1, 0, 0, 1, 0, 0, 0, 1],
+               [0] * 15,
+               [1] * 15]
+
+
+def masked_fixtures(out_root):
+    spec = CONFIGS["tiny"]
+    cfg, H, W = spec["cfg"], spec["H"], spec["W"]
+    d = os.path.join(out_root, "tiny")
+    model = VGGT(cfg).eval()
+    model.load_state_dict(read_safetensors(os.path.join(d, "weights.safetensors")))
+    model = model.double()
+    prev = torch.from_numpy(np.load(os.path.join(d, "s3", "input.npy")))
+    gen = torch.Generator().manual_seed(777)
+    img = torch.rand(3, 3, H, W, generator=gen).to(torch.float32)
+    keep = torch.tensor(MASKED_KEEP, dtype=torch.bool)
+    with torch.no_grad():
+        prev_layers = model.aggregator(prev.double(), {})
+    out = model.forward_masked(img.double(), keep, prev_layers)
+    sdir = os.path.join(d, "masked_s3")
+    os.makedirs(sdir, exist_ok=True)
+    np.save(os.path.join(sdir, "input.npy"), img.numpy())
+    np.save(os.path.join(sdir, "keep.npy"), keep.to(torch.float32).numpy())
+    for k, v in out.items():
+        if k.startswith("layer") or k in ("pose_enc", "depth", "depth_conf", "world_points",
+                                         "world_points_conf"):
+            np.save(os.path.join(sdir, f"{k}.npy"), v.to(torch.float32).contiguous().numpy())
+    full = model(img.double())
+    diff = (full["depth"] - out["depth"]).abs().max().item() / full["depth"].abs().max().item()
+    print(f"tiny masked S=3: kept {int(keep.sum())} of {keep.numel()} patches, depth "
+          f"{diff:.3g} (relative) from the all-patches run")
+
+
 # Forge4D stages 2-3 (forge4d-arch.md 4-6): the tiny VGGT + every Forge4D module, a
 # sequence of SEQ_T time steps of 2 views at 28x42 (small files). Per step t/<name>.npy:
 # the aggregator layers the heads read (state blocks included), the state of every layer
@@ -290,8 +342,14 @@ def fusion_pairs(gen, n):
 
 def forge4d_seq_fixtures(out_root):
     from forge4d_ref import fuse_pairs
-    cfg = CONFIGS["tiny"]["cfg"]
-    gen = torch.Generator().manual_seed(5151)
+    # A motion-layer subset: no block at layer 0 (the stream starts at layer 1), one at
+    # layer 2 that the motion head does not read, a repeated DPT layer, and the motion
+    # head at half the DPT width.
+    cfg = dataclasses.replace(CONFIGS["tiny"]["cfg"], dpt_layer_idx=[1, 3, 3, 4],
+                              motion_layers=[1, 2, 3, 4], motion_dpt_features=8)
+    # seed: random weights whose motions leave pairs to fuse (sequence/api needs >= 100;
+    # 5151 gave 1 with this config: the random cameras and motions put them out of view)
+    gen = torch.Generator().manual_seed(5153)
     model = Forge4D(cfg, stream=True).eval()
     seq_init(model, gen)
     d = os.path.join(out_root, "tiny_f4d_seq")
@@ -351,6 +409,9 @@ def main():
     args = [a for a in sys.argv[1:] if not a.startswith("--")]
     out_root = args[0] if args else os.path.join(
         os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "model", "fixtures")
+    if "--masked-only" in sys.argv:  # only tiny/masked_s3/ (on the committed tiny weights)
+        masked_fixtures(out_root)
+        return
     if "--forge4d-only" in sys.argv:  # only tiny_f4d/ (the VGGT fixtures stay as committed)
         forge4d_fixtures(out_root)
         return
@@ -388,6 +449,7 @@ def main():
             print(f"{cname} S={S} {H}x{W}: {len(out)} tensors, depth range "
                   f"{out['depth'].min().item():.3g}..{out['depth'].max().item():.3g}")
         model.float()
+    masked_fixtures(out_root)
     forge4d_fixtures(out_root)
     forge4d_seq_fixtures(out_root)
 

@@ -40,6 +40,11 @@ class Config:
     dpt_features: int = 256
     dpt_out_channels: list = field(default_factory=lambda: [256, 512, 1024, 1024])
     dpt_layer_idx: list = field(default_factory=lambda: [4, 11, 17, 23])
+    # Forge4D's motion path (forge4d_ref.py; the C runtime's model.h): aggregator layers
+    # with a motion block (None = dpt_layer_idx; list(range(depth)) = forge4d-arch.md 5
+    # as written) and the motion head's DPT width (None = dpt_features).
+    motion_layers: list = None
+    motion_dpt_features: int = 128
 
 
 # ---------------------------------------------------------------------------
@@ -204,6 +209,31 @@ class DinoViT(nn.Module):
             x = b(x)
         return self.norm(x)[:, 1 + self.r:]
 
+    def forward_kept(self, x, kept):
+        """Only the kept patches (index lists per view, raster order) run: each
+        with its own pos-embed cell, attending within the kept set. Returns a
+        list of [len(kept[f]), C]."""
+        n, _, H, W = x.shape
+        y = self.patch_embed.proj(x)
+        h, w = y.shape[2:]
+        y = y.flatten(2).transpose(1, 2)
+        y = torch.cat([self.cls_token.expand(n, -1, -1), y], dim=1)
+        pe = self.pos_embed
+        if not (h * w == self.g * self.g and H == W):
+            grid = pe[0, 1:].reshape(self.g, self.g, -1)
+            grid = aa_bicubic(grid, h, w).reshape(1, h * w, -1)
+            pe = torch.cat([pe[:, :1], grid], dim=1)
+        y = y + pe
+        outs = []
+        for f in range(n):
+            idx = torch.cat([torch.zeros(1, dtype=torch.long), 1 + torch.as_tensor(kept[f], dtype=torch.long)])
+            t = y[f:f + 1, idx]
+            t = torch.cat([t[:, :1], self.register_tokens, t[:, 1:]], dim=1)
+            for b in self.blocks:
+                t = b(t)
+            outs.append(self.norm(t)[0, 1 + self.r:])
+        return outs
+
 
 class Aggregator(nn.Module):
     def __init__(self, cfg):
@@ -249,6 +279,44 @@ class Aggregator(nn.Module):
             if after_global is not None:
                 tok = after_global(i, tok.reshape(S * P1, C), pos).reshape(S, P1, C)
             layers.append(torch.cat([fr, tok], dim=-1))
+        return layers
+
+
+    def forward_kept(self, images, kept):
+        """Foreground-only aggregator: view f runs its special tokens and the
+        patches kept[f] (raster indices), with their real RoPE positions;
+        frame attention within each view's kept set, global attention over
+        all kept tokens. Returns per layer a list over views of
+        [ns + len(kept[f]), 2C] (specials first)."""
+        S, _, H, W = images.shape
+        p = self.cfg.patch_size
+        w = W // p
+        mean = torch.tensor(RESNET_MEAN, dtype=images.dtype).view(1, 3, 1, 1)
+        std = torch.tensor(RESNET_STD, dtype=images.dtype).view(1, 3, 1, 1)
+        x = (images - mean) / std
+        if self.cfg.patch_embed == "dino":
+            pts = self.patch_embed.forward_kept(x, kept)
+        else:
+            full = self.patch_embed.proj(x).flatten(2).transpose(1, 2)
+            pts = [full[f, torch.as_tensor(kept[f], dtype=torch.long)] for f in range(S)]
+        ns = 1 + self.cfg.num_register_tokens
+        toks, poss = [], []
+        for f in range(S):
+            slot = 0 if f == 0 else 1
+            toks.append(torch.cat([self.camera_token[0, slot], self.register_token[0, slot], pts[f]], dim=0))
+            kf = torch.as_tensor(kept[f], dtype=torch.long)
+            pos = torch.zeros(ns + len(kept[f]), 2, dtype=torch.int64)
+            pos[ns:, 0] = kf // w + 1
+            pos[ns:, 1] = kf % w + 1
+            poss.append(pos)
+        lens = [t.shape[0] for t in toks]
+        layers = []
+        for i in range(self.cfg.depth):
+            toks = [self.frame_blocks[i](t[None], pos[None])[0] for t, pos in zip(toks, poss)]
+            fr = toks
+            g = self.global_blocks[i](torch.cat(toks)[None], torch.cat(poss)[None])[0]
+            toks = list(torch.split(g, lens))
+            layers.append([torch.cat([a, b], dim=-1) for a, b in zip(fr, toks)])
         return layers
 
 
@@ -436,6 +504,32 @@ class VGGT(nn.Module):
         out["pose_enc_list"] = torch.stack(poses)
         out["pose_enc"] = poses[-1]
         out["extrinsic"], out["intrinsic"] = pose_to_extri_intri(poses[-1], H, W)
+        out["depth"], out["depth_conf"] = self.depth_head(layers, H, W, out, "depth_head")
+        out["world_points"], out["world_points_conf"] = self.point_head(layers, H, W, out, "point_head")
+        return out
+
+    @torch.no_grad()
+    def forward_masked(self, images, keep, prev_layers):
+        """Foreground-only Eval (model_eval_masked): keep [S, P] bool; the
+        kept tokens run (Aggregator.forward_kept), every dropped patch's
+        layer rows are prev_layers' (the previous Eval's), then the heads run
+        on the full composed layers."""
+        S, _, H, W = images.shape
+        ns = 1 + self.cfg.num_register_tokens
+        kept = [torch.nonzero(keep[f]).flatten().tolist() for f in range(S)]
+        packed = self.aggregator.forward_kept(images, kept)
+        layers = []
+        for L in range(self.cfg.depth):
+            comp = prev_layers[L].clone()
+            for f in range(S):
+                rows = list(range(ns)) + [ns + k for k in kept[f]]
+                comp[f, rows] = packed[L][f]
+            layers.append(comp)
+        out = {}
+        for L in sorted(set(self.cfg.dpt_layer_idx) | {self.cfg.depth - 1}):
+            out[f"layer{L}"] = layers[L]
+        poses = self.camera_head(layers[-1])
+        out["pose_enc"] = poses[-1]
         out["depth"], out["depth_conf"] = self.depth_head(layers, H, W, out, "depth_head")
         out["world_points"], out["world_points_conf"] = self.point_head(layers, H, W, out, "point_head")
         return out

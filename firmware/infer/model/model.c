@@ -504,9 +504,10 @@ static int reserve_kernel_scratch(struct model *m)
     m->tap = tap;
     m->hooks = hooks;
     free(img);
-    /* the measuring pass computed nothing: forget its pos-embed grid, stats
-     * and time step */
+    /* the measuring pass computed nothing: forget its pos-embed grid, layers,
+     * stats and time step */
     m->pe_h = m->pe_w = 0;
+    m->layers_valid = 0;
     model_state_reset(m);
     for (int i = 0; i < ST_COUNT; i++)
         m->st_sec[i] = m->st_flops[i] = 0;
@@ -552,6 +553,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
     const size_t n = (size_t)max_views * (1 + c->num_register_tokens + P);
     struct bump b = { m->arena, 0 };
     m->pos = bump_take(&b, n * 2 * sizeof(int32_t));
+    m->row = bump_take(&b, n * sizeof(int32_t));
     if (c->patch_embed == MODEL_PATCH_DINO)
         m->pe_grid = BUMP_F(&b, (size_t)P * c->embed_dim);
     for (int l = 0; l < c->depth; l++)
@@ -574,10 +576,16 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
 /* ------------------------------------------------------------ eval */
 
 static int run_network(struct model *m, const float *images, int S, int H, int W, int P1,
-                       struct model_outputs *out);
+                       const uint8_t *patch_keep, struct model_outputs *out);
 
 int model_eval(struct model *m, const float *images, int S, int H, int W,
                struct model_outputs *out)
+{
+    return model_eval_masked(m, images, S, H, W, NULL, out);
+}
+
+int model_eval_masked(struct model *m, const float *images, int S, int H, int W,
+                      const uint8_t *patch_keep, struct model_outputs *out)
 {
     int rc;
     memset(out, 0, sizeof *out);
@@ -612,19 +620,23 @@ int model_eval(struct model *m, const float *images, int S, int H, int W,
         m->st_sec[i] = m->st_flops[i] = 0;
     if (m->stream)
         model_stream_begin(m, S, H, W);
-    rc = run_network(m, images, S, H, W, (int)P1, out);
+    rc = run_network(m, images, S, H, W, (int)P1, patch_keep, out);
     if (m->stream) /* a failed step leaves no usable motion inputs */
         model_stream_end(m, S, H, W, rc == 0, out);
     return rc;
 }
 
 static int run_network(struct model *m, const float *images, int S, int H, int W, int P1,
-                       struct model_outputs *out)
+                       const uint8_t *patch_keep, struct model_outputs *out)
 {
     const int p = m->cfg.patch_size;
     int rc;
-    if ((rc = model_aggregator_eval(m, images, S, H, W)) < 0)
+    if ((rc = model_aggregator_eval(m, images, S, H, W, patch_keep)) < 0)
         return rc;
+    out->masked = m->tok_masked;
+    for (int f = 0; f < S; f++)
+        out->view_tokens[f] = m->tok_off[f + 1] - m->tok_off[f];
+    out->total_tokens = m->tok_off[S];
     out->S = S;
     out->H = H;
     out->W = W;
@@ -692,6 +704,15 @@ unsigned model_groups(const struct model *m) { return m->groups; }
 const float *model_layer(const struct model *m, int l)
 {
     return l >= 0 && l < m->cfg.depth ? m->layers[l] : NULL;
+}
+
+int model_token_rows(const struct model *m, const int **off, const int32_t **row)
+{
+    if (off)
+        *off = m->tok_off;
+    if (row)
+        *row = m->row;
+    return m->tok_off[m->tok_S];
 }
 
 void model_set_tap(struct model *m, model_tap_fn fn, void *user)

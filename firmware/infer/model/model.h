@@ -35,6 +35,30 @@
  *     plan / eval / free) in a static table of built-in heads (camera, depth,
  *     point) plus model_register_head() for more before model_prepare.
  *
+ * Foreground-only evaluation ("compute only where the scene is"):
+ *   model_eval_masked takes a per-view patch keep-list (firmware/infer/
+ *   foreground builds one from a learned background). Only the kept patches
+ *   and every view's camera + register tokens run through the patch embed's
+ *   DINO blocks, the frame and global attention and the MLPs; the token
+ *   stream is then PACKED, x [n, C] with n = sum of kept tokens (frame f:
+ *   its specials, then its kept patches in raster order), so every GEMM and
+ *   attention costs what the kept tokens cost. RoPE uses the kept patches'
+ *   real (row + 1, col + 1) and the DINO pos-embed their real grid cell, so
+ *   a kept token computes exactly what it would in a model that only ever
+ *   saw the kept set. A view with no kept patch runs its special tokens only.
+ *   Dropped patches are NOT dropped from the output: the kept aggregator
+ *   layers (the ones the heads read) stay in the arena between Evals, and a
+ *   dropped patch's rows keep the previous Eval's values (the last key's),
+ *   so the heads still see a full grid and background depth, points and
+ *   Gaussians are recomputed from last-key features, not removed. The
+ *   heads themselves run on the full grid. When the kept layers hold no
+ *   complete result of the same S x H x W (first Eval, changed frame size,
+ *   a failed Eval), or when the file has Forge4D's state / motion blocks
+ *   (their state write and motion memory read every token of a step), every
+ *   patch runs (out.masked = 0). out.view_tokens /
+ *   out.total_tokens count the tokens that ran. An all-ones keep-list gives
+ *   model_eval's result bit for bit.
+ *
  * Errors: functions return 0 or a negative MODEL_E* code, with a message in
  * the caller's buffer (init) or model_error() naming the tensor, key or
  * argument at fault.
@@ -74,9 +98,19 @@ struct model_config {
     int   dino_depth, dino_num_heads;
     int   camera_trunk_depth, camera_num_heads, camera_iters;
     int   dpt_features, dpt_out_channels[4], dpt_layer_idx[4];
+    /* Forge4D's motion path (forge4d-arch.md 5, cut to the paper's 27 % of a
+     * key frame; keys forge4d.motion_layers (list), .motion_dpt_features,
+     * absent in older files = 0): bit l set = a motion block (and in_proj) at aggregator layer
+     * l, 0 = the layers of dpt_layer_idx; must contain dpt_layer_idx (the
+     * motion head reads h after those blocks). Full design: all depth bits. */
+    uint64_t motion_layers;
+    int   motion_dpt_features;      /* the motion head's DPT width; 0 = dpt_features */
 };
 
 void model_config_default(struct model_config *c);
+/* motion_layers / motion_dpt_features with 0 resolved. */
+uint64_t model_motion_mask(const struct model_config *c);
+int      model_motion_features(const struct model_config *c);
 /* Range and divisibility checks; the message names the field. */
 int  model_config_check  (const struct model_config *c, struct f4d_err *err);
 int  model_config_read   (gguf_file *f, struct model_config *c, struct f4d_err *err);
@@ -198,6 +232,12 @@ struct model_outputs {
     /* Both motion maps are pixel-aligned like the Gaussians, in metres (divided
      * by this step's gauge; model units without a scale head), NULL when
      * has_motion is 0; arena memory, valid until the next Eval. */
+    /* Tokens the aggregator ran (model_eval_masked): per view its special
+     * tokens plus kept patches, and their sum; masked = 1 when patches were
+     * dropped and their layer rows reused from the previous Eval. */
+    int          masked;
+    int          view_tokens[MODEL_VIEWS_MAX];
+    int          total_tokens;
 };
 
 /* Checkpoint callback. Names and layouts (f = frame, -1 = all frames):
@@ -210,6 +250,7 @@ struct model_outputs {
  *   "gaussian_head.sigma" f [H, W, 3]     Gaussian std devs, model units
  *   "scale_head.gauge"  f=-1 [1]          p_gauge_hat
  *   "patch_embed"       f    [P, C]           patch tokens after the patch embed
+ *                                            (masked Eval: kept patches only)
  *   "layer<l>"          f=-1 [S, P', 2C]      aggregator output l (kept layers)
  *   "camera_iter<i>"    f=-1 [S, 9]           activated pose encoding, iteration i
  *   "<head>.level<i>"   f    [h_i, w_i, c_i]  DPT level i after its resize (HWC)
@@ -222,7 +263,9 @@ typedef void (*model_tap_fn)(void *user, const char *name, int frame,
 struct model_hooks {
     /* After global block `layer`: x is the token stream [S*P', C] (row
      * f*P' + t), which the hook may update in place; a kept layer's global
-     * half is copied after the hook. Return < 0 to abort. */
+     * half is copied after the hook. In a masked Eval that dropped patches
+     * the stream is packed ([out.total_tokens, C], model_token_rows) and
+     * `tokens` is 0. Return < 0 to abort. */
     int  (*after_global)(void *user, int layer, float *x, int S, int tokens, int C);
     void  *user;
 };
@@ -270,6 +313,12 @@ int   model_prepare     (struct model *m, int max_views, int max_h, int max_w);
 /* S <= max_views, H <= max_h, W <= max_w of model_prepare, else F4D_EINVAL. */
 int   model_eval        (struct model *m, const float *images, int S, int H, int W,
                          struct model_outputs *out);
+/* model_eval where only the patches with patch_keep[f * P + r * w + c] != 0
+ * (P = h * w patches of view f, row-major; NULL = all) run through the
+ * aggregator, with the special tokens of every view. See "Foreground-only
+ * evaluation" above for what dropped patches get. */
+int   model_eval_masked (struct model *m, const float *images, int S, int H, int W,
+                         const uint8_t *patch_keep, struct model_outputs *out);
 void  model_free        (struct model *m);
 
 const char                *model_error      (const struct model *m);
@@ -278,8 +327,14 @@ fk_ctx                    *model_ctx        (struct model *m);
 enum fk_wtype              model_wtype      (const struct model *m);
 size_t                     model_arena_bytes(const struct model *m);
 size_t                     model_weight_bytes(const struct model *m); /* packed */
-/* Aggregator output l of the last Eval, [S*P', 2C], or NULL when not kept. */
+/* Aggregator output l of the last Eval, [S*P', 2C], or NULL when not kept
+ * (after a masked Eval, dropped patches' rows are the previous Eval's). */
 const float               *model_layer      (const struct model *m, int l);
+/* The last aggregator run's token stream: returns its row count n; off
+ * [S+1] (frame f is rows off[f] .. off[f+1]-1) and row [n] (stream row ->
+ * layer row f*P' + t) point into the model, valid until the next Eval. */
+int                        model_token_rows (const struct model *m, const int **off,
+                                             const int32_t **row);
 void  model_set_tap   (struct model *m, model_tap_fn fn, void *user);
 void  model_set_hooks (struct model *m, const struct model_hooks *hooks);
 
@@ -308,8 +363,8 @@ int   model_load_linear (struct model *m, struct fk_linear *L, const char *wname
  * With state.* weights, every Eval is one time step: state block l runs right
  * after global block l (before any model_hooks callback) and carries its
  * state to the next Eval; with motion.* / motion_head.* weights the model
- * keeps every layer's motion input z_l of the last Eval and, from the second
- * step on, gives M1[t] and M2[t-1] (struct model_outputs). All of it lives in
+ * keeps the motion input z_l of each motion layer (motion_layers) of the
+ * last Eval and, from the second step on, gives M1[t] and M2[t-1] (struct model_outputs). All of it lives in
  * the arena (planned by model_prepare): memory does not grow with time.
  *
  *     model_state_reset(m);                          // t = 0 (also after prepare)

@@ -39,10 +39,10 @@ void model_block_bufs(struct bump *b, int dim, int hidden, int n, struct blk_buf
     bb->hid = BUMP_F(b, (size_t)n * hidden);
 }
 
-int model_block_forward(struct model *m, const struct blk *b, float *x, int nseq, int seqlen,
-                        const int32_t *pos, const struct blk_bufs *bb)
+int model_block_forward_seqs(struct model *m, const struct blk *b, float *x, int nseq,
+                             const int *off, const int32_t *pos, const struct blk_bufs *bb)
 {
-    const int C = b->dim, n = nseq * seqlen, d = C / b->heads;
+    const int C = b->dim, n = off[nseq], d = C / b->heads;
     int rc;
     if (fk_layernorm(m->ctx, x, n, C, C, b->n1w, b->n1b, b->eps, bb->ln, C) != F4D_OK)
         return model_kfail(m, "layernorm");
@@ -51,15 +51,19 @@ int model_block_forward(struct model *m, const struct blk *b, float *x, int nseq
     struct fk_attention_desc a = {
         .heads = b->heads, .head_dim = d, .qk_norm = b->qk_norm,
         .q_norm_w = b->qnw, .q_norm_b = b->qnb, .k_norm_w = b->knw, .k_norm_b = b->knb,
-        .norm_eps = 1e-5f, .pos_q = pos, .pos_k = pos, .rope_base = 100.0f,
+        .norm_eps = 1e-5f, .rope_base = 100.0f,
     };
+    double pairs = 0.0;
     for (int s = 0; s < nseq; s++) {
-        const float *q = bb->qkv + (size_t)s * seqlen * 3 * C;
-        if (fk_attention(m->ctx, &a, q, 3 * C, seqlen, q + C, 3 * C, q + 2 * C, 3 * C, seqlen,
-                         bb->o + (size_t)s * seqlen * C, C) != F4D_OK)
+        const int len = off[s + 1] - off[s];
+        const float *q = bb->qkv + (size_t)off[s] * 3 * C;
+        a.pos_q = a.pos_k = pos ? pos + 2 * (size_t)off[s] : NULL;
+        if (len > 0 && fk_attention(m->ctx, &a, q, 3 * C, len, q + C, 3 * C, q + 2 * C, 3 * C,
+                                    len, bb->o + (size_t)off[s] * C, C) != F4D_OK)
             return model_kfail(m, "attention");
+        pairs += (double)len * len;
     }
-    *m->flops += 4.0 * nseq * (double)seqlen * seqlen * C;
+    *m->flops += 4.0 * pairs * C;
     struct fk_epilogue res1 = { .act = FK_ACT_NONE, .gamma = b->g1, .accumulate = 1 };
     if ((rc = model_linear(m, &b->proj, bb->o, n, C, x, C, &res1)) < 0)
         return rc;
@@ -70,6 +74,18 @@ int model_block_forward(struct model *m, const struct blk *b, float *x, int nseq
         return rc;
     struct fk_epilogue res2 = { .act = FK_ACT_NONE, .gamma = b->g2, .accumulate = 1 };
     return model_linear(m, &b->fc2, bb->hid, n, b->hidden, x, C, &res2);
+}
+
+/* Equal sequences sharing one position table: the DINO and camera-trunk
+ * callers (no RoPE). */
+int model_block_forward(struct model *m, const struct blk *b, float *x, int nseq, int seqlen,
+                        const int32_t *pos, const struct blk_bufs *bb)
+{
+    int off[MODEL_VIEWS_MAX + 2];
+    F4D_ASSERT(nseq >= 1 && nseq <= MODEL_VIEWS_MAX + 1 && (!pos || nseq == 1));
+    for (int s = 0; s <= nseq; s++)
+        off[s] = s * seqlen;
+    return model_block_forward_seqs(m, b, x, nseq, off, pos, bb);
 }
 
 int model_load_block(struct model *m, struct blk *b, const char *p, int dim, int heads,

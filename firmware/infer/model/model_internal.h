@@ -74,7 +74,15 @@ struct model {
     unsigned char      *arena;
     size_t              arena_bytes, persist_bytes, scratch_bytes;
     int                 max_S, max_H, max_W;
-    int32_t            *pos;                /* [S*P'][2] */
+    int32_t            *pos;                /* [S*P'][2] per stream row */
+    int32_t            *row;                /* [S*P'] stream row -> layer row f*P'+t */
+    /* Token stream of the last aggregator run: frame f is rows off[f] ..
+     * off[f+1]-1 (specials, then its kept patches in raster order). */
+    int                 tok_off[MODEL_VIEWS_MAX + 1], tok_S;
+    int                 tok_masked;         /* rows were dropped: layers partly reused */
+    /* The kept layers hold a complete result for this frame set (0: none
+     * yet, or the last aggregator run failed): a masked Eval may reuse them. */
+    int                 layers_valid, layers_S, layers_H, layers_W;
     float              *pe_grid;            /* resized DINO pos-embed [P, C] */
     int                 pe_h, pe_w;         /* size pe_grid holds (0 = none) */
     float              *layers[MODEL_LAYERS_MAX];
@@ -122,7 +130,12 @@ int  model_conv(struct model *m, const struct fk_conv2d *c, const float *x, int 
 int  model_convt(struct model *m, const struct fk_conv_transpose2d *c, const float *x,
                  int h, int w, float *y);
 void model_block_bufs(struct bump *b, int dim, int hidden, int n, struct blk_bufs *bb);
-/* x [nseq*seqlen, dim] in place; pos [seqlen][2] or NULL (no RoPE). */
+/* x [off[nseq], dim] in place; sequence s is rows off[s] .. off[s+1]-1 (may
+ * be empty) and attends within itself; pos [off[nseq]][2] per row, or NULL
+ * (no RoPE). */
+int  model_block_forward_seqs(struct model *m, const struct blk *b, float *x, int nseq,
+                              const int *off, const int32_t *pos, const struct blk_bufs *bb);
+/* nseq equal sequences of seqlen rows; pos [seqlen][2] only when nseq == 1. */
 int  model_block_forward(struct model *m, const struct blk *b, float *x, int nseq,
                          int seqlen, const int32_t *pos, const struct blk_bufs *bb);
 
@@ -131,7 +144,10 @@ int  model_aggregator_load(struct model *m);
 void model_aggregator_free(struct model *m);
 void model_aggregator_plan(const struct model_config *c, uint64_t keep, int S, int H, int W,
                            size_t *persist, size_t *scratch);
-int  model_aggregator_eval(struct model *m, const float *images, int S, int H, int W);
+/* keep [S*P] (1 = run the patch) or NULL for all patches; ignored (all
+ * patches run) when the kept layers hold no result of this S x H x W. */
+int  model_aggregator_eval(struct model *m, const float *images, int S, int H, int W,
+                           const uint8_t *keep);
 
 /* Built-in heads. */
 extern const struct model_head_ops model_camera_head_ops;
@@ -187,9 +203,10 @@ void model_fusion_free(struct model *m);
  * The raw maps [S, H, W, out_dim] sit at the start of the head's persist part,
  * whose size model_dpt_raw_plan gives. */
 int      model_dpt_raw_init (struct model *m, void **head, const char *prefix, int out_dim);
-/* The same on tokens in_dim wide (the motion head: C). */
+/* The same on tokens in_dim wide with its own width `features` (the motion
+ * head: C, motion_dpt_features); its plan takes a config with that width. */
 int      model_dpt_raw_init_dim(struct model *m, void **head, const char *prefix, int out_dim,
-                                int in_dim);
+                                int in_dim, int features);
 void     model_dpt_raw_plan (const struct model_config *c, int out_dim, int S, int H, int W,
                              size_t *persist, size_t *scratch);
 uint64_t model_dpt_head_layers(const void *head);

@@ -29,6 +29,7 @@ struct scene {
     float    s;            /* body scale: height / 1.78 */
     float    ball_radius;
     size_t   n, cap;
+    size_t   n_figure;     /* Gaussians 0 .. n_figure-1: figure (and ball) */
     uint8_t *bone;
     float   *local;        /* [3n] position in the bone frame */
     float   *qlocal;       /* [4n] rotation in the bone frame */
@@ -588,6 +589,7 @@ static int build(scene *S, float body_sp, float floor_sp)
         float bc[3] = { 0, 0, 0 }, br[3] = { S->ball_radius, S->ball_radius, S->ball_radius };
         rc |= add_ellipsoid(S, B_BALL, T_BALL, bc, br, 0.8f * sp);
     }
+    S->n_figure = S->n;
     rc |= add_floor(S, floor_sp);
     return rc;
 }
@@ -653,6 +655,7 @@ void scene_free(scene *s)
 }
 
 size_t scene_count(const scene *s) { return s ? s->n : 0; }
+size_t scene_figure_count(const scene *s) { return s ? s->n_figure : 0; }
 float scene_height(const scene *s) { return s ? 1.78f * s->s : 0.0f; }
 enum scene_preset scene_preset_of(const scene *s) { return s->preset; }
 

@@ -56,6 +56,9 @@ int          scene_new      (enum scene_preset preset, uint64_t seed, size_t gau
                              scene **out, struct f4d_err *err);
 void         scene_free     (scene *s);
 size_t       scene_count    (const scene *s);   /* Gaussians per frame, constant */
+/* Gaussians 0 .. scene_figure_count-1 are the figure (and the ball), the rest
+ * the static floor: ground truth for what is foreground. */
+size_t       scene_figure_count(const scene *s);
 float        scene_height   (const scene *s);   /* figure height, metres */
 enum scene_preset scene_preset_of(const scene *s);
 
