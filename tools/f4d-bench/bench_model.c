@@ -33,6 +33,13 @@
  *       per-precision VGGT rows.
  * JSON: {"tiny": [{"stage","ms","gflops"}], "full": [{"precision","seconds",
  *        "max_rel_err", ...}], "stream": {...}, ...}.
+ *
+ *   f4d-bench model --write-random OUT.gguf [--preset tiny|mid]
+ *
+ * writes a random-weight model with every head (Forge4D's Gaussian and scale
+ * heads included) and exits: for timing `forge4d run` and the like without
+ * trained weights. tiny: the config above (img 126); mid: embed 384, depth 8,
+ * 6 heads, 4 DINO blocks, img 224 (about ViT-S width).
  */
 #include <math.h>
 #include <stdio.h>
@@ -133,6 +140,55 @@ out:
     gguf_writer_free(g.w);
     free(g.buf);
     return rc;
+}
+
+static void preset_tiny(struct model_config *c)
+{
+    model_config_default(c);
+    c->img_size = 126; c->embed_dim = 128; c->depth = 4; c->num_heads = 4;
+    c->num_register_tokens = 4; c->dino_depth = 2; c->dino_num_heads = 4;
+    c->camera_trunk_depth = 1; c->camera_num_heads = 4; c->camera_iters = 4;
+    c->dpt_features = 32;
+    c->dpt_out_channels[0] = 32; c->dpt_out_channels[1] = 64;
+    c->dpt_out_channels[2] = 128; c->dpt_out_channels[3] = 128;
+    c->dpt_layer_idx[0] = 0; c->dpt_layer_idx[1] = 1;
+    c->dpt_layer_idx[2] = 2; c->dpt_layer_idx[3] = 3;
+}
+
+static void preset_mid(struct model_config *c)
+{
+    model_config_default(c);
+    c->img_size = 224; c->embed_dim = 384; c->depth = 8; c->num_heads = 6;
+    c->num_register_tokens = 4; c->dino_depth = 4; c->dino_num_heads = 6;
+    c->camera_trunk_depth = 2; c->camera_num_heads = 6; c->camera_iters = 4;
+    c->dpt_features = 64;
+    c->dpt_out_channels[0] = 48; c->dpt_out_channels[1] = 96;
+    c->dpt_out_channels[2] = 192; c->dpt_out_channels[3] = 384;
+    c->dpt_layer_idx[0] = 1; c->dpt_layer_idx[1] = 3;
+    c->dpt_layer_idx[2] = 5; c->dpt_layer_idx[3] = 7;
+}
+
+static int write_preset(const char *path, const char *preset)
+{
+    struct model_config c;
+    if (!strcmp(preset, "tiny"))
+        preset_tiny(&c);
+    else if (!strcmp(preset, "mid"))
+        preset_mid(&c);
+    else {
+        fprintf(stderr, "f4d-bench model: --preset must be tiny or mid (got '%s')\n", preset);
+        return 2;
+    }
+    struct f4d_err err = {0};
+    if (model_config_check(&c, &err) < 0) {
+        fprintf(stderr, "f4d-bench model: preset %s: %s\n", preset, err.msg);
+        return 1;
+    }
+    if (bench_write_random_model(path, &c, MODEL_G_ALL) < 0)
+        return 1;
+    printf("f4d-bench model: random %s model (embed %d, depth %d, img %d, every head) -> %s\n", preset,
+           c.embed_dim, c.depth, c.img_size, path);
+    return 0;
 }
 
 static void random_images(float *img, size_t n, uint64_t seed)
@@ -238,7 +294,7 @@ static double stage_sec(const struct result *r, const char *name, double *flops)
 
 int bench_model(int argc, char **argv)
 {
-    const char *json = NULL, *tmpdir = "/tmp";
+    const char *json = NULL, *tmpdir = "/tmp", *write_path = NULL, *preset = "tiny";
     int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0, all_isas = 0;
     int stream_only = 0;
     enum fk_isa isa = FK_ISA_AUTO;
@@ -253,6 +309,10 @@ int bench_model(int argc, char **argv)
             i++;
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
             reps = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--write-random") && i + 1 < argc)
+            write_path = argv[++i];
+        else if (!strcmp(argv[i], "--preset") && i + 1 < argc)
+            preset = argv[++i];
         else if (!strcmp(argv[i], "--skip-full"))
             skip_full = 1;
         else if (!strcmp(argv[i], "--stream-only"))
@@ -273,10 +333,13 @@ int bench_model(int argc, char **argv)
         } else {
             fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
                             "[--size HxW] [--reps R] [--skip-full] [--stream-only] [--tmp DIR] "
-                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n");
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n"
+                            "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid]\n");
             return 2;
         }
     }
+    if (write_path)
+        return write_preset(write_path, preset);
     if (S < 1 || S > MODEL_VIEWS_MAX || H % 14 || W % 14 || H < 14 || W < 14 || reps < 1) {
         fprintf(stderr, "f4d-bench model: bad --views/--size/--reps\n");
         return 2;
@@ -309,15 +372,7 @@ int bench_model(int argc, char **argv)
 
     /* ---- tiny: end to end, per stage ---- */
     struct model_config tiny;
-    model_config_default(&tiny);
-    tiny.img_size = 126; tiny.embed_dim = 128; tiny.depth = 4; tiny.num_heads = 4;
-    tiny.num_register_tokens = 4; tiny.dino_depth = 2; tiny.dino_num_heads = 4;
-    tiny.camera_trunk_depth = 1; tiny.camera_num_heads = 4; tiny.camera_iters = 4;
-    tiny.dpt_features = 32;
-    tiny.dpt_out_channels[0] = 32; tiny.dpt_out_channels[1] = 64;
-    tiny.dpt_out_channels[2] = 128; tiny.dpt_out_channels[3] = 128;
-    tiny.dpt_layer_idx[0] = 0; tiny.dpt_layer_idx[1] = 1;
-    tiny.dpt_layer_idx[2] = 2; tiny.dpt_layer_idx[3] = 3;
+    preset_tiny(&tiny);
     /* the motion head as wide as the DPT heads: at 16 wide it measured no
      * faster here (its 8-channel convolutions ran at 4.9 GFLOP/s) */
     tiny.motion_dpt_features = tiny.dpt_features;
