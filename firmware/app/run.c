@@ -451,6 +451,11 @@ static void *stream_main(void *arg)
     void *it;
     while (run_fifo_pop(&r->key_q, &it) == 1) {
         struct run_key *k = it;
+        if (r->cfg->keys && atomic_load(&r->keys) >= r->cfg->keys) {
+            /* --keys reached: keys still queued behind it are not streamed */
+            run_fifo_try_push(&r->free_keys, k);
+            continue;
+        }
         hb_busy(&r->hb_stream);
         bool intra = resync || n % r->cfg->intra_every == 0;
         len = r->enc.packet_cap;

@@ -199,6 +199,80 @@ static void test_gt_interpolation_beats_nearest_on_every_preset(void **state)
     fk_ctx_free(ctx);
 }
 
+static int batch_average(void *user, const float *x, int n, float *out)
+{
+    for (int i = 0; i < n; i++) {
+        const float *r = x + (size_t)i * INTERP_FUSE_IN;
+        interp_fuse_average(user, r, r + INTERP_ATTRS, r[2 * INTERP_ATTRS], r[2 * INTERP_ATTRS + 1],
+                            out + (size_t)i * INTERP_ATTRS);
+    }
+    return 0;
+}
+
+/* interp_pair_at (partners found once per key pair) gives interp_at's frame
+ * bit for bit at every a, on a real scene with fused, kept and dropped ones. */
+static void test_pair_matches_interp_at(void **state)
+{
+    (void)state;
+    struct f4d_err err;
+    fk_ctx *ctx;
+    struct fk_ctx_config kc = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&kc, &ctx), 0);
+    scene *s;
+    assert_int_equal(scene_new(SCENE_WALK, 5, 6000, &s, &err), 0);
+    struct splat_rig rig;
+    scene_default_rig(s, 2, 128, 128, &rig);
+    struct splat_frame f0 = { 0 }, f1 = { 0 }, a = { 0 }, b = { 0 };
+    assert_int_equal(scene_eval(s, 0.3, 0.1, &f0, &err), 0);
+    assert_int_equal(scene_eval(s, 0.4, 0.1, &f1, &err), 0);
+    interp *ip;
+    assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    assert_int_equal(interp_key_build(ip, &f0, &k0, &err), 0);
+    assert_int_equal(interp_key_build(ip, &f1, &k1, &err), 0);
+    struct interp_config cfg = interp_config_default();
+    struct interp_pair pr = { 0 };
+    assert_int_equal(interp_pair_build(ip, &k0, &k1, &cfg, &pr, &err), 0);
+    const float as[4] = { 0.0f, 0.3f, 0.75f, 1.0f };
+    for (int i = 0; i < 4; i++) {
+        struct interp_stats sa, sb;
+        assert_int_equal(interp_at(ip, &k0, &k1, as[i], &cfg, &a, &sa, &err), 0);
+        assert_int_equal(interp_pair_at(ip, &pr, as[i], &cfg, &b, &sb, &err), 0);
+        assert_true(sa.fused > 0 && sa.kept_t + sa.kept_tm1 > 0);
+        assert_memory_equal(&sa, &sb, sizeof sa);
+        assert_int_equal(a.count, b.count);
+        assert_memory_equal(a.pos, b.pos, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.scale, b.scale, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.rot, b.rot, 4 * a.count * sizeof(float));
+        assert_memory_equal(a.rgb, b.rgb, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.opacity, b.opacity, a.count * sizeof(float));
+    }
+    /* the batched fusion hook (rows averaged here) takes the same path */
+    cfg.fuse_batch = batch_average;
+    for (int i = 0; i < 4; i++) {
+        assert_int_equal(interp_at(ip, &k0, &k1, as[i], &cfg, &a, NULL, &err), 0);
+        assert_int_equal(interp_pair_at(ip, &pr, as[i], &cfg, &b, NULL, &err), 0);
+        assert_int_equal(a.count, b.count);
+        assert_memory_equal(a.pos, b.pos, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.rot, b.rot, 4 * a.count * sizeof(float));
+        assert_memory_equal(a.opacity, b.opacity, a.count * sizeof(float));
+    }
+    cfg.fuse_batch = NULL;
+    cfg.tau = 0.01f; /* built with another tau: refused */
+    assert_int_equal(interp_pair_at(ip, &pr, 0.5f, &cfg, &b, NULL, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "tau"));
+    interp_pair_free(&pr);
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    interp_free(ip);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    splat_frame_free(&a);
+    splat_frame_free(&b);
+    scene_free(s);
+    fk_ctx_free(ctx);
+}
+
 static void test_budget(void **state)
 {
     (void)state;
@@ -566,6 +640,7 @@ int main(void)
         cmocka_unit_test(test_fuse_average),
         cmocka_unit_test(test_dual_consistency_pairs),
         cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
+        cmocka_unit_test(test_pair_matches_interp_at),
         cmocka_unit_test(test_budget),
         cmocka_unit_test(test_budget_ws),
         cmocka_unit_test(test_budget_motion),

@@ -12,6 +12,7 @@ int bench_interp(int argc, char **argv);
 int bench_stream(int argc, char **argv);
 int bench_hal(int argc, char **argv);
 int bench_codec(int argc, char **argv);
+int bench_display(int argc, char **argv);
 int bench_tokens(int argc, char **argv);
 
 struct model_config;

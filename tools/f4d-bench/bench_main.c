@@ -24,6 +24,9 @@ static const struct subcommand table[] = {
 #ifdef F4D_BENCH_CODEC
     { "codec",   bench_codec,   "stream codec rate-distortion (intra/predicted keys, motion, Mbit/s, render PSNR) vs SPZ" },
 #endif
+#ifdef F4D_BENCH_DISPLAY
+    { "display", bench_display, "f4d-display's displayed fps at 100k/300k Gaussians (decode + interp + draw), CPU vs GLES" },
+#endif
 };
 
 double bench_now(void)

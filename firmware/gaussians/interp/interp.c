@@ -472,6 +472,135 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
     return F4D_OK;
 }
 
+/* ---- key pairs: interp_at's fused path with the partners found once ------------- */
+
+void interp_pair_free(struct interp_pair *pr)
+{
+    if (!pr)
+        return;
+    free(pr->partner_t);
+    free(pr->partner_tm1);
+    free(pr->dist_t);
+    memset(pr, 0, sizeof *pr);
+}
+
+int interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
+                      const struct interp_config *cfg, struct interp_pair *pr, struct f4d_err *err)
+{
+    if (!ip || !prev || !next || !prev->f || !next->f || !cfg || !pr)
+        return fail(err, F4D_EINVAL, "interp_pair_build: NULL argument (keys must be built)");
+    const struct splat_frame *F0 = prev->f, *F1 = next->f;
+    if (!F0->motion_fwd || !F1->motion_bwd)
+        return fail(err, F4D_EINVAL, "interp_pair_build: key t-1 needs forward motion and key t backward motion");
+    if (!(cfg->tau >= 0.0f))
+        return fail(err, F4D_EINVAL, "interp_pair_build: tau must be >= 0");
+    if (F1->count + 1 > pr->cap_t) {
+        int32_t *p = realloc(pr->partner_t, (F1->count + 1) * sizeof *p);
+        if (p)
+            pr->partner_t = p;
+        float *d = realloc(pr->dist_t, (F1->count + 1) * sizeof *d);
+        if (d)
+            pr->dist_t = d;
+        if (!p || !d)
+            return fail(err, F4D_ENOMEM, "interp_pair_build: out of memory");
+        pr->cap_t = F1->count + 1;
+    }
+    if (F0->count + 1 > pr->cap_tm1) {
+        int32_t *p = realloc(pr->partner_tm1, (F0->count + 1) * sizeof *p);
+        if (!p)
+            return fail(err, F4D_ENOMEM, "interp_pair_build: out of memory");
+        pr->partner_tm1 = p;
+        pr->cap_tm1 = F0->count + 1;
+    }
+    struct interp_stats st = { 0 };
+    for (size_t g = 0; g < F1->count; g++) { /* as interp_at's first loop */
+        float D = 0.0f;
+        int32_t h = partner(ip, next, prev, F1->motion_bwd, g, &D);
+        if (next->origin[g] < 0)
+            st.no_origin_t++;
+        if (h < 0 || D > cfg->tau) {
+            h = -1;
+            st.kept_t++;
+        } else {
+            st.fused++;
+        }
+        pr->partner_t[g] = h;
+        pr->dist_t[g] = D;
+    }
+    for (size_t h = 0; h < F0->count; h++) { /* and its second */
+        float D = 0.0f;
+        int32_t g = partner(ip, prev, next, F0->motion_fwd, h, &D);
+        if (prev->origin[h] < 0)
+            st.no_origin_tm1++;
+        if (g < 0 || D > cfg->tau) {
+            g = -1;
+            st.kept_tm1++;
+        } else {
+            st.dropped_tm1++;
+        }
+        pr->partner_tm1[h] = g;
+    }
+    pr->prev = prev;
+    pr->next = next;
+    pr->tau = cfg->tau;
+    pr->st = st;
+    return F4D_OK;
+}
+
+int interp_pair_at(interp *ip, const struct interp_pair *pr, float a, const struct interp_config *cfg,
+                   struct splat_frame *out, struct interp_stats *stats, struct f4d_err *err)
+{
+    if (!ip || !pr || !pr->prev || !pr->next || !cfg || !out)
+        return fail(err, F4D_EINVAL, "interp_pair_at: NULL argument (the pair must be built)");
+    if (!(a >= 0.0f && a <= 1.0f))
+        return fail(err, F4D_EINVAL, "interp_pair_at: a must be in [0, 1]");
+    if (cfg->mode != INTERP_FUSED || (!cfg->fuse && !cfg->fuse_batch) || cfg->tau != pr->tau)
+        return fail(err, F4D_EINVAL, "interp_pair_at: fused mode with the tau the pair was built with");
+    const struct splat_frame *F0 = pr->prev->f, *F1 = pr->next->f;
+    int rc = splat_frame_reserve(out, F0->count + F1->count, 0, err);
+    if (rc < 0)
+        return rc;
+    const float kb = 1.0f - a, kf = a;
+    size_t o = 0;
+    float at[INTERP_ATTRS], am[INTERP_ATTRS], af[INTERP_ATTRS];
+    int nb = 0;
+    for (size_t g = 0; g < F1->count; g++) { /* interp_at's fused branch, partners given */
+        int32_t h = pr->partner_t[g];
+        float D = pr->dist_t[g];
+        if (h < 0) {
+            copy_deformed(F1, g, F1->motion_bwd, kb, out, o++);
+        } else if (cfg->fuse_batch) {
+            float *x = ip->bx + (size_t)nb * INTERP_FUSE_IN;
+            to_attrs(F1, g, F1->motion_bwd, kb, x);
+            to_attrs(F0, (size_t)h, F0->motion_fwd, kf, x + INTERP_ATTRS);
+            x[2 * INTERP_ATTRS] = a;
+            x[2 * INTERP_ATTRS + 1] = D;
+            ip->bslot[nb++] = o++;
+            if (nb == INTERP_FUSE_BATCH) {
+                if ((rc = flush_batch(ip, cfg, nb, out, err)) < 0)
+                    return rc;
+                nb = 0;
+            }
+        } else if (cfg->fuse == interp_fuse_average) {
+            average_pair(F1, g, F1->motion_bwd, kb, F0, (size_t)h, F0->motion_fwd, kf, out, o++);
+        } else {
+            to_attrs(F1, g, F1->motion_bwd, kb, at);
+            to_attrs(F0, (size_t)h, F0->motion_fwd, kf, am);
+            cfg->fuse(cfg->fuse_user, at, am, a, D, af);
+            from_attrs(af, out, o++);
+        }
+    }
+    if (nb && (rc = flush_batch(ip, cfg, nb, out, err)) < 0)
+        return rc;
+    for (size_t h = 0; h < F0->count; h++)
+        if (pr->partner_tm1[h] < 0)
+            copy_deformed(F0, h, F0->motion_fwd, kf, out, o++);
+    out->count = o;
+    if (stats)
+        *stats = pr->st;
+    return F4D_OK;
+}
+
 /* ---- budget ---------------------------------------------------------------------- */
 
 struct budget_config budget_config_default(void)

@@ -135,6 +135,29 @@ int  interp_at(interp *ip, const struct interp_key *prev, const struct interp_ke
                const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
                struct f4d_err *err);
 
+/* A key pair's correspondences, for many times between the same two keys:
+ * the partners and distances interp_at would find (they depend on the keys,
+ * not on a), found once; interp_pair_at then evaluates any a and gives what
+ * interp_at gives, bit for bit, without the lookups. Zero-initialise, build,
+ * reuse (arrays grow only for more Gaussians than before), free. The keys
+ * are borrowed and must outlive the pair. */
+struct interp_pair {
+    const struct interp_key *prev, *next;
+    int32_t *partner_t;    /* [next count] partner in prev, or -1: kept        */
+    int32_t *partner_tm1;  /* [prev count] partner in next, or -1: kept        */
+    float   *dist_t;       /* [next count] consistency distance D (metres)     */
+    size_t   cap_t, cap_tm1;
+    float    tau;          /* the tau it was built with                        */
+    struct interp_stats st;/* the a-independent counts                         */
+};
+int  interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
+                       const struct interp_config *cfg, struct interp_pair *pr, struct f4d_err *err);
+/* INTERP_FUSED only (build and evaluate with the same cfg; ip: the batched
+ * fusion's scratch). */
+int  interp_pair_at(interp *ip, const struct interp_pair *pr, float a, const struct interp_config *cfg,
+                    struct splat_frame *out, struct interp_stats *stats, struct f4d_err *err);
+void interp_pair_free(struct interp_pair *pr);
+
 /* ---- scene budget ---------------------------------------------------------- */
 
 struct budget_config {

@@ -1416,3 +1416,28 @@ int codec_dec_packet(codec_dec *d, const struct codec_packet *p)
         return f4d_fail(&d->err, F4D_EFORMAT, "packet: unknown type %d", p->type);
     }
 }
+
+int codec_packet_gaussians(const struct codec_packet *p, size_t *n, struct f4d_err *err)
+{
+    if (!p || !n || (!p->payload && p->payload_len))
+        return f4d_fail(err, F4D_EINVAL, "codec_packet_gaussians: NULL argument");
+    switch (p->type) {
+    case CODEC_PKT_STREAM:
+        if (p->payload_len < 12)
+            return f4d_fail(err, F4D_EFORMAT, "stream header: %zu bytes, 12 needed", p->payload_len);
+        *n = codec__u32(p->payload + 8);
+        break;
+    case CODEC_PKT_INTRA:
+    case CODEC_PKT_PRED:
+        if (p->payload_len < FHDR)
+            return f4d_fail(err, F4D_EFORMAT, "frame: %zu bytes, the header needs %d", p->payload_len, FHDR);
+        *n = codec__u32(p->payload + 4); /* the frame header's count, as decode_key reads it */
+        break;
+    default:
+        return f4d_fail(err, F4D_EFORMAT, "packet type %d carries no Gaussian count", p->type);
+    }
+    if (*n > CODEC_CAPACITY_MAX)
+        return f4d_fail(err, F4D_ERANGE, "packet seq %u: %zu Gaussians exceed %zu", p->seq, *n,
+                        (size_t)CODEC_CAPACITY_MAX);
+    return F4D_OK;
+}

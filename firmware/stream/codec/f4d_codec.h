@@ -169,6 +169,11 @@ size_t codec_packet_bound(size_t capacity);
  * CRC. F4D_EEOF: the buffer ends before the packet does (read more);
  * F4D_ECORRUPT: CRC mismatch; F4D_EFORMAT: anything else malformed. */
 int    codec_packet_parse(const uint8_t *buf, size_t len, struct codec_packet *p, struct f4d_err *err);
+/* How many Gaussians a parsed packet plans for, before any decoding: a stream
+ * header's capacity hint, or an intra / predicted key's count (so a receiver
+ * that joins after the header sizes its decoder from the first intra key).
+ * F4D_EFORMAT for other packet types or a payload too short to say. */
+int    codec_packet_gaussians(const struct codec_packet *p, size_t *n, struct f4d_err *err);
 /* Offset of the next possible packet start after buf[0] (a magic), or len. */
 size_t codec_packet_resync(const uint8_t *buf, size_t len);
 /* Writes a packet around `payload` (may alias out + CODEC_PACKET_HEADER). */
