@@ -5,13 +5,15 @@
  *   forge4d verify DIR [--json] [--no-repair]
  *   forge4d sheet DIR -o PNG [--set N]
  *   forge4d replay DIR [--fast] [--stats-json FILE]
+ *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] ...
  *
  * record: opens the board's rig, captures N trigger pulses (or S seconds),
  * writes every synchronized set to the take DIR as it arrives, prints a live
  * progress line (rate, drops, disk throughput) and, at the end, the stats
  * JSON. verify: checks every record's CRC, truncates a torn tail and rebuilds
  * the index after a crash. sheet: PNG contact sheet of one set. replay: runs a
- * take back through the synchronizer and prints the same stats.
+ * take back through the synchronizer and prints the same stats. run: the
+ * appliance daemon, capture to stream (run.c).
  */
 #include <signal.h>
 #include <stdio.h>
@@ -30,6 +32,7 @@
 #include "hal_registry.h"
 #include "hal_replay.h"
 #include "hal_sim.h"
+#include "run_internal.h"
 
 static volatile sig_atomic_t g_stop; /* set by SIGINT/SIGTERM: finish the take cleanly */
 
@@ -47,7 +50,9 @@ static int usage(void)
             "                 [--stats-json FILE] [--sheet PNG] [--fast] [--quiet]\n"
             "  forge4d verify DIR [--json] [--no-repair]\n"
             "  forge4d sheet DIR -o PNG [--set N]\n"
-            "  forge4d replay DIR [--fast] [--stats-json FILE]\n");
+            "  forge4d replay DIR [--fast] [--stats-json FILE]\n"
+            "  forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream file:PATH]\n"
+            "              [--record DIR] [--seconds S] [--stats-json FILE] [--precision P] (run --help)\n");
     return 2;
 }
 
@@ -397,5 +402,7 @@ int main(int argc, char **argv)
         return cmd_sheet(argc - 2, argv + 2);
     if (!strcmp(argv[1], "replay"))
         return cmd_replay(argc - 2, argv + 2);
+    if (!strcmp(argv[1], "run"))
+        return forge4d_run_main(argc - 2, argv + 2, &g_stop);
     return usage();
 }

@@ -252,6 +252,53 @@ static void test_budget(void **state)
     splat_frame_free(&out);
 }
 
+/* budget_prune_ws (caller scratch, radix-sorted cells) gives exactly what
+ * budget_prune gives, on a dense cloud where many Gaussians share cells;
+ * too little scratch is refused, naming the need. */
+static void test_budget_ws(void **state)
+{
+    (void)state;
+    struct splat_rig rig;
+    small_rig(&rig);
+    const size_t n = 4000;
+    struct splat_frame f = { 0 }, a = { 0 }, b = { 0 };
+    assert_int_equal(splat_frame_resize(&f, n, 0, NULL), 0);
+    uint32_t r = 12345;
+    for (size_t i = 0; i < n; i++) {
+        for (int c = 0; c < 3; c++) {
+            r = r * 1664525u + 1013904223u;
+            f.pos[3 * i + c] = 0.1f * ((float)(r >> 8) / 16777216.0f - 0.5f);
+            f.scale[3 * i + c] = 0.002f;
+            f.rgb[3 * i + c] = (float)((r >> 4) & 255) / 255.0f;
+        }
+        f.opacity[i] = 0.05f + 0.9f * (float)(i % 7) / 6.0f;
+    }
+    struct budget_config cfg = budget_config_default();
+    struct budget_stats sa, sb;
+    struct f4d_err err;
+    assert_int_equal(budget_prune(&f, &rig, &cfg, &a, &sa, &err), 0);
+    size_t bytes = budget_scratch_bytes(n);
+    void *scratch = malloc(bytes);
+    assert_non_null(scratch);
+    assert_int_equal(splat_frame_reserve(&b, n, 0, NULL), 0);
+    assert_int_equal(budget_prune_ws(&f, &rig, &cfg, scratch, bytes, &b, &sb, &err), 0);
+    assert_true(sa.merged > 100); /* the cloud is dense: cells are shared */
+    assert_int_equal(sa.kept, sb.kept);
+    assert_int_equal(sa.merged, sb.merged);
+    assert_int_equal(a.count, b.count);
+    assert_memory_equal(a.pos, b.pos, 3 * a.count * sizeof(float));
+    assert_memory_equal(a.scale, b.scale, 3 * a.count * sizeof(float));
+    assert_memory_equal(a.rot, b.rot, 4 * a.count * sizeof(float));
+    assert_memory_equal(a.opacity, b.opacity, a.count * sizeof(float));
+    assert_memory_equal(a.rgb, b.rgb, 3 * a.count * sizeof(float));
+    assert_int_equal(budget_prune_ws(&f, &rig, &cfg, scratch, bytes - 1, &b, &sb, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "scratch"));
+    free(scratch);
+    splat_frame_free(&f);
+    splat_frame_free(&a);
+    splat_frame_free(&b);
+}
+
 /* ---- the merged Gaussian's shape (budget_prune's moment matching) -------- */
 
 struct gauss {
@@ -455,6 +502,7 @@ int main(void)
         cmocka_unit_test(test_dual_consistency_pairs),
         cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
         cmocka_unit_test(test_budget),
+        cmocka_unit_test(test_budget_ws),
         cmocka_unit_test(test_merge_identical_keeps_shape),
         cmocka_unit_test(test_merge_offset_pair_covariance),
         cmocka_unit_test(test_merge_rotated_pair),

@@ -615,9 +615,10 @@ static void test_zero_fusion_is_interp_average(void **state)
     free(mg.buf);
 }
 
-/* The f32 stream file without the tensors whose names start with `drop`,
- * written under GGUF_DIR as `out`. */
-static void write_without(const char *drop, const char *out)
+/* The f32 stream file without the tensors whose names start with `drop`
+ * (NULL: none), with the config `cfg` (NULL: the file's), written under
+ * GGUF_DIR as `out`. */
+static void write_variant(const char *drop, const struct model_config *cfg, const char *out)
 {
     char src[1200], dst[1200];
     struct f4d_err err = {0};
@@ -630,13 +631,13 @@ static void write_without(const char *drop, const char *out)
     assert_int_equal(model_config_read(gf, &c, &err), 0);
     gguf_writer *w = gguf_writer_new();
     assert_non_null(w);
-    assert_int_equal(model_config_write(&c, w), 0);
+    assert_int_equal(model_config_write(cfg ? cfg : &c, w), 0);
     assert_int_equal(gguf_writer_add_str(w, "forge4d.file_type", "f32"), 0);
-    const size_t nd = strlen(drop);
+    const size_t nd = drop ? strlen(drop) : 0;
     for (int pass = 0; pass < 2; pass++) {
         for (size_t i = 0; i < gguf_tensor_count(gf); i++) {
             const struct gguf_tensor *t = gguf_tensor_at(gf, i);
-            if (!strncmp(t->name, drop, nd))
+            if (drop && !strncmp(t->name, drop, nd))
                 continue;
             if (pass) {
                 assert_int_equal(gguf_writer_write(w, t->data, t->nbytes), 0);
@@ -671,7 +672,7 @@ static void test_partial_stream_files(void **state)
         char path[1200];
         struct f4d_err err = {0};
         struct model *m = NULL;
-        write_without(bad[i].drop, bad[i].file);
+        write_variant(bad[i].drop, NULL, bad[i].file);
         snprintf(path, sizeof path, "%s/%s", gguf_dir, bad[i].file);
         assert_int_equal(model_init(ctx, path, FK_W_F32, &m, &err), F4D_EFORMAT);
         assert_null(m);
@@ -680,7 +681,7 @@ static void test_partial_stream_files(void **state)
     }
     fk_ctx_free(ctx);
     /* state only: drop motion.*, then motion_head.* from that copy */
-    write_without("motion", "seq_state_fusion.gguf");
+    write_variant("motion", NULL, "seq_state_fusion.gguf");
     ctx = new_ctx();
     struct model *m = open_model(ctx, "seq_state_fusion.gguf", FK_W_F32);
     assert_int_equal(model_groups(m), MODEL_G_ALL & ~(MODEL_G_MOTION | MODEL_G_MOTION_HEAD));
@@ -704,6 +705,79 @@ static void test_partial_stream_files(void **state)
     fk_ctx_free(ctx);
 }
 
+static int count_tensor(void *user, const struct model_tensor_info *t)
+{
+    (void)t;
+    ++*(size_t *)user;
+    return 0;
+}
+
+/* The motion path's cost keys (model.h motion_layers, motion_dpt_features):
+ * f4d-convert writes the fixture's ([1, 2, 3, 4], 8); a file whose blocks do
+ * not match its motion_layers, a set without a DPT layer, and a motion head
+ * of another width are refused by name; the full design (every layer) stays
+ * expressible and costs 6x the default's motion blocks at VGGT-1B size. */
+static void test_motion_layer_config(void **state)
+{
+    (void)state;
+    char src[1200];
+    struct f4d_err err = {0};
+    snprintf(src, sizeof src, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    gguf_file *gf;
+    if (gguf_open(src, &gf, &err) < 0)
+        fail_msg("%s", err.msg);
+    struct model_config c;
+    assert_int_equal(model_config_read(gf, &c, &err), 0);
+    gguf_close(gf);
+    assert_true(c.motion_layers == 0x1E);
+    assert_int_equal(c.motion_dpt_features, 8);
+    assert_int_equal(model_motion_features(&c), 8);
+    struct model_config v[3] = { c, c, c };
+    v[0].motion_layers = 0x1A;          /* no block 2, but the file has one */
+    v[1].motion_layers = 0x1F;          /* block 0 too, the file has none */
+    v[2].motion_dpt_features = 16;      /* the head is 8 wide */
+    static const char *msg[3] = { "motion.in_proj.2", "motion.in_proj.0", "motion_head" };
+    fk_ctx *ctx = new_ctx();
+    for (int i = 0; i < 3; i++) {
+        char file[64], path[1200];
+        snprintf(file, sizeof file, "seq_motion_cfg%d.gguf", i);
+        write_variant(NULL, &v[i], file);
+        snprintf(path, sizeof path, "%s/%s", gguf_dir, file);
+        struct model *m = NULL;
+        err.msg[0] = 0;
+        assert_int_equal(model_init(ctx, path, FK_W_F32, &m, &err), F4D_EFORMAT);
+        assert_null(m);
+        printf("  motion config %d: '%s'\n", i, err.msg);
+        assert_non_null(strstr(err.msg, msg[i]));
+    }
+    fk_ctx_free(ctx);
+    struct model_config bad = c;
+    bad.motion_layers = 0x16;           /* lacks dpt_layer_idx 3 */
+    assert_int_equal(model_config_check(&bad, &err), F4D_EFORMAT);
+    assert_non_null(strstr(err.msg, "dpt_layer_idx[1] = 3"));
+    bad.motion_layers = 0x3E;           /* layer 5 of a depth-5 model */
+    assert_int_equal(model_config_check(&bad, &err), F4D_EFORMAT);
+    assert_non_null(strstr(err.msg, "beyond depth"));
+    /* VGGT-1B: the default (4 DPT layers) and the full design (24 layers) */
+    struct model_config full;
+    model_config_default(&full);
+    assert_int_equal(model_config_check(&full, &err), 0);
+    assert_true(model_motion_mask(&full) == ((UINT64_C(1) << 4) | (UINT64_C(1) << 11) |
+                                             (UINT64_C(1) << 17) | (UINT64_C(1) << 23)));
+    size_t n_def = 0, n_all = 0;
+    assert_int_equal(model_schema_foreach(&full, MODEL_G_MOTION, count_tensor, &n_def), 0);
+    struct model_config all = full;
+    all.motion_layers = (UINT64_C(1) << 24) - 1;
+    all.motion_dpt_features = 256;
+    assert_int_equal(model_config_check(&all, &err), 0);
+    assert_int_equal(model_schema_foreach(&all, MODEL_G_MOTION, count_tensor, &n_all), 0);
+    assert_int_equal(n_all, 6 * n_def);
+    assert_true(model_schema_bytes(&all, MODEL_G_MOTION_HEAD) >
+                model_schema_bytes(&full, MODEL_G_MOTION_HEAD));
+    assert_true(model_plan_bytes(&all, MODEL_G_ALL, 4, 518, 518) >
+                model_plan_bytes(&full, MODEL_G_ALL, 4, 518, 518));
+}
+
 int main(int argc, char **argv)
 {
     if (argc != 3) {
@@ -725,6 +799,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_reset_reproduces_first_step),
         cmocka_unit_test(test_without_stream_parts),
         cmocka_unit_test(test_partial_stream_files),
+        cmocka_unit_test(test_motion_layer_config),
     };
     return cmocka_run_group_tests_name("/model/forge4d_seq", tests, NULL, NULL);
 }

@@ -3,19 +3,28 @@
  * posix_memalign and aligned_alloc, so every allocation of the statically
  * linked model, GGUF reader and kernels goes through the counters below.
  *
- *   - out of memory at every allocation of Init and Prepare in turn: each one
- *     fails cleanly with F4D_ENOMEM and a message (no crash, no leak: ASan);
+ *   - out of memory at every distinct allocation site of Init and Prepare:
+ *     each one fails cleanly with F4D_ENOMEM and a message (no crash, no
+ *     leak: ASan). A site is the call stack of the allocation (backtrace);
+ *     the sweep fails the first and the last allocation of each site (the
+ *     partly and the fully built states before it), skipping sites an
+ *     earlier model of the sweep already failed: a file's repeated blocks
+ *     and the backbone the stream model shares with the plain ones cost one
+ *     Init each, not one per allocation;
  *   - Eval never allocates once Prepare has run (any ISA, any planned size).
  *
  *   test_model_alloc GGUF_DIR
  */
+#include <execinfo.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <cmocka.h>
 
 #include "fk_ctx.h"
@@ -23,7 +32,6 @@
 
 void *__real_malloc(size_t n);
 void *__real_calloc(size_t k, size_t n);
-void *__real_realloc(void *p, size_t n);
 int   __real_posix_memalign(void **p, size_t a, size_t n);
 void *__real_aligned_alloc(size_t a, size_t n);
 void *__wrap_malloc(size_t n);
@@ -35,11 +43,45 @@ void *__wrap_aligned_alloc(size_t a, size_t n);
 static long n_allocs;     /* allocations since the last reset          */
 static long fail_at = -1; /* index of the allocation to fail (-1: none) */
 static int  injected;     /* the armed failure happened                */
+/* Recording pass: the call-stack hash of each allocation, by index. */
+static int       recording, in_backtrace;
+static int       test_frames;  /* frames of init_prepare's callers: not hashed */
+static uint64_t *site_of;
+static long      site_cap;
+
+void *__real_realloc(void *p, size_t n);
+
+static void record_site(long i)
+{
+    if (!recording || in_backtrace)
+        return;
+    in_backtrace = 1;
+    void *fr[128];
+    const int n = backtrace(fr, 128);
+    uint64_t h = UINT64_C(1469598103934665603); /* FNV-1a over the return addresses */
+    for (int j = 0; j < n - test_frames; j++)
+        h = (h ^ (uint64_t)(uintptr_t)fr[j]) * UINT64_C(1099511628211);
+    if (i >= site_cap) {
+        long cap = site_cap ? 2 * site_cap : 4096;
+        while (cap <= i)
+            cap *= 2;
+        uint64_t *p = __real_realloc(site_of, (size_t)cap * sizeof *p);
+        if (!p)
+            abort();
+        site_of = p;
+        site_cap = cap;
+    }
+    site_of[i] = h;
+    in_backtrace = 0;
+}
 
 /* 1 when this allocation is the one to fail. */
 static int fail_now(void)
 {
+    if (in_backtrace) /* backtrace's own (first-call) allocations: not the model's */
+        return 0;
     long i = n_allocs++;
+    record_site(i);
     if (i == fail_at) {
         injected = 1;
         return 1;
@@ -61,9 +103,22 @@ int __wrap_posix_memalign(void **p, size_t a, size_t n)
 
 static const char *gguf_dir;
 
-/* Init + Prepare with allocation `k` failing; returns the status. */
-static int init_prepare(fk_ctx *ctx, const char *path, enum fk_wtype wt, long k, struct f4d_err *err)
+/* Init + Prepare on a fresh context (so every run allocates the same
+ * sequence: a context keeps the scratch an earlier Prepare reserved) with
+ * allocation `k` failing; returns the status. After a failure the context
+ * must be left unfrozen and usable. */
+static int init_prepare(enum fk_isa isa, const char *path, enum fk_wtype wt, long k,
+                        struct f4d_err *err)
 {
+    fk_ctx *ctx;
+    struct fk_ctx_config cc = { .isa = isa, .threads = 1 };
+    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
+    if (recording) { /* a site is the stack below this function */
+        void *fr[128];
+        in_backtrace = 1;
+        test_frames = backtrace(fr, 128) - 1;
+        in_backtrace = 0;
+    }
     struct model *m = NULL;
     n_allocs = 0;
     injected = 0;
@@ -80,7 +135,22 @@ static int init_prepare(fk_ctx *ctx, const char *path, enum fk_wtype wt, long k,
     }
     fail_at = -1;
     model_free(m);
+    if (rc < 0)
+        assert_int_equal(fk_ctx_reserve(ctx, 64, 64), F4D_OK);
+    fk_ctx_free(ctx);
     return rc;
+}
+
+/* Sites failed by an earlier sweep of this run (the plain models' backbone). */
+static uint64_t covered[8192];
+static long     n_covered;
+
+static int is_covered(uint64_t h)
+{
+    for (long i = 0; i < n_covered; i++)
+        if (covered[i] == h)
+            return 1;
+    return 0;
 }
 
 static void oom_sweep(const char *file, enum fk_wtype wt, enum fk_isa isa)
@@ -88,30 +158,51 @@ static void oom_sweep(const char *file, enum fk_wtype wt, enum fk_isa isa)
     char path[1024];
     struct f4d_err err = {0};
     snprintf(path, sizeof path, "%s/%s", gguf_dir, file);
-    fk_ctx *ctx;
-    struct fk_ctx_config cc = { .isa = isa, .threads = 1 };
-    assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
-    long k;
-    for (k = 0;; k++) {
-        int rc = init_prepare(ctx, path, wt, k, &err);
-        if (!injected) {
-            /* past the last allocation: everything succeeds */
-            if (rc != 0)
-                print_error("%s without a failure: rc %d '%s'\n", file, rc, err.msg);
-            assert_int_equal(rc, 0);
-            break;
+    const clock_t c0 = clock();
+    /* a clean run records the site of every allocation */
+    recording = 1;
+    int rc = init_prepare(isa, path, wt, -1, &err);
+    recording = 0;
+    if (rc != 0)
+        print_error("%s without a failure: rc %d '%s'\n", file, rc, err.msg);
+    assert_int_equal(rc, 0);
+    const long total = n_allocs;
+    assert_true(total > 50);
+    long n_sites = 0, n_failed = 0;
+    const long covered0 = n_covered;
+    for (long k = 0; k < total; k++) {
+        const uint64_t h = site_of[k];
+        long first = -1, last = -1;
+        for (long j = 0; j < total; j++)
+            if (site_of[j] == h) {
+                if (first < 0)
+                    first = j;
+                last = j;
+            }
+        if (first != k)
+            continue; /* handled at its first allocation */
+        n_sites++;
+        if (is_covered(h))
+            continue;
+        assert_true(n_covered < (long)(sizeof covered / sizeof covered[0]));
+        covered[n_covered++] = h;
+        for (int e = 0; e < 2; e++) {
+            const long at = e ? last : first;
+            if (e && last == first)
+                break;
+            rc = init_prepare(isa, path, wt, at, &err);
+            assert_true(injected);
+            if (rc != F4D_ENOMEM || !err.msg[0])
+                print_error("%s, allocation %ld failing: rc %d '%s'\n", file, at, rc, err.msg);
+            assert_int_equal(rc, F4D_ENOMEM);
+            assert_true(err.msg[0] != 0);
+            n_failed++;
         }
-        if (rc != F4D_ENOMEM || !err.msg[0])
-            print_error("%s, allocation %ld failing: rc %d '%s'\n", file, k, rc, err.msg);
-        assert_int_equal(rc, F4D_ENOMEM);
-        assert_true(err.msg[0] != 0);
-        /* the context is left unfrozen and usable after a failed Prepare */
-        assert_int_equal(fk_ctx_reserve(ctx, 64, 64), F4D_OK);
     }
-    printf("  %s (%s): out of memory at each of %ld allocations fails cleanly\n", file,
-           fk_isa_name(isa), k);
-    assert_true(k > 50);
-    fk_ctx_free(ctx);
+    printf("  %s (%s): %ld allocations at %ld sites, %ld new: out of memory at %ld of them "
+           "(first and last of each new site) fails cleanly (%.1f s CPU)\n", file,
+           fk_isa_name(isa), total, n_sites, n_covered - covered0, n_failed,
+           (double)(clock() - c0) / CLOCKS_PER_SEC);
 }
 
 static void test_init_prepare_oom(void **state)
@@ -152,6 +243,7 @@ static void test_stream_flat_memory(void **state)
     float fo[MODEL_FUSION_ATTRS];
     struct model_outputs out;
     n_allocs = 0;
+    const clock_t c0 = clock();
     for (int t = 0; t < STEPS; t++) {
         for (size_t j = 0; j < n_img; j++) /* a pattern drifting with t */
             img[j] = (float)((j * 7 + (size_t)t * 13) % 251) / 251.0f;
@@ -173,7 +265,8 @@ static void test_stream_flat_memory(void **state)
     for (size_t i = 0; i < (size_t)3 * S * H * W; i++)
         assert_true(isfinite(out.gaussians.pos[i]) && isfinite(out.motion_bwd[i]) &&
                     isfinite(out.motion_fwd_prev[i]));
-    printf("  %d stream steps: arena %zu bytes throughout, no allocation\n", STEPS, arena);
+    printf("  %d stream steps: arena %zu bytes throughout, no allocation (%.1f s CPU)\n", STEPS,
+           arena, (double)(clock() - c0) / CLOCKS_PER_SEC);
     free(img);
     model_free(m);
     fk_ctx_free(ctx);

@@ -1,7 +1,8 @@
 /* bench_model.c - f4d-bench model: the VGGT forward, per stage, per precision.
  *
  *   f4d-bench model [--json FILE] [--threads N] [--views S] [--size HxW]
- *                   [--reps R] [--skip-full] [--tmp DIR] [--isa NAME|all]
+ *                   [--reps R] [--skip-full] [--stream-only] [--tmp DIR]
+ *                   [--isa NAME|all]
  *
  * tiny: a small random-weight config (embed 128, depth 4) end to end, best of
  *       R runs: ms and GFLOP/s per stage.
@@ -20,13 +21,25 @@
  * Forge4D streaming (forge4d-arch.md 4-5): the tiny model carries state,
  *       motion and fusion too and is timed on a motion step (the second and
  *       later Evals); full: VGGT-1B dims with one state block, one motion
- *       block and the motion head (f32), timed on the second step. The
+ *       block and the motion head (f32), best of R motion steps. The
  *       motion-step / key-frame ratio (paper: 47.77 / 176.50 ms = 27 %):
- *       motion = in_proj + both motion runs of every layer + both motion head
- *       runs; key frame = everything else of the Eval (full: extrapolated to
- *       24 layers and the depth, point and Gaussian DPT heads).
+ *       motion = in_proj + both motion runs of every motion layer + both
+ *       motion head runs; key frame = everything else of the Eval (full:
+ *       extrapolated to 24 layers and the depth, point and Gaussian DPT
+ *       heads). Full: the default motion config (model_config_default: the
+ *       4 DPT layers, motion_dpt_features) and, from the same run, the head
+ *       at the other widths (dpt_features, 64) and every layer with a motion
+ *       block (forge4d-arch.md 5 as written). --stream-only skips the
+ *       per-precision VGGT rows.
  * JSON: {"tiny": [{"stage","ms","gflops"}], "full": [{"precision","seconds",
  *        "max_rel_err", ...}], "stream": {...}, ...}.
+ *
+ *   f4d-bench model --write-random OUT.gguf [--preset tiny|mid]
+ *
+ * writes a random-weight model with every head (Forge4D's Gaussian and scale
+ * heads included) and exits: for timing `forge4d run` and the like without
+ * trained weights. tiny: the config above (img 126); mid: embed 384, depth 8,
+ * 6 heads, 4 DINO blocks, img 224 (about ViT-S width).
  */
 #include <math.h>
 #include <stdio.h>
@@ -127,6 +140,55 @@ out:
     gguf_writer_free(g.w);
     free(g.buf);
     return rc;
+}
+
+static void preset_tiny(struct model_config *c)
+{
+    model_config_default(c);
+    c->img_size = 126; c->embed_dim = 128; c->depth = 4; c->num_heads = 4;
+    c->num_register_tokens = 4; c->dino_depth = 2; c->dino_num_heads = 4;
+    c->camera_trunk_depth = 1; c->camera_num_heads = 4; c->camera_iters = 4;
+    c->dpt_features = 32;
+    c->dpt_out_channels[0] = 32; c->dpt_out_channels[1] = 64;
+    c->dpt_out_channels[2] = 128; c->dpt_out_channels[3] = 128;
+    c->dpt_layer_idx[0] = 0; c->dpt_layer_idx[1] = 1;
+    c->dpt_layer_idx[2] = 2; c->dpt_layer_idx[3] = 3;
+}
+
+static void preset_mid(struct model_config *c)
+{
+    model_config_default(c);
+    c->img_size = 224; c->embed_dim = 384; c->depth = 8; c->num_heads = 6;
+    c->num_register_tokens = 4; c->dino_depth = 4; c->dino_num_heads = 6;
+    c->camera_trunk_depth = 2; c->camera_num_heads = 6; c->camera_iters = 4;
+    c->dpt_features = 64;
+    c->dpt_out_channels[0] = 48; c->dpt_out_channels[1] = 96;
+    c->dpt_out_channels[2] = 192; c->dpt_out_channels[3] = 384;
+    c->dpt_layer_idx[0] = 1; c->dpt_layer_idx[1] = 3;
+    c->dpt_layer_idx[2] = 5; c->dpt_layer_idx[3] = 7;
+}
+
+static int write_preset(const char *path, const char *preset)
+{
+    struct model_config c;
+    if (!strcmp(preset, "tiny"))
+        preset_tiny(&c);
+    else if (!strcmp(preset, "mid"))
+        preset_mid(&c);
+    else {
+        fprintf(stderr, "f4d-bench model: --preset must be tiny or mid (got '%s')\n", preset);
+        return 2;
+    }
+    struct f4d_err err = {0};
+    if (model_config_check(&c, &err) < 0) {
+        fprintf(stderr, "f4d-bench model: preset %s: %s\n", preset, err.msg);
+        return 1;
+    }
+    if (write_random(path, &c, MODEL_G_ALL) < 0)
+        return 1;
+    printf("f4d-bench model: random %s model (embed %d, depth %d, img %d, every head) -> %s\n", preset,
+           c.embed_dim, c.depth, c.img_size, path);
+    return 0;
 }
 
 static void random_images(float *img, size_t n, uint64_t seed)
@@ -232,8 +294,9 @@ static double stage_sec(const struct result *r, const char *name, double *flops)
 
 int bench_model(int argc, char **argv)
 {
-    const char *json = NULL, *tmpdir = "/tmp";
+    const char *json = NULL, *tmpdir = "/tmp", *write_path = NULL, *preset = "tiny";
     int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0, all_isas = 0;
+    int stream_only = 0;
     enum fk_isa isa = FK_ISA_AUTO;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
@@ -246,8 +309,14 @@ int bench_model(int argc, char **argv)
             i++;
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
             reps = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--write-random") && i + 1 < argc)
+            write_path = argv[++i];
+        else if (!strcmp(argv[i], "--preset") && i + 1 < argc)
+            preset = argv[++i];
         else if (!strcmp(argv[i], "--skip-full"))
             skip_full = 1;
+        else if (!strcmp(argv[i], "--stream-only"))
+            stream_only = 1;
         else if (!strcmp(argv[i], "--tmp") && i + 1 < argc)
             tmpdir = argv[++i];
         else if (!strcmp(argv[i], "--isa") && i + 1 < argc) {
@@ -263,11 +332,14 @@ int bench_model(int argc, char **argv)
             }
         } else {
             fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
-                            "[--size HxW] [--reps R] [--skip-full] [--tmp DIR] "
-                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n");
+                            "[--size HxW] [--reps R] [--skip-full] [--stream-only] [--tmp DIR] "
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n"
+                            "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid]\n");
             return 2;
         }
     }
+    if (write_path)
+        return write_preset(write_path, preset);
     if (S < 1 || S > MODEL_VIEWS_MAX || H % 14 || W % 14 || H < 14 || W < 14 || reps < 1) {
         fprintf(stderr, "f4d-bench model: bad --views/--size/--reps\n");
         return 2;
@@ -300,15 +372,10 @@ int bench_model(int argc, char **argv)
 
     /* ---- tiny: end to end, per stage ---- */
     struct model_config tiny;
-    model_config_default(&tiny);
-    tiny.img_size = 126; tiny.embed_dim = 128; tiny.depth = 4; tiny.num_heads = 4;
-    tiny.num_register_tokens = 4; tiny.dino_depth = 2; tiny.dino_num_heads = 4;
-    tiny.camera_trunk_depth = 1; tiny.camera_num_heads = 4; tiny.camera_iters = 4;
-    tiny.dpt_features = 32;
-    tiny.dpt_out_channels[0] = 32; tiny.dpt_out_channels[1] = 64;
-    tiny.dpt_out_channels[2] = 128; tiny.dpt_out_channels[3] = 128;
-    tiny.dpt_layer_idx[0] = 0; tiny.dpt_layer_idx[1] = 1;
-    tiny.dpt_layer_idx[2] = 2; tiny.dpt_layer_idx[3] = 3;
+    preset_tiny(&tiny);
+    /* the motion head as wide as the DPT heads: at 16 wide it measured no
+     * faster here (its 8-channel convolutions ran at 4.9 GFLOP/s) */
+    tiny.motion_dpt_features = tiny.dpt_features;
     const int tS = 4, tH = 126, tW = 168;
     struct result tr;
     if (bench_write_random_model(path, &tiny, MODEL_G_ALL) < 0 ||
@@ -358,8 +425,12 @@ int bench_model(int argc, char **argv)
     printf("full VGGT-1B plan, 4 views 518x518, camera+depth+point heads: arena %zu bytes "
            "(%.2f GiB)\n", plan, plan / 1073741824.0);
     size_t plan_f4d = model_plan_bytes(&full, MODEL_G_ALL, 4, 518, 518);
-    printf("full Forge4D plan, 4 views 518x518, every head, state and motion (z(t-1) of 24 "
-           "layers kept): arena %zu bytes (%.2f GiB)\n", plan_f4d, plan_f4d / 1073741824.0);
+    int n_ml = 0;
+    for (int l = 0; l < full.depth; l++)
+        n_ml += (int)((model_motion_mask(&full) >> l) & 1);
+    printf("full Forge4D plan, 4 views 518x518, every head, state and motion (z(t-1) of %d "
+           "motion layers kept): arena %zu bytes (%.2f GiB)\n", n_ml, plan_f4d,
+           plan_f4d / 1073741824.0);
     if (jf)
         fprintf(jf, ",\n  \"full_plan_arena_bytes_4x518x518\": %zu,\n"
                 "  \"full_forge4d_plan_arena_bytes_4x518x518\": %zu", plan, plan_f4d);
@@ -371,6 +442,9 @@ int bench_model(int argc, char **argv)
         one.dino_depth = 1;
         for (int i = 0; i < 4; i++)
             one.dpt_layer_idx[i] = 0;
+        one.motion_layers = 1;
+        if (stream_only)
+            goto stream;
         if (bench_write_random_model(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
             goto done;
         enum fk_wtype wts[6] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
@@ -443,41 +517,84 @@ int bench_model(int argc, char **argv)
             free(fr[p].depth);
         }
         /* ---- Forge4D stream at full dims: one state block, one motion block,
-         * the motion head; f32, timed on the second step ---- */
-        if (bench_write_random_model(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH | MODEL_G_STATE |
-                                         MODEL_G_MOTION | MODEL_G_MOTION_HEAD) < 0)
-            goto done;
+         * the motion head; f32, best of reps motion steps. Then the head alone
+         * at the other widths (same file but the head, no depth head). ---- */
+stream:;
+        int nmot = 0, nmot_all = full.depth;
+        for (int l = 0; l < full.depth; l++)
+            nmot += (int)((model_motion_mask(&full) >> l) & 1);
+        const int widths[3] = { model_motion_features(&full), full.dpt_features, 64 };
+        double tmh_w[3] = { 0, 0, 0 }, fmh_w[3] = { 0, 0, 0 };
         struct result sr;
-        ok = run_model(ctx, path, FK_W_F32, S, H, W, 1, 0, &sr) == 0;
-        remove(path);
-        if (!ok)
-            goto done;
-        printf("full dims stream step, one block each, %d views %dx%d, f32 (arena %zu bytes):\n",
-               S, W, H, sr.arena);
+        int sok = 1;
+        for (int k = 0; k < 3 && sok; k++) {
+            if (k && (widths[k] == widths[0] || (k == 2 && widths[2] == widths[1])))
+                continue;
+            struct model_config sc = one;
+            sc.motion_dpt_features = widths[k];
+            unsigned g = MODEL_G_AGGREGATOR | MODEL_G_STATE | MODEL_G_MOTION | MODEL_G_MOTION_HEAD;
+            struct result wr;
+            if (bench_write_random_model(path, &sc, g | (k ? 0u : MODEL_G_DEPTH)) < 0)
+                goto done;
+            sok = run_model(ctx, path, FK_W_F32, S, H, W, k ? 1 : reps, 0, k ? &wr : &sr) == 0;
+            remove(path);
+            if (!sok)
+                goto done;
+            struct result *r = k ? &wr : &sr;
+            tmh_w[k] = stage_sec(r, "motion_head", &fmh_w[k]);
+            if (k) {
+                free(wr.layer);
+                free(wr.depth);
+            }
+        }
+        printf("full dims stream step, one block each, %d views %dx%d, f32, best of %d (arena "
+               "%zu bytes):\n", S, W, H, reps, sr.arena);
         for (int i = 0; i < sr.n_st; i++)
             printf("  %-14s %9.3f s %8.2f GFLOP/s\n", sr.st[i].name, sr.st[i].seconds,
                    sr.st[i].seconds > 0 ? 1e-9 * sr.st[i].flops / sr.st[i].seconds : 0.0);
-        double fstate, fmot, fmh, fframe;
+        double fstate, fmot, fframe, fdino, fglob, fpatch, fdpt;
         const double ts = stage_sec(&sr, "state_blocks", &fstate);
         const double tm = stage_sec(&sr, "motion_blocks", &fmot);
-        const double tmh = stage_sec(&sr, "motion_head", &fmh);
-        const double tdpt = stage_sec(&sr, "depth_head", NULL);
+        const double tdpt = stage_sec(&sr, "depth_head", &fdpt);
         const double tframe = stage_sec(&sr, "frame_blocks", &fframe);
-        const double tcam = fframe > 0 ? 6.9e9 * S / 4.0 / (fframe / tframe) : 0;
+        const double tdino = stage_sec(&sr, "dino_blocks", &fdino);
+        const double tglob = stage_sec(&sr, "global_blocks", &fglob);
+        const double tpatch = stage_sec(&sr, "patch_embed", &fpatch);
+        const double cam_fl = 6.9e9 * S / 4.0;
+        const double tcam = fframe > 0 ? cam_fl / (fframe / tframe) : 0;
         /* key frame: 24 layers with their state blocks, depth + point + Gaussian heads */
-        const double key = stage_sec(&sr, "patch_embed", NULL) +
-                           24 * (stage_sec(&sr, "dino_blocks", NULL) + tframe +
-                                 stage_sec(&sr, "global_blocks", NULL) + ts) + 3 * tdpt + tcam;
-        const double mot = 24 * tm + tmh;
-        printf("full stream (extrapolated to 24 layers): state block %.3f s (%.0f GFLOP), "
-               "motion block (in_proj + 2 runs) %.3f s (%.0f GFLOP), motion head (2 runs) %.3f s "
-               "(%.0f GFLOP); key frame %.1f s, motion step %.1f s: %.1f %% (goal <= 27 %%)\n",
-               ts, 1e-9 * fstate, tm, 1e-9 * fmot, tmh, 1e-9 * fmh, key, mot, 100.0 * mot / key);
+        const int L = full.depth;
+        const double key = tpatch + L * (tdino + tframe + tglob + ts) + 3 * tdpt + tcam;
+        const double fkey = fpatch + L * (fdino + fframe + fglob + fstate) + 3 * fdpt + cam_fl;
+        printf("full stream (extrapolated to %d layers): state block %.3f s (%.0f GFLOP), motion "
+               "block (in_proj + 2 runs) %.3f s (%.0f GFLOP); key frame %.1f s (%.0f GFLOP)\n",
+               L, ts, 1e-9 * fstate, tm, 1e-9 * fmot, key, 1e-9 * fkey);
         if (jf)
             fprintf(jf, ",\n  \"stream\": {\"state_block_s\": %.4f, \"motion_block_s\": %.4f, "
-                    "\"motion_head_s\": %.4f, \"keyframe_s_est\": %.3f, \"motion_step_s_est\": %.3f, "
-                    "\"motion_over_keyframe\": %.4f, \"arena_bytes_one_block_each\": %zu}",
-                    ts, tm, tmh, key, mot, mot / key, sr.arena);
+                    "\"keyframe_s_est\": %.3f, \"keyframe_gflop\": %.1f, \"motion_layers\": %d, "
+                    "\"arena_bytes_one_block_each\": %zu, \"rows\": [", ts, tm, key, 1e-9 * fkey,
+                    nmot, sr.arena);
+        int nrow = 0;
+        for (int k = 0; k < 3; k++)
+            for (int all = 0; all < 2; all++) {
+                if (!tmh_w[k] || (all && k != 1))
+                    continue;
+                const int nl = all ? nmot_all : nmot;
+                const double mot = nl * tm + tmh_w[k], fm = nl * fmot + fmh_w[k];
+                printf("  motion blocks at %2d layers, motion head %3d wide (2 runs) %.3f s "
+                       "(%.0f GFLOP): motion step %.1f s, %.1f %% of a key frame (%.1f %% by "
+                       "FLOPs)%s\n", nl, widths[k], tmh_w[k], 1e-9 * fmh_w[k], mot, 100.0 * mot / key,
+                       100.0 * fm / fkey, k == 0 && !all ? "  <- default (goal <= 27 %)" :
+                       all ? "  (forge4d-arch.md 5 as written)" : "");
+                if (jf)
+                    fprintf(jf, "%s\n    {\"motion_layers\": %d, \"motion_dpt_features\": %d, "
+                            "\"motion_head_s\": %.4f, \"motion_step_s_est\": %.3f, "
+                            "\"motion_over_keyframe\": %.4f, \"motion_over_keyframe_flops\": %.4f, "
+                            "\"default\": %s}", nrow++ ? "," : "", nl, widths[k], tmh_w[k], mot,
+                            mot / key, fm / fkey, k == 0 && !all ? "true" : "false");
+            }
+        if (jf)
+            fprintf(jf, "\n  ]}");
         free(sr.layer);
         free(sr.depth);
     }

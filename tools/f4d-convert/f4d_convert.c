@@ -206,8 +206,12 @@ static int read_config(const char *path, struct model_config *c)
         INT_KEY(img_size) INT_KEY(patch_size) INT_KEY(embed_dim) INT_KEY(depth)
         INT_KEY(num_heads) INT_KEY(num_register_tokens) INT_KEY(dino_depth)
         INT_KEY(dino_num_heads) INT_KEY(camera_trunk_depth) INT_KEY(camera_num_heads)
-        INT_KEY(camera_iters) INT_KEY(dpt_features)
+        INT_KEY(camera_iters) INT_KEY(dpt_features) INT_KEY(motion_dpt_features)
 #undef INT_KEY
+        if (ip && cJSON_IsNull(it)) { /* forge4d_ref's None: derived (model.h) */
+            *ip = 0;
+            continue;
+        }
         if (ip) {
             if (!cJSON_IsNumber(it) || it->valuedouble != floor(it->valuedouble) ||
                 fabs(it->valuedouble) > 1e6) {
@@ -231,6 +235,28 @@ static int read_config(const char *path, struct model_config *c)
             else {
                 fprintf(stderr, "f4d-convert: config key 'patch_embed' must be \"dino\" or \"conv\"\n");
                 rc = -1;
+            }
+        } else if (!strcmp(k, "motion_layers")) {
+            /* a list of aggregator layers; null = the DPT layers */
+            c->motion_layers = 0;
+            if (cJSON_IsNull(it))
+                continue;
+            int na = cJSON_IsArray(it) ? cJSON_GetArraySize(it) : -1;
+            if (na < 1) {
+                fprintf(stderr, "f4d-convert: config key 'motion_layers' must be null or a "
+                        "non-empty array of layer indices\n");
+                rc = -1;
+            }
+            for (int i = 0; i < na && !rc; i++) {
+                cJSON *v = cJSON_GetArrayItem(it, i);
+                if (!cJSON_IsNumber(v) || v->valuedouble != floor(v->valuedouble) ||
+                    v->valuedouble < 0 || v->valuedouble >= MODEL_LAYERS_MAX) {
+                    fprintf(stderr, "f4d-convert: config key 'motion_layers'[%d] must be a layer "
+                            "index in 0..%d\n", i, MODEL_LAYERS_MAX - 1);
+                    rc = -1;
+                } else {
+                    c->motion_layers |= UINT64_C(1) << (int)v->valuedouble;
+                }
             }
         } else if (!strcmp(k, "dpt_out_channels") || !strcmp(k, "dpt_layer_idx")) {
             int *dst = k[4] == 'o' ? c->dpt_out_channels : c->dpt_layer_idx;
@@ -434,6 +460,10 @@ int main(int argc, char **argv)
     }
     struct model_config cfg;
     model_config_default(&cfg);
+    /* a config without the motion keys (older checkpoints) means what a GGUF
+     * without them means: blocks at the DPT layers, the head at dpt_features */
+    cfg.motion_layers = 0;
+    cfg.motion_dpt_features = 0;
     struct f4d_err err = {0};
     if (cfg_path && read_config(cfg_path, &cfg) < 0)
         return 1;

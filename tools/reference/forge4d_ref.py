@@ -22,15 +22,22 @@ step at a time by Forge4D.step(images, stream) (stream = Forge4D.new_stream()):
             s' = s_l + ls_w * Attn_w(q = norm_s2(s_l), kv = norm_x2(x))
         norm_m, mlp.{fc1, fc2}, ls_m.gamma
             s' = s' + ls_m * MLP(norm_m(s'))          s' is s_l of the next step;
-  - motion.in_proj.{l}        Linear D -> C: z_l(t) = in_proj_l(F_l(t)) on all P' tokens;
+  - motion layers             cfg.motion_layers (None: dpt_layer_idx), which must contain
+                              dpt_layer_idx; forge4d-arch.md 5 as written has every layer
+                              (motion_layers = list(range(depth))). The default cuts a
+                              motion step to the paper's measured 27 % of a key frame or less;
+  - motion.in_proj.{l}        Linear D -> C: z_l(t) = in_proj_l(F_l(t)) on all P' tokens,
+                              l in the motion layers (names keep the aggregator index);
   - motion.blocks.{l}.*       norm1, norm_kv, attn.{q, kv, proj}, ls1.gamma, norm2,
-                              mlp.{fc1, fc2}, ls2.gamma; per view, h = z_0(q side), then
-            h = h + zq_l (l > 0)
+                              mlp.{fc1, fc2}, ls2.gamma; per view, h = z_l0 (q side, l0 the
+                              first motion layer), then for the motion layers in order
+            h = h + zq_l (l > l0)
             h = h + ls1 * CrossAttn(q = norm1(h), kv = norm_kv(zk_l))   2-D RoPE on q, k
             h = h + ls2 * MLP(norm2(h))
         M1[t] runs zq = z(t), zk = z(t-1); M2[t-1] runs zq = z(t-1), zk = z(t), same weights;
         masked step (Forge4D.step_masked, model_eval_masked): see MASKED STEP below;
-  - motion_head.*             a DPT head (vggt_ref.DPTHead, input width C) reading h after
+  - motion_head.*             a DPT head (vggt_ref.DPTHead, input width C, features
+                              cfg.motion_dpt_features, None = dpt_features) reading h after
                               the blocks of dpt_layer_idx, 3 raw output channels;
   - fusion.fc1 (30 -> 64), fusion.fc2 (64 -> 14): fuse_pairs().
 Cross-attention (CrossAttention): q Linear C -> C, kv Linear C -> 2C (k = the first C
@@ -44,7 +51,7 @@ motion is 0 and fusion is averaging.
 Order inside one step (the C runtime does the same):
   1. aggregator, state block l right after global block l (read with s_l(t-1), write);
   2. VGGT heads, scale head (gauge g(t)), Gaussian head;
-  3. z_l(t) for every layer; with a previous step of the same S x H x W: M1[t], M2[t-1]
+  3. z_l(t) for every motion layer; with a previous step of the same S x H x W: M1[t], M2[t-1]
      in model units, metric = / g(t) (this step's gauge for both);
   4. z(t) is kept (not recomputed) as the next step's z(t-1).
 
@@ -75,6 +82,8 @@ Choices where forge4d-arch.md leaves a detail open (the C runtime does the same)
     output stays pre-activation in the attribute convention of interp (the consumer
     normalises q, exponentiates scales and takes the sigmoid of the opacity logit).
 """
+import dataclasses
+
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -192,25 +201,40 @@ class MotionBlock(nn.Module):
         return h + self.ls2(self.mlp(self.norm2(h)))
 
 
+def motion_layers(cfg):
+    """The aggregator layers with a motion block, ascending (checked like the C runtime)."""
+    ml = sorted(set(cfg.dpt_layer_idx if cfg.motion_layers is None else cfg.motion_layers))
+    if not ml or ml[0] < 0 or ml[-1] >= cfg.depth:
+        raise ValueError(f"motion_layers {ml} out of 0..{cfg.depth - 1}")
+    missing = set(cfg.dpt_layer_idx) - set(ml)
+    if missing:
+        raise ValueError(f"motion_layers {ml} lacks the DPT layers {sorted(missing)}")
+    return ml
+
+
 class Motion(nn.Module):
+    """Motion blocks at the layers of motion_layers(cfg) only. ModuleDicts keyed by
+    the aggregator layer keep the parameter names motion.in_proj.{l} / motion.blocks.{l}
+    of the all-layer design, so a checkpoint of that design loads with every layer set."""
+
     def __init__(self, cfg):
         super().__init__()
         c = cfg.embed_dim
-        self.in_proj = nn.ModuleList([nn.Linear(2 * c, c) for _ in range(cfg.depth)])
-        self.blocks = nn.ModuleList([MotionBlock(cfg) for _ in range(cfg.depth)])
+        self.layers = motion_layers(cfg)
+        self.in_proj = nn.ModuleDict({str(l): nn.Linear(2 * c, c) for l in self.layers})
+        self.blocks = nn.ModuleDict({str(l): MotionBlock(cfg) for l in self.layers})
 
     def inputs(self, layers):
-        """z_l = in_proj_l(F_l) for every layer; layers [S, P', D]."""
-        return [p(f) for p, f in zip(self.in_proj, layers)]
+        """z_l = in_proj_l(F_l) for every motion layer l -> {l: z_l}; layers [S, P', D]."""
+        return {l: self.in_proj[str(l)](layers[l]) for l in self.layers}
 
     def forward(self, zq, zk, pos):
-        """The motion stream h after every block (queries from zq, keys from zk)."""
-        h, hs = zq[0], []
-        for i, b in enumerate(self.blocks):
-            if i > 0:
-                h = h + zq[i]
-            h = b(h, zk[i], pos)
-            hs.append(h)
+        """{l: motion stream h after block l} (queries from zq, keys from zk)."""
+        h, hs = None, {}
+        for l in self.layers:
+            h = zq[l] if h is None else h + zq[l]
+            h = self.blocks[str(l)](h, zk[l], pos)
+            hs[l] = h
         return hs
 
 
@@ -297,7 +321,9 @@ class Forge4D(VGGT):
         if stream:
             self.state = State(self.cfg)
             self.motion = Motion(self.cfg)
-            self.motion_head = DPTHead(self.cfg, MOTION_CH, "none", in_dim=self.cfg.embed_dim)
+            mf = self.cfg.motion_dpt_features or self.cfg.dpt_features
+            self.motion_head = DPTHead(dataclasses.replace(self.cfg, dpt_features=mf), MOTION_CH,
+                                       "none", in_dim=self.cfg.embed_dim)
             last = self.motion_head.scratch.output_conv2[2]
             nn.init.zeros_(last.weight)
             nn.init.zeros_(last.bias)
@@ -337,7 +363,8 @@ class Forge4D(VGGT):
                 hs = self.motion(zq, zk, pos)
                 for L in self.cfg.dpt_layer_idx:
                     out[f"motion.{tag}{L}"] = hs[L]
-                m, _ = self.motion_head(hs, H, W, {}, "motion_head")
+                hl = [hs.get(L) for L in range(self.cfg.depth)]  # the head reads L_dpt only
+                m, _ = self.motion_head(hl, H, W, {}, "motion_head")
                 out[f"motion_head.{key}"] = m
             out["motion_bwd"] = out["motion_head.m1"] / g
             out["motion_fwd_prev"] = out["motion_head.m2"] / g
@@ -407,12 +434,12 @@ class Forge4D(VGGT):
         pos[ns:, 0] = rr.flatten() + 1
         pos[ns:, 1] = cc.flatten() + 1
         zp = st["z"]
-        z = []
-        for L in range(self.cfg.depth):
+        z = {}
+        for L in self.motion.layers:
             zl = zp[L].clone()
             for f in range(S):
-                zl[f, rows[f]] = self.motion.in_proj[L](packed[L][f])
-            z.append(zl)
+                zl[f, rows[f]] = self.motion.in_proj[str(L)](packed[L][f])
+            z[L] = zl
         g = out["gauge"][0]
         drop = torch.ones(S, H, W, dtype=torch.bool)     # pixels of dropped patches
         for f in range(S):
@@ -423,10 +450,10 @@ class Forge4D(VGGT):
             hf = {L: st["h"][(tag, L)].clone() for L in self.cfg.dpt_layer_idx}
             for f in range(S):
                 hq = None
-                for L, blk in enumerate(self.motion.blocks):
+                for L in self.motion.layers:
                     q = zq[L][f:f + 1, rows[f]]
-                    hq = q if L == 0 else hq + q
-                    hq = blk(hq, zk[L][f:f + 1], pos[rows[f]], pos)
+                    hq = q if hq is None else hq + q
+                    hq = self.motion.blocks[str(L)](hq, zk[L][f:f + 1], pos[rows[f]], pos)
                     if L in hf:
                         hf[L][f, rows[f]] = hq[0]
             hs = [hf.get(L) for L in range(self.cfg.depth)]

@@ -13,6 +13,7 @@ The model runs in float64 on float32-representable weights and inputs, so the
 fixtures are the exact answer and a C port in float32 is judged by its own
 rounding only. Results are saved as float32.
 """
+import dataclasses
 import json
 import os
 import struct
@@ -341,8 +342,14 @@ def fusion_pairs(gen, n):
 
 def forge4d_seq_fixtures(out_root):
     from forge4d_ref import fuse_pairs
-    cfg = CONFIGS["tiny"]["cfg"]
-    gen = torch.Generator().manual_seed(5151)
+    # A motion-layer subset: no block at layer 0 (the stream starts at layer 1), one at
+    # layer 2 that the motion head does not read, a repeated DPT layer, and the motion
+    # head at half the DPT width.
+    cfg = dataclasses.replace(CONFIGS["tiny"]["cfg"], dpt_layer_idx=[1, 3, 3, 4],
+                              motion_layers=[1, 2, 3, 4], motion_dpt_features=8)
+    # seed: random weights whose motions leave pairs to fuse (sequence/api needs >= 100;
+    # 5151 gave 1 with this config: the random cameras and motions put them out of view)
+    gen = torch.Generator().manual_seed(5153)
     model = Forge4D(cfg, stream=True).eval()
     seq_init(model, gen)
     d = os.path.join(out_root, "tiny_f4d_seq")
@@ -405,8 +412,9 @@ SEQ_MASK_KEEP = [[[1] * 6, [1] * 6],
 
 
 def forge4d_seq_masked_fixtures(out_root):
-    cfg = CONFIGS["tiny"]["cfg"]
     d = os.path.join(out_root, "tiny_f4d_seq")
+    with open(os.path.join(d, "config.json")) as f:   # the motion-layer subset of tiny_f4d_seq
+        cfg = dataclasses.replace(CONFIGS["tiny"]["cfg"], **json.load(f))
     model = Forge4D(cfg, stream=True).eval()
     model.load_state_dict(read_safetensors(os.path.join(d, "weights.safetensors")))
     m64 = model.double()

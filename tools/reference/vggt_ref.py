@@ -40,6 +40,11 @@ class Config:
     dpt_features: int = 256
     dpt_out_channels: list = field(default_factory=lambda: [256, 512, 1024, 1024])
     dpt_layer_idx: list = field(default_factory=lambda: [4, 11, 17, 23])
+    # Forge4D's motion path (forge4d_ref.py; the C runtime's model.h): aggregator layers
+    # with a motion block (None = dpt_layer_idx; list(range(depth)) = forge4d-arch.md 5
+    # as written) and the motion head's DPT width (None = dpt_features).
+    motion_layers: list = None
+    motion_dpt_features: int = 128
 
 
 # ---------------------------------------------------------------------------

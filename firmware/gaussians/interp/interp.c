@@ -482,14 +482,6 @@ struct budget_config budget_config_default(void)
 
 struct vox { uint64_t key; uint32_t i; };
 
-static int cmp_vox(const void *pa, const void *pb)
-{
-    const struct vox *x = pa, *y = pb;
-    if (x->key != y->key)
-        return x->key < y->key ? -1 : 1;
-    return x->i < y->i ? -1 : (x->i > y->i);
-}
-
 /* Eigen-decomposition of a symmetric 3x3 matrix (cyclic Jacobi): a = V diag(w) V'. */
 static void sym3_eigen(double a[3][3], double w[3], double V[3][3])
 {
@@ -554,17 +546,67 @@ static void mat_to_quat(double R[3][3], float q[4])
     q[0] = (float)(w / n); q[1] = (float)(x / n); q[2] = (float)(y / n); q[3] = (float)(z / n);
 }
 
+/* Stable LSD radix sort of vx[0..n) by key, 8 bits a pass, through tmp; a
+ * pass where every key has the same byte is skipped. vx is built in index
+ * order, so the result is ordered by (key, index): a total order, the one
+ * qsort gave before, now without qsort's allocation. */
+static void vox_sort(struct vox *vx, struct vox *tmp, size_t n)
+{
+    struct vox *a = vx, *b = tmp;
+    for (int shift = 0; shift < 64; shift += 8) {
+        size_t cnt[256] = { 0 };
+        for (size_t k = 0; k < n; k++)
+            cnt[(a[k].key >> shift) & 0xff]++;
+        if (n == 0 || cnt[(a[0].key >> shift) & 0xff] == n)
+            continue;
+        size_t sum = 0;
+        for (int d = 0; d < 256; d++) {
+            size_t c = cnt[d];
+            cnt[d] = sum;
+            sum += c;
+        }
+        for (size_t k = 0; k < n; k++)
+            b[cnt[(a[k].key >> shift) & 0xff]++] = a[k];
+        struct vox *t = a;
+        a = b;
+        b = t;
+    }
+    if (a != vx)
+        memcpy(vx, a, n * sizeof *vx);
+}
+
+size_t budget_scratch_bytes(size_t count)
+{
+    return 2 * (count + 1) * sizeof(struct vox);
+}
+
 int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                  struct splat_frame *out, struct budget_stats *stats, struct f4d_err *err)
+{
+    if (!in)
+        return fail(err, F4D_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");
+    size_t bytes = budget_scratch_bytes(in->count);
+    void *scratch = malloc(bytes);
+    if (!scratch)
+        return fail(err, F4D_ENOMEM, "budget_prune: out of memory");
+    int rc = budget_prune_ws(in, rig, cfg, scratch, bytes, out, stats, err);
+    free(scratch);
+    return rc;
+}
+
+int budget_prune_ws(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
+                    void *scratch, size_t scratch_bytes, struct splat_frame *out, struct budget_stats *stats,
+                    struct f4d_err *err)
 {
     if (!in || !rig || !cfg || !out || in == out)
         return fail(err, F4D_EINVAL, "budget_prune: bad arguments (in and out must be distinct frames)");
     if (!(cfg->voxel >= 0.0f) || !(cfg->min_footprint >= 0.0f) || !(cfg->min_opacity >= 0.0f))
         return fail(err, F4D_EINVAL, "budget_prune: thresholds must be >= 0");
+    if (!scratch || scratch_bytes < budget_scratch_bytes(in->count))
+        return f4d_fail(err, F4D_EINVAL, "budget_prune: scratch of %zu bytes, %zu Gaussians need %zu",
+                        scratch_bytes, in->count, budget_scratch_bytes(in->count));
     struct budget_stats st = { .total = in->count };
-    struct vox *vx = malloc((in->count + 1) * sizeof *vx);
-    if (!vx)
-        return fail(err, F4D_ENOMEM, "budget_prune: out of memory");
+    struct vox *vx = scratch, *vtmp = vx + in->count + 1;
     const float base = cfg->voxel > 0.0f ? cfg->voxel : 1e-4f;
     size_t nv = 0;
     for (size_t i = 0; i < in->count; i++) {
@@ -613,15 +655,13 @@ int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, cons
         vx[nv].i = (uint32_t)i;
         nv++;
     }
-    qsort(vx, nv, sizeof *vx, cmp_vox);
+    vox_sort(vx, vtmp, nv);
     size_t groups = 0;
     for (size_t s = 0; s < nv; s++)
         groups += s == 0 || vx[s].key != vx[s - 1].key || (vx[s].key >> 58) == 63;
     int rc = splat_frame_resize(out, groups, 0, err);
-    if (rc < 0) {
-        free(vx);
+    if (rc < 0)
         return rc;
-    }
     size_t o = 0;
     for (size_t s = 0; s < nv;) {
         size_t e = s + 1;
@@ -689,7 +729,6 @@ int budget_prune(const struct splat_frame *in, const struct splat_rig *rig, cons
     }
     out->count = o;
     st.kept = o;
-    free(vx);
     if (stats)
         *stats = st;
     return F4D_OK;

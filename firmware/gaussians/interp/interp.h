@@ -165,6 +165,13 @@ struct budget_stats {
  * A cell of one Gaussian keeps it unchanged. */
 int  budget_prune(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
                   struct splat_frame *out, struct budget_stats *stats, struct f4d_err *err);
+/* The same with caller scratch of budget_scratch_bytes(in->count): no
+ * allocation when out already has the capacity (a per-frame path plans both
+ * once for its largest frame). Too little scratch: F4D_EINVAL. */
+size_t budget_scratch_bytes(size_t count);
+int  budget_prune_ws(const struct splat_frame *in, const struct splat_rig *rig, const struct budget_config *cfg,
+                     void *scratch, size_t scratch_bytes, struct splat_frame *out, struct budget_stats *stats,
+                     struct f4d_err *err);
 
 #ifdef __cplusplus
 }

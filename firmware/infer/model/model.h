@@ -112,9 +112,19 @@ struct model_config {
     int   dino_depth, dino_num_heads;
     int   camera_trunk_depth, camera_num_heads, camera_iters;
     int   dpt_features, dpt_out_channels[4], dpt_layer_idx[4];
+    /* Forge4D's motion path (forge4d-arch.md 5, cut to the paper's 27 % of a
+     * key frame; keys forge4d.motion_layers (list), .motion_dpt_features,
+     * absent in older files = 0): bit l set = a motion block (and in_proj) at aggregator layer
+     * l, 0 = the layers of dpt_layer_idx; must contain dpt_layer_idx (the
+     * motion head reads h after those blocks). Full design: all depth bits. */
+    uint64_t motion_layers;
+    int   motion_dpt_features;      /* the motion head's DPT width; 0 = dpt_features */
 };
 
 void model_config_default(struct model_config *c);
+/* motion_layers / motion_dpt_features with 0 resolved. */
+uint64_t model_motion_mask(const struct model_config *c);
+int      model_motion_features(const struct model_config *c);
 /* Range and divisibility checks; the message names the field. */
 int  model_config_check  (const struct model_config *c, struct f4d_err *err);
 int  model_config_read   (gguf_file *f, struct model_config *c, struct f4d_err *err);
@@ -367,8 +377,8 @@ int   model_load_linear (struct model *m, struct fk_linear *L, const char *wname
  * With state.* weights, every Eval is one time step: state block l runs right
  * after global block l (before any model_hooks callback) and carries its
  * state to the next Eval; with motion.* / motion_head.* weights the model
- * keeps every layer's motion input z_l of the last Eval and, from the second
- * step on, gives M1[t] and M2[t-1] (struct model_outputs). All of it lives in
+ * keeps the motion input z_l of each motion layer (motion_layers) of the
+ * last Eval and, from the second step on, gives M1[t] and M2[t-1] (struct model_outputs). All of it lives in
  * the arena (planned by model_prepare): memory does not grow with time.
  *
  *     model_state_reset(m);                          // t = 0 (also after prepare)

@@ -14,8 +14,27 @@ void model_config_default(struct model_config *c)
         .dino_depth = 24, .dino_num_heads = 16, .camera_trunk_depth = 4,
         .camera_num_heads = 16, .camera_iters = 4, .dpt_features = 256,
         .dpt_out_channels = { 256, 512, 1024, 1024 }, .dpt_layer_idx = { 4, 11, 17, 23 },
+        /* motion blocks at the 4 DPT layers, a 128-wide motion head: a motion
+         * step at ~15 % of a key frame (README), the paper's 27 % or less */
+        .motion_layers = 0, .motion_dpt_features = 128,
     };
     *c = vggt_1b;
+}
+
+uint64_t model_motion_mask(const struct model_config *c)
+{
+    if (c->motion_layers)
+        return c->motion_layers;
+    uint64_t m = 0;
+    for (int i = 0; i < 4; i++)
+        if (c->dpt_layer_idx[i] >= 0 && c->dpt_layer_idx[i] < MODEL_LAYERS_MAX)
+            m |= UINT64_C(1) << c->dpt_layer_idx[i];
+    return m;
+}
+
+int model_motion_features(const struct model_config *c)
+{
+    return c->motion_dpt_features ? c->motion_dpt_features : c->dpt_features;
 }
 
 int model_mlp_hidden(const struct model_config *c, int dim)
@@ -80,6 +99,18 @@ int model_config_check(const struct model_config *c, struct f4d_err *err)
             return f4d_fail(err, F4D_EFORMAT, "config: dpt_layer_idx[%d] = %d out of 0..%d", i,
                         c->dpt_layer_idx[i], c->depth - 1);
     }
+    const int mf = model_motion_features(c);
+    if (mf < 8 || mf > MODEL_DIM_MAX || mf % 8)
+        return f4d_fail(err, F4D_EFORMAT, "config: motion_dpt_features %d must be a multiple of 8 "
+                        "in 8..%d", mf, MODEL_DIM_MAX);
+    const uint64_t mm = model_motion_mask(c);
+    if (c->depth < MODEL_LAYERS_MAX && (mm >> c->depth))
+        return f4d_fail(err, F4D_EFORMAT, "config: motion_layers names a layer beyond depth %d",
+                        c->depth);
+    for (int i = 0; i < 4; i++)
+        if (!((mm >> c->dpt_layer_idx[i]) & 1))
+            return f4d_fail(err, F4D_EFORMAT, "config: motion_layers lacks dpt_layer_idx[%d] = %d "
+                            "(the motion head reads the stream after it)", i, c->dpt_layer_idx[i]);
     return F4D_OK;
 }
 
@@ -128,6 +159,30 @@ int model_config_read(gguf_file *f, struct model_config *c, struct f4d_err *err)
             (k ? c->dpt_layer_idx : c->dpt_out_channels)[i] = (int)a[i];
         }
     }
+    /* Forge4D's motion keys are optional (files from before them): absent,
+     * the fields stay 0, i.e. blocks at the DPT layers, head at dpt_features. */
+    if (gguf_key_type(f, "forge4d.motion_layers") >= 0) {
+        int64_t ml[MODEL_LAYERS_MAX];
+        size_t nm;
+        if (gguf_get_int_array(f, "forge4d.motion_layers", ml, MODEL_LAYERS_MAX, &nm) < 0)
+            return f4d_fail(err, F4D_EFORMAT, "%s", gguf_error(f));
+        if (nm == 0)
+            return f4d_fail(err, F4D_EFORMAT, "config: key 'forge4d.motion_layers' is empty");
+        for (size_t i = 0; i < nm; i++) {
+            if (ml[i] < 0 || ml[i] >= MODEL_LAYERS_MAX)
+                return f4d_fail(err, F4D_EFORMAT, "config: key 'forge4d.motion_layers'[%zu] = %lld "
+                                "out of 0..%d", i, (long long)ml[i], MODEL_LAYERS_MAX - 1);
+            c->motion_layers |= UINT64_C(1) << ml[i];
+        }
+    }
+    if (gguf_key_type(f, "forge4d.motion_dpt_features") >= 0) {
+        if (gguf_get_int(f, "forge4d.motion_dpt_features", &v) < 0)
+            return f4d_fail(err, F4D_EFORMAT, "%s", gguf_error(f));
+        if (v < 1 || v > 1000000)
+            return f4d_fail(err, F4D_EFORMAT, "config: key 'forge4d.motion_dpt_features' = %lld "
+                            "out of range", (long long)v);
+        c->motion_dpt_features = (int)v;
+    }
     return model_config_check(c, err);
 }
 
@@ -149,6 +204,16 @@ int model_config_write(const struct model_config *c, gguf_writer *w)
     }
     rc |= gguf_writer_add_int_array(w, "forge4d.dpt_out_channels", GGUF_V_UINT32, oc, 4);
     rc |= gguf_writer_add_int_array(w, "forge4d.dpt_layer_idx", GGUF_V_UINT32, li, 4);
+    /* the motion keys resolved, so a reader needs no default */
+    int64_t ml[MODEL_LAYERS_MAX];
+    size_t nm = 0;
+    const uint64_t mm = model_motion_mask(c);
+    for (int l = 0; l < MODEL_LAYERS_MAX; l++)
+        if ((mm >> l) & 1)
+            ml[nm++] = l;
+    rc |= gguf_writer_add_int_array(w, "forge4d.motion_layers", GGUF_V_UINT32, ml, nm);
+    rc |= gguf_writer_add_int(w, "forge4d.motion_dpt_features", GGUF_V_UINT32,
+                              model_motion_features(c));
     /* Derived dimensions, for readers of the file (not read back). */
     rc |= gguf_writer_add_int(w, "forge4d.head_dim", GGUF_V_UINT32, c->embed_dim / c->num_heads);
     rc |= gguf_writer_add_int(w, "forge4d.mlp_hidden", GGUF_V_UINT32,

@@ -51,9 +51,8 @@ static int conv(struct model *m, struct dpt_head *h, struct fk_conv2d *c, const 
 }
 
 static int dpt_init_common(struct model *m, void **out, const char *prefix, int out_dim, int act,
-                           int in_dim)
+                           int in_dim, int features)
 {
-    const struct model_config *c = model_get_config(m);
     char nm[MODEL_NAME_MAX];
     snprintf(nm, sizeof nm, "%s.norm.weight", prefix);
     if (!gguf_find_tensor(model_gguf(m), nm))
@@ -61,7 +60,9 @@ static int dpt_init_common(struct model *m, void **out, const char *prefix, int 
     struct dpt_head *h = calloc(1, sizeof *h);
     if (!h)
         return F4D_ENOMEM;
-    h->cfg = *c;
+    h->cfg = *model_get_config(m);
+    h->cfg.dpt_features = features;
+    const struct model_config *c = &h->cfg;
     h->prefix = prefix;
     h->out_dim = out_dim;
     h->act = act;
@@ -123,12 +124,14 @@ fail:
 
 static int depth_init(struct model *m, void **out)
 {
-    return dpt_init_common(m, out, "depth_head", 2, DPT_EXP, 2 * model_get_config(m)->embed_dim);
+    return dpt_init_common(m, out, "depth_head", 2, DPT_EXP, 2 * model_get_config(m)->embed_dim,
+                           model_get_config(m)->dpt_features);
 }
 
 static int point_init(struct model *m, void **out)
 {
-    return dpt_init_common(m, out, "point_head", 4, DPT_INV_LOG, 2 * model_get_config(m)->embed_dim);
+    return dpt_init_common(m, out, "point_head", 4, DPT_INV_LOG, 2 * model_get_config(m)->embed_dim,
+                           model_get_config(m)->dpt_features);
 }
 
 static uint64_t dpt_layers(const void *hp)
@@ -391,13 +394,14 @@ const struct model_head_ops model_point_head_ops = {
 
 int model_dpt_raw_init(struct model *m, void **head, const char *prefix, int out_dim)
 {
-    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW, 2 * model_get_config(m)->embed_dim);
+    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW, 2 * model_get_config(m)->embed_dim,
+                           model_get_config(m)->dpt_features);
 }
 
 int model_dpt_raw_init_dim(struct model *m, void **head, const char *prefix, int out_dim,
-                           int in_dim)
+                           int in_dim, int features)
 {
-    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW, in_dim);
+    return dpt_init_common(m, head, prefix, out_dim, DPT_RAW, in_dim, features);
 }
 
 void model_dpt_raw_plan(const struct model_config *c, int out_dim, int S, int H, int W,

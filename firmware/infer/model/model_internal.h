@@ -207,9 +207,10 @@ void model_fusion_free(struct model *m);
  * The raw maps [S, H, W, out_dim] sit at the start of the head's persist part,
  * whose size model_dpt_raw_plan gives. */
 int      model_dpt_raw_init (struct model *m, void **head, const char *prefix, int out_dim);
-/* The same on tokens in_dim wide (the motion head: C). */
+/* The same on tokens in_dim wide with its own width `features` (the motion
+ * head: C, motion_dpt_features); its plan takes a config with that width. */
 int      model_dpt_raw_init_dim(struct model *m, void **head, const char *prefix, int out_dim,
-                                int in_dim);
+                                int in_dim, int features);
 void     model_dpt_raw_plan (const struct model_config *c, int out_dim, int S, int H, int W,
                              size_t *persist, size_t *scratch);
 uint64_t model_dpt_head_layers(const void *head);

@@ -1,6 +1,6 @@
 /* model_motion.c - Forge4D's motion head (forge4d-arch.md 5): a DPT head on
  * the C-wide motion streams (model_stream.c) after the blocks of
- * dpt_layer_idx, 3 raw channels per pixel. Run twice per step with the same
+ * dpt_layer_idx, motion_dpt_features wide, 3 raw channels per pixel. Run twice per step with the same
  * weights: on the M1 streams (queries t, keys t-1) it gives M1[t], on the M2
  * streams M2[t-1]; both divided by this step's gauge (metric recovery,
  * forge4d-arch.md 3). Nothing runs on the first step of a sequence.
@@ -36,8 +36,9 @@ static int mh_init(struct model *m, void **out)
     if (!h)
         return model_fail(m, F4D_ENOMEM, "model: out of memory for the motion head");
     h->cfg = *model_get_config(m);
+    h->cfg.dpt_features = model_motion_features(&h->cfg); /* its own width (model.h) */
     int rc = model_dpt_raw_init_dim(m, &h->dpt, "motion_head", MODEL_MOTION_CH,
-                                    h->cfg.embed_dim);
+                                    h->cfg.embed_dim, h->cfg.dpt_features);
     if (rc != 0) {
         free(h);
         return rc < 0 ? rc : model_fail(m, F4D_EFORMAT, "model: motion_head incomplete");
@@ -71,7 +72,9 @@ void model_motion_head_plan(const struct model_config *c, int S, int H, int W,
                             size_t *persist, size_t *scratch)
 {
     size_t dp;
-    model_dpt_raw_plan(c, MODEL_MOTION_CH, S, H, W, &dp, scratch);
+    struct model_config mc = *c;
+    mc.dpt_features = model_motion_features(c);
+    model_dpt_raw_plan(&mc, MODEL_MOTION_CH, S, H, W, &dp, scratch);
     struct bump pb = { NULL, 2 * dp };
     BUMP_F(&pb, (size_t)S * H * W * MODEL_MOTION_CH);
     BUMP_F(&pb, (size_t)S * H * W * MODEL_MOTION_CH);

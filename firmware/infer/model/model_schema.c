@@ -230,12 +230,18 @@ int model_schema_foreach(const struct model_config *c, unsigned groups, model_te
     }
     if (groups & MODEL_G_MOTION) {
         e.group = MODEL_G_MOTION;
+        /* only at the layers of motion_layers (model.h); names keep the layer index */
+        const uint64_t mm = model_motion_mask(c);
         for (int i = 0; i < c->depth; i++) {
+            if (!((mm >> i) & 1))
+                continue;
             snprintf(b, sizeof b, "motion.in_proj.%d", i);
             linear(&e, b, C, D);
         }
         for (int i = 0; i < c->depth; i++) {
             char q[MODEL_NAME_MAX];
+            if (!((mm >> i) & 1))
+                continue;
             snprintf(b, sizeof b, "motion.blocks.%d", i);
             norm(&e, sub(q, b, "norm1"), C);
             norm(&e, sub(q, b, "norm_kv"), C);
@@ -247,7 +253,9 @@ int model_schema_foreach(const struct model_config *c, unsigned groups, model_te
     }
     if (groups & MODEL_G_MOTION_HEAD) {
         e.group = MODEL_G_MOTION_HEAD;
-        dpt(&e, "motion_head", c, MODEL_MOTION_CH, C);
+        struct model_config mc = *c; /* its own DPT width */
+        mc.dpt_features = model_motion_features(c);
+        dpt(&e, "motion_head", &mc, MODEL_MOTION_CH, C);
     }
     if (groups & MODEL_G_FUSION) {
         /* Kept f32 in every precision: 2.8 k MACs per fused pair, scalar code. */

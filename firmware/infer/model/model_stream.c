@@ -6,14 +6,16 @@
  *   x  = x  + ls_r * Attn_r(q = norm_x(x),   kv = norm_s(s_l))      read
  *   s' = s_l + ls_w * Attn_w(q = norm_s2(s_l), kv = norm_x2(x))     write
  *   s' = s' + ls_m * MLP(norm_m(s'))                               (s_l <- s')
- * Motion, per layer l: z_l(t) = in_proj_l(F_l(t)) (F_l = frame || global
- * half, the global half after the state block); with a previous step, two
- * streams run block l (per view, 2-D RoPE on q and k):
- *   M1 run: h  = z_0(t)   | h  + z_l(t),   kv = z_l(t-1)
- *   M2 run: h' = z_0(t-1) | h' + z_l(t-1), kv = z_l(t)
+ * Motion, per layer l of motion_layers (model.h; the DPT layers by default,
+ * every layer in forge4d-arch.md 5): z_l(t) = in_proj_l(F_l(t)) (F_l = frame
+ * || global half, the global half after the state block); with a previous
+ * step, two streams run block l (per view, 2-D RoPE on q and k), l0 the
+ * first layer of the set:
+ *   M1 run: h  = z_l0(t)   | h  + z_l(t),   kv = z_l(t-1)
+ *   M2 run: h' = z_l0(t-1) | h' + z_l(t-1), kv = z_l(t)
  *   h = h + ls1 * CrossAttn(q = norm1(h), kv = norm_kv(kv)); h = h + ls2 * MLP(norm2(h))
  * then z_l(t) replaces z_l(t-1) (each is read by block l only, so one copy per
- * layer suffices). The streams after the blocks the motion head reads are kept
+ * motion layer suffices). The streams after the blocks the motion head reads are kept
  * for it (model_motion.c).
  *
  * Masked step (model_eval_masked, the aggregator stream x packed: the kept
@@ -56,11 +58,13 @@ struct model_stream {
     int                has_state, has_motion;
     const float       *tokens;            /* [16, C] */
     struct state_blk  *sb;                /* [depth] */
-    struct motion_blk *mb;                /* [depth] */
+    struct motion_blk *mb;                /* [depth], filled at the motion layers */
     int                n_sb, n_mb;        /* loaded (for freeing) */
+    uint64_t           mmask;             /* motion layers (model_motion_mask) */
+    int                first;             /* lowest motion layer */
     /* arena, persistent */
     float             *state;             /* [depth][16][C] */
-    float             *zprev;             /* [depth][nmax][C] */
+    float             *zprev;             /* [motion layers][nmax][C] */
     float             *hkeep[2][4];       /* [nmax][C] after block dpt_layer_idx[i] */
     size_t             nmax;
     /* arena, aggregator-phase scratch */
@@ -186,11 +190,17 @@ int model_stream_load(struct model *m)
     if (has_motion) {
         if (!(s->mb = calloc((size_t)depth, sizeof *s->mb)))
             return model_fail(m, F4D_ENOMEM, "model: out of memory for the motion blocks");
-        for (int l = 0; l < depth; l++, s->n_mb++)
-            if ((rc = load_motion_blk(m, &s->mb[l], l)) < 0) {
-                s->n_mb++;
+        s->n_mb = depth; /* all freed: the ones not loaded are zeroed */
+        s->mmask = model_motion_mask(&m->cfg);
+        s->first = -1;
+        for (int l = 0; l < depth; l++) {
+            if (!((s->mmask >> l) & 1))
+                continue;
+            if (s->first < 0)
+                s->first = l;
+            if ((rc = load_motion_blk(m, &s->mb[l], l)) < 0)
                 return rc;
-            }
+        }
     }
     return 0;
 }
@@ -226,6 +236,15 @@ static size_t rows_of(const struct model_config *c, int S, int H, int W)
     return (size_t)S * (size_t)(1 + c->num_register_tokens + (H / p) * (W / p));
 }
 
+static int motion_count(const struct model_config *c)
+{
+    const uint64_t mm = model_motion_mask(c);
+    int n = 0;
+    for (int l = 0; l < c->depth; l++)
+        n += (int)((mm >> l) & 1);
+    return n;
+}
+
 /* Persistent part, in this order: state, z(t-1), the kept motion streams. */
 static void persist_layout(struct bump *b, const struct model_config *c, int has_state,
                            int has_motion, size_t nmax, struct model_stream *s)
@@ -236,7 +255,7 @@ static void persist_layout(struct bump *b, const struct model_config *c, int has
         s->state = p;
     if (!has_motion)
         return;
-    p = BUMP_F(b, (size_t)c->depth * nmax * C);
+    p = BUMP_F(b, (size_t)motion_count(c) * nmax * C);
     if (s)
         s->zprev = p;
     for (int r = 0; r < 2; r++)
@@ -462,8 +481,7 @@ static void scatter_rows(const struct model *m, float *dst, const float *src, in
 int model_stream_frame(struct model *m, int layer, const float *x, int n)
 {
     struct model_stream *s = m->stream;
-    (void)layer;
-    if (!s->has_motion)
+    if (!s->has_motion || !((s->mmask >> layer) & 1))
         return 0;
     const size_t C = (size_t)m->cfg.embed_dim;
     for (int r = 0; r < n; r++)
@@ -497,7 +515,7 @@ int model_stream_global(struct model *m, int l, float *x, int S, int P1,
         tap_rows(m, "state", l, st, (size_t)MODEL_STATE_TOKENS * C);
         m->st_sec[ST_STATE] += model_now() - t0;
     }
-    if (!s->has_motion)
+    if (!s->has_motion || !((s->mmask >> l) & 1))
         return 0;
     double t0 = model_now();
     m->flops = &m->st_flops[ST_MOTION];
@@ -506,7 +524,9 @@ int model_stream_global(struct model *m, int l, float *x, int S, int P1,
     const struct motion_blk *b = &s->mb[l];
     if ((rc = model_linear(m, &b->in_proj, s->cat, n, 2 * C, s->zc, C, NULL)) < 0)
         return rc;
-    float *zp = s->zprev + (size_t)l * s->nmax * C;
+    /* z(t-1) slot: the rank of l among the motion layers */
+    const int slot = __builtin_popcountll(s->mmask & ((UINT64_C(1) << l) - 1));
+    float *zp = s->zprev + (size_t)slot * s->nmax * C;
     if (s->motion_now) {
         /* K | V of the keys over the full grid (after the queries' C floats of qkv):
          * z(t-1) for M1, then z(t) = z(t-1) with the kept rows replaced for M2 */
@@ -516,7 +536,7 @@ int model_stream_global(struct model *m, int l, float *x, int S, int P1,
             return rc;
         for (int r = 0; r < 2; r++) {
             float *h = s->h[r];
-            if (r == 0 && l == 0) {
+            if (r == 0 && l == s->first) {
                 memcpy(h, s->zc, (size_t)n * C * sizeof(float));
             } else if (r == 0) {
                 if (fk_residual_add(m->ctx, h, C, s->zc, C, NULL, n, C) != F4D_OK)
@@ -525,7 +545,7 @@ int model_stream_global(struct model *m, int l, float *x, int S, int P1,
                 for (int i = 0; i < n; i++) {
                     const float *z = zp + (size_t)m->row[i] * C;
                     float *hi = h + (size_t)i * C;
-                    if (l == 0)
+                    if (l == s->first)
                         memcpy(hi, z, (size_t)C * sizeof(float));
                     else
                         for (int j = 0; j < C; j++)

@@ -1,0 +1,921 @@
+/* run.c: `forge4d run`, the appliance daemon.
+ *
+ *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] [--record DIR]
+ *               [--seconds S] [--keys N] [--stats-json FILE] [--precision f32|f16|int8]
+ *               [--quality low|medium|high] [--threads N] [--stall-ms MS]
+ *               [--config FILE | --no-config] [--quiet]
+ *
+ * Threads and the queues between them (each queue's overload policy beside it):
+ *
+ *   capture (main thread: rig -> synchronizer -> on_set copies the set into a
+ *   |        preallocated slot; it never waits on anything downstream)
+ *   |-- rec_q (FIFO, at most rec_cap slots, about 2 s of sets): recorder thread
+ *   |     appends every set to the take. Never drops while it keeps up; when
+ *   |     the disk falls behind by a whole queue, the set is left out of the
+ *   |     take and counted (record_overflow) rather than stalling capture.
+ *   |-- infer_box (mailbox of ONE complete set): inference thread. A newer set
+ *   |     replaces an unread one: inference skips to the newest complete set
+ *   |     and counts each skipped set (sets_skipped_by_inference).
+ *   inference (preprocess -> model with the Gaussian head, metric -> scene
+ *   |          budget) -> one of 3 key buffers
+ *   |-- key_q (FIFO of 3 keys): stream thread. When all key buffers are taken,
+ *   |     inference takes back the oldest queued key (counted, keys_dropped):
+ *   |     the encoder predicts from its own reconstruction, so a missing key
+ *   |     costs bits, never a broken stream.
+ *   stream (encoder -> sink: srt://HOST:PORT?... or file:PATH through the
+ *          transport; SRT's send blocking only holds this thread); a forced intra key
+ *          every intra_every keys lets a receiver join.
+ *   status (once a second: the status line on stderr, the stall watchdog,
+ *           cameras without frames, --seconds)
+ *
+ * Stop (SIGINT / SIGTERM, --seconds, --keys, the end of a replayed take): capture
+ * stops, the key being inferred finishes and is streamed, the set waiting in
+ * the mailbox is dropped (counted), the recorder writes what it holds and
+ * closes the take, the stream gets its end packet and is closed. Exit 0.
+ *
+ * Memory: slots, keys, packet buffer, model arena, budget scratch and latency
+ * samples are allocated before the trigger is armed; the per-set path does
+ * not allocate.
+ *
+ * Latency: trigger time to the key's packet handed to the sink, i.e. (rig
+ * clock at on_set - trigger time) + wall time from on_set to the sink. With
+ * no display attached the displayed figures are null.
+ *
+ * Test knob: F4D_RUN_TEST_INFER_DELAY_MS=N adds N ms to every key (a slow
+ * inference stage, for the load test).
+ */
+#include <errno.h>
+#include <fcntl.h>
+#include <stdarg.h>
+#include <math.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <cjson/cJSON.h>
+
+#include "f4d_capture.h"
+#include "f4d_simscene.h"
+#include "f4d_take.h"
+#include "fk_linear.h"
+#include "hal_board.h"
+#include "hal_registry.h"
+#include "hal_replay.h"
+#include "hal_sim.h"
+#include "run_internal.h"
+
+#ifndef F4D_RUN_CONFIG_DEFAULT
+#define F4D_RUN_CONFIG_DEFAULT "/etc/forge4d/forge4d.conf"
+#endif
+#ifndef F4D_RUN_BOARD_DEFAULT
+#define F4D_RUN_BOARD_DEFAULT "/usr/share/forge4d/board/sim-4cam.json"
+#endif
+
+#define RUN_KEYS 3
+/* Inference (its thread and the kernel pool's) runs this much nicer than
+ * capture, recorder and stream: on a 2-core box the model would otherwise
+ * starve the capture thread and frames arrive late. */
+#define RUN_INFER_NICE 5
+#define RUN_LAT_MAX (1u << 16) /* latency samples kept (the last ones) */
+
+typedef _Atomic uint64_t counter;
+
+/* A stage is busy from taking an item until it is done with it; the watchdog
+ * reports one busy longer than its limit (and again when it recovers). */
+struct stage_hb {
+    const char *name;
+    _Atomic uint64_t busy_since; /* 0 = waiting */
+    int reported;                /* status thread only */
+};
+
+struct run {
+    const struct run_config *cfg;
+    const struct hal_board *board;
+    struct hal_rig *rig;
+    volatile sig_atomic_t *stop;
+    bool tty;
+    /* sets */
+    struct run_slot *slots;
+    uint8_t *slot_mem;
+    uint32_t n_slots, rec_cap;
+    struct run_fifo free_slots, rec_q, infer_box;
+    uint32_t all_mask;
+    /* keys */
+    struct run_key kbuf[RUN_KEYS];
+    struct run_fifo free_keys, key_q;
+    /* stages */
+    bool have_infer, have_sink;
+    struct run_infer infer;
+    struct run_encoder enc;
+    struct run_sink sink;
+    uint8_t *pkt;
+    struct f4d_take_writer *take;
+    const char *take_dir;
+    struct f4d_err take_err;
+    /* counters */
+    counter sets_captured, sets_complete, sets_skipped, sets_no_slot, rec_written, rec_overflow, keys,
+        keys_dropped, infer_errors, stream_errors, stream_bytes, key_us_last;
+    _Atomic int rec_failed;
+    _Atomic uint64_t cam_seen[HAL_RIG_CAMERAS_MAX];
+    int cam_reported[HAL_RIG_CAMERAS_MAX];
+    float *lat_ms;
+    counter lat_n;
+    /* capture statistics, copied by the progress callback */
+    pthread_mutex_t st_mu;
+    struct f4d_capture_stats cap_st;
+    struct stage_hb hb_capture, hb_record, hb_infer, hb_stream;
+    _Atomic int done, capturing;
+    uint64_t t0, t_end;
+    double rss_start, rss_end;
+    bool rss_warm;
+};
+
+static uint64_t mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* Resident set in MB from /proc/self/statm (no stdio: no allocation). */
+static double rss_mb(void)
+{
+    int fd = open("/proc/self/statm", O_RDONLY);
+    if (fd < 0)
+        return NAN;
+    char b[128];
+    ssize_t n = read(fd, b, sizeof b - 1);
+    close(fd);
+    if (n <= 0)
+        return NAN;
+    b[n] = 0;
+    unsigned long long size, res;
+    if (sscanf(b, "%llu %llu", &size, &res) != 2)
+        return NAN;
+    return (double)res * (double)sysconf(_SC_PAGESIZE) / 1e6;
+}
+
+static void hb_busy(struct stage_hb *h) { atomic_store(&h->busy_since, mono_ns()); }
+static void hb_idle(struct stage_hb *h) { atomic_store(&h->busy_since, 0); }
+
+static void say(struct run *r, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void say(struct run *r, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    char line[512];
+    vsnprintf(line, sizeof line, fmt, ap);
+    va_end(ap);
+    /* on a terminal the status line is redrawn in place: start a fresh line */
+    fprintf(stderr, "%s[forge4d run] %s\n", r->tty ? "\r\033[K" : "", line);
+}
+
+static void slot_release(struct run *r, struct run_slot *s)
+{
+    if (__atomic_sub_fetch(&s->refs, 1, __ATOMIC_ACQ_REL) == 0)
+        run_fifo_try_push(&r->free_slots, s); /* never full: it holds every slot */
+}
+
+/* ---- capture thread (callbacks of f4d_capture_run) ---- */
+
+static int on_ready(void *user, const struct f4d_capture_stats *st)
+{
+    struct run *r = user;
+    struct f4d_err err = {0};
+    size_t per_set = 0, bytes[HAL_RIG_CAMERAS_MAX];
+    for (uint32_t i = 0; i < r->board->n_cams; i++) {
+        const struct hal_format *f = &st->formats[i];
+        bytes[i] = f->image_bytes ? f->image_bytes : (size_t)f->height * f->stride;
+        per_set += bytes[i];
+    }
+    r->slot_mem = malloc(per_set * r->n_slots);
+    if (!r->slot_mem) {
+        say(r, "cannot allocate %u set slots of %zu bytes", r->n_slots, per_set);
+        return F4D_ENOMEM;
+    }
+    uint8_t *p = r->slot_mem;
+    for (uint32_t s = 0; s < r->n_slots; s++)
+        for (uint32_t i = 0; i < r->board->n_cams; i++) {
+            r->slots[s].bufs[i].data = p;
+            r->slots[s].bufs[i].capacity = bytes[i];
+            memset(p, 0, bytes[i]); /* touch now: RSS is flat from the first set */
+            p += bytes[i];
+        }
+    if (!r->take_dir)
+        return 0;
+    struct f4d_take_info info = {0};
+    info.n_cams = r->board->n_cams;
+    info.rate_mhz = r->board->trigger.rate_mhz;
+    info.durability_ms = r->board->durability_ms;
+    for (uint32_t i = 0; i < info.n_cams; i++) {
+        info.formats[i] = st->formats[i];
+        snprintf(info.cam_ids[i], sizeof info.cam_ids[i], "%.31s", r->board->cams[i].id);
+    }
+    char *js = hal_board_to_json(r->board);
+    int rc = f4d_take_create(&r->take, r->take_dir, &info, js, r->board->durability_ms, &err);
+    free(js);
+    if (rc < 0)
+        say(r, "%s", err.msg);
+    return rc;
+}
+
+static void slot_fill(struct run *r, struct run_slot *s, const struct hal_set *set, uint64_t now_wall)
+{
+    s->set = *set;
+    for (uint32_t i = 0; i < r->board->n_cams; i++) {
+        const struct hal_buffer *b = set->frames[i];
+        if (!b) {
+            s->set.frames[i] = NULL;
+            continue;
+        }
+        struct hal_buffer *d = &s->bufs[i];
+        uint8_t *data = d->data;
+        size_t cap = d->capacity;
+        *d = *b;
+        d->data = data;
+        d->capacity = cap;
+        d->bytes_used = b->bytes_used < cap ? b->bytes_used : cap;
+        memcpy(data, b->data, d->bytes_used);
+        s->set.frames[i] = d;
+    }
+    uint64_t rig_now = hal_clock_now(&r->rig->clock);
+    s->delivery_ns = rig_now > set->trigger_ts_ns ? rig_now - set->trigger_ts_ns : 0;
+    s->arrive_wall_ns = now_wall;
+}
+
+static int on_set(void *user, const struct hal_set *set)
+{
+    struct run *r = user;
+    uint64_t now = mono_ns();
+    atomic_store(&r->hb_capture.busy_since, now); /* capture: time of the last set */
+    atomic_fetch_add(&r->sets_captured, 1);
+    for (uint32_t i = 0; i < r->board->n_cams; i++)
+        if (set->present_mask & (1u << i))
+            atomic_store(&r->cam_seen[i], now);
+    bool complete = set->complete && (set->ok_mask & r->all_mask) == r->all_mask;
+    atomic_fetch_add(&r->sets_complete, complete);
+    bool want_rec = r->take != NULL, want_inf = r->have_infer && complete;
+    if (!want_rec && !want_inf)
+        return 0;
+    struct run_slot *s = run_fifo_try_pop(&r->free_slots);
+    if (!s) { /* every slot held downstream: the set is lost to both */
+        atomic_fetch_add(&r->sets_no_slot, 1);
+        atomic_fetch_add(&r->rec_overflow, want_rec);
+        atomic_fetch_add(&r->sets_skipped, want_inf);
+        return 0;
+    }
+    slot_fill(r, s, set, now);
+    bool rec = want_rec && run_fifo_depth(&r->rec_q) < r->rec_cap; /* only this thread pushes */
+    if (want_rec && !rec)
+        atomic_fetch_add(&r->rec_overflow, 1);
+    s->refs = (int)rec + (int)want_inf;
+    if (s->refs == 0) {
+        run_fifo_try_push(&r->free_slots, s);
+        return 0;
+    }
+    if (rec)
+        run_fifo_try_push(&r->rec_q, s);
+    if (want_inf) {
+        struct run_slot *old = run_fifo_push_evict(&r->infer_box, s);
+        if (old) {
+            atomic_fetch_add(&r->sets_skipped, 1);
+            slot_release(r, old);
+        }
+    }
+    return 0;
+}
+
+static void on_progress(void *user, const struct f4d_capture_stats *st, uint64_t now)
+{
+    (void)now;
+    struct run *r = user;
+    pthread_mutex_lock(&r->st_mu);
+    r->cap_st = *st;
+    pthread_mutex_unlock(&r->st_mu);
+}
+
+/* ---- recorder thread ---- */
+static void *record_main(void *arg)
+{
+    struct run *r = arg;
+    void *it;
+    while (run_fifo_pop(&r->rec_q, &it) == 1) {
+        struct run_slot *s = it;
+        hb_busy(&r->hb_record);
+        if (!atomic_load(&r->rec_failed)) {
+            int rc = f4d_take_append(r->take, &s->set);
+            if (rc < 0) { /* the take stops here; streaming goes on */
+                atomic_store(&r->rec_failed, 1);
+                say(r, "take %s: write failed (%s, disk full?): recording stopped, the stream goes on",
+                    r->take_dir, f4d_status_name(rc));
+            } else {
+                atomic_fetch_add(&r->rec_written, 1);
+            }
+        }
+        slot_release(r, s);
+        hb_idle(&r->hb_record);
+    }
+    return NULL;
+}
+
+/* ---- inference thread ---- */
+
+/* Lowers the calling thread's priority (Linux: PRIO_PROCESS with 0 is the
+ * calling thread; threads it creates inherit the value). Raising nice needs
+ * no privilege; failure only leaves the priority as it was. */
+static void nicer(void)
+{
+    errno = 0;
+    int cur = getpriority(PRIO_PROCESS, 0);
+    if (errno == 0)
+        (void)setpriority(PRIO_PROCESS, 0, cur + RUN_INFER_NICE);
+}
+
+/* Builds the inference stage on its own thread at the lowered priority, so
+ * the kernel pool's threads (created with the context) inherit it. */
+struct infer_setup {
+    struct run_infer *st;
+    const struct run_infer_config *cfg;
+    const struct hal_board *board;
+    struct f4d_err *err;
+    int rc;
+};
+
+static void *infer_setup_main(void *arg)
+{
+    struct infer_setup *s = arg;
+    nicer();
+    s->rc = run_infer_model_new(s->st, s->cfg, s->board, s->err);
+    return NULL;
+}
+
+static int infer_new_nicer(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
+                           struct f4d_err *err)
+{
+    struct infer_setup s = {st, cfg, board, err, 0};
+    pthread_t th;
+    if (pthread_create(&th, NULL, infer_setup_main, &s) != 0)
+        return run_infer_model_new(st, cfg, board, err);
+    pthread_join(th, NULL);
+    return s.rc;
+}
+static struct run_key *key_buffer(struct run *r)
+{
+    for (;;) {
+        struct run_key *k = run_fifo_try_pop(&r->free_keys);
+        if (k)
+            return k;
+        if ((k = run_fifo_try_pop(&r->key_q))) { /* stream behind: drop its oldest key */
+            atomic_fetch_add(&r->keys_dropped, 1);
+            return k;
+        }
+        /* the stream thread holds the last one for a moment */
+        nanosleep(&(struct timespec){0, 1000000}, NULL);
+    }
+}
+
+static void *infer_main(void *arg)
+{
+    struct run *r = arg;
+    nicer();
+    void *it;
+    while (run_fifo_pop(&r->infer_box, &it) == 1) {
+        struct run_slot *s = it;
+        struct run_key *k = key_buffer(r);
+        struct f4d_err err = {0};
+        hb_busy(&r->hb_infer);
+        int rc = r->infer.key(r->infer.self, &s->set, k, &err);
+        k->arrive_wall_ns = s->arrive_wall_ns;
+        k->delivery_ns = s->delivery_ns;
+        uint64_t seq = s->set.seq;
+        slot_release(r, s); /* capture may reuse it from here */
+        hb_idle(&r->hb_infer);
+        if (rc < 0) {
+            uint64_t n = atomic_fetch_add(&r->infer_errors, 1);
+            if (n < 3 || n % 100 == 0)
+                say(r, "key from set %llu failed (%llu so far): %s", (unsigned long long)seq,
+                    (unsigned long long)n + 1, err.msg);
+            run_fifo_try_push(&r->free_keys, k);
+            continue;
+        }
+        atomic_store(&r->key_us_last, (uint64_t)(k->infer_ms * 1000.0));
+        run_fifo_try_push(&r->key_q, k); /* RUN_KEYS buffers, RUN_KEYS places: always fits */
+    }
+    run_fifo_close(&r->key_q);
+    return NULL;
+}
+
+/* ---- stream thread ---- */
+static int stream_out(struct run *r, const uint8_t *pkt, size_t len)
+{
+    atomic_fetch_add(&r->stream_bytes, len);
+    if (!r->have_sink)
+        return 0;
+    struct f4d_err err = {0};
+    int rc = r->sink.write(r->sink.self, pkt, len, &err);
+    if (rc < 0) {
+        uint64_t n = atomic_fetch_add(&r->stream_errors, 1);
+        if (n < 3 || n % 100 == 0)
+            say(r, "%s", err.msg);
+    }
+    return rc;
+}
+
+static void *stream_main(void *arg)
+{
+    struct run *r = arg;
+    struct f4d_err err = {0};
+    size_t len = r->enc.packet_cap;
+    if (r->enc.header(r->enc.self, 0, r->pkt, &len, &err) < 0)
+        say(r, "%s", err.msg);
+    else
+        stream_out(r, r->pkt, len);
+    uint64_t n = 0, t_last = 0;
+    bool resync = false;
+    void *it;
+    while (run_fifo_pop(&r->key_q, &it) == 1) {
+        struct run_key *k = it;
+        hb_busy(&r->hb_stream);
+        bool intra = resync || n % r->cfg->intra_every == 0;
+        len = r->enc.packet_cap;
+        int rc = r->enc.key(r->enc.self, k, intra, r->pkt, &len, &err);
+        if (rc < 0) {
+            uint64_t e = atomic_fetch_add(&r->stream_errors, 1);
+            if (e < 3 || e % 100 == 0)
+                say(r, "%s", err.msg);
+        } else if (stream_out(r, r->pkt, len) < 0) {
+            resync = true; /* a receiver lost a packet: rejoin on an intra key */
+        } else {
+            resync = false;
+            n++;
+            t_last = k->t_us;
+            uint64_t now = mono_ns();
+            double ms = (double)(k->delivery_ns + (now - k->arrive_wall_ns)) * 1e-6;
+            uint64_t i = atomic_fetch_add(&r->lat_n, 1);
+            r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
+            if (atomic_fetch_add(&r->keys, 1) + 1 == r->cfg->keys)
+                *r->stop = 1; /* --keys: enough streamed */
+        }
+        run_fifo_try_push(&r->free_keys, k);
+        hb_idle(&r->hb_stream);
+    }
+    len = r->enc.packet_cap;
+    if (r->enc.end(r->enc.self, t_last, r->pkt, &len, &err) < 0)
+        say(r, "%s", err.msg);
+    else
+        stream_out(r, r->pkt, len);
+    return NULL;
+}
+
+/* ---- status thread: status line, watchdog, --seconds ---- */
+static void watch(struct run *r, struct stage_hb *h, uint64_t now, uint64_t limit_ns, const char *what)
+{
+    uint64_t since = atomic_load(&h->busy_since);
+    bool stalled = since && now > since && now - since > limit_ns;
+    if (stalled && !h->reported)
+        say(r, "stall: %s %s for %.1f s (watchdog limit %.1f s); the other stages keep running", h->name, what,
+            (double)(now - since) * 1e-9, (double)limit_ns * 1e-9);
+    else if (!stalled && h->reported)
+        say(r, "%s running again", h->name);
+    h->reported = stalled;
+}
+
+static void status_tick(struct run *r, uint64_t now, uint64_t *prev_sets, uint64_t *prev_keys,
+                        uint64_t *prev_bytes, uint64_t *prev_t)
+{
+    double dt = (double)(now - *prev_t) * 1e-9;
+    uint64_t sets = atomic_load(&r->sets_captured), keys = atomic_load(&r->keys),
+             bytes = atomic_load(&r->stream_bytes);
+    pthread_mutex_lock(&r->st_mu);
+    struct f4d_sync_counters sc = r->cap_st.sync;
+    pthread_mutex_unlock(&r->st_mu);
+    uint64_t limit = (uint64_t)r->cfg->stall_ms * 1000000u;
+    /* a key that normally takes seconds is not a stall */
+    uint64_t infer_limit = limit > (uint64_t)(4e6 * r->infer.warm_ms) ? limit : (uint64_t)(4e6 * r->infer.warm_ms);
+    watch(r, &r->hb_capture, now, limit, "delivered no set");
+    watch(r, &r->hb_record, now, limit, "busy writing one set");
+    watch(r, &r->hb_infer, now, infer_limit, "busy on one key");
+    watch(r, &r->hb_stream, now, limit, "busy sending one key");
+    if (sets > 0)
+        for (uint32_t i = 0; i < r->board->n_cams; i++) {
+            uint64_t seen = atomic_load(&r->cam_seen[i]);
+            bool down = now - seen > 1000000000u && atomic_load(&r->hb_capture.busy_since) > seen;
+            if (down && !r->cam_reported[i])
+                say(r, "camera %s: no frames for %.1f s (failed or disconnected); the other views go on",
+                    r->board->cams[i].id, (double)(now - seen) * 1e-9);
+            else if (!down && r->cam_reported[i])
+                say(r, "camera %s delivers again", r->board->cams[i].id);
+            r->cam_reported[i] = down;
+        }
+    if (!r->cfg->quiet) {
+        double t = (double)(now - r->t0) * 1e-9;
+        fprintf(stderr,
+                "%s[forge4d run] %6.1f s  sets %llu (%.1f/s)  queues rec %u/%u infer %u/1 key %u/%d  "
+                "drops: frames %llu incomplete %llu skipped %llu rec %llu keys %llu  key %.0f ms (%.1f Hz)  "
+                "%.2f Mbit/s  rss %.0f MB%s",
+                r->tty ? "\r\033[K" : "", t, (unsigned long long)sets,
+                dt > 0 ? (double)(sets - *prev_sets) / dt : 0.0, run_fifo_depth(&r->rec_q), r->rec_cap,
+                run_fifo_depth(&r->infer_box), run_fifo_depth(&r->key_q), RUN_KEYS,
+                (unsigned long long)sc.frames_dropped, (unsigned long long)sc.sets_incomplete,
+                (unsigned long long)atomic_load(&r->sets_skipped), (unsigned long long)atomic_load(&r->rec_overflow),
+                (unsigned long long)atomic_load(&r->keys_dropped), (double)atomic_load(&r->key_us_last) * 1e-3,
+                dt > 0 ? (double)(keys - *prev_keys) / dt : 0.0,
+                dt > 0 ? (double)(bytes - *prev_bytes) * 8e-6 / dt : 0.0, rss_mb(), r->tty ? "" : "\n");
+    }
+    *prev_sets = sets, *prev_keys = keys, *prev_bytes = bytes, *prev_t = now;
+}
+
+static void *status_main(void *arg)
+{
+    struct run *r = arg;
+    uint64_t prev_sets = 0, prev_keys = 0, prev_bytes = 0, prev_t = r->t0, next = r->t0 + 1000000000u;
+    while (!atomic_load(&r->done)) {
+        nanosleep(&(struct timespec){0, 50000000}, NULL);
+        uint64_t now = mono_ns();
+        if (r->cfg->seconds > 0 && now - r->t0 >= (uint64_t)(r->cfg->seconds * 1e9))
+            *r->stop = 1;
+        if (now >= next) {
+            status_tick(r, now, &prev_sets, &prev_keys, &prev_bytes, &prev_t);
+            next += 1000000000u;
+        }
+        /* RSS every 50 ms (a read of /proc, no allocation). The end: the last
+         * sample taken while capture still ran (it frees its buffers when it
+         * stops). The start: once every buffer was touched: the capture
+         * buffers (pending_max + spares per camera, first written as they
+         * cycle), the slots, and arena, codec and sink by the first key; a
+         * run too short for that keeps its first sample after the first key. */
+        double rss = rss_mb();
+        if (atomic_load(&r->capturing))
+            r->rss_end = rss;
+        bool warm = atomic_load(&r->sets_captured) >= r->board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS &&
+                    (!r->have_infer || atomic_load(&r->keys) > 0);
+        if (!r->rss_warm && (warm || isnan(r->rss_start)) &&
+            (atomic_load(&r->keys) > 0 || (!r->have_infer && atomic_load(&r->sets_captured) > 0))) {
+            r->rss_start = rss;
+            r->rss_warm = warm;
+        }
+    }
+    if (!r->cfg->quiet && r->tty)
+        fputc('\n', stderr);
+    return NULL;
+}
+
+/* ---- stats ---- */
+static int cmp_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+static int write_stats(struct run *r, const char *path, double *p50, double *p95)
+{
+    double wall = (double)(r->t_end - r->t0) * 1e-9;
+    uint64_t keys = atomic_load(&r->keys), nl = atomic_load(&r->lat_n);
+    size_t n = nl < RUN_LAT_MAX ? (size_t)nl : RUN_LAT_MAX;
+    *p50 = *p95 = NAN;
+    if (n) {
+        qsort(r->lat_ms, n, sizeof *r->lat_ms, cmp_float);
+        *p50 = r->lat_ms[(size_t)floor(0.50 * (double)(n - 1) + 0.5)];
+        *p95 = r->lat_ms[(size_t)floor(0.95 * (double)(n - 1) + 0.5)];
+    }
+    if (!path)
+        return 0;
+    cJSON *o = cJSON_CreateObject();
+    if (!o)
+        return -1;
+    cJSON_AddNumberToObject(o, "sets_captured", (double)atomic_load(&r->sets_captured));
+    cJSON_AddNumberToObject(o, "sets_skipped_by_inference", (double)atomic_load(&r->sets_skipped));
+    cJSON_AddNumberToObject(o, "key_frames", (double)keys);
+    cJSON_AddNumberToObject(o, "key_hz", wall > 0 ? (double)keys / wall : 0.0);
+    cJSON_AddNullToObject(o, "displayed_fps"); /* no display attached */
+#define NUM_OR_NULL(name, v) ((isfinite(v)) ? (void)cJSON_AddNumberToObject(o, name, v) : (void)cJSON_AddNullToObject(o, name))
+    NUM_OR_NULL("latency_ms_p50", *p50);
+    NUM_OR_NULL("latency_ms_p95", *p95);
+    cJSON_AddNumberToObject(o, "bitrate_mbps", wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0);
+    NUM_OR_NULL("rss_mb_start", r->rss_start);
+    NUM_OR_NULL("rss_mb_end", r->rss_end);
+#undef NUM_OR_NULL
+    char *s = cJSON_Print(o);
+    cJSON_Delete(o);
+    if (!s)
+        return -1;
+    FILE *f = strcmp(path, "-") == 0 ? stdout : fopen(path, "w");
+    int rc = (!f || fprintf(f, "%s\n", s) < 0) ? -1 : 0;
+    if (f && f != stdout && fclose(f) != 0)
+        rc = -1;
+    free(s);
+    return rc;
+}
+
+/* ---- the command ---- */
+static int usage(void)
+{
+    fprintf(stderr, "usage: forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream file:PATH]\n"
+                    "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE]\n"
+                    "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
+                    "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
+                    "  settings absent from the command line come from the config file (default "
+                    F4D_RUN_CONFIG_DEFAULT ", key = value; the same names without --, '-' as '_')\n");
+    return 2;
+}
+
+static int parse_args(struct run_config *c, int argc, char **argv, bool apply, const char **config, bool *no_config)
+{
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (!strcmp(a, "--quiet")) {
+            c->quiet = true;
+            continue;
+        }
+        if (!strcmp(a, "--no-config")) {
+            *no_config = true;
+            continue;
+        }
+        if (strncmp(a, "--", 2) || !v) {
+            fprintf(stderr, "forge4d run: unknown or incomplete option \"%s\"\n", a);
+            return usage();
+        }
+        i++;
+        if (!strcmp(a, "--config")) {
+            *config = v;
+            continue;
+        }
+        char key[32];
+        snprintf(key, sizeof key, "%s", a + 2);
+        for (char *p = key; *p; p++)
+            *p = *p == '-' ? '_' : *p;
+        struct f4d_err err = {0};
+        struct run_config probe = *c;
+        if (run_config_set(apply ? c : &probe, key, v, &err) < 0) {
+            fprintf(stderr, "forge4d run: --%s\n", err.msg);
+            return 2;
+        }
+    }
+    return 0;
+}
+
+static int run_threads(struct run *r, struct f4d_capture_stats *st, struct f4d_err *err)
+{
+    pthread_t th_rec, th_inf, th_str, th_stat;
+    bool rec = r->take_dir != NULL;
+    sigset_t block, old;
+    sigemptyset(&block);
+    sigaddset(&block, SIGINT);
+    sigaddset(&block, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &block, &old); /* signals go to the capture thread */
+    r->t0 = mono_ns();
+    atomic_store(&r->capturing, 1);
+    bool ok_stat = pthread_create(&th_stat, NULL, status_main, r) == 0;
+    bool ok_rec = rec && pthread_create(&th_rec, NULL, record_main, r) == 0;
+    bool ok_inf = r->have_infer && pthread_create(&th_inf, NULL, infer_main, r) == 0;
+    bool ok_str = ok_inf && pthread_create(&th_str, NULL, stream_main, r) == 0;
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+
+    int rc;
+    struct f4d_capture_config cfg = {0};
+    cfg.on_ready = on_ready;
+    if (!ok_stat || ok_rec != rec || ok_inf != r->have_infer || ok_str != ok_inf) {
+        rc = f4d_fail(err, F4D_ENOMEM, "cannot start the stage threads");
+        if (ok_inf && !ok_str)
+            run_fifo_close(&r->key_q); /* nothing will drain it */
+    } else {
+        rc = f4d_capture_run(r->rig, &cfg, on_set, on_progress, r, r->stop, st, err);
+        on_progress(r, st, 0);
+    }
+    atomic_store(&r->capturing, 0);
+
+    /* stop: the set waiting for inference is dropped, the key in flight finishes */
+    struct run_slot *s = run_fifo_try_pop(&r->infer_box);
+    if (s) {
+        atomic_fetch_add(&r->sets_skipped, 1);
+        slot_release(r, s);
+    }
+    run_fifo_close(&r->infer_box);
+    run_fifo_close(&r->rec_q);
+    if (ok_inf)
+        pthread_join(th_inf, NULL); /* closes key_q */
+    if (ok_str)
+        pthread_join(th_str, NULL);
+    if (ok_rec)
+        pthread_join(th_rec, NULL);
+    r->t_end = mono_ns();
+    atomic_store(&r->done, 1);
+    if (ok_stat)
+        pthread_join(th_stat, NULL);
+    return rc;
+}
+
+int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
+{
+    struct run_config cfg;
+    run_config_defaults(&cfg);
+    const char *config = NULL;
+    bool no_config = false;
+    int rc = parse_args(&cfg, argc, argv, false, &config, &no_config); /* validate; find --config */
+    if (rc)
+        return rc;
+    struct f4d_err err = {0};
+    if (config || (!no_config && access(F4D_RUN_CONFIG_DEFAULT, F_OK) == 0)) {
+        if (run_config_load(&cfg, config ? config : F4D_RUN_CONFIG_DEFAULT, &err) < 0) {
+            fprintf(stderr, "forge4d run: %s\n", err.msg);
+            return 1;
+        }
+    }
+    if ((rc = parse_args(&cfg, argc, argv, true, &config, &no_config)))
+        return rc;
+    if (cfg.stream[0] && !cfg.weights[0]) {
+        fprintf(stderr, "forge4d run: --stream needs --weights (a stream carries the model's Gaussians)\n");
+        return 2;
+    }
+
+    struct hal_board board;
+    if (cfg.replay[0])
+        rc = hal_replay_board(&board, cfg.replay, true, &err);
+    else
+        rc = hal_board_load(&board, cfg.board[0] ? cfg.board : F4D_RUN_BOARD_DEFAULT, &err);
+    if (rc < 0) {
+        fprintf(stderr, "forge4d run: %s\n", err.msg);
+        return 1;
+    }
+
+    struct run *r = calloc(1, sizeof *r);
+    if (!r) {
+        fprintf(stderr, "forge4d run: out of memory\n");
+        return 1;
+    }
+    r->cfg = &cfg;
+    r->board = &board;
+    r->stop = stop;
+    r->tty = isatty(2) != 0;
+    /* record = .../take-%Y%m%dT%H%M%SZ: one take per start (a restarted
+     * service must not meet its last take) */
+    char take_dir[sizeof cfg.record + 64];
+    if (strchr(cfg.record, '%')) {
+        time_t now = time(NULL);
+        struct tm tm;
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wformat-nonliteral" /* the pattern is the user's, by design */
+        size_t n = gmtime_r(&now, &tm) ? strftime(take_dir, sizeof take_dir, cfg.record, &tm) : 0;
+#pragma GCC diagnostic pop
+        if (n == 0) {
+            fprintf(stderr, "forge4d run: record = %s: bad time pattern\n", cfg.record);
+            free(r);
+            return 2;
+        }
+    } else {
+        snprintf(take_dir, sizeof take_dir, "%s", cfg.record);
+    }
+    r->take_dir = take_dir[0] ? take_dir : NULL;
+    r->rss_start = r->rss_end = NAN;
+    r->hb_capture.name = "capture";
+    r->hb_record.name = "recorder";
+    r->hb_infer.name = "inference";
+    r->hb_stream.name = "stream";
+    r->all_mask = board.n_cams >= 32 ? 0xffffffffu : (1u << board.n_cams) - 1;
+    pthread_mutex_init(&r->st_mu, NULL);
+    int status = 1;
+    struct hal_rig rig;
+    bool rig_open = false;
+    struct f4d_simscene *scene = NULL;
+
+    if (cfg.weights[0]) {
+        const char *env = getenv("F4D_RUN_TEST_INFER_DELAY_MS");
+        struct run_infer_config ic = {cfg.weights, FK_W_F32, cfg.threads, env ? (uint32_t)strtoul(env, NULL, 10) : 0};
+        ic.wtype = !strcmp(cfg.precision, "f16") ? FK_W_F16 : !strcmp(cfg.precision, "int8") ? FK_W_Q8 : FK_W_F32;
+        if (infer_new_nicer(&r->infer, &ic, &board, &err) < 0 ||
+            run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, &err) < 0)
+            goto out;
+        r->have_infer = true;
+        if (cfg.stream[0]) {
+            if (run_sink_open(&r->sink, cfg.stream, r->enc.packet_cap, &err) < 0)
+                goto out;
+            r->have_sink = true;
+        }
+        r->pkt = malloc(r->enc.packet_cap);
+        r->lat_ms = calloc(RUN_LAT_MAX, sizeof *r->lat_ms);
+        if (!r->pkt || !r->lat_ms) {
+            f4d_fail(&err, F4D_ENOMEM, "out of memory");
+            goto out;
+        }
+        for (int i = 0; i < RUN_KEYS; i++)
+            if (splat_frame_reserve(&r->kbuf[i].f, r->infer.capacity, 0, &err) < 0)
+                goto out;
+        if (!cfg.quiet)
+            fprintf(stderr, "[forge4d run] %s (%s): %zu Gaussians per key before the budget, one key %.0f ms at start\n",
+                    cfg.weights, cfg.precision, r->infer.capacity, r->infer.warm_ms);
+    } else if (!cfg.quiet) {
+        fprintf(stderr, "[forge4d run] no weights: capture%s only, no inference or stream\n",
+                r->take_dir ? " and recording" : "");
+    }
+    /* about two seconds of sets for the recorder (a disk's fdatasync on a
+     * busy machine can take a second), three for inference */
+    uint32_t rate2 = 2 * ((board.trigger.rate_mhz + 999) / 1000);
+    r->rec_cap = r->take_dir ? (rate2 < 8 ? 8 : rate2 > 64 ? 64 : rate2) : 0;
+    r->n_slots = r->rec_cap + 3;
+    r->slots = calloc(r->n_slots, sizeof *r->slots);
+    if (!r->slots || run_fifo_init(&r->free_slots, r->n_slots, &err) < 0 ||
+        run_fifo_init(&r->rec_q, r->rec_cap ? r->rec_cap : 1, &err) < 0 ||
+        run_fifo_init(&r->infer_box, 1, &err) < 0 || run_fifo_init(&r->free_keys, RUN_KEYS, &err) < 0 ||
+        run_fifo_init(&r->key_q, RUN_KEYS, &err) < 0) {
+        f4d_fail(&err, F4D_ENOMEM, "out of memory");
+        goto out;
+    }
+    for (uint32_t i = 0; i < r->n_slots; i++)
+        run_fifo_try_push(&r->free_slots, &r->slots[i]);
+    for (int i = 0; i < RUN_KEYS; i++)
+        run_fifo_try_push(&r->free_keys, &r->kbuf[i]);
+
+    if (hal_rig_open(&rig, &board, &err) < 0)
+        goto out;
+    rig_open = true;
+    r->rig = &rig;
+    void *world = hal_rig_session(&rig, "sim");
+    if (world && strcmp(board.sim.scene, "pattern") != 0) {
+        if (f4d_simscene_new(&scene, board.sim.scene, board.sim.seed, board.n_cams, board.cams[0].width,
+                             board.cams[0].height, &err) < 0)
+            goto out;
+        hal_sim_set_renderer(world, f4d_simscene_render, scene);
+    }
+
+    struct f4d_capture_stats st;
+    memset(&st, 0, sizeof st);
+    rc = run_threads(r, &st, &err);
+    status = 0;
+    if (rc < 0) {
+        fprintf(stderr, "forge4d run: capture: %s\n", err.msg);
+        status = 1;
+    }
+    if (r->take) {
+        struct f4d_err e = {0};
+        if (f4d_take_close(r->take, &e) < 0) {
+            fprintf(stderr, "forge4d run: %s\n", e.msg);
+            status = 1;
+        }
+        r->take = NULL;
+    }
+    if (r->have_sink) {
+        struct f4d_err e = {0};
+        r->have_sink = false;
+        if (r->sink.close(r->sink.self, &e) < 0) {
+            fprintf(stderr, "forge4d run: %s\n", e.msg);
+            status = 1;
+        }
+    }
+    double p50, p95;
+    if (write_stats(r, cfg.stats_json[0] ? cfg.stats_json : NULL, &p50, &p95) < 0) {
+        fprintf(stderr, "forge4d run: cannot write %s\n", cfg.stats_json);
+        status = 1;
+    }
+    double wall = (double)(r->t_end - r->t0) * 1e-9;
+    fprintf(stderr,
+            "[forge4d run] done in %.1f s: %llu sets (%llu complete), frames dropped %llu late %llu duplicate %llu, "
+            "sets incomplete %llu, skipped by inference %llu, lost for want of a slot %llu; take %llu sets "
+            "(%llu left out); %llu keys (%.2f Hz, %llu dropped, %llu failed), latency p50 %.0f ms p95 %.0f ms, "
+            "%.2f Mbit/s, %llu stream errors; rss %.0f -> %.0f MB\n",
+            wall, (unsigned long long)atomic_load(&r->sets_captured), (unsigned long long)atomic_load(&r->sets_complete),
+            (unsigned long long)st.sync.frames_dropped, (unsigned long long)st.sync.frames_late,
+            (unsigned long long)st.sync.frames_duplicate, (unsigned long long)st.sync.sets_incomplete,
+            (unsigned long long)atomic_load(&r->sets_skipped), (unsigned long long)atomic_load(&r->sets_no_slot),
+            (unsigned long long)atomic_load(&r->rec_written), (unsigned long long)atomic_load(&r->rec_overflow),
+            (unsigned long long)atomic_load(&r->keys), wall > 0 ? (double)atomic_load(&r->keys) / wall : 0.0,
+            (unsigned long long)atomic_load(&r->keys_dropped), (unsigned long long)atomic_load(&r->infer_errors), p50,
+            p95, wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0,
+            (unsigned long long)atomic_load(&r->stream_errors), r->rss_start, r->rss_end);
+    goto cleanup;
+out:
+    fprintf(stderr, "forge4d run: %s\n", err.msg[0] ? err.msg : "setup failed");
+cleanup:
+    if (r->take) {
+        struct f4d_err e = {0};
+        f4d_take_close(r->take, &e);
+    }
+    if (r->have_sink) {
+        struct f4d_err e = {0};
+        r->sink.close(r->sink.self, &e);
+    }
+    if (rig_open)
+        hal_rig_close(&rig);
+    f4d_simscene_free(scene);
+    if (r->infer.free)
+        r->infer.free(r->infer.self);
+    if (r->enc.free)
+        r->enc.free(r->enc.self);
+    for (int i = 0; i < RUN_KEYS; i++)
+        splat_frame_free(&r->kbuf[i].f);
+    run_fifo_destroy(&r->free_slots);
+    run_fifo_destroy(&r->rec_q);
+    run_fifo_destroy(&r->infer_box);
+    run_fifo_destroy(&r->free_keys);
+    run_fifo_destroy(&r->key_q);
+    pthread_mutex_destroy(&r->st_mu);
+    free(r->slots);
+    free(r->slot_mem);
+    free(r->pkt);
+    free(r->lat_ms);
+    free(r);
+    return status;
+}

@@ -1,0 +1,126 @@
+/* run_internal.h: pieces of `forge4d run`, the appliance daemon (run.c wires
+ * them): a bounded pointer FIFO, the three replaceable stages (inference,
+ * encoder, sink) and the config file. App-internal: only run*.c include it.
+ *
+ * Why stages behind function tables: the sequence API (key-frame state and
+ * motion), the SRT transport and the shipped weights replace one table each
+ * without touching the threads, queues and policies in run.c.
+ *
+ *     struct run_fifo q;  run_fifo_init(&q, 8, &err);      // allocates once
+ *     void *old = run_fifo_push_evict(&q, item);           // never blocks
+ *     void *it;  while (run_fifo_pop(&q, &it) == 1) ...    // blocks; 0 = closed and empty
+ */
+#ifndef F4D_RUN_INTERNAL_H
+#define F4D_RUN_INTERNAL_H
+
+#include <pthread.h>
+#include <signal.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "f4d_status.h"
+#include "hal.h"
+#include "splat.h"
+
+/* ---- bounded FIFO of pointers (mutex + condvar; storage allocated once) ---- */
+struct run_fifo {
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    void **items;
+    uint32_t cap, head, n, peak;
+    bool closed;
+};
+int run_fifo_init(struct run_fifo *q, uint32_t cap, struct f4d_err *err);
+void run_fifo_destroy(struct run_fifo *q);
+/* false when full: the caller applies its own overload policy. */
+bool run_fifo_try_push(struct run_fifo *q, void *item);
+/* Pushes; when full, first removes the oldest item and returns it (else NULL). */
+void *run_fifo_push_evict(struct run_fifo *q, void *item);
+/* Oldest item without waiting, or NULL. */
+void *run_fifo_try_pop(struct run_fifo *q);
+/* Waits for an item: 1 with *item set, 0 once closed and empty. */
+int run_fifo_pop(struct run_fifo *q, void **item);
+/* Wakes every waiter; later pops drain what is left, then return 0. */
+void run_fifo_close(struct run_fifo *q);
+uint32_t run_fifo_depth(struct run_fifo *q);
+
+/* ---- one synchronized set, copied out of the capture buffers ---- */
+struct run_slot {
+    struct hal_set set;                         /* frames[i] -> bufs[i] or NULL */
+    struct hal_buffer bufs[HAL_RIG_CAMERAS_MAX];
+    int refs;                                   /* holders: recorder, inference (atomic ops) */
+    uint64_t arrive_wall_ns;                    /* CLOCK_MONOTONIC at on_set */
+    uint64_t delivery_ns;                       /* rig clock: on_set time - trigger time */
+};
+
+/* ---- one key frame on its way to the encoder ---- */
+struct run_key {
+    struct splat_frame f;      /* metric Gaussians after the scene budget */
+    uint64_t seq, t_us;        /* trigger sequence and time */
+    uint64_t arrive_wall_ns, delivery_ns;
+    double infer_ms;           /* preprocessing + model + budget */
+};
+
+/* ---- stage: synchronized set -> metric Gaussians (one key) ----
+ * Today: preprocess + model_eval (Gaussian head) + scene budget. Tomorrow: the
+ * sequence API (state between keys, motions) behind the same table. */
+struct run_infer {
+    void *self;
+    size_t capacity;           /* most Gaussians one key can hold */
+    double warm_ms;            /* one key's time at start (warm-up eval) */
+    int (*key)(void *self, const struct hal_set *set, struct run_key *out, struct f4d_err *err);
+    void (*free)(void *self);
+};
+struct run_infer_config {
+    const char *weights;
+    int wtype;                 /* enum fk_wtype */
+    int threads;               /* fk_ctx threads, 0 = all CPUs */
+    uint32_t delay_ms;         /* test knob: added to every key (F4D_RUN_TEST_INFER_DELAY_MS) */
+};
+int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
+                        struct f4d_err *err);
+
+/* ---- stage: key -> packets ---- */
+struct run_encoder {
+    void *self;
+    size_t packet_cap;         /* bytes of the caller's packet buffer */
+    /* pkt_out/len: the packet; intra forces an intra key (joins, recovery) */
+    int (*header)(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, struct f4d_err *err);
+    int (*key)(void *self, const struct run_key *k, bool intra, uint8_t *pkt, size_t *len, struct f4d_err *err);
+    int (*end)(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, struct f4d_err *err);
+    void (*free)(void *self);
+};
+int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, struct f4d_err *err);
+
+/* ---- stage: packets -> the stream transport (srt://, file:) ---- */
+struct run_sink {
+    void *self;
+    int (*write)(void *self, const uint8_t *pkt, size_t len, struct f4d_err *err);
+    int (*close)(void *self, struct f4d_err *err); /* frees self, also on error */
+};
+/* "srt://HOST:PORT?..." or "file:PATH" through f4d_transport (a plain path
+ * is a file); max_packet: the largest packet that will be written. Other
+ * schemes: F4D_ENOTSUP naming them. */
+int run_sink_open(struct run_sink *st, const char *url, size_t max_packet, struct f4d_err *err);
+
+/* ---- configuration: command line over the config file over defaults ---- */
+struct run_config {
+    char board[512], replay[512], weights[512], stream[512], record[512], stats_json[512];
+    char precision[16], quality[16];
+    double seconds;            /* 0: until SIGINT / SIGTERM */
+    uint32_t keys;             /* stop after this many keys were streamed (0: no limit) */
+    int threads;
+    uint32_t stall_ms;         /* watchdog: a stage busy this long on one item is reported */
+    uint32_t intra_every;      /* keys between forced intra keys */
+    bool quiet;
+};
+void run_config_defaults(struct run_config *c);
+/* key=value lines, '#' comments; unknown keys and bad values are errors
+ * naming the file, line and key. */
+int run_config_load(struct run_config *c, const char *path, struct f4d_err *err);
+int run_config_set(struct run_config *c, const char *key, const char *value, struct f4d_err *err);
+
+int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop);
+
+#endif
