@@ -184,7 +184,7 @@ static int write_preset(const char *path, const char *preset)
         fprintf(stderr, "f4d-bench model: preset %s: %s\n", preset, err.msg);
         return 1;
     }
-    if (write_random(path, &c, MODEL_G_ALL) < 0)
+    if (bench_write_random_model(path, &c, MODEL_G_ALL) < 0)
         return 1;
     printf("f4d-bench model: random %s model (embed %d, depth %d, img %d, every head) -> %s\n", preset,
            c.embed_dim, c.depth, c.img_size, path);
