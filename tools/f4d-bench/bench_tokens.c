@@ -21,8 +21,8 @@
  * for key 150's Gaussians as they are: what reusing the whole last key
  * would give. Also the mask against the scene's ground-truth person pixels.
  * Configs (random weights, bench_model's generator; VGGT's layout, groups
- * VGGT + Forge4D's Gaussian and scale heads; no state / motion blocks, with
- * which every patch runs):
+ * VGGT + Forge4D's Gaussian and scale heads; f4d adds the state / motion
+ * blocks and the motion head):
  *   mid   embed 384, 6 heads, depth 8, DINO depth 4, 4 registers, DPT
  *         features 48 (out 48/96/192/384), layers 1/3/5/7: VGGT-1B's shape
  *         scaled down, each DPT head's FLOPs near VGGT-1B's share of the
