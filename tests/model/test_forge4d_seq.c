@@ -64,16 +64,21 @@ static fk_ctx *new_ctx(void)
     return ctx;
 }
 
-static float *load_input(int t)
+static float *load_input_in(const char *sub, int t)
 {
     int64_t sh[NPY_MAX_DIMS];
     int nd;
-    float *img = mt_npy_load(sh, &nd, "%s/tiny_f4d_seq/t%d/input.npy", fixture_dir, t);
+    float *img = mt_npy_load(sh, &nd, "%s/tiny_f4d_seq/%st%d/input.npy", fixture_dir, sub, t);
     assert_int_equal(nd, 4);
     assert_int_equal(sh[0], SEQ_S);
     assert_int_equal(sh[2], SEQ_H);
     assert_int_equal(sh[3], SEQ_W);
     return img;
+}
+
+static float *load_input(int t)
+{
+    return load_input_in("", t);
 }
 
 static struct model *open_model(fk_ctx *ctx, const char *file, enum fk_wtype wt)
@@ -120,11 +125,11 @@ static void compare_outputs(struct mt_run *r, const struct model_outputs *o)
     }
 }
 
-/* The checkpoints of step t. */
-static void add_step(struct mt_run *r, const struct model_config *c, int t)
+/* The checkpoints of step t (in tiny_f4d_seq/<sub>t<t>); motion from step 1. */
+static void add_step_in(struct mt_run *r, const struct model_config *c, const char *sub, int t)
 {
     char dir[1200], nm[64];
-    snprintf(dir, sizeof dir, "%s/tiny_f4d_seq/t%d", fixture_dir, t);
+    snprintf(dir, sizeof dir, "%s/tiny_f4d_seq/%st%d", fixture_dir, sub, t);
     uint64_t kept = UINT64_C(1) << (c->depth - 1);
     for (int i = 0; i < 4; i++)
         kept |= UINT64_C(1) << c->dpt_layer_idx[i];
@@ -151,6 +156,11 @@ static void add_step(struct mt_run *r, const struct model_config *c, int t)
                                     "motion_fwd_prev" };
     for (size_t i = 0; i < sizeof motion / sizeof motion[0]; i++)
         assert_non_null(mt_ck_add(r, dir, motion[i], 0));
+}
+
+static void add_step(struct mt_run *r, const struct model_config *c, int t)
+{
+    add_step_in(r, c, "", t);
 }
 
 /* Prints and asserts every checkpoint of a step; returns the worst. */
@@ -235,6 +245,69 @@ static void test_seq_int8(void **state)
 {
     (void)state;
     run_sequence("int8", FK_W_Q8, budget_int8);
+}
+
+/* ---- masked steps (model_eval_masked with state and motion blocks) ------ */
+
+/* fixtures/tiny_f4d_seq/masked: 5 steps with a keep-list each (Forge4D.step_masked
+ * of forge4d_ref.py): steps 0 and 1 run every patch (no step that ran the motion
+ * yet), then a partial + an empty view, an empty + a partial view, two partial
+ * views. Every checkpoint of every step: the kept layers (reused rows included),
+ * the state written from the kept tokens, the full-grid motion streams (dropped
+ * rows the last step's), M1 / M2 with the dropped patches' pixels at 0. */
+enum { MASK_T = 5, MASK_P = 6 };
+
+static void run_masked_sequence(const char *type, enum fk_wtype wt, double budget)
+{
+    char file[64], tag[32];
+    snprintf(file, sizeof file, "tiny_f4d_seq_%s.gguf", type);
+    snprintf(tag, sizeof tag, "masked %s", type);
+    fk_ctx *ctx = new_ctx();
+    struct model *m = open_model(ctx, file, wt);
+    const struct model_config *c = model_get_config(m);
+    static struct mt_run r;
+    for (int t = 0; t < MASK_T; t++) {
+        memset(&r, 0, sizeof r);
+        add_step_in(&r, c, "masked/", t);
+        model_set_tap(m, on_tap, &r);
+        float *img = load_input_in("masked/", t);
+        int64_t sh[NPY_MAX_DIMS];
+        int nd;
+        float *kf = mt_npy_load(sh, &nd, "%s/tiny_f4d_seq/masked/t%d/keep.npy", fixture_dir, t);
+        assert_int_equal(nd, 2);
+        assert_int_equal(sh[0], SEQ_S);
+        assert_int_equal(sh[1], MASK_P);
+        uint8_t keep[SEQ_S * MASK_P];
+        int kept = 0;
+        for (int i = 0; i < SEQ_S * MASK_P; i++)
+            kept += keep[i] = kf[i] != 0.0f;
+        struct model_outputs out;
+        if (model_eval_masked(m, img, SEQ_S, SEQ_H, SEQ_W, keep, &out) < 0)
+            fail_msg("t%d: %s", t, model_error(m));
+        assert_int_equal(out.step, t + 1);
+        assert_int_equal(out.has_motion, t > 0);
+        assert_int_equal(out.masked, t >= 2);
+        assert_int_equal(out.total_tokens, t >= 2 ? SEQ_S * 3 + kept : SEQ_S * (3 + MASK_P));
+        compare_outputs(&r, &out);
+        report(&r, tag, t, budget);
+        mt_run_free(&r);
+        free(kf);
+        free(img);
+    }
+    model_free(m);
+    fk_ctx_free(ctx);
+}
+
+static void test_masked_f32(void **state)
+{
+    (void)state;
+    run_masked_sequence("f32", FK_W_F32, budget_f32);
+}
+
+static void test_masked_f16(void **state)
+{
+    (void)state;
+    run_masked_sequence("f16", FK_W_F16, budget_f16);
 }
 
 /* ---- fusion MLP ---------------------------------------------------------- */
@@ -717,6 +790,8 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_seq_f32),
         cmocka_unit_test(test_seq_f16),
         cmocka_unit_test(test_seq_int8),
+        cmocka_unit_test(test_masked_f32),
+        cmocka_unit_test(test_masked_f16),
         cmocka_unit_test(test_fusion),
         cmocka_unit_test(test_zero_fusion_is_interp_average),
         cmocka_unit_test(test_zero_motion),

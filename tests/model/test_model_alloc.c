@@ -217,7 +217,9 @@ static void test_init_prepare_oom(void **state)
 
 /* Forge4D streaming: memory is flat over time. 200 time steps of the tiny
  * stream model (state blocks, motion, fusion) make no allocation, the arena
- * keeps its size, and the carried state stays finite. */
+ * keeps its size, and the carried state stays finite. Every odd step is a
+ * masked one (model_eval_masked, keep-lists varying, every 5th with an
+ * empty view), which drops patches once a step ran the motion. */
 static void test_stream_flat_memory(void **state)
 {
     (void)state;
@@ -247,8 +249,12 @@ static void test_stream_flat_memory(void **state)
             img[j] = (float)((j * 7 + (size_t)t * 13) % 251) / 251.0f;
         if (t == STEPS / 2)
             model_state_reset(m);
-        assert_int_equal(model_eval(m, img, S, H, W, &out), 0);
+        uint8_t keep[S * 6];
+        for (int j = 0; j < S * 6; j++)
+            keep[j] = (t % 5 == 0 && j < 6) ? 0 : (j + t) % 3 == 0;
+        assert_int_equal(model_eval_masked(m, img, S, H, W, t % 2 ? keep : NULL, &out), 0);
         assert_int_equal(out.has_motion, t != 0 && t != STEPS / 2);
+        assert_int_equal(out.masked, t % 2 && t > 2 && t != STEPS / 2 + 1);
         model_fusion_fuse(fu, at, at, 0.5f, 0.01f, fo);
         assert_int_equal(model_arena_bytes(m), arena);
     }

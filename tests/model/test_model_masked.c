@@ -14,8 +14,8 @@
  * - every view empty: the patch rows are the previous Eval's bit for bit,
  *   the token counts are the special tokens only, the hook sees the packed
  *   stream;
- * - with Forge4D's state / motion blocks (tiny_f4d_seq) a keep-list is
- *   ignored: every patch runs, bit for bit model_eval's steps. */
+ * - with Forge4D's state / motion blocks (tiny_f4d_seq) the first two steps
+ *   run every patch, later ones drop patches (test_stream_masking). */
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -322,51 +322,79 @@ static void test_size_change_runs_all(void **state)
     fix_close(&f);
 }
 
-/* Forge4D state / motion blocks read every token of a step: with them a
- * keep-list is ignored, and the step is model_eval's (same state, same
- * motion) bit for bit. tiny_f4d_seq: 2 views of 28x42 (2 x 3 patches). */
-static void test_stream_runs_all(void **state)
+/* Forge4D state / motion blocks (tiny_f4d_seq: 2 views of 28x42, 2 x 3
+ * patches): steps 1 and 2 run every patch whatever the keep-list (no step
+ * that ran the motion yet), bit for bit model_eval's; from step 3 on a
+ * partial keep-list drops patches (masked, the tokens that ran counted, M1 /
+ * M2 exactly 0 at the dropped pixels) and an all-ones keep-list stays
+ * model_eval's bit for bit. Parity of masked steps: model/forge4d_seq. */
+static void test_stream_masking(void **state)
 {
     (void)state;
     char path[2200];
     struct f4d_err err = {0};
     fk_ctx *ctx;
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = 2 };
-    struct model *m[2];
-    struct model_outputs o[2];
+    struct model *m[3];
+    struct model_outputs o[3];
     assert_int_equal(fk_ctx_new(&cc, &ctx), F4D_OK);
     snprintf(path, sizeof path, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
-    enum { S = 2, H = 28, W = 42 };
+    enum { S = 2, H = 28, W = 42, P = 6 };
     float *img = malloc((size_t)S * 3 * H * W * sizeof *img);
     assert_non_null(img);
-    uint8_t keep[S * 6] = { 1, 0, 0, 0, 0, 0 };
-    for (int k = 0; k < 2; k++) {
+    uint8_t part[S * P] = { 1, 0, 0, 0, 0, 0 }, ones[S * P];
+    memset(ones, 1, sizeof ones);
+    const uint8_t *keeps[3] = { NULL, part, ones };
+    for (int k = 0; k < 3; k++) {
         int rc = model_init(ctx, path, FK_W_F32, &m[k], &err);
         if (rc < 0)
             print_error("%s\n", err.msg);
         assert_int_equal(rc, 0);
         assert_int_equal(model_prepare(m[k], S, H, W), 0);
     }
-    for (int t = 0; t < 3; t++) {
+    const size_t nd = (size_t)S * H * W * sizeof(float);
+    for (int t = 0; t < 4; t++) {
         for (size_t i = 0; i < (size_t)S * 3 * H * W; i++)
             img[i] = (float)((i * 7 + (size_t)t * 13) % 97) / 97.0f;
-        for (int k = 0; k < 2; k++) {
-            int rc = model_eval_masked(m[k], img, S, H, W, k ? keep : NULL, &o[k]);
+        for (int k = 0; k < 3; k++) {
+            int rc = model_eval_masked(m[k], img, S, H, W, keeps[k], &o[k]);
             if (rc < 0)
                 print_error("%s\n", model_error(m[k]));
             assert_int_equal(rc, 0);
-            assert_int_equal(o[k].masked, 0);
-            assert_int_equal(o[k].total_tokens, S * (1 + 2 + 6));
+            assert_int_equal(o[k].step, t + 1);
+            assert_int_equal(o[k].has_motion, t > 0);
         }
-        assert_int_equal(o[0].step, o[1].step);
-        assert_int_equal(o[0].has_motion, o[1].has_motion);
-        assert_memory_equal(o[0].depth, o[1].depth, (size_t)S * H * W * sizeof(float));
-        if (o[0].has_motion)
-            assert_memory_equal(o[0].motion_bwd, o[1].motion_bwd,
-                                (size_t)S * H * W * 3 * sizeof(float));
+        assert_int_equal(o[1].masked, t >= 2);
+        assert_int_equal(o[1].total_tokens, t >= 2 ? S * 3 + 1 : S * (3 + P));
+        assert_int_equal(o[2].masked, 0);
+        assert_memory_equal(o[0].depth, o[2].depth, nd);
+        if (t > 0) {
+            assert_memory_equal(o[0].motion_bwd, o[2].motion_bwd, 3 * nd);
+            assert_memory_equal(o[0].motion_fwd_prev, o[2].motion_fwd_prev, 3 * nd);
+        }
+        if (t < 2) {
+            assert_memory_equal(o[0].depth, o[1].depth, nd);
+            continue;
+        }
+        /* kept: view 0's patch (0, 0), pixels y, x < 14; everything else is 0 */
+        int nonzero_kept = 0;
+        for (int f = 0; f < S; f++)
+            for (int y = 0; y < H; y++)
+                for (int x = 0; x < W; x++)
+                    for (int ch = 0; ch < 3; ch++) {
+                        size_t i = (((size_t)f * H + y) * W + x) * 3 + ch;
+                        int kept = f == 0 && y < 14 && x < 14;
+                        if (!kept) {
+                            assert_true(o[1].motion_bwd[i] == 0.0f);
+                            assert_true(o[1].motion_fwd_prev[i] == 0.0f);
+                        } else {
+                            nonzero_kept += o[1].motion_bwd[i] != 0.0f;
+                        }
+                    }
+        assert_true(nonzero_kept > 0);
     }
-    model_free(m[0]);
-    model_free(m[1]);
+    for (int k = 0; k < 3; k++)
+        model_free(m[k]);
     free(img);
     fk_ctx_free(ctx);
 }
@@ -384,7 +412,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_masked_vs_reference),
         cmocka_unit_test(test_all_views_empty),
         cmocka_unit_test(test_size_change_runs_all),
-        cmocka_unit_test(test_stream_runs_all),
+        cmocka_unit_test(test_stream_masking),
     };
     return cmocka_run_group_tests_name("/model/masked", tests, NULL, NULL);
 }

@@ -1,6 +1,6 @@
 /* bench_tokens.c - f4d-bench tokens: "compute only where the scene is".
  *
- *   f4d-bench tokens [--config mid|tiny|both] [--size HxW] [--reps R]
+ *   f4d-bench tokens [--config mid|tiny|f4d|both|all] [--size HxW] [--reps R]
  *                    [--margins A,B] [--threads N] [--tmp DIR] [--json FILE]
  *
  * The synthetic walk take (firmware/synth/scene, 4 views of the default rig
@@ -21,8 +21,8 @@
  * for key 150's Gaussians as they are: what reusing the whole last key
  * would give. Also the mask against the scene's ground-truth person pixels.
  * Configs (random weights, bench_model's generator; VGGT's layout, groups
- * VGGT + Forge4D's Gaussian and scale heads; no state / motion blocks, with
- * which every patch runs):
+ * VGGT + Forge4D's Gaussian and scale heads; f4d adds the state / motion
+ * blocks and the motion head):
  *   mid   embed 384, 6 heads, depth 8, DINO depth 4, 4 registers, DPT
  *         features 48 (out 48/96/192/384), layers 1/3/5/7: VGGT-1B's shape
  *         scaled down, each DPT head's FLOPs near VGGT-1B's share of the
@@ -30,6 +30,17 @@
  *   tiny  bench_model's tiny config (embed 128, depth 4, DINO 2, features
  *         32): the heads are nearly half its FLOPs, so it shows where
  *         masking the aggregator stops paying.
+ *   f4d   mid + Forge4D's state blocks, motion blocks and motion head (groups
+ *         MODEL_G_ALL): a time step, not a key alone. Per run and rep the
+ *         sequence restarts (model_state_reset) and frames 147 and 150 run
+ *         every patch (a masked step needs a last step that ran the motion);
+ *         frame 153 is timed: every patch, or masked at margin A / B. The
+ *         step's time splits into the key-frame part (everything but the
+ *         motion) and the motion part (motion blocks + motion head, M1[153]
+ *         and M2[150]); errors against `all` for depth and M1 (motion_bwd;
+ *         a masked step's M1 is 0 at dropped patches by definition), on the
+ *         person's pixels and on the rest.
+ * `both` (the default) runs mid and tiny, `all` mid, tiny and f4d.
  * With random weights the errors say how much dropping the background
  * changes the outputs, not how good a trained model's outputs stay.
  */
@@ -330,6 +341,119 @@ static int bench_config(fk_ctx *ctx, const char *path, struct cfg_result *R, con
     return 0;
 }
 
+/* ---- Forge4D: state + motion, one time step ------------------------------ */
+
+struct f4d_shot {
+    double seconds, key_s, motion_s, agg_s;
+    int    masked, total;
+    float *depth, *m1;
+};
+
+struct f4d_result {
+    int    ok;
+    struct f4d_shot run[3];          /* all, margin A, margin B */
+    double d_person[2], d_rest[2], m_person[2], m_rest[2], m_max[2];
+};
+
+static void f4d_split(const struct model *m, struct f4d_shot *s)
+{
+    struct model_stage st[16];
+    int ns = model_stages(m, st, 16);
+    s->key_s = s->motion_s = s->agg_s = 0;
+    for (int i = 0; i < ns; i++) {
+        int mot = !strcmp(st[i].name, "motion_blocks") || !strcmp(st[i].name, "motion_head");
+        *(mot ? &s->motion_s : &s->key_s) += st[i].seconds;
+        if (!strcmp(st[i].name, "patch_embed") || !strcmp(st[i].name, "dino_blocks") ||
+            !strcmp(st[i].name, "frame_blocks") || !strcmp(st[i].name, "global_blocks") ||
+            !strcmp(st[i].name, "state_blocks") || !strcmp(st[i].name, "motion_blocks"))
+            s->agg_s += st[i].seconds;
+    }
+}
+
+static int bench_f4d(fk_ctx *ctx, const char *path, const struct model_config *c,
+                     struct f4d_result *R, const float *const frames[3],
+                     uint8_t *const keep[2], const uint8_t *gt, int H, int W, int reps)
+{
+    struct f4d_err err = {0};
+    struct model *m = NULL;
+    const size_t n = (size_t)TV * H * W;
+    if (bench_write_random_model(path, c, MODEL_G_ALL) < 0)
+        return -1;
+    int rc = model_init(ctx, path, FK_W_F32, &m, &err);
+    if (rc < 0) {
+        fprintf(stderr, "f4d-bench tokens: %s\n", err.msg);
+        unlink(path);
+        return -1;
+    }
+    if ((rc = model_prepare(m, TV, H, W)) < 0)
+        goto fail;
+    for (int k = 0; k < 3; k++) {
+        struct f4d_shot *s = &R->run[k];
+        s->seconds = INFINITY;
+        for (int i = 0; i < reps; i++) {
+            struct model_outputs o;
+            model_state_reset(m);
+            if ((rc = model_eval(m, frames[0], TV, H, W, &o)) < 0 ||
+                (rc = model_eval(m, frames[1], TV, H, W, &o)) < 0)
+                goto fail;
+            double t0 = bench_now();
+            if ((rc = model_eval_masked(m, frames[2], TV, H, W, k ? keep[k - 1] : NULL, &o)) < 0)
+                goto fail;
+            double t = bench_now() - t0;
+            if (i == 0) {
+                s->masked = o.masked;
+                s->total = o.total_tokens;
+                s->depth = malloc(n * sizeof *s->depth);
+                s->m1 = malloc(3 * n * sizeof *s->m1);
+                if (!s->depth || !s->m1 || !o.depth || !o.motion_bwd) {
+                    fprintf(stderr, "f4d-bench tokens: out of memory (or no motion)\n");
+                    rc = -1;
+                    goto out;
+                }
+                memcpy(s->depth, o.depth, n * sizeof *s->depth);
+                memcpy(s->m1, o.motion_bwd, 3 * n * sizeof *s->m1);
+            }
+            if (t < s->seconds) {
+                s->seconds = t;
+                f4d_split(m, s);
+            }
+        }
+    }
+    uint8_t *gt3 = malloc(3 * n);
+    if (!gt3) {
+        rc = -1;
+        goto out;
+    }
+    for (size_t i = 0; i < 3 * n; i++)
+        gt3[i] = gt[i / 3];
+    for (int k = 0; k < 2; k++) {
+        double dummy;
+        R->d_person[k] = region_err(R->run[k + 1].depth, R->run[0].depth, gt, n, 1);
+        R->d_rest[k] = region_err(R->run[k + 1].depth, R->run[0].depth, gt, n, 0);
+        R->m_person[k] = region_err(R->run[k + 1].m1, R->run[0].m1, gt3, 3 * n, 1);
+        R->m_rest[k] = region_err(R->run[k + 1].m1, R->run[0].m1, gt3, 3 * n, 0);
+        errs(R->run[k + 1].m1, R->run[0].m1, 3 * n, &R->m_max[k], &dummy);
+    }
+    free(gt3);
+    R->ok = 1;
+    goto out;
+fail:
+    fprintf(stderr, "f4d-bench tokens: %s\n", model_error(m));
+out:
+    model_free(m);
+    unlink(path);
+    return rc < 0 ? -1 : 0;
+}
+
+static void f4d_free(struct f4d_result *R)
+{
+    for (int k = 0; k < 3; k++) {
+        free(R->run[k].depth);
+        free(R->run[k].m1);
+    }
+    memset(R, 0, sizeof *R);
+}
+
 static void config_mid(struct model_config *c)
 {
     model_config_default(c);
@@ -378,14 +502,15 @@ int bench_tokens(int argc, char **argv)
         else if (!strcmp(argv[i], "--tmp") && i + 1 < argc)
             tmpdir = argv[++i];
         else {
-            fprintf(stderr, "usage: f4d-bench tokens [--config mid|tiny|both] [--size HxW] "
+            fprintf(stderr, "usage: f4d-bench tokens [--config mid|tiny|f4d|both|all] [--size HxW] "
                             "[--reps R] [--margins A,B] [--threads N] [--tmp DIR] [--json FILE]\n");
             return 2;
         }
     }
     if (H % 14 || W % 14 || H < 14 || W < 14 || H > 2044 || W > 2044 || reps < 1 ||
         margin[0] < 0 || margin[1] < 0 ||
-        (strcmp(which, "mid") && strcmp(which, "tiny") && strcmp(which, "both"))) {
+        (strcmp(which, "mid") && strcmp(which, "tiny") && strcmp(which, "both") &&
+         strcmp(which, "f4d") && strcmp(which, "all"))) {
         fprintf(stderr, "f4d-bench tokens: bad --size/--reps/--margins/--config\n");
         return 2;
     }
@@ -400,6 +525,9 @@ int bench_tokens(int argc, char **argv)
     const size_t hw = (size_t)H * W, n = (size_t)TV * 3 * hw;
     const int p = 14, P = (H / p) * (W / p);
     float *img = malloc(n * sizeof *img), *prime = malloc(n * sizeof *prime);
+    float *prime2 = malloc(n * sizeof *prime2);
+    struct f4d_result f4r;
+    memset(&f4r, 0, sizeof f4r);
     uint8_t *gt = malloc((size_t)TV * hw), *keep[2] = { malloc((size_t)TV * P), malloc((size_t)TV * P) };
     t.rgb = malloc(hw * 3 * sizeof *t.rgb);
     t.alpha = malloc(hw * sizeof *t.alpha);
@@ -407,7 +535,7 @@ int bench_tokens(int argc, char **argv)
     int rc = 1;
     struct cfg_result res[2];
     memset(res, 0, sizeof res);
-    if (!img || !prime || !gt || !keep[0] || !keep[1] || !t.rgb || !t.alpha) {
+    if (!img || !prime || !prime2 || !gt || !keep[0] || !keep[1] || !t.rgb || !t.alpha) {
         fprintf(stderr, "f4d-bench tokens: out of memory\n");
         goto out;
     }
@@ -428,7 +556,8 @@ int bench_tokens(int argc, char **argv)
         if (take_frame(&t, k * LEARN_STEP, img, NULL) < 0 || fg_learn(g, img, &err) < 0)
             goto out_err;
     double t_learn = bench_now() - t0;
-    if (take_frame(&t, KEY_PREV, prime, NULL) < 0 || take_frame(&t, KEY, img, gt) < 0)
+    if (take_frame(&t, KEY_PREV - 3, prime2, NULL) < 0 ||
+        take_frame(&t, KEY_PREV, prime, NULL) < 0 || take_frame(&t, KEY, img, gt) < 0)
         goto out;
     int kept[2][TV];
     double t_mask = INFINITY;
@@ -471,11 +600,12 @@ int bench_tokens(int argc, char **argv)
     char path[1024];
     snprintf(path, sizeof path, "%s/f4d-bench-tokens-%d.gguf", tmpdir, (int)getpid());
     int nres = 0;
-    if (strcmp(which, "tiny")) {
+    const int run_f4d = !strcmp(which, "f4d") || !strcmp(which, "all");
+    if (!strcmp(which, "mid") || !strcmp(which, "both") || !strcmp(which, "all")) {
         res[nres].name = "mid";
         config_mid(&res[nres++].c);
     }
-    if (strcmp(which, "mid")) {
+    if (!strcmp(which, "tiny") || !strcmp(which, "both") || !strcmp(which, "all")) {
         res[nres].name = "tiny";
         config_tiny(&res[nres++].c);
     }
@@ -515,6 +645,36 @@ int bench_tokens(int argc, char **argv)
                        k < 2 && !s->masked ? " (not masked!)" : "");
         }
     }
+    if (run_f4d) {
+        struct model_config fcfg;
+        config_mid(&fcfg);
+        const float *const frames[3] = { prime2, prime, img };
+        if (bench_f4d(ctx, path, &fcfg, &f4r, frames, keep, gt, H, W, reps) < 0)
+            goto out;
+        printf("\nmodel f4d (mid + state blocks, motion blocks, motion head; random weights, "
+               "f32): frames %d, %d every patch, step %d timed, best of %d:\n", KEY_PREV - 3,
+               KEY_PREV, KEY, reps);
+        printf("  %-9s %8s %7s %8s %7s %8s %7s %8s %6s %15s %15s %9s\n", "run", "step s",
+               "speedup", "key s", "speedup", "motion s", "speedup", "aggr s", "tokens",
+               "depth pers/rest", "M1 pers/rest", "M1 max");
+        for (int k = 0; k < 3; k++) {
+            const struct f4d_shot *s = &f4r.run[k], *a = &f4r.run[0];
+            char lab[32];
+            if (k)
+                snprintf(lab, sizeof lab, "margin %d", margin[k - 1]);
+            else
+                snprintf(lab, sizeof lab, "all");
+            printf("  %-9s %8.3f %6.2fx %8.3f %6.2fx %8.3f %6.2fx %8.3f %6d", lab, s->seconds,
+                   a->seconds / s->seconds, s->key_s, a->key_s / s->key_s, s->motion_s,
+                   a->motion_s / s->motion_s, s->agg_s, s->total);
+            if (k)
+                printf("  %.1e/%.1e %.1e/%.1e %9.2e%s\n", f4r.d_person[k - 1], f4r.d_rest[k - 1],
+                       f4r.m_person[k - 1], f4r.m_rest[k - 1], f4r.m_max[k - 1],
+                       s->masked ? "" : " (not masked!)");
+            else
+                printf(" %15s %15s %9s\n", "-", "-", "-");
+        }
+    }
     if (json) {
         FILE *jf = fopen(json, "w");
         if (!jf) {
@@ -544,7 +704,25 @@ int bench_tokens(int argc, char **argv)
                         R->p_max[k], R->p_mean[k], R->psnr[k], R->mk[k].agg_s, R->mk[k].heads_s);
             fprintf(jf, "]}");
         }
-        fprintf(jf, "\n  ]\n}\n");
+        fprintf(jf, "\n  ]");
+        if (f4r.ok) {
+            fprintf(jf, ",\n  \"f4d\": [");
+            for (int k = 0; k < 3; k++) {
+                const struct f4d_shot *s = &f4r.run[k];
+                fprintf(jf, "%s{\"margin\": %d, \"step_s\": %.4f, \"key_s\": %.4f, "
+                        "\"motion_s\": %.4f, \"aggregator_s\": %.4f, \"tokens\": %d, "
+                        "\"masked\": %d", k ? ", " : "", k ? margin[k - 1] : -1, s->seconds,
+                        s->key_s, s->motion_s, s->agg_s, s->total, s->masked);
+                if (k)
+                    fprintf(jf, ", \"depth_person_rel\": %.4e, \"depth_rest_rel\": %.4e, "
+                            "\"m1_person_rel\": %.4e, \"m1_rest_rel\": %.4e, "
+                            "\"m1_max_rel\": %.4e", f4r.d_person[k - 1], f4r.d_rest[k - 1],
+                            f4r.m_person[k - 1], f4r.m_rest[k - 1], f4r.m_max[k - 1]);
+                fprintf(jf, "}");
+            }
+            fprintf(jf, "]");
+        }
+        fprintf(jf, "\n}\n");
         fclose(jf);
     }
     rc = 0;
@@ -566,6 +744,8 @@ out:
     free(t.alpha);
     free(img);
     free(prime);
+    free(prime2);
+    f4d_free(&f4r);
     free(gt);
     free(keep[0]);
     free(keep[1]);

@@ -35,6 +35,7 @@ step at a time by Forge4D.step(images, stream) (stream = Forge4D.new_stream()):
             h = h + ls1 * CrossAttn(q = norm1(h), kv = norm_kv(zk_l))   2-D RoPE on q, k
             h = h + ls2 * MLP(norm2(h))
         M1[t] runs zq = z(t), zk = z(t-1); M2[t-1] runs zq = z(t-1), zk = z(t), same weights;
+        masked step (Forge4D.step_masked, model_eval_masked): see MASKED STEP below;
   - motion_head.*             a DPT head (vggt_ref.DPTHead, input width C, features
                               cfg.motion_dpt_features, None = dpt_features) reading h after
                               the blocks of dpt_layer_idx, 3 raw output channels;
@@ -54,6 +55,24 @@ Order inside one step (the C runtime does the same):
      in model units, metric = / g(t) (this step's gauge for both);
   4. z(t) is kept (not recomputed) as the next step's z(t-1).
 
+MASKED STEP (step_masked(images, keep, stream); the C runtime does the same): only the
+kept patches (keep [S, P]) and every view's special tokens run the aggregator (vggt_ref
+Aggregator.forward_kept), packed over the views. State block l reads into the kept rows
+only and writes from the kept tokens only (the state learns from what ran, the
+foreground). Motion: z_l(t) of a kept row is in_proj_l of its new layer row, of a dropped
+row it is z_l(t-1) (the dropped row's layer row is the reused one, so this is in_proj of
+it); both runs take queries from the kept rows of this step only (M1: z(t) rows, M2: z(t-1)
+rows at the same places; keys / values over the full grid of the other time, RoPE at the
+real grid cells). Motion stream rows of dropped patches keep the last step's (like the
+layer rows), so the motion head runs on a full grid; then M1 and M2 are set to exactly 0
+at every pixel of a dropped patch: a dropped patch is background, static by the mask's
+definition. Why one kept set for both runs: M2[t-1] moves t-1's Gaussians; a patch that
+held foreground at t-1 and is background at t lies within the keep-list's dilation margin
+as long as the scene moves less than the margin per step, and a second row map would cost
+more than it gives. A masked step needs the last step's complete layers of the same
+S x H x W and, with motion blocks, the last step to have run the motion (its z(t-1) and
+motion streams are complete): else every patch runs (step 0 and step 1 always do).
+
 Choices where forge4d-arch.md leaves a detail open (the C runtime does the same):
   - the scale footprint uses |z| / |f| (z the view depth of X, f = (fx + fy) / 2), so a
     point behind its camera (random or untrained weights) still gets a positive scale;
@@ -69,7 +88,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from vggt_ref import VGGT, DPTHead, Config, LayerScale, Mlp, rope2d  # noqa: F401
+from vggt_ref import VGGT, DPTHead, Config, LayerScale, Mlp, rope2d, pose_to_extri_intri  # noqa: F401
 
 GAUSS_CH = 14            # dp 3 | dc 3 | o 1 | s 3 | q 4
 SH_C0 = 0.28209479177387814
@@ -110,8 +129,9 @@ class CrossAttention(nn.Module):
         self.kv = nn.Linear(dim, 2 * dim)
         self.proj = nn.Linear(dim, dim)
 
-    def forward(self, xq, xkv, pos=None):
-        """xq [n, tq, C], xkv [n, tk, C]; pos [n, T, 2] for q and k (tq == tk) or None."""
+    def forward(self, xq, xkv, pos=None, pos_k=None):
+        """xq [n, tq, C], xkv [n, tk, C]; pos [n, tq, 2] for q and (pos_k None) k, or None;
+        pos_k [n, tk, 2] when the keys sit elsewhere (masked motion: kept queries, full keys)."""
         n, tq, c = xq.shape
         tk, d = xkv.shape[1], c // self.heads
         q = self.q(xq).reshape(n, tq, self.heads, d).transpose(1, 2)
@@ -119,7 +139,7 @@ class CrossAttention(nn.Module):
         k, v = kv[0], kv[1]
         if pos is not None:
             q = rope2d(q, pos)
-            k = rope2d(k, pos)
+            k = rope2d(k, pos if pos_k is None else pos_k)
         a = torch.softmax((q @ k.transpose(-1, -2)) * d ** -0.5, dim=-1)
         return self.proj((a @ v).transpose(1, 2).reshape(n, tq, c))
 
@@ -172,10 +192,12 @@ class MotionBlock(nn.Module):
         self.mlp = Mlp(c, int(c * cfg.mlp_ratio))
         self.ls2 = zero_ls(c)
 
-    def forward(self, h, zk, pos):
-        """h, zk [S, P', C] (per view); pos [P', 2], the same for q and k."""
+    def forward(self, h, zk, pos, pos_k=None):
+        """h [S, tq, C], zk [S, tk, C] (per view); pos [tq, 2] (q, and k when pos_k is
+        None), pos_k [tk, 2]."""
         p = pos[None].expand(h.shape[0], -1, -1)
-        h = h + self.ls1(self.attn(self.norm1(h), self.norm_kv(zk), p))
+        pk = None if pos_k is None else pos_k[None].expand(h.shape[0], -1, -1)
+        h = h + self.ls1(self.attn(self.norm1(h), self.norm_kv(zk), p, pk))
         return h + self.ls2(self.mlp(self.norm2(h)))
 
 
@@ -346,7 +368,106 @@ class Forge4D(VGGT):
                 out[f"motion_head.{key}"] = m
             out["motion_bwd"] = out["motion_head.m1"] / g
             out["motion_fwd_prev"] = out["motion_head.m2"] / g
-        st["z"], st["shape"] = z, (S, H, W)
+            st["h"] = {(tag, L): out[f"motion.{tag}{L}"] for tag in ("m1h", "m2h")
+                       for L in self.cfg.dpt_layer_idx}
+        else:
+            st["h"] = None
+        st["z"], st["shape"], st["layers"] = z, (S, H, W), layers
+        return out
+
+    def _outputs(self, images, layers):
+        """The heads on full aggregator layers [S, P', D] (VGGT.forward + forward())."""
+        S, _, H, W = images.shape
+        out = {}
+        for L in sorted(set(self.cfg.dpt_layer_idx) | {self.cfg.depth - 1}):
+            out[f"layer{L}"] = layers[L]
+        poses = self.camera_head(layers[-1])
+        out["pose_enc"] = poses[-1]
+        out["extrinsic"], out["intrinsic"] = pose_to_extri_intri(poses[-1], H, W)
+        out["depth"], out["depth_conf"] = self.depth_head(layers, H, W, out, "depth_head")
+        out["world_points"], out["world_points_conf"] = self.point_head(layers, H, W, out, "point_head")
+        raw, _ = self.gaussian_head(layers, H, W, out, "gaussian_head")
+        out["gaussian_raw"] = raw
+        act = gaussian_activate(raw, out["world_points"], images, out["extrinsic"], out["intrinsic"])
+        g = self.scale_head(layers[-1])
+        out["gauge"] = g.reshape(1)
+        pos, scale, ext = metric_recovery(g, act, out["extrinsic"])
+        out["gaussians_pos"] = pos
+        out["gaussians_scale"] = scale
+        return out
+
+    @torch.no_grad()
+    def step_masked(self, images, keep, st):
+        """One time step where only the kept patches run (keep [S, P] bool; MASKED STEP
+        in the module docstring). Falls back to step() (every patch) when the stream has
+        no complete last step of this S x H x W that ran the motion. out["masked"] says
+        which ran."""
+        S, _, H, W = images.shape
+        if st.get("layers") is None or st["shape"] != (S, H, W) or st.get("h") is None:
+            out = self.step(images, st)
+            out["masked"] = False
+            return out
+        p, ns = self.cfg.patch_size, 1 + self.cfg.num_register_tokens
+        h, w = H // p, W // p
+        P1 = ns + h * w
+        kept = [torch.nonzero(keep[f]).flatten().tolist() for f in range(S)]
+        rows = [list(range(ns)) + [ns + k for k in kept[f]] for f in range(S)]
+        s_new = list(st["s"])
+
+        def after_global(i, x, pos):
+            x, s_new[i] = self.state.blocks[i](x, st["s"][i].to(x.dtype))
+            return x
+
+        packed = self.aggregator.forward_kept(images, kept, after_global)
+        layers = []
+        for L in range(self.cfg.depth):
+            comp = st["layers"][L].clone()
+            for f in range(S):
+                comp[f, rows[f]] = packed[L][f]
+            layers.append(comp)
+        out = self._outputs(images, layers)
+        st["s"] = s_new
+        for i, s in enumerate(s_new):
+            out[f"state{i}"] = s
+        pos = torch.zeros(P1, 2, dtype=torch.int64)
+        rr, cc = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+        pos[ns:, 0] = rr.flatten() + 1
+        pos[ns:, 1] = cc.flatten() + 1
+        zp = st["z"]
+        z = {}
+        for L in self.motion.layers:
+            zl = zp[L].clone()
+            for f in range(S):
+                zl[f, rows[f]] = self.motion.in_proj[str(L)](packed[L][f])
+            z[L] = zl
+        g = out["gauge"][0]
+        drop = torch.ones(S, H, W, dtype=torch.bool)     # pixels of dropped patches
+        for f in range(S):
+            for k in kept[f]:
+                drop[f, (k // w) * p:(k // w + 1) * p, (k % w) * p:(k % w + 1) * p] = False
+        hs_new = {}
+        for tag, zq, zk, key in (("m1h", z, zp, "m1"), ("m2h", zp, z, "m2")):
+            hf = {L: st["h"][(tag, L)].clone() for L in self.cfg.dpt_layer_idx}
+            for f in range(S):
+                hq = None
+                for L in self.motion.layers:
+                    q = zq[L][f:f + 1, rows[f]]
+                    hq = q if hq is None else hq + q
+                    hq = self.motion.blocks[str(L)](hq, zk[L][f:f + 1], pos[rows[f]], pos)
+                    if L in hf:
+                        hf[L][f, rows[f]] = hq[0]
+            hs = [hf.get(L) for L in range(self.cfg.depth)]
+            m, _ = self.motion_head(hs, H, W, {}, "motion_head")
+            m = torch.where(drop[..., None], torch.zeros_like(m), m)
+            for L in self.cfg.dpt_layer_idx:
+                out[f"motion.{tag}{L}"] = hf[L]
+                hs_new[(tag, L)] = hf[L]
+            out[f"motion_head.{key}"] = m
+        out["motion_bwd"] = out["motion_head.m1"] / g
+        out["motion_fwd_prev"] = out["motion_head.m2"] / g
+        out["has_motion"] = True
+        out["masked"] = True
+        st["z"], st["h"], st["layers"] = z, hs_new, layers
         return out
 
     @torch.no_grad()

@@ -398,6 +398,57 @@ def forge4d_seq_fixtures(out_root):
           f"{(fo - fuse_pairs_mean(at, am)).abs().max().item():.3g}")
 
 
+# Masked Forge4D steps (Forge4D.step_masked, model_eval_masked with state and motion
+# blocks) on the tiny_f4d_seq weights: SEQ_MASK_T steps of 2 views at 28x42 (2 x 3
+# patches per view), a keep-list per step. Steps 0 and 1 run every patch whatever the
+# keep-list says (no last step that ran the motion); then a partial + an empty view, an
+# empty + a partial view, two partial views. Per step masked/t<t>/: input, keep [S, P],
+# the tiny_f4d_seq checkpoints.
+SEQ_MASK_KEEP = [[[1] * 6, [1] * 6],
+                 [[0, 1, 1, 0, 1, 1], [1, 0, 0, 1, 0, 0]],
+                 [[0, 1, 1, 0, 0, 1], [0] * 6],
+                 [[0] * 6, [1, 1, 0, 0, 0, 1]],
+                 [[1, 0, 0, 1, 1, 0], [0, 1, 0, 0, 1, 1]]]
+
+
+def forge4d_seq_masked_fixtures(out_root):
+    d = os.path.join(out_root, "tiny_f4d_seq")
+    with open(os.path.join(d, "config.json")) as f:   # the motion-layer subset of tiny_f4d_seq
+        cfg = dataclasses.replace(CONFIGS["tiny"]["cfg"], **json.load(f))
+    model = Forge4D(cfg, stream=True).eval()
+    model.load_state_dict(read_safetensors(os.path.join(d, "weights.safetensors")))
+    m64 = model.double()
+    gen = torch.Generator().manual_seed(6262)
+    base = torch.rand(SEQ_S, 3, SEQ_H, SEQ_W, generator=gen)
+    st = m64.new_stream()
+    keepL = sorted(set(cfg.dpt_layer_idx) | {cfg.depth - 1})
+    for t, kl in enumerate(SEQ_MASK_KEEP):
+        dt = 0.1 * torch.rand(SEQ_S, 3, SEQ_H, SEQ_W, generator=gen)
+        img = torch.clamp(base + dt * t, 0, 1).to(torch.float32)
+        keep = torch.tensor(kl, dtype=torch.bool)
+        out = m64.step_masked(img.double(), keep, st)
+        assert out["masked"] == (t >= 2) and out["has_motion"] == (t > 0), t
+        tdir = os.path.join(d, "masked", f"t{t}")
+        os.makedirs(tdir, exist_ok=True)
+        np.save(os.path.join(tdir, "input.npy"), img.numpy())
+        np.save(os.path.join(tdir, "keep.npy"), keep.to(torch.float32).numpy())
+        names = ["gauge", "gaussians_pos", "gaussians_scale"] + [f"layer{L}" for L in keepL] + \
+                [f"state{i}" for i in range(cfg.depth)]
+        if out["has_motion"]:
+            names += [f"motion.{tag}{L}" for tag in ("m1h", "m2h") for L in cfg.dpt_layer_idx]
+            names += ["motion_head.m1", "motion_head.m2", "motion_bwd", "motion_fwd_prev"]
+        for k in names:
+            v = out[k].to(torch.float32).contiguous().numpy()
+            assert np.isfinite(v).all(), (t, k)
+            np.save(os.path.join(tdir, f"{k}.npy"), v)
+        msg = f"tiny_f4d_seq masked t={t}: kept {int(keep.sum())} of {keep.numel()}, " \
+              f"masked {out['masked']}"
+        if out["has_motion"]:
+            msg += f", |M1| max {out['motion_head.m1'].abs().max().item():.3g}" \
+                   f", |M2| max {out['motion_head.m2'].abs().max().item():.3g}"
+        print(msg)
+
+
 def fuse_pairs_mean(at, am):
     """The averaging part alone (fc2 = 0), to show the MLP's share in the log."""
     from forge4d_ref import FusionMLP, fuse_pairs
@@ -417,6 +468,10 @@ def main():
         return
     if "--forge4d-seq-only" in sys.argv:  # only tiny_f4d_seq/
         forge4d_seq_fixtures(out_root)
+        forge4d_seq_masked_fixtures(out_root)
+        return
+    if "--forge4d-seq-masked-only" in sys.argv:  # only tiny_f4d_seq/masked/
+        forge4d_seq_masked_fixtures(out_root)
         return
     check_aa_bicubic()
     prep_fixtures(out_root)
@@ -452,6 +507,7 @@ def main():
     masked_fixtures(out_root)
     forge4d_fixtures(out_root)
     forge4d_seq_fixtures(out_root)
+    forge4d_seq_masked_fixtures(out_root)
 
 
 if __name__ == "__main__":

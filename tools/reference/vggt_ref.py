@@ -282,12 +282,14 @@ class Aggregator(nn.Module):
         return layers
 
 
-    def forward_kept(self, images, kept):
+    def forward_kept(self, images, kept, after_global=None):
         """Foreground-only aggregator: view f runs its special tokens and the
         patches kept[f] (raster indices), with their real RoPE positions;
         frame attention within each view's kept set, global attention over
         all kept tokens. Returns per layer a list over views of
-        [ns + len(kept[f]), 2C] (specials first)."""
+        [ns + len(kept[f]), 2C] (specials first). after_global(i, x, pos)
+        -> x sees the packed kept tokens of every view [sum, C] (Forge4D's
+        state blocks on a masked step)."""
         S, _, H, W = images.shape
         p = self.cfg.patch_size
         w = W // p
@@ -315,6 +317,8 @@ class Aggregator(nn.Module):
             toks = [self.frame_blocks[i](t[None], pos[None])[0] for t, pos in zip(toks, poss)]
             fr = toks
             g = self.global_blocks[i](torch.cat(toks)[None], torch.cat(poss)[None])[0]
+            if after_global is not None:
+                g = after_global(i, g, torch.cat(poss))
             toks = list(torch.split(g, lens))
             layers.append([torch.cat([a, b], dim=-1) for a, b in zip(fr, toks)])
         return layers

@@ -53,9 +53,23 @@
  *   Gaussians are recomputed from last-key features, not removed. The
  *   heads themselves run on the full grid. When the kept layers hold no
  *   complete result of the same S x H x W (first Eval, changed frame size,
- *   a failed Eval), or when the file has Forge4D's state / motion blocks
- *   (their state write and motion memory read every token of a step), every
- *   patch runs (out.masked = 0). out.view_tokens /
+ *   a failed Eval), or when the file has Forge4D's motion blocks and the
+ *   last step did not run them (steps 1 and 2 of a sequence: z(t-1) and the
+ *   motion streams are not complete yet), every patch runs (out.masked = 0).
+ *   With Forge4D's blocks (forge4d_ref.py, MASKED STEP):
+ *     - state block l reads into the kept rows only and writes from the
+ *       kept tokens (and every view's specials) only: the state learns
+ *       from what ran, not from the reused background rows;
+ *     - z_l(t) of a kept row is in_proj_l of its new layer row, of a
+ *       dropped row z_l(t-1) (the reused layer row's z). Both motion runs
+ *       take queries from the kept rows of this step only (M1: z(t), M2:
+ *       z(t-1) at the same rows, the dilation margin covering where the
+ *       foreground was at t-1), keys / values from the full grid of the
+ *       other time; the motion stream rows of dropped patches are the last
+ *       step's, so the motion head runs on the full grid;
+ *     - M1[t] and M2[t-1] are exactly 0 at every pixel of a dropped patch:
+ *       background is static by the keep-list's definition.
+ *   out.view_tokens /
  *   out.total_tokens count the tokens that ran. An all-ones keep-list gives
  *   model_eval's result bit for bit.
  *
@@ -374,7 +388,8 @@ int   model_load_linear (struct model *m, struct fk_linear *L, const char *wname
  *     }
  *
  * A frame set of another S x H x W than the last Eval restarts the motion
- * (has_motion 0) but keeps the state. A failed Eval leaves the state and
+ * (has_motion 0) but keeps the state. model_eval_masked is a time step too
+ * (what it does with the state and motion: "Foreground-only evaluation"). A failed Eval leaves the state and
  * the motion inputs undefined: call model_state_reset. */
 
 /* Groups present in the weight file (enum model_group bits). */

@@ -183,12 +183,13 @@ int model_aggregator_eval(struct model *m, const float *images, int S, int H, in
      * until the loop ends, so they count as invalid until it does. */
     if (!m->layers_valid || m->layers_S != S || m->layers_H != H || m->layers_W != W)
         keep = NULL;
-    /* Forge4D's state write and motion blocks read every token of the step
-     * (their memory is [S*P', C]): with them, every patch runs. */
-    if (m->stream)
+    /* Forge4D's motion blocks reuse the dropped rows of z(t-1) and of the
+     * kept motion streams: only after a step that ran the motion. */
+    if (m->stream && !model_stream_mask_ok(m))
         keep = NULL;
     m->layers_valid = 0;
     const int n = plan_stream(m, S, w, P, ns, keep);
+    m->keep_now = m->tok_masked ? keep : NULL;
     const int *off = m->tok_off;
     if (c->patch_embed == MODEL_PATCH_DINO && (m->pe_h != h || m->pe_w != w)) {
         const int g = c->img_size / p;

@@ -80,6 +80,7 @@ struct model {
      * off[f+1]-1 (specials, then its kept patches in raster order). */
     int                 tok_off[MODEL_VIEWS_MAX + 1], tok_S;
     int                 tok_masked;         /* rows were dropped: layers partly reused */
+    const uint8_t      *keep_now;           /* the Eval's keep-list [S*P] when tok_masked */
     /* The kept layers hold a complete result for this frame set (0: none
      * yet, or the last aggregator run failed): a masked Eval may reuse them. */
     int                 layers_valid, layers_S, layers_H, layers_W;
@@ -185,6 +186,9 @@ int  model_stream_frame  (struct model *m, int layer, const float *x, int n);
 int  model_stream_global (struct model *m, int layer, float *x, int S, int P1,
                           const struct blk_bufs *bb);
 int  model_stream_motion_now(const struct model *m);
+/* A masked Eval may drop patches (no motion blocks, or the last step ran the
+ * motion: z(t-1) and the kept motion streams are complete); after begin. */
+int  model_stream_mask_ok(const struct model *m);
 /* Motion stream of run r (0: M1, 1: M2) after block dpt_layer_idx[i], [S*P', C]. */
 const float *model_stream_h(const struct model *m, int run, int i);
 

@@ -3,7 +3,9 @@
  * dpt_layer_idx, motion_dpt_features wide, 3 raw channels per pixel. Run twice per step with the same
  * weights: on the M1 streams (queries t, keys t-1) it gives M1[t], on the M2
  * streams M2[t-1]; both divided by this step's gauge (metric recovery,
- * forge4d-arch.md 3). Nothing runs on the first step of a sequence. */
+ * forge4d-arch.md 3). Nothing runs on the first step of a sequence.
+ * After a masked aggregator run both maps are exactly 0 at every pixel of a
+ * dropped patch: background, static by the keep-list's definition. */
 #include <stdlib.h>
 #include <string.h>
 
@@ -43,6 +45,18 @@ static int mh_init(struct model *m, void **out)
     }
     *out = h;
     return 0;
+}
+
+/* raw [S, H, W, 3] = 0 at the pixels of patches with keep[f * P + patch] == 0. */
+static void zero_dropped(float *raw, const uint8_t *keep, int S, int H, int W, int p)
+{
+    const int w = W / p, P = (H / p) * w;
+    for (int f = 0; f < S; f++)
+        for (int y = 0; y < H; y++)
+            for (int x = 0; x < W; x++)
+                if (!keep[(size_t)f * P + (y / p) * w + x / p])
+                    memset(raw + (((size_t)f * H + y) * W + x) * MODEL_MOTION_CH, 0,
+                           MODEL_MOTION_CH * sizeof *raw);
 }
 
 /* Reads no aggregator layer: its input is the motion stream. */
@@ -99,6 +113,8 @@ static int mh_eval(void *hp, struct model_run *run, float *persist)
         int rc = model_dpt_head_eval(h->dpt, &rr, raw);
         if (rc < 0)
             return rc;
+        if (m->keep_now)
+            zero_dropped(raw, m->keep_now, S, H, W, h->cfg.patch_size);
         if (m->tap)
             for (int f = 0; f < S; f++)
                 m->tap(m->tap_user, r ? "motion_head.m2" : "motion_head.m1", f,

@@ -18,6 +18,18 @@
  * motion layer suffices). The streams after the blocks the motion head reads are kept
  * for it (model_motion.c).
  *
+ * Masked step (model_eval_masked, the aggregator stream x packed: the kept
+ * tokens only, m->row maps them to their full rows): the state block reads
+ * into the kept rows and writes from them only. z_l(t) is in_proj of the kept
+ * rows; a dropped row keeps z_l(t-1) (its layer row is the reused one). Both
+ * runs take their queries from the kept rows (M1: z(t), M2: z(t-1) at the same
+ * rows) and their keys / values from the full grid of the other time; the
+ * keys' K / V of z(t) are those of z(t-1) (computed once, for M1) with the
+ * kept rows replaced, so the full grid is projected once per layer. Kept
+ * motion stream rows of dropped patches stay the last step's; the motion
+ * head zeroes M1 / M2 at the dropped patches' pixels (model_motion.c). The
+ * masked path with every row kept computes what the unmasked one does.
+ *
  * Cross-attention: q Linear C -> C, kv Linear C -> 2C (k then v), proj;
  * num_heads heads, no qk-norm. LayerNorm eps 1e-5 throughout. */
 #include <stdlib.h>
@@ -57,8 +69,10 @@ struct model_stream {
     size_t             nmax;
     /* arena, aggregator-phase scratch */
     float             *cat, *zc, *h[2], *lnk, *s_ln, *s_q, *s_kv, *s_o, *s_hid;
-    /* time */
-    int                has_prev, prev_S, prev_H, prev_W, step, motion_now;
+    int32_t           *posfull;           /* [P'][2] RoPE positions of a full view */
+    /* time; streams_ok: the last step ran the motion, so z(t-1) and the kept
+     * motion streams are complete (a masked step may reuse their rows) */
+    int                has_prev, prev_S, prev_H, prev_W, step, motion_now, streams_ok;
 };
 
 /* ---- load ---------------------------------------------------------------- */
@@ -263,6 +277,7 @@ static void scratch_layout(struct bump *b, const struct model_config *c, int has
         s = &tmp;
     s->cat = s->zc = s->h[0] = s->h[1] = s->lnk = NULL;
     s->s_ln = s->s_q = s->s_kv = s->s_o = s->s_hid = NULL;
+    s->posfull = NULL;
     if (has_state) {
         s->s_ln = BUMP_F(b, Ns * C);
         s->s_q = BUMP_F(b, Ns * C);
@@ -276,6 +291,7 @@ static void scratch_layout(struct bump *b, const struct model_config *c, int has
         s->h[0] = BUMP_F(b, n * C);
         s->h[1] = BUMP_F(b, n * C);
         s->lnk = BUMP_F(b, n * C);
+        s->posfull = bump_take(b, n * 2 * sizeof(int32_t));
     }
 }
 
@@ -303,6 +319,14 @@ void model_stream_scratch(struct model *m, struct bump *b, int S, int H, int W)
 {
     struct model_stream *s = m->stream;
     scratch_layout(b, &m->cfg, s->has_state, s->has_motion, rows_of(&m->cfg, S, H, W), s);
+    if (!s->posfull)
+        return;
+    const int p = m->cfg.patch_size, w = W / p, ns = 1 + m->cfg.num_register_tokens;
+    const int P1 = ns + (H / p) * w;
+    for (int t = 0; t < P1; t++) { /* as the aggregator's: specials (0, 0) */
+        s->posfull[2 * t] = t < ns ? 0 : (t - ns) / w + 1;
+        s->posfull[2 * t + 1] = t < ns ? 0 : (t - ns) % w + 1;
+    }
 }
 
 void model_state_reset(struct model *m)
@@ -317,6 +341,7 @@ void model_state_reset(struct model *m)
     s->has_prev = 0;
     s->step = 0;
     s->motion_now = 0;
+    s->streams_ok = 0;
 }
 
 void model_stream_begin(struct model *m, int S, int H, int W)
@@ -333,6 +358,7 @@ void model_stream_end(struct model *m, int S, int H, int W, int ok, struct model
 {
     struct model_stream *s = m->stream;
     s->has_prev = ok && s->has_motion;
+    s->streams_ok = ok && s->motion_now;
     s->prev_S = S;
     s->prev_H = H;
     s->prev_W = W;
@@ -340,6 +366,12 @@ void model_stream_end(struct model *m, int S, int H, int W, int ok, struct model
         s->step++;
     if (out)
         out->step = s->step;
+}
+
+int model_stream_mask_ok(const struct model *m)
+{
+    const struct model_stream *s = m->stream;
+    return !s || !s->has_motion || (s->motion_now && s->streams_ok && !m->measuring);
 }
 
 int model_stream_motion_now(const struct model *m)
@@ -354,14 +386,15 @@ const float *model_stream_h(const struct model *m, int run, int i)
 
 /* ---- eval ---------------------------------------------------------------- */
 
-/* out [nq, C] = Attn(q [nq, C] (ld C), k / v [nk, C] (ld 2C, v at +C)); pos
- * (RoPE) for both sides or NULL. */
+/* out [nq, C] = Attn(q [nq, C] (ld C), k / v [nk, C] (ld 2C, v at +C)); RoPE
+ * positions pos_q / pos_k of the two sides, or both NULL. */
 static int attend(struct model *m, const float *q, int nq, const float *kv, int nk,
-                  const int32_t *pos, float *out)
+                  const int32_t *pos_q, const int32_t *pos_k, float *out)
 {
     const int C = m->cfg.embed_dim, heads = m->cfg.num_heads;
     struct fk_attention_desc a = {
-        .heads = heads, .head_dim = C / heads, .pos_q = pos, .pos_k = pos, .rope_base = 100.0f,
+        .heads = heads, .head_dim = C / heads, .pos_q = pos_q, .pos_k = pos_k,
+        .rope_base = 100.0f,
     };
     if (fk_attention(m->ctx, &a, q, C, nq, kv, 2 * C, kv + C, 2 * C, nk, out, C) != F4D_OK)
         return model_kfail(m, "cross-attention");
@@ -392,7 +425,7 @@ static int state_block(struct model *m, const struct state_blk *b, float *x, int
         (rc = ln(m, st, Ns, b->nsw, b->nsb, s->s_ln)) < 0 ||
         (rc = model_linear(m, &b->r.q, bb->ln, n, C, bb->qkv, C, NULL)) < 0 ||
         (rc = model_linear(m, &b->r.kv, s->s_ln, Ns, C, s->s_kv, 2 * C, NULL)) < 0 ||
-        (rc = attend(m, bb->qkv, n, s->s_kv, Ns, NULL, bb->o)) < 0 ||
+        (rc = attend(m, bb->qkv, n, s->s_kv, Ns, NULL, NULL, bb->o)) < 0 ||
         (rc = model_linear(m, &b->r.proj, bb->o, n, C, x, C, &acc_r)) < 0)
         return rc;
     /* write: the state attends to the stream after the read */
@@ -400,7 +433,7 @@ static int state_block(struct model *m, const struct state_blk *b, float *x, int
         (rc = ln(m, x, n, b->nx2w, b->nx2b, bb->ln)) < 0 ||
         (rc = model_linear(m, &b->w.q, s->s_ln, Ns, C, s->s_q, C, NULL)) < 0 ||
         (rc = model_linear(m, &b->w.kv, bb->ln, n, C, bb->qkv, 2 * C, NULL)) < 0 ||
-        (rc = attend(m, s->s_q, Ns, bb->qkv, n, NULL, s->s_o)) < 0 ||
+        (rc = attend(m, s->s_q, Ns, bb->qkv, n, NULL, NULL, s->s_o)) < 0 ||
         (rc = model_linear(m, &b->w.proj, s->s_o, Ns, C, st, C, &acc_w)) < 0)
         return rc;
     if ((rc = ln(m, st, Ns, b->nmw, b->nmb, s->s_ln)) < 0 ||
@@ -409,31 +442,40 @@ static int state_block(struct model *m, const struct state_blk *b, float *x, int
     return model_linear(m, &b->fc2, s->s_hid, Ns, hid, st, C, &acc_m);
 }
 
-/* h [S*P', C] += block(h, kv = zk), per view. */
-static int motion_block(struct model *m, const struct motion_blk *b, float *h, const float *zk,
-                        int S, int P1, const struct blk_bufs *bb)
+/* h [n, C] (the packed query rows, m->tok_off per view) += block(h, kv), kv
+ * [S*P1, 2C] the keys' K | V over every view's full grid. */
+static int motion_block(struct model *m, const struct motion_blk *b, float *h, int n,
+                        const float *kv, int S, int P1, const struct blk_bufs *bb)
 {
     struct model_stream *s = m->stream;
-    const int C = m->cfg.embed_dim, hid = model_mlp_hidden(&m->cfg, C), n = S * P1;
+    const int C = m->cfg.embed_dim, hid = model_mlp_hidden(&m->cfg, C);
+    const int *off = m->tok_off;
     struct fk_epilogue acc1 = { .gamma = b->g1, .accumulate = 1 };
     struct fk_epilogue acc2 = { .gamma = b->g2, .accumulate = 1 };
     struct fk_epilogue gelu = { .act = FK_ACT_GELU };
-    float *q = bb->qkv, *kv = bb->qkv + (size_t)n * C;
+    float *q = bb->qkv;
     int rc;
     if ((rc = ln(m, h, n, b->n1w, b->n1b, bb->ln)) < 0 ||
-        (rc = ln(m, zk, n, b->nkw, b->nkb, s->lnk)) < 0 ||
-        (rc = model_linear(m, &b->a.q, bb->ln, n, C, q, C, NULL)) < 0 ||
-        (rc = model_linear(m, &b->a.kv, s->lnk, n, C, kv, 2 * C, NULL)) < 0)
+        (rc = model_linear(m, &b->a.q, bb->ln, n, C, q, C, NULL)) < 0)
         return rc;
-    for (int f = 0; f < S; f++) /* same positions in every view and at t-1 */
-        if ((rc = attend(m, q + (size_t)f * P1 * C, P1, kv + (size_t)f * P1 * 2 * C, P1, m->pos,
-                         bb->o + (size_t)f * P1 * C)) < 0)
+    for (int f = 0; f < S; f++) /* queries at their real cells, keys the full grid */
+        if ((rc = attend(m, q + (size_t)off[f] * C, off[f + 1] - off[f],
+                         kv + (size_t)f * P1 * 2 * C, P1, m->pos + 2 * (size_t)off[f],
+                         s->posfull, bb->o + (size_t)off[f] * C)) < 0)
             return rc;
     if ((rc = model_linear(m, &b->a.proj, bb->o, n, C, h, C, &acc1)) < 0 ||
         (rc = ln(m, h, n, b->n2w, b->n2b, bb->ln)) < 0 ||
         (rc = model_linear(m, &b->fc1, bb->ln, n, C, bb->hid, hid, &gelu)) < 0)
         return rc;
     return model_linear(m, &b->fc2, bb->hid, n, hid, h, C, &acc2);
+}
+
+/* Packed rows [n, C] to their full rows (m->row) of dst [S*P', C]. */
+static void scatter_rows(const struct model *m, float *dst, const float *src, int n, int ld_src,
+                         int C)
+{
+    for (int r = 0; r < n; r++)
+        memcpy(dst + (size_t)m->row[r] * C, src + (size_t)r * ld_src, (size_t)C * sizeof *dst);
 }
 
 int model_stream_frame(struct model *m, int layer, const float *x, int n)
@@ -462,8 +504,7 @@ int model_stream_global(struct model *m, int l, float *x, int S, int P1,
 {
     struct model_stream *s = m->stream;
     const struct model_config *c = &m->cfg;
-    const int C = c->embed_dim, n = S * P1;
-    const size_t nC = (size_t)n * C;
+    const int C = c->embed_dim, nfull = S * P1, n = m->tok_off[S]; /* n: rows that ran */
     int rc;
     if (s->has_state) {
         double t0 = model_now();
@@ -487,23 +528,46 @@ int model_stream_global(struct model *m, int l, float *x, int S, int P1,
     const int slot = __builtin_popcountll(s->mmask & ((UINT64_C(1) << l) - 1));
     float *zp = s->zprev + (size_t)slot * s->nmax * C;
     if (s->motion_now) {
-        /* run 0 (M1): queries z(t), keys z(t-1); run 1 (M2): the roles swapped */
-        const float *zq[2] = { s->zc, zp }, *zk[2] = { zp, s->zc };
+        /* K | V of the keys over the full grid (after the queries' C floats of qkv):
+         * z(t-1) for M1, then z(t) = z(t-1) with the kept rows replaced for M2 */
+        float *kv = bb->qkv + (size_t)nfull * C;
+        if ((rc = ln(m, zp, nfull, b->nkw, b->nkb, s->lnk)) < 0 ||
+            (rc = model_linear(m, &b->a.kv, s->lnk, nfull, C, kv, 2 * C, NULL)) < 0)
+            return rc;
         for (int r = 0; r < 2; r++) {
-            if (l == s->first)
-                memcpy(s->h[r], zq[r], nC * sizeof(float));
-            else if (fk_residual_add(m->ctx, s->h[r], C, zq[r], C, NULL, n, C) != F4D_OK)
-                return model_kfail(m, "motion input add");
-            if ((rc = motion_block(m, b, s->h[r], zk[r], S, P1, bb)) < 0)
+            float *h = s->h[r];
+            if (r == 0 && l == s->first) {
+                memcpy(h, s->zc, (size_t)n * C * sizeof(float));
+            } else if (r == 0) {
+                if (fk_residual_add(m->ctx, h, C, s->zc, C, NULL, n, C) != F4D_OK)
+                    return model_kfail(m, "motion input add");
+            } else { /* M2's queries: z(t-1) at the rows that ran */
+                for (int i = 0; i < n; i++) {
+                    const float *z = zp + (size_t)m->row[i] * C;
+                    float *hi = h + (size_t)i * C;
+                    if (l == s->first)
+                        memcpy(hi, z, (size_t)C * sizeof(float));
+                    else
+                        for (int j = 0; j < C; j++)
+                            hi[j] += z[j];
+                }
+                /* the new rows of z(t) into M1's K | V (cat is free again) */
+                if ((rc = ln(m, s->zc, n, b->nkw, b->nkb, s->lnk)) < 0 ||
+                    (rc = model_linear(m, &b->a.kv, s->lnk, n, C, s->cat, 2 * C, NULL)) < 0)
+                    return rc;
+                scatter_rows(m, kv, s->cat, n, 2 * C, 2 * C);
+            }
+            if ((rc = motion_block(m, b, h, n, kv, S, P1, bb)) < 0)
                 return rc;
             for (int i = 0; i < 4; i++)
-                if (c->dpt_layer_idx[i] == l) {
-                    memcpy(s->hkeep[r][i], s->h[r], nC * sizeof(float));
-                    tap_rows(m, r ? "motion.m2h" : "motion.m1h", l, s->h[r], nC);
+                if (c->dpt_layer_idx[i] == l) { /* dropped rows keep the last step's */
+                    scatter_rows(m, s->hkeep[r][i], h, n, C, C);
+                    tap_rows(m, r ? "motion.m2h" : "motion.m1h", l, s->hkeep[r][i],
+                             (size_t)nfull * C);
                 }
         }
     }
-    memcpy(zp, s->zc, nC * sizeof(float)); /* z_l(t) is the next step's z_l(t-1) */
+    scatter_rows(m, zp, s->zc, n, C, C); /* z_l(t) is the next step's z_l(t-1) */
     m->st_sec[ST_MOTION] += model_now() - t0;
     return 0;
 }
