@@ -15,7 +15,8 @@ pcdir=$(dirname "$(find "$prefix" -name forge4d-kernels.pc -print -quit)")
 case "$pcdir" in "$prefix"/lib/pkgconfig|"$prefix"/lib/*/pkgconfig) ;;
   *) echo "forge4d-kernels.pc installed in $pcdir, not <prefix>/lib/pkgconfig"; exit 1 ;; esac
 for f in include/forge4d/f4d_status.h include/forge4d/fk_ctx.h include/forge4d/fk_ops.h \
-         bin/forge4d bin/f4d-convert bin/f4d-infer bin/f4d-render bin/f4d-metrics bin/f4d-scene; do
+         bin/forge4d bin/f4d-convert bin/f4d-infer bin/f4d-render bin/f4d-metrics bin/f4d-scene bin/f4d-eval \
+         share/forge4d/forge4d_small.gguf share/forge4d/forge4d_small_int8.gguf; do
   [ -e "$prefix/$f" ] || { echo "missing after install: $f"; exit 1; }
 done
 # the appliance: unit, default config, the boards the config names

@@ -27,4 +27,14 @@ if "$scene" --preset walk --frames 1 --size 99 -o "$dir/x" 2>"$dir/err"; then ex
 grep -q "must be WxH" "$dir/err"
 if "$render" --ply "$dir/s/t0001/gaussians.ply" --rig "$dir/s/rig.json" --camera cam9 -o "$dir/r.png" 2>"$dir/err"; then exit 1; fi
 grep -q "no camera named 'cam9'" "$dir/err"
+# venue takes: every array present, deterministic by seed, the PLY re-renders to the first view
+"$scene" venue --seed 7 --frames 2 --size 56x42 --ply -o "$dir/v" >/dev/null
+"$scene" venue --seed 7 --frames 2 --size 56x42 -o "$dir/v2" >/dev/null
+for f in rgb depth alpha motion_bwd motion_fwd eval_rgb eval_depth eval_alpha mid_rgb; do
+  [ -s "$dir/v/$f.npy" ] || { echo "venue: missing $f.npy"; exit 1; }
+  cmp -s "$dir/v/$f.npy" "$dir/v2/$f.npy" || { echo "venue: $f.npy differs between runs"; exit 1; }
+done
+grep -q '"people": \[{"preset"' "$dir/v/take.json" || { echo "venue: bad take.json"; exit 1; }
+if "$scene" venue --seed 7 --views 9 -o "$dir/x" 2>"$dir/err"; then exit 1; fi
+grep -q "must be an integer in 2..6" "$dir/err"
 echo "cli round trip ok"

@@ -331,6 +331,68 @@ static void test_max_nan_fails_on_nan(void **state)
     assert_true(max_nan(max_nan(0, 3.0), 1.0) == 3.0);
 }
 
+/* scene_new_desc: the placement is a rigid motion of the default figure, speed
+ * rescales time, girth widens without changing height, no_floor drops only
+ * the floor, and bad knobs are refused. */
+static void test_scene_desc_knobs(void **state)
+{
+    (void)state;
+    struct f4d_err err;
+    scene *a = NULL, *b = NULL, *c = NULL, *g = NULL;
+    struct scene_desc da = { .preset = SCENE_WAVE, .seed = 11, .gaussians = 4000, .no_floor = 1 };
+    struct scene_desc db = da, dc = da, dg = da;
+    db.offset[0] = 0.7f; db.offset[1] = -0.4f; db.yaw = 0.9f;
+    dc.speed = 2.0f;
+    dg.girth = 1.3f;
+    assert_int_equal(scene_new_desc(&da, &a, &err), 0);
+    assert_int_equal(scene_new_desc(&db, &b, &err), 0);
+    assert_int_equal(scene_new_desc(&dc, &c, &err), 0);
+    assert_int_equal(scene_new_desc(&dg, &g, &err), 0);
+    scene *fl = NULL;
+    assert_int_equal(scene_new(SCENE_WAVE, 11, 4000, &fl, &err), 0);
+    assert_true(scene_count(a) < scene_count(fl));
+    size_t n = scene_count(a);
+    assert_int_equal(scene_count(b), n);
+    float *pa = malloc(3 * n * sizeof(float)), *pb = malloc(3 * n * sizeof(float));
+    float *pc = malloc(3 * n * sizeof(float)), *pg = malloc(3 * n * sizeof(float));
+    assert_non_null(pa); assert_non_null(pb); assert_non_null(pc); assert_non_null(pg);
+    double e_place = 0, e_speed = 0, za = -1e9, zg = -1e9, wa = 0, wg = 0;
+    scene_positions(a, 0.7, pa);
+    scene_positions(b, 0.7, pb);
+    float cy = cosf(0.9f), sy = sinf(0.9f);
+    for (size_t i = 0; i < n; i++) {
+        float x = cy * pa[3 * i] - sy * pa[3 * i + 1] + 0.7f, y = sy * pa[3 * i] + cy * pa[3 * i + 1] - 0.4f;
+        e_place = max_nan(e_place, fabs(x - pb[3 * i]) + fabs(y - pb[3 * i + 1]) + fabs(pa[3 * i + 2] - pb[3 * i + 2]));
+    }
+    scene_positions(a, 1.4, pa);
+    scene_positions(c, 0.7, pc);
+    for (size_t i = 0; i < 3 * n; i++)
+        e_speed = max_nan(e_speed, fabs(pa[i] - pc[i]));
+    scene_positions(a, 0.0, pa);
+    scene_positions(g, 0.0, pg);
+    for (size_t i = 0; i < n; i++) {
+        za = fmax(za, pa[3 * i + 2]);
+        zg = fmax(zg, pg[3 * i + 2]);
+        wa += fabs(pa[3 * i + 1]);
+        wg += fabs(pg[3 * i + 1]);
+    }
+    assert_true(e_place < 1e-5);
+    assert_true(e_speed < 1e-6);
+    assert_true(fabs(za - zg) < 0.02);   /* same height */
+    assert_true(wg > 1.1 * wa);          /* broader: mean front-back depth */
+    struct scene_desc bad = da;
+    bad.girth = 3.0f;
+    scene *x = NULL;
+    assert_int_equal(scene_new_desc(&bad, &x, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "girth"));
+    bad = da;
+    bad.speed = NAN;
+    assert_int_equal(scene_new_desc(&bad, &x, &err), F4D_EINVAL);
+    assert_null(x);
+    free(pa); free(pb); free(pc); free(pg);
+    scene_free(a); scene_free(b); scene_free(c); scene_free(g); scene_free(fl);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -345,6 +407,7 @@ int main(void)
         cmocka_unit_test(test_sized_scene),
         cmocka_unit_test(test_pixel_flow_matches_gaussian_motion),
         cmocka_unit_test(test_bad_input_rejected),
+        cmocka_unit_test(test_scene_desc_knobs),
     };
     return cmocka_run_group_tests_name("scene", tests, NULL, NULL);
 }

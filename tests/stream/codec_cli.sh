@@ -17,6 +17,16 @@ grep -q "intra" "$dir/info.txt" && grep -q "predicted" "$dir/info.txt"
 "$codec" decode "$dir/k0.spz" -o "$dir/k0_back.ply"
 "$codec" info "$dir/k0.spz" "$dir/k0_back.ply" | tee "$dir/info2.txt"
 grep -q "SPZ" "$dir/info2.txt" && grep -q "PLY" "$dir/info2.txt"
+# SPZ v4 (default: plain NGSP header) and v3 (gzip) both written and read back
+[ "$(head -c 4 "$dir/k0.spz")" = "NGSP" ] || { echo "default SPZ is not v4"; exit 1; }
+"$codec" encode "${plys[0]}" -o "$dir/k0v3.spz" --spz-version 3
+[ "$(od -An -tx1 -N2 "$dir/k0v3.spz" | tr -d ' ')" = "1f8b" ] || { echo "--spz-version 3 is not gzip"; exit 1; }
+"$codec" decode "$dir/k0v3.spz" -o "$dir/k0v3_back.ply"
+cmp "$dir/k0_back.ply" "$dir/k0v3_back.ply"
+# motions re-derived over the key interval (three keys of the same Gaussians)
+"$codec" encode "${plys[@]:0:3}" -o "$dir/m.f4ds" --quality compact --motion-from-keys | tee "$dir/m.txt"
+grep -q "predicted key" "$dir/m.txt"
+"$codec" decode "$dir/m.f4ds" -o "$dir/m2.ply" --frame 2
 # errors name the file and the field
 head -c 100 "$dir/s.f4ds" > "$dir/cut.f4ds"
 if "$codec" decode "$dir/cut.f4ds" -o "$dir/x.ply" 2> "$dir/err.txt"; then echo "truncated stream decoded"; exit 1; fi

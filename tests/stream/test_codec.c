@@ -40,8 +40,11 @@ static scene *walk(void)
     return s;
 }
 
-/* Every value of b within the level's bounds of a (same Gaussian order). */
-static void check_bounds(const struct splat_frame *a, const struct splat_frame *b, enum codec_quality q)
+/* Every value of b within the level's bounds of a (same Gaussian order).
+ * Predicted keys (version 2) may keep a rotation that moves the Gaussian's
+ * 2-sigma ellipsoid by no more than the position bound, and motions within
+ * two position bounds + half a motion step (see f4d_codec.h). */
+static void check_bounds_k(const struct splat_frame *a, const struct splat_frame *b, enum codec_quality q, int pred)
 {
     const struct codec_quality_info *qi = codec_quality_get(q);
     assert_int_equal(a->count, b->count);
@@ -64,18 +67,34 @@ static void check_bounds(const struct splat_frame *a, const struct splat_frame *
             }
         }
         eo = fmax(eo, fabs(a->opacity[i] - b->opacity[i]));
-        double dot = 0;
-        for (int c = 0; c < 4; c++)
+        double dot = 0, nn = 0;
+        for (int c = 0; c < 4; c++) {
             dot += a->rot[4 * i + c] * b->rot[4 * i + c];
-        eq = fmax(eq, 1.0 - fabs(dot));
+            nn += a->rot[4 * i + c] * a->rot[4 * i + c];
+        }
+        double e1 = 1.0 - fabs(dot) / sqrt(nn);
+        if (pred) {
+            const float *sc = a->scale + 3 * i;
+            double ext = fmax(sc[0], fmax(sc[1], sc[2])) - fmin(sc[0], fmin(sc[1], sc[2]));
+            double ang = 2.0 * acos(fmin(1.0, fabs(dot) / sqrt(nn)));
+            if (2.0 * ang * ext <= qi->pos_step_max * 0.5 * 1.02 + 1e-6)
+                e1 = 0;
+        }
+        eq = fmax(eq, e1);
     }
     double rs = 1.41421356 / ((1 << qi->rot_bits) - 1);
     assert_true(ep <= qi->pos_step_max * 0.5 * 1.01 + 2e-6);
     assert_true(el <= qi->log_scale_step * 0.5 + 1e-4);
     assert_true(eo <= 0.5 / ((1 << qi->opacity_bits) - 1) + 1e-6);
     assert_true(er <= 0.5 + 1e-3);
-    assert_true(em <= qi->motion_step * 0.5 * 1.01 + 2e-6);
+    double mb = qi->motion_step * 0.5 * 1.01 + (pred ? 2.0 * qi->pos_step_max * 0.5 * 1.01 : 0.0);
+    assert_true(em <= mb + 2e-6);
     assert_true(eq <= 2.0 * rs * rs + 1e-6); /* 1 - cos(angle) for component error <= step */
+}
+
+static void check_bounds(const struct splat_frame *a, const struct splat_frame *b, enum codec_quality q)
+{
+    check_bounds_k(a, b, q, 0);
 }
 
 static void same_frame(const struct splat_frame *a, const struct splat_frame *b)
@@ -142,7 +161,9 @@ static void test_intra_round_trip_per_level(void **state)
     struct splat_frame f = { 0 };
     make_key(s, 3, 0.1, &f);
     size_t prev = 0;
-    for (int q = 0; q < CODEC_QUALITY_COUNT; q++) {
+    static const int by_cost[CODEC_QUALITY_COUNT] = { CODEC_Q_COMPACT, CODEC_Q_LOW, CODEC_Q_MEDIUM, CODEC_Q_HIGH };
+    for (int qk = 0; qk < CODEC_QUALITY_COUNT; qk++) {
+        int q = by_cost[qk];
         struct rig r;
         rig_open(&r, (enum codec_quality)q);
         size_t n = pass(&r, &f, CODEC_KEY_INTRA, NULL);
@@ -166,7 +187,7 @@ static void test_predicted_keys(void **state)
         make_key(s, k, 0.1, &f);
         size_t n = pass(&r, &f, CODEC_KEY_AUTO, NULL);
         const struct codec_enc_stats *st = codec_enc_last(r.e);
-        check_bounds(&f, codec_dec_frame(r.d), CODEC_Q_MEDIUM);
+        check_bounds_k(&f, codec_dec_frame(r.d), CODEC_Q_MEDIUM, k > 0);
         if (k == 0) {
             intra = n;
             assert_true(st->intra);
@@ -223,15 +244,15 @@ static void test_predicted_dropped_and_new(void **state)
     const struct codec_enc_stats *st = codec_enc_last(r.e);
     assert_int_equal(st->fresh, extra);
     assert_int_equal(st->dropped, (b.count + 3) / 7);
-    check_bounds(&c, codec_dec_frame(r.d), CODEC_Q_HIGH);
+    check_bounds_k(&c, codec_dec_frame(r.d), CODEC_Q_HIGH, 1);
     /* identity correspondence with a shrinking then growing count */
     c.count = n - extra - 50;
     pass(&r, &c, CODEC_KEY_AUTO, NULL);
-    check_bounds(&c, codec_dec_frame(r.d), CODEC_Q_HIGH);
+    check_bounds_k(&c, codec_dec_frame(r.d), CODEC_Q_HIGH, 1);
     c.count = n;
     pass(&r, &c, CODEC_KEY_AUTO, NULL);
     assert_int_equal(codec_enc_last(r.e)->fresh, extra + 50);
-    check_bounds(&c, codec_dec_frame(r.d), CODEC_Q_HIGH);
+    check_bounds_k(&c, codec_dec_frame(r.d), CODEC_Q_HIGH, 1);
     /* a bad match is refused by the encoder */
     size_t len;
     match[0] = (int32_t)c.count + 100000;
@@ -459,15 +480,45 @@ static void test_no_allocation_per_frame(void **state)
     scene_free(s);
 }
 
+/* Decoded g against f within SPZ's quantization steps. */
+static void spz_close(const struct splat_frame *f, const struct splat_frame *g)
+{
+    assert_int_equal(g->count, f->count);
+    double ep = 0, el = 0, eo = 0, ec = 0, eq = 0;
+    for (size_t i = 0; i < f->count; i++) {
+        for (int c = 0; c < 3; c++) {
+            ep = fmax(ep, fabs(f->pos[3 * i + c] - g->pos[3 * i + c]));
+            double ls = log(f->scale[3 * i + c]);
+            if (ls > -10 && ls < 5.9)
+                el = fmax(el, fabs(ls - log(g->scale[3 * i + c])));
+            double fdc = (f->rgb[3 * i + c] - 0.5) / SPLAT_SH_C0;
+            if (fabs(fdc * 0.15 * 255) < 127)
+                ec = fmax(ec, fabs(f->rgb[3 * i + c] - g->rgb[3 * i + c]));
+        }
+        eo = fmax(eo, fabs(f->opacity[i] - g->opacity[i]));
+        double dot = 0;
+        for (int c = 0; c < 4; c++)
+            dot += f->rot[4 * i + c] * g->rot[4 * i + c];
+        eq = fmax(eq, 1 - fabs(dot));
+    }
+    assert_true(ep <= 0.5 / 4096 + 1e-6);
+    assert_true(el <= 0.5 / 16 + 1e-4);
+    assert_true(eo <= 0.5 / 255 + 1e-6);
+    assert_true(ec <= 0.5 / 255 / 0.15 * SPLAT_SH_C0 + 1e-5);
+    assert_true(eq < 1e-4);
+}
+
 static void test_spz_round_trip(void **state)
 {
+    (void)state;
     scene *s = walk();
-    struct splat_frame f = { 0 }, g = { 0 };
+    struct splat_frame f = { 0 }, g = { 0 }, h = { 0 };
     make_key(s, 2, 0.1, &f);
-    uint8_t *z;
-    size_t zn;
-    assert_int_equal(codec_spz_encode(&f, &z, &zn, NULL), 0);
-    /* the header, byte for byte, after gunzip */
+    uint32_t n = (uint32_t)f.count;
+    uint8_t *z, *z4;
+    size_t zn, z4n;
+    /* v3: the header, byte for byte, after gunzip */
+    assert_int_equal(codec_spz_encode_version(&f, 3, &z, &zn, NULL), 0);
     uint8_t raw[16];
     z_stream zs;
     memset(&zs, 0, sizeof zs);
@@ -479,46 +530,178 @@ static void test_spz_round_trip(void **state)
     inflate(&zs, Z_SYNC_FLUSH);
     inflateEnd(&zs);
     assert_int_equal(zs.total_out, 16);
-    uint32_t n = (uint32_t)f.count;
     const uint8_t want[16] = { 0x4e, 0x47, 0x53, 0x50, 3, 0, 0, 0, (uint8_t)n, (uint8_t)(n >> 8),
                                (uint8_t)(n >> 16), (uint8_t)(n >> 24), 0, 12, 0, 0 };
     assert_memory_equal(raw, want, 16);
     assert_int_equal(z[0], 0x1f);
     assert_int_equal(z[1], 0x8b);
     assert_int_equal(codec_spz_decode(z, zn, &g, NULL), 0);
-    assert_int_equal(g.count, f.count);
-    double ep = 0, el = 0, eo = 0, ec = 0, eq = 0;
-    for (size_t i = 0; i < f.count; i++) {
-        for (int c = 0; c < 3; c++) {
-            ep = fmax(ep, fabs(f.pos[3 * i + c] - g.pos[3 * i + c]));
-            double ls = log(f.scale[3 * i + c]);
-            if (ls > -10 && ls < 5.9)
-                el = fmax(el, fabs(ls - log(g.scale[3 * i + c])));
-            double fdc = (f.rgb[3 * i + c] - 0.5) / SPLAT_SH_C0;
-            if (fabs(fdc * 0.15 * 255) < 127)
-                ec = fmax(ec, fabs(f.rgb[3 * i + c] - g.rgb[3 * i + c]));
+    spz_close(&f, &g);
+    /* v4 (the default): plain header, TOC of 5 streams, each a zstd frame of
+     * the v3 array's size; decodes to exactly what v3 decodes to */
+    assert_int_equal(codec_spz_encode(&f, &z4, &z4n, NULL), 0);
+    const uint8_t want4[20] = { 0x4e, 0x47, 0x53, 0x50, 4, 0, 0, 0, (uint8_t)n, (uint8_t)(n >> 8),
+                                (uint8_t)(n >> 16), (uint8_t)(n >> 24), 0, 12, 0, 5, 32, 0, 0, 0 };
+    assert_true(z4n > 32 + 5 * 16);
+    assert_memory_equal(z4, want4, 20);
+    const uint64_t sizes[5] = { 9ull * n, n, 3ull * n, 3ull * n, 4ull * n };
+    size_t off = 32 + 5 * 16;
+    for (int k = 0; k < 5; k++) {
+        uint64_t zc = 0, zu = 0;
+        for (int b = 7; b >= 0; b--) {
+            zc = zc << 8 | z4[32 + 16 * k + b];
+            zu = zu << 8 | z4[32 + 16 * k + 8 + b];
         }
-        eo = fmax(eo, fabs(f.opacity[i] - g.opacity[i]));
-        double dot = 0;
-        for (int c = 0; c < 4; c++)
-            dot += f.rot[4 * i + c] * g.rot[4 * i + c];
-        eq = fmax(eq, 1 - fabs(dot));
+        assert_true(zu == sizes[k]);
+        assert_true(z4[off] == 0x28 && z4[off + 1] == 0xb5 && z4[off + 2] == 0x2f && z4[off + 3] == 0xfd);
+        off += (size_t)zc;
     }
-    assert_true(ep <= 0.5 / 4096 + 1e-6);
-    assert_true(el <= 0.5 / 16 + 1e-4);
-    assert_true(eo <= 0.5 / 255 + 1e-6);
-    assert_true(ec <= 0.5 / 255 / 0.15 * SPLAT_SH_C0 + 1e-5);
-    assert_true(eq < 1e-4);
-    /* corrupt input: truncated gzip, wrong magic, v4 */
-    assert_true(codec_spz_decode(z, zn / 2, &g, NULL) < 0);
-    uint8_t v4[32] = { 0x4e, 0x47, 0x53, 0x50, 4 };
+    assert_int_equal(off, z4n);
+    assert_int_equal(codec_spz_decode(z4, z4n, &h, NULL), 0);
+    spz_close(&f, &h);
+    assert_memory_equal(g.pos, h.pos, 3 * f.count * sizeof(float));
+    assert_memory_equal(g.rot, h.rot, 4 * f.count * sizeof(float));
+    assert_memory_equal(g.rgb, h.rgb, 3 * f.count * sizeof(float));
+    assert_memory_equal(g.opacity, h.opacity, f.count * sizeof(float));
+    /* corrupt input: truncated gzip and v4, a v4 header with a bad version,
+     * stream count, TOC offset or stream size */
     struct f4d_err err = { 0 };
-    assert_int_equal(codec_spz_decode(v4, sizeof v4, &g, &err), F4D_ENOTSUP);
+    assert_true(codec_spz_decode(z, zn / 2, &g, NULL) < 0);
+    assert_true(codec_spz_decode(z4, z4n - 1, &g, &err) == F4D_EFORMAT);
+    uint8_t *bad = malloc(z4n);
+    memcpy(bad, z4, z4n);
+    bad[4] = 5;
+    assert_int_equal(codec_spz_decode(bad, z4n, &g, &err), F4D_ENOTSUP);
+    assert_non_null(strstr(err.msg, "version 5"));
+    bad[4] = 4;
+    bad[15] = 6;
+    assert_int_equal(codec_spz_decode(bad, z4n, &g, &err), F4D_EFORMAT);
+    bad[15] = 5;
+    bad[16] = 200;
+    bad[17] = 200;
+    bad[18] = 200;
+    assert_int_equal(codec_spz_decode(bad, z4n, &g, &err), F4D_EFORMAT);
+    bad[16] = 32;
+    bad[17] = bad[18] = 0;
+    bad[32 + 8] ^= 1; /* positions' uncompressed size */
+    assert_int_equal(codec_spz_decode(bad, z4n, &g, &err), F4D_EFORMAT);
+    assert_non_null(strstr(err.msg, "stream 0"));
+    free(bad);
+    assert_int_equal(codec_spz_encode_version(&f, 2, &z4, &z4n, &err), F4D_ENOTSUP);
     assert_int_equal(codec_spz_read("/nonexistent/x.spz", &g, &err), F4D_EIO);
     assert_non_null(strstr(err.msg, "/nonexistent/x.spz"));
     free(z);
+    free(z4);
     splat_frame_free(&f);
     splat_frame_free(&g);
+    splat_frame_free(&h);
+    scene_free(s);
+}
+
+/* Version 2's predictor: with motions over the key interval the fit finds
+ * (1, 0) and positions cost next to nothing; with motions over a third of it
+ * (a 30 fps take keyed at 10 Hz) it finds the extrapolation (c0 near 6 for
+ * a second-order one) and beats the version-1 coefficients' key size. */
+static void test_predictor_fit(void **state)
+{
+    (void)state;
+    scene *s = walk();
+    struct splat_frame f = { 0 };
+    struct rig r;
+    rig_open(&r, CODEC_Q_LOW);
+    size_t pos_intra = 0, pos_pred = 0;
+    for (int k = 0; k < 3; k++) {
+        make_key(s, k, 0.1, &f);
+        pass(&r, &f, CODEC_KEY_AUTO, NULL);
+        const struct codec_enc_stats *st = codec_enc_last(r.e);
+        size_t pb = st->bytes_channel[0] + st->bytes_channel[1] + st->bytes_channel[2];
+        if (k == 0)
+            pos_intra = pb;
+        else
+            pos_pred = pb;
+        check_bounds_k(&f, codec_dec_frame(r.d), CODEC_Q_LOW, k > 0);
+    }
+    const struct codec_enc_stats *st = codec_enc_last(r.e);
+    assert_true(fabsf(st->predictor[0] - 1.0f) < 0.05f && fabsf(st->predictor[1]) < 0.05f);
+    assert_true(pos_pred * 20 < pos_intra);
+    rig_close(&r);
+    /* motion over 1/30 s, keys 0.1 s apart */
+    rig_open(&r, CODEC_Q_LOW);
+    size_t pos0 = 0;
+    for (int k = 0; k < 3; k++) {
+        assert_int_equal(scene_eval(s, 0.1 * k, 0.1 / 3, &f, NULL), 0);
+        pass(&r, &f, CODEC_KEY_AUTO, NULL);
+        check_bounds_k(&f, codec_dec_frame(r.d), CODEC_Q_LOW, 0);
+        st = codec_enc_last(r.e);
+        if (k == 0)
+            pos0 = st->bytes_channel[0] + st->bytes_channel[1] + st->bytes_channel[2];
+    }
+    st = codec_enc_last(r.e);
+    size_t posb = st->bytes_channel[0] + st->bytes_channel[1] + st->bytes_channel[2];
+    fprintf(stderr, "1/30 s motions at 10 Hz keys: c0 %.2f c1 %.2f, position bytes %zu (intra %zu)\n",
+            (double)st->predictor[0], (double)st->predictor[1], posb, pos0);
+    assert_true(st->predictor[0] > 3.0f && st->predictor[0] < 9.0f);
+    assert_true(posb * 4 < pos0 * 3); /* c0 = 1 costs about what intra does */
+    rig_close(&r);
+    splat_frame_free(&f);
+    scene_free(s);
+}
+
+/* A version-1 packet (no predictor block; the codec version before) still
+ * decodes: an intra key rewritten in the version-1 layout gives the same
+ * frame, and a static predicted key too. */
+static void v1_packet(const uint8_t *pkt, size_t n, uint8_t *out, size_t *out_n)
+{
+    const size_t H = CODEC_PACKET_HEADER, cut = 28; /* 7 f32 coefficients */
+    memcpy(out, pkt, H + 20);
+    memcpy(out + H + 20, pkt + H + 20 + cut, n - H - 20 - cut);
+    size_t pl = n - H - cut;
+    out[4] = 1;
+    out[24] = (uint8_t)pl;
+    out[25] = (uint8_t)(pl >> 8);
+    out[26] = (uint8_t)(pl >> 16);
+    out[27] = (uint8_t)(pl >> 24);
+    uLong c = crc32(0L, Z_NULL, 0);
+    c = crc32(c, out, 28);
+    c = crc32(c, out + H, (uInt)pl);
+    for (int k = 0; k < 4; k++)
+        out[28 + k] = (uint8_t)(c >> (8 * k));
+    *out_n = n - cut;
+}
+
+static void test_version1_decoded(void **state)
+{
+    (void)state;
+    scene *s = walk();
+    struct splat_frame f = { 0 };
+    make_key(s, 1, 0.0, &f); /* no motion: a static take */
+    struct rig r;
+    rig_open(&r, CODEC_Q_MEDIUM);
+    codec_dec *d1;
+    assert_int_equal(codec_dec_new(CAP, &d1, NULL), 0);
+    uint8_t *v1 = malloc(r.cap);
+    for (int k = 0; k < 2; k++) {
+        size_t n, n1;
+        assert_int_equal(codec_enc_key(r.e, &f, 0, CODEC_KEY_AUTO, NULL, r.buf, r.cap, &n), 0);
+        assert_int_equal(codec_enc_last(r.e)->intra, k == 0);
+        v1_packet(r.buf, n, v1, &n1);
+        struct codec_packet p;
+        struct f4d_err err = { 0 };
+        assert_int_equal(codec_packet_parse(v1, n1, &p, &err), 0);
+        assert_int_equal(p.version, 1);
+        assert_int_equal(codec_dec_packet(d1, &p), 1);
+        same_frame(codec_enc_recon(r.e), codec_dec_frame(d1));
+    }
+    /* a version beyond this build's is refused with its number */
+    r.buf[4] = CODEC_VERSION + 1;
+    struct codec_packet p;
+    struct f4d_err err = { 0 };
+    assert_int_equal(codec_packet_parse(r.buf, 64, &p, &err), F4D_EFORMAT);
+    assert_non_null(strstr(err.msg, "version"));
+    free(v1);
+    codec_dec_free(d1);
+    rig_close(&r);
+    splat_frame_free(&f);
     scene_free(s);
 }
 
@@ -536,6 +719,8 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_huge_counts_refused),
         cmocka_unit_test(test_no_allocation_per_frame),
         cmocka_unit_test(test_spz_round_trip),
+        cmocka_unit_test(test_predictor_fit),
+        cmocka_unit_test(test_version1_decoded),
     };
     return F4D_TEST_MAIN(argc, argv, "stream", tests, NULL, NULL);
 }

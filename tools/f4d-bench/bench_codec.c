@@ -7,9 +7,12 @@
  * display interpolates to 30 fps, so the rate is keys x bytes), render PSNR of
  * the decoded keys against the uncompressed keys at the rig cameras, and at
  * the mid times (both sides moved by half their forward motion), encode and
- * decode ms per key; beside SPZ (our exporter, v3) of the same keys.
+ * decode ms per key; beside SPZ (our exporter, v4) of the same keys. Mbit/s
+ * counts one intra key per run (--seconds of keys); the predicted-only rate
+ * is the stream between intra keys.
  * ../shared/data/splats/donut.ply (static, 4 cameras around it) when present:
- * intra per level, a repeated key as a predicted key, SPZ.
+ * intra per level, a repeated key as a predicted key, the key as a still
+ * (Morton-reordered) key ("donut-still"), SPZ.
  * PSNR: float renders (not 8-bit), mean over the cameras and keys, 518x518,
  * 100 dB where identical. */
 #include <math.h>
@@ -74,8 +77,9 @@ static void mid(const struct splat_frame *src, struct splat_frame *dst)
 }
 
 /* Encodes + decodes keys[0..nk) at one level; fills the row. */
+/* still: keys[0] alone as a CODEC_KEY_STILL key (reordered; no predicted keys). */
 static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_frame *keys, int nk, int q,
-                     int do_psnr, struct crow *row)
+                     int do_psnr, int still, struct crow *row)
 {
     size_t cap = 0;
     for (int k = 0; k < nk; k++)
@@ -95,7 +99,8 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
     for (int k = 0; k < nk; k++) {
         size_t n;
         double t0 = bench_now();
-        if (codec_enc_key(e, &keys[k], (uint64_t)k, CODEC_KEY_AUTO, NULL, pkt, pcap, &n) < 0) {
+        if (codec_enc_key(e, &keys[k], (uint64_t)k, still ? CODEC_KEY_STILL : CODEC_KEY_AUTO, NULL, pkt, pcap, &n) <
+            0) {
             fprintf(stderr, "f4d-bench codec: %s\n", codec_enc_error(e));
             return -1;
         }
@@ -189,7 +194,7 @@ static void print_row(const struct crow *r)
 
 static void print_spz(const struct srow *s)
 {
-    printf("%-6s %7zu G  SPZ v3 (ours)  %5.2f B/G  PSNR %6.2f dB  enc %6.1f dec %5.1f ms\n", s->preset, s->gaussians,
+    printf("%-6s %7zu G  SPZ v4 (ours)  %5.2f B/G  PSNR %6.2f dB  enc %6.1f dec %5.1f ms\n", s->preset, s->gaussians,
            s->bpg, s->psnr, s->enc_ms, s->dec_ms);
     fflush(stdout);
 }
@@ -281,7 +286,7 @@ int bench_codec(int argc, char **argv)
                     snprintf(r->preset, sizeof r->preset, "%s", scene_preset_name(p));
                     r->gaussians = keys[0].count;
                     r->key_rate = rate;
-                    if (run_level(&c, &rig, keys, nk, q, rate == 10, r) < 0)
+                    if (run_level(&c, &rig, keys, nk, q, rate == 10, 0, r) < 0)
                         return 1;
                     print_row(r);
                 }
@@ -335,7 +340,16 @@ int bench_codec(int argc, char **argv)
             snprintf(r->preset, sizeof r->preset, "donut");
             r->gaussians = f[0].count;
             r->key_rate = 10;
-            if (run_level(&c, &rig, f, 2, q, 1, r) < 0)
+            if (run_level(&c, &rig, f, 2, q, 1, 0, r) < 0)
+                return 1;
+            print_row(r);
+            /* the same key as a still key (Morton-reordered) */
+            r = &rows[nr++];
+            memset(r, 0, sizeof *r);
+            snprintf(r->preset, sizeof r->preset, "donut-still");
+            r->gaussians = f[0].count;
+            r->key_rate = 10;
+            if (run_level(&c, &rig, f, 1, q, 1, 1, r) < 0)
                 return 1;
             print_row(r);
         }
@@ -365,6 +379,8 @@ int bench_codec(int argc, char **argv)
             json_num(fp, "motion_bytes_per_gaussian", r->motion_bpg, ", ");
             json_num(fp, "unchanged_fraction", r->unchanged, ", ");
             json_num(fp, "mbit_per_s_at_30fps_display", r->mbps, ", ");
+            json_num(fp, "mbit_per_s_predicted_keys_only", r->pred_bpg * (double)r->gaussians * r->key_rate * 8 / 1e6,
+                     ", ");
             json_num(fp, "psnr_key_db", r->psnr_key, ", ");
             json_num(fp, "psnr_key_min_db", r->psnr_key_min, ", ");
             json_num(fp, "psnr_mid_db", r->psnr_mid, ", ");
@@ -376,7 +392,8 @@ int bench_codec(int argc, char **argv)
         fprintf(fp, "\n], \"spz\": [");
         for (int i = 0; i < ns; i++) {
             const struct srow *s = &srows[i];
-            fprintf(fp, "%s\n  {\"preset\": \"%s\", \"gaussians\": %zu, ", i ? "," : "", s->preset, s->gaussians);
+            fprintf(fp, "%s\n  {\"preset\": \"%s\", \"gaussians\": %zu, \"spz_version\": 4, ", i ? "," : "", s->preset,
+                    s->gaussians);
             json_num(fp, "bytes_per_gaussian", s->bpg, ", ");
             json_num(fp, "psnr_db", s->psnr, ", ");
             json_num(fp, "encode_ms", s->enc_ms, ", ");

@@ -1,12 +1,16 @@
 /* f4d_codec_tool.c - f4d-codec: encode / decode / info on INRIA PLY, SPZ and
  * our stream files (.f4ds: packets back to back, see f4d_codec.h).
  *
- *   f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds [--quality low|medium|high]
+ *   f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds [--quality compact|low|medium|high]
  *                    [--key-rate HZ] [--intra-every N]
  *   f4d-codec encode IN.ply -o OUT.spz        (or IN.spz -o OUT.ply: conversion)
  *   f4d-codec decode IN.f4ds -o OUT.ply|OUT.spz [--frame K]   (K-th key, default 0)
  *   f4d-codec decode IN.f4ds -o 'DIR/key_%04d.ply'            (every key)
  *   f4d-codec info FILE...
+ *   --spz-version 3|4: the SPZ version written (default 4, the current one).
+ *   --motion-from-keys: motions re-derived over the key interval from the
+ *     keys' own positions (takes whose Gaussians keep their index, keyed
+ *     below their frame rate: their motions span one frame, not one key).
  * The file kind comes from its first bytes (F4DP, gzip / NGSP, "ply"). */
 #include <errno.h>
 #include <stdio.h>
@@ -19,8 +23,8 @@ enum kind { K_NONE, K_PLY, K_SPZ, K_STREAM };
 
 static void usage(FILE *f)
 {
-    fprintf(f, "usage: f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds|OUT.spz|OUT.ply [--quality low|medium|high]\n"
-               "                        [--key-rate HZ] [--intra-every N]\n"
+    fprintf(f, "usage: f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds|OUT.spz|OUT.ply [--quality compact|low|medium|high]\n"
+               "                        [--key-rate HZ] [--intra-every N] [--spz-version 3|4] [--motion-from-keys]\n"
                "       f4d-codec decode IN.f4ds|IN.spz|IN.ply -o OUT.ply|OUT.spz|'OUT_%%04d.ply' [--frame K]\n"
                "       f4d-codec info FILE...\n");
 }
@@ -102,11 +106,31 @@ static int read_frame(const char *path, struct splat_frame *f)
     return rc;
 }
 
-static int write_frame(const char *path, const struct splat_frame *f)
+/* spz_version: 4 (current) or 3 (gzip). */
+static int write_spz(const char *path, const struct splat_frame *f, int spz_version, struct f4d_err *err)
+{
+    uint8_t *b;
+    size_t n;
+    int rc = codec_spz_encode_version(f, spz_version, &b, &n, err);
+    if (rc < 0)
+        return rc;
+    FILE *fp = fopen(path, "wb");
+    if (!fp) {
+        free(b);
+        return f4d_fail(err, F4D_EIO, "cannot create: %s", strerror(errno));
+    }
+    size_t w = fwrite(b, 1, n, fp);
+    free(b);
+    if (fclose(fp) != 0 || w != n)
+        return f4d_fail(err, F4D_EIO, "write failed");
+    return F4D_OK;
+}
+
+static int write_frame(const char *path, const struct splat_frame *f, int spz_version)
 {
     struct f4d_err err = { 0 };
     enum kind k = kind_of_name(path);
-    int rc = k == K_SPZ ? codec_spz_write(path, f, &err)
+    int rc = k == K_SPZ ? write_spz(path, f, spz_version, &err)
            : k == K_PLY ? splat_ply_write(path, f, &err)
                         : f4d_fail(&err, F4D_EINVAL, "output must end in .ply or .spz");
     if (rc < 0)
@@ -114,8 +138,46 @@ static int write_frame(const char *path, const struct splat_frame *f)
     return rc;
 }
 
-static int do_encode(const char **in, int nin, const char *out, int quality, double rate, int intra_every)
+/* --motion-from-keys: the take's motions may span a shorter step than the
+ * key interval (a 30 fps take keyed every third frame); for Gaussians that
+ * keep their index, motion_fwd = next key - this key and motion_bwd =
+ * previous key - this key (first / last key: the one side mirrored). *prev
+ * (grown here) keeps this key's positions for the next call. */
+static int keyed_motion(struct splat_frame *f, const float *prev_pos, const struct splat_frame *next, float **prev,
+                        const char *name)
 {
+    size_t n = f->count;
+    if ((next && next->count != n) || (!prev_pos && !next)) {
+        fprintf(stderr, "f4d-codec: '%s': --motion-from-keys needs keys of the same Gaussians (%zu, next %zu)\n",
+                name, n, next ? next->count : 0);
+        return -1;
+    }
+    struct f4d_err err = { 0 };
+    if (!f->motion_fwd && splat_frame_resize(f, n, 1, &err) < 0) {
+        fprintf(stderr, "f4d-codec: '%s': %s\n", name, err.msg);
+        return -1;
+    }
+    for (size_t i = 0; i < 3 * n; i++) {
+        float fw = next ? next->pos[i] - f->pos[i] : f->pos[i] - prev_pos[i];
+        float bw = prev_pos ? prev_pos[i] - f->pos[i] : -fw;
+        f->motion_fwd[i] = fw;
+        f->motion_bwd[i] = bw;
+    }
+    float *p = realloc(*prev, (n > 0 ? 3 * n : 1) * sizeof(float));
+    if (!p) {
+        fprintf(stderr, "f4d-codec: out of memory\n");
+        return -1;
+    }
+    memcpy(p, f->pos, 3 * n * sizeof(float));
+    *prev = p;
+    return 0;
+}
+
+static int do_encode(const char **in, int nin, const char *out, int quality, double rate, int intra_every,
+                     int spz_version, int motion_from_keys)
+{
+    struct splat_frame nx = { 0 };
+    float *prev = NULL;
     enum kind ko = kind_of_name(out);
     struct splat_frame f = { 0 };
     if (ko != K_STREAM) {
@@ -123,7 +185,7 @@ static int do_encode(const char **in, int nin, const char *out, int quality, dou
             fprintf(stderr, "f4d-codec: '%s': a PLY or SPZ output takes one input, %d given\n", out, nin);
             return 1;
         }
-        int rc = read_frame(in[0], &f) < 0 || write_frame(out, &f) < 0;
+        int rc = read_frame(in[0], &f) < 0 || write_frame(out, &f, spz_version) < 0;
         splat_frame_free(&f);
         return rc;
     }
@@ -156,12 +218,33 @@ static int do_encode(const char **in, int nin, const char *out, int quality, dou
         goto io;
     total += n;
     for (int i = 0; i < nin; i++) {
-        if (read_frame(in[i], &f) < 0) {
-            rc = 1;
-            goto done;
+        if (!motion_from_keys) {
+            if (read_frame(in[i], &f) < 0) {
+                rc = 1;
+                goto done;
+            }
+        } else {
+            /* f = key i, nx = key i + 1 (read ahead), prev = key i - 1's positions */
+            if (i == 0 && read_frame(in[0], &nx) < 0) {
+                rc = 1;
+                goto done;
+            }
+            struct splat_frame tmp = f;
+            f = nx;
+            nx = tmp;
+            if (i + 1 < nin && read_frame(in[i + 1], &nx) < 0) {
+                rc = 1;
+                goto done;
+            }
+            if (keyed_motion(&f, i > 0 ? prev : NULL, i + 1 < nin ? &nx : NULL, &prev, in[i]) < 0) {
+                rc = 1;
+                goto done;
+            }
         }
         uint64_t t = (uint64_t)((double)i * 1e6 / rate + 0.5);
-        enum codec_key_mode m = (intra_every > 0 && i % intra_every == 0) ? CODEC_KEY_INTRA : CODEC_KEY_AUTO;
+        /* one frame alone: a still key (Morton-reordered, smaller) */
+        enum codec_key_mode m = nin == 1 ? CODEC_KEY_STILL
+                                : (intra_every > 0 && i % intra_every == 0) ? CODEC_KEY_INTRA : CODEC_KEY_AUTO;
         if (codec_enc_key(e, &f, t, m, NULL, pkt, pcap, &n) < 0) {
             fprintf(stderr, "f4d-codec: '%s': %s\n", in[i], codec_enc_error(e));
             rc = 1;
@@ -174,6 +257,16 @@ static int do_encode(const char **in, int nin, const char *out, int quality, dou
         printf("%s: %s key, %zu Gaussians, %zu bytes (%.2f B/G; %zu unchanged, %zu new, %zu dropped)\n", in[i],
                st->intra ? "intra" : "predicted", st->count, n, st->count ? (double)n / (double)st->count : 0.0,
                st->unchanged, st->fresh, st->dropped);
+        /* where the bytes went: flags / match list, then every channel */
+        printf("  bytes: header %zu, flags %zu, match %zu", st->bytes_header, st->bytes_flags, st->bytes_match);
+        for (int c = 0; c < CODEC_CHANNELS; c++)
+            if (st->bytes_channel[c])
+                printf(", %s %zu", codec_channel_name(c), st->bytes_channel[c]);
+        if (!st->intra)
+            printf("; predictor %.3g %.3g / %.3g %.3g / %.3g %.3g %.3g", (double)st->predictor[0],
+                   (double)st->predictor[1], (double)st->predictor[2], (double)st->predictor[3],
+                   (double)st->predictor[4], (double)st->predictor[5], (double)st->predictor[6]);
+        printf("\n");
     }
     if (codec_enc_end(e, (uint64_t)((double)nin * 1e6 / rate), pkt, pcap, &n) < 0 || fwrite(pkt, 1, n, fo) != n)
         goto io;
@@ -189,8 +282,10 @@ done:
         rc = 1;
     }
     free(pkt);
+    free(prev);
     codec_enc_free(e);
     splat_frame_free(&f);
+    splat_frame_free(&nx);
     return rc;
 }
 
@@ -213,7 +308,7 @@ static int pattern_name(const char *pat, int k, char *out, size_t n)
 /* Walks the packets of a stream file: decodes keys (when d) and prints them
  * (when verbose). Returns the number of keys decoded, -1 on error. */
 static int walk_stream(const char *path, const uint8_t *b, size_t len, codec_dec *d, int verbose, long want,
-                       const char *pattern)
+                       const char *pattern, int spz_version)
 {
     size_t off = 0, bad = 0, keys = 0, gaussians = 0, key_bytes = 0;
     while (off < len) {
@@ -252,7 +347,7 @@ static int walk_stream(const char *path, const uint8_t *b, size_t len, codec_dec
                         fprintf(stderr, "f4d-codec: -o '%s': the pattern takes one %%d or %%0Nd\n", pattern);
                         return -1;
                     }
-                    if (write_frame(name, codec_dec_frame(d)) < 0)
+                    if (write_frame(name, codec_dec_frame(d), spz_version) < 0)
                         return -1;
                 } else if ((long)keys == want) {
                     return (int)keys + 1;
@@ -270,7 +365,7 @@ static int walk_stream(const char *path, const uint8_t *b, size_t len, codec_dec
     return (int)keys;
 }
 
-static int do_decode(const char *in, const char *out, long frame)
+static int do_decode(const char *in, const char *out, long frame, int spz_version)
 {
     uint8_t *b;
     size_t n;
@@ -279,7 +374,7 @@ static int do_decode(const char *in, const char *out, long frame)
     enum kind k = kind_of_bytes(b, n);
     if (k != K_STREAM) {
         free(b);
-        return do_encode(&in, 1, out, CODEC_Q_MEDIUM, 10.0, 0); /* PLY <-> SPZ */
+        return do_encode(&in, 1, out, CODEC_Q_MEDIUM, 10.0, 0, spz_version, 0); /* PLY <-> SPZ */
     }
     codec_dec *d;
     struct f4d_err err = { 0 };
@@ -289,7 +384,7 @@ static int do_decode(const char *in, const char *out, long frame)
         return 1;
     }
     const char *pattern = strchr(out, '%') ? out : NULL;
-    int keys = walk_stream(in, b, n, d, 0, frame, pattern);
+    int keys = walk_stream(in, b, n, d, 0, frame, pattern, spz_version);
     int rc = 0;
     if (keys < 0) {
         rc = 1;
@@ -298,7 +393,7 @@ static int do_decode(const char *in, const char *out, long frame)
             fprintf(stderr, "f4d-codec: '%s': key %ld not decodable (%d keys decoded)\n", in, frame, keys);
             rc = 1;
         } else {
-            rc = write_frame(out, codec_dec_frame(d)) < 0;
+            rc = write_frame(out, codec_dec_frame(d), spz_version) < 0;
         }
     }
     const struct codec_dec_stats *s = codec_dec_stats(d);
@@ -320,7 +415,7 @@ static int do_info(const char *path)
     int rc = 0;
     if (k == K_STREAM) {
         printf("%s: f4d stream, %zu bytes\n", path, n);
-        rc = walk_stream(path, b, n, NULL, 1, -1, NULL) < 0;
+        rc = walk_stream(path, b, n, NULL, 1, -1, NULL, 4) < 0;
     } else if (k == K_SPZ || k == K_PLY) {
         struct splat_frame f = { 0 };
         if (read_frame(path, &f) < 0) {
@@ -334,7 +429,7 @@ static int do_info(const char *path)
                     hi[c] = i == 0 || v > hi[c] ? v : hi[c];
                 }
             printf("%s: %s, %zu bytes, %zu Gaussians (%.2f B/G)%s, bounds [%.3f %.3f %.3f] .. [%.3f %.3f %.3f] m\n",
-                   path, k == K_SPZ ? "SPZ" : "PLY", n, f.count, f.count ? (double)n / (double)f.count : 0.0,
+                   path, k != K_SPZ ? "PLY" : b[0] == 0x1f ? "SPZ (v2/v3, gzip)" : "SPZ v4", n, f.count, f.count ? (double)n / (double)f.count : 0.0,
                    f.motion_fwd ? ", with motion" : "", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
         }
         splat_frame_free(&f);
@@ -354,12 +449,14 @@ int main(int argc, char **argv)
     }
     const char *cmd = argv[1], *out = NULL;
     const char **in = calloc((size_t)argc, sizeof *in);
-    int nin = 0, quality = CODEC_Q_MEDIUM, intra_every = 0;
+    int nin = 0, quality = CODEC_Q_MEDIUM, intra_every = 0, spz_version = 4, motion_from_keys = 0;
     double rate = 10.0;
     long frame = 0;
     for (int i = 2; i < argc; i++) {
         const char *a = argv[i];
-        if (a[0] == '-' && a[1]) {
+        if (!strcmp(a, "--motion-from-keys")) {
+            motion_from_keys = 1;
+        } else if (a[0] == '-' && a[1]) {
             if (i + 1 >= argc) {
                 fprintf(stderr, "f4d-codec: option '%s' needs a value (or is unknown)\n", a);
                 return 2;
@@ -384,6 +481,12 @@ int main(int argc, char **argv)
                 intra_every = (int)strtol(v, &end, 10);
                 if (*end || intra_every < 0) {
                     fprintf(stderr, "f4d-codec: --intra-every '%s' must be a count >= 0\n", v);
+                    return 2;
+                }
+            } else if (!strcmp(a, "--spz-version")) {
+                spz_version = (int)strtol(v, &end, 10);
+                if (*end || (spz_version != 3 && spz_version != 4)) {
+                    fprintf(stderr, "f4d-codec: --spz-version '%s' must be 3 or 4\n", v);
                     return 2;
                 }
             } else if (!strcmp(a, "--frame")) {
@@ -418,7 +521,8 @@ int main(int argc, char **argv)
             fprintf(stderr, "f4d-codec: decode takes one input, %d given\n", nin);
             return 2;
         }
-        rc = !strcmp(cmd, "encode") ? do_encode(in, nin, out, quality, rate, intra_every) : do_decode(in[0], out, frame);
+        rc = !strcmp(cmd, "encode") ? do_encode(in, nin, out, quality, rate, intra_every, spz_version, motion_from_keys)
+                                     : do_decode(in[0], out, frame, spz_version);
     } else {
         fprintf(stderr, "f4d-codec: unknown command '%s'\n", cmd);
         usage(stderr);

@@ -1,6 +1,6 @@
 /* f4d-infer - run the VGGT model on images and write its outputs as .npy.
  *
- *   f4d-infer --weights W.gguf (--images A.png B.png ... | --raw-input X.npy)
+ *   f4d-infer [--weights W.gguf] (--images A.png B.png ... | --raw-input X.npy)
  *             [--precision f32|f16|int8] [--mode crop|pad] [--size 518]
  *             [--threads N] --out DIR
  *
@@ -10,7 +10,9 @@
  * [0,1] as is. DIR receives pose_enc [S,9], extrinsic [S,3,4], intrinsic
  * [S,3,3], depth [S,H,W,1], depth_conf [S,H,W], world_points [S,H,W,3],
  * world_points_conf [S,H,W] (the heads present in the file), and input.npy,
- * the preprocessed model input.
+ * the preprocessed model input. Without --weights the shipped model is used
+ * (firmware/infer/weights: $F4D_WEIGHTS, the installed copy, the source tree;
+ * the int8 file for --precision int8).
  *
  * Forge4D streaming (firmware/gaussians/sequence), one synchronized set per
  * key time t = 0, 1, 2, ...:
@@ -44,6 +46,7 @@
 #include "model.h"
 #include "npy.h"
 #include "preprocess.h"
+#include "weights.h"
 
 static double now(void)
 {
@@ -54,7 +57,7 @@ static double now(void)
 
 static void usage(void)
 {
-    fprintf(stderr, "usage: f4d-infer --weights W.gguf (--images A.png ... | --raw-input X.npy)\n"
+    fprintf(stderr, "usage: f4d-infer [--weights W.gguf] (--images A.png ... | --raw-input X.npy)\n"
                     "                 [--precision f32|f16|int8] [--mode crop|pad] [--size 518]\n"
                     "                 [--threads N] --out DIR\n"
                     "       f4d-infer --forge4d --weights W.gguf (--set A.png ... [--set ...]...\n"
@@ -413,8 +416,8 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    if (forge4d ? (!weights || !outdir || n_img || (!seq.n_raws && !seq.n_sets) || (seq.n_raws && seq.n_sets))
-                : (!weights || !outdir || (!raw && !n_img) || (raw && n_img) || seq.n_raws > 1 || seq.n_sets ||
+    if (forge4d ? (!outdir || n_img || (!seq.n_raws && !seq.n_sets) || (seq.n_raws && seq.n_sets))
+                : (!outdir || (!raw && !n_img) || (raw && n_img) || seq.n_raws > 1 || seq.n_sets ||
                    seq.n_at)) {
         if (!forge4d && (seq.n_sets || seq.n_at || seq.n_raws > 1))
             fprintf(stderr, "f4d-infer: --set, --at and repeated --raw-input need --forge4d\n");
@@ -431,6 +434,15 @@ int main(int argc, char **argv)
     else {
         fprintf(stderr, "f4d-infer: --precision must be f32, f16 or int8 (got '%s')\n", prec);
         return 2;
+    }
+    char wpath[F4D_WEIGHTS_PATH_MAX];
+    if (!weights) {
+        struct f4d_err werr = { 0 };
+        if (f4d_weights_default(wt == FK_W_Q8, wpath, sizeof wpath, &werr) < 0) {
+            fprintf(stderr, "f4d-infer: no --weights and %s\n", werr.msg);
+            return 1;
+        }
+        weights = wpath;
     }
     enum prep_mode mode;
     if (!strcmp(mode_s, "crop"))

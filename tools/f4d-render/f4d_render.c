@@ -1,6 +1,6 @@
 /* f4d-render - renders a Gaussian PLY from one camera of a rig file:
  *   f4d-render --ply F --rig R --camera NAME|INDEX -o OUT.png
- *              [--background r,g,b] [--depth OUT.npy] [--threads N] */
+ *              [--background r,g,b] [--depth OUT.npy] [--rgb-npy OUT.npy] [--threads N] */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -10,10 +10,11 @@
 static void usage(FILE *f)
 {
     fprintf(f, "usage: f4d-render --ply F --rig R --camera NAME|INDEX -o OUT.png\n"
-               "                  [--background r,g,b] [--depth OUT.npy] [--threads N]\n"
+               "                  [--background r,g,b] [--depth OUT.npy] [--rgb-npy OUT.npy] [--threads N]\n"
                "  Renders the 3D Gaussians of F (INRIA PLY, metres) seen by one camera of the\n"
                "  rig R (JSON). --background takes three numbers in [0,1] (default 0,0,0);\n"
-               "  --depth writes the expected depth (metres, float32 HxW, 0 = empty).\n");
+               "  --depth writes the expected depth (metres, float32 HxW, 0 = empty);\n"
+               "  --rgb-npy the unquantised colour (float32 HxWx3, for exact comparisons).\n");
 }
 
 static int parse_bg(const char *s, float bg[3])
@@ -35,7 +36,7 @@ static int parse_bg(const char *s, float bg[3])
 
 int main(int argc, char **argv)
 {
-    const char *ply = NULL, *rigp = NULL, *camname = NULL, *out = NULL, *depthp = NULL;
+    const char *ply = NULL, *rigp = NULL, *camname = NULL, *out = NULL, *depthp = NULL, *rgbp = NULL;
     float bg[3] = { 0, 0, 0 };
     int threads = 0;
     for (int i = 1; i < argc; i++) {
@@ -55,6 +56,7 @@ int main(int argc, char **argv)
         else if (!strcmp(a, "--camera")) camname = v;
         else if (!strcmp(a, "-o")) out = v;
         else if (!strcmp(a, "--depth")) depthp = v;
+        else if (!strcmp(a, "--rgb-npy")) rgbp = v;
         else if (!strcmp(a, "--threads")) {
             char *end;
             long t = strtol(v, &end, 10);
@@ -118,8 +120,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "f4d-render: %s\n", splat_renderer_error(r));
         goto done;
     }
-    size_t shape[2] = { (size_t)cam->height, (size_t)cam->width };
+    size_t shape[2] = { (size_t)cam->height, (size_t)cam->width },
+           shape3[3] = { (size_t)cam->height, (size_t)cam->width, 3 };
     if (splat_png_write_rgb(out, rgb, cam->width, cam->height, &err) < 0 ||
+        (rgbp && splat_npy_write_f32(rgbp, rgb, shape3, 3, &err) < 0) ||
         (depthp && splat_npy_write_f32(depthp, depth, shape, 2, &err) < 0)) {
         fprintf(stderr, "f4d-render: %s\n", err.msg);
         goto done;

@@ -1,6 +1,7 @@
 /* f4d-scene - writes a synthetic 4D scene with exact ground truth:
  *   f4d-scene --preset NAME --frames N [--views V] [--size WxH] [--seed S] -o DIR
  *             [--gaussians N] [--threads N]
+ *   f4d-scene venue --seed S -o DIR ...   randomised training takes (venue.c)
  * Layout of DIR:
  *   scene.json                      preset, seed, frames, fps, Gaussians, height
  *   rig.json                        the cameras (splat rig format)
@@ -17,13 +18,16 @@
 #include <sys/stat.h>
 
 #include "scene.h"
+#include "venue.h"
 
 static void usage(FILE *f)
 {
     fprintf(f, "usage: f4d-scene --preset NAME --frames N [--views V] [--size WxH] [--seed S] -o DIR\n"
                "                 [--gaussians N] [--threads N]\n"
                "  presets: walk jump wave throw fast cross exit close; V in 1..8 (default 4);\n"
-               "  size default 518x518; N frames at 30 fps starting at t = 0.\n");
+               "  size default 518x518; N frames at 30 fps starting at t = 0.\n"
+               "       f4d-scene venue --seed S -o DIR [--frames T] [--size WxH] [--eval E] [--views V]\n"
+               "                 [--person-gaussians N] [--ply]: a randomised training take (tools/train)\n");
 }
 
 static int parse_long(const char *opt, const char *v, long lo, long hi, long *out)
@@ -49,6 +53,8 @@ static int mkdir_p(const char *p)
 
 int main(int argc, char **argv)
 {
+    if (argc > 1 && !strcmp(argv[1], "venue"))
+        return venue_main(argc - 1, argv + 1);
     const char *preset_name = NULL, *outdir = NULL;
     long frames = -1, views = SCENE_VIEWS_DEFAULT, W = 518, H = 518, seed = 1, gaussians = 0, threads = 0;
     for (int i = 1; i < argc; i++) {

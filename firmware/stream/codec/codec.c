@@ -13,7 +13,10 @@
 #define NQZ        16   /* channels with a (lo, step) quantizer            */
 #define QMAX       16777215u /* 24 bits                                   */
 #define RMAX       16777215  /* residual magnitude cap                      */
-#define FHDR       20
+#define FHDR1      20   /* version 1 frame header                        */
+#define NCOEF      7
+#define FHDR       (FHDR1 + 4 * NCOEF) /* version 2: + predictor coefficients */
+#define COEF_MAX   1000.0f
 #define ZLEVEL     5
 #define SCALE_MIN  1e-7f
 
@@ -28,7 +31,18 @@ static const struct codec_quality_info qtab[CODEC_QUALITY_COUNT] = {
     { "low",    12, 1.0e-3f,  1.0f / 8,   6,  6,  7, 1.0e-3f },
     { "medium", 16, 0.1e-3f,  1.0f / 32,  8,  8, 10, 0.1e-3f },
     { "high",   18, 0.02e-3f, 1.0f / 128, 10, 10, 12, 0.02e-3f },
+    { "compact", 10, 2.0e-3f, 1.0f / 8,    5,  6,  6, 2.0e-3f },
 };
+
+static const float coef_v1[NCOEF] = { 1, 0, 1, 0, -1, 0, 0 };
+
+const char *codec_channel_name(int ch)
+{
+    static const char *nm[NCH] = { "pos.x", "pos.y", "pos.z", "lscale.x", "lscale.y", "lscale.z", "opacity",
+                                   "rgb.r", "rgb.g", "rgb.b", "rot.0", "rot.1", "rot.2", "rot.3",
+                                   "mb.x", "mb.y", "mb.z", "mf.x", "mf.y", "mf.z" };
+    return ch >= 0 && ch < NCH ? nm[ch] : NULL;
+}
 
 const struct codec_quality_info *codec_quality_get(enum codec_quality q)
 {
@@ -40,7 +54,7 @@ int codec_quality_from_name(const char *name, struct f4d_err *err)
     for (int i = 0; i < CODEC_QUALITY_COUNT; i++)
         if (name && !strcmp(name, qtab[i].name))
             return i;
-    return f4d_fail(err, F4D_EINVAL, "quality '%s' is not one of low, medium, high", name ? name : "(null)");
+    return f4d_fail(err, F4D_EINVAL, "quality '%s' is not one of low, medium, high, compact", name ? name : "(null)");
 }
 
 /* ------------------------------------------------------------------------ */
@@ -173,6 +187,86 @@ static void rot_unpack(const uint32_t in[4], int bits, float q[4])
 static inline float rot_step(int bits) { return 1.41421356f / (float)((1u << bits) - 1); }
 
 /* ------------------------------------------------------------------------ */
+/* Morton order of the changed Gaussians (predicted keys). Their residual
+ * planes are coded in the order of the Morton codes of their predicted
+ * positions, which the decoder knows before reading them: neighbours in
+ * space share their motion change (rigid parts, smooth surfaces), so the
+ * signed deltas along that order are small, whatever order the producer
+ * numbered its Gaussians in. No side information is sent. */
+struct morton { uint64_t *key, *key2; uint32_t *perm, *perm2, *tmp; };
+
+static int morton_alloc(struct morton *m, size_t c)
+{
+    m->key = malloc(c * sizeof(uint64_t));
+    m->key2 = malloc(c * sizeof(uint64_t));
+    m->perm = malloc(c * sizeof(uint32_t));
+    m->perm2 = malloc(c * sizeof(uint32_t));
+    m->tmp = malloc(c * sizeof(uint32_t));
+    return m->key && m->key2 && m->perm && m->perm2 && m->tmp ? 0 : -1;
+}
+
+static void morton_free(struct morton *m)
+{
+    free(m->key); free(m->key2); free(m->perm); free(m->perm2); free(m->tmp);
+}
+
+static uint64_t spread21(uint32_t v)
+{
+    uint64_t x = v & 0x1fffffu;
+    x = (x | x << 32) & 0x1f00000000ffffull;
+    x = (x | x << 16) & 0x1f0000ff0000ffull;
+    x = (x | x << 8) & 0x100f00f00f00f00full;
+    x = (x | x << 4) & 0x10c30c30c30c30c3ull;
+    x = (x | x << 2) & 0x1249249249249249ull;
+    return x;
+}
+
+/* Key of a predicted position on the frame's position grid (21 bits a side). */
+static uint64_t morton_key(const struct qz *z, const float pos[3])
+{
+    uint64_t k = 0;
+    for (int c = 0; c < 3; c++) {
+        double t = ((double)pos[c] - (double)z[c].lo) / (double)z[c].step;
+        uint32_t q = !(t > 0) ? 0 : t >= (double)QMAX ? QMAX : (uint32_t)t;
+        k |= spread21(q >> 3) << c;
+    }
+    return k;
+}
+
+/* Stable LSD radix sort of key[0..n) carrying 0..n-1: perm = the order. */
+static void morton_sort(struct morton *m, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        m->perm[i] = (uint32_t)i;
+    uint64_t *k = m->key, *k2 = m->key2;
+    uint32_t *p = m->perm, *p2 = m->perm2;
+    for (int sh = 0; sh < 64; sh += 8) {
+        size_t cnt[256] = { 0 };
+        for (size_t i = 0; i < n; i++)
+            cnt[(k[i] >> sh) & 255]++;
+        if (cnt[(k[0] >> sh) & 255] == n)
+            continue; /* this byte is the same everywhere */
+        size_t s = 0;
+        for (int b = 0; b < 256; b++) {
+            size_t t = cnt[b];
+            cnt[b] = s;
+            s += t;
+        }
+        for (size_t i = 0; i < n; i++) {
+            size_t o = cnt[(k[i] >> sh) & 255]++;
+            k2[o] = k[i];
+            p2[o] = p[i];
+        }
+        uint64_t *tk = k; k = k2; k2 = tk;
+        uint32_t *tp = p; p = p2; p2 = tp;
+    }
+    if (p != m->perm)
+        memcpy(m->perm, p, n * sizeof(uint32_t));
+    if (k != m->key)
+        memcpy(m->key, k, n * sizeof(uint64_t));
+}
+
+/* ------------------------------------------------------------------------ */
 /* Planes. */
 
 struct planebuf {
@@ -202,6 +296,8 @@ struct codec_enc {
     uint32_t *res;     /* [NCH * cap] residual records             */
     uint32_t *idx;     /* [cap] reference-index deltas             */
     uint32_t *flags;   /* [cap]                                    */
+    struct morton mo;  /* order of the changed Gaussians' residuals */
+    int last_still;    /* mo.perm holds a still key's order           */
     struct planebuf pb;
     void *zws;
     ZSTD_CCtx *z;
@@ -233,9 +329,11 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
         return f4d_fail(&e->err, F4D_ERANGE, "encode: zstd: %s", ZSTD_getErrorName(z1));
     int t = 0;
     if (allow_delta) {
+        /* 1: delta of the values; 2: delta of zigzagged signed values
+         * (residuals), taken on the signed values */
         uint32_t dm = 0, prev = 0;
         for (size_t i = 0; i < n; i++) {
-            uint32_t d = zig((int32_t)(v[i] - prev));
+            uint32_t d = allow_delta == 2 ? zig(unzig(v[i]) - unzig(prev)) : zig((int32_t)(v[i] - prev));
             prev = v[i];
             e->pb.tmp[i] = d;
             dm = d > dm ? d : dm;
@@ -247,7 +345,7 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
             memcpy(tag + 5, e->pb.zalt, z2);
             z1 = z2;
             w = w2;
-            t = 1;
+            t = allow_delta;
         }
     }
     tag[0] = (uint8_t)(t | w << 4);
@@ -286,6 +384,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
     int bad = !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
+              morton_alloc(&e->mo, c) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
     if (!bad)
         e->z = ZSTD_initStaticCCtx(e->zws, zsz);
@@ -302,6 +401,7 @@ void codec_enc_free(codec_enc *e)
     if (!e)
         return;
     free(e->rec); free(e->res); free(e->idx); free(e->flags);
+    morton_free(&e->mo);
     free(e->pb.shuf); free(e->pb.tmp); free(e->pb.zalt); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
@@ -314,6 +414,7 @@ const struct splat_frame *codec_enc_recon(const codec_enc *e)
     return e ? key_view((struct keystate *)&e->key[e->cur]) : NULL;
 }
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e) { return e ? &e->st : NULL; }
+const uint32_t *codec_enc_order(const codec_enc *e) { return e && e->last_still ? e->mo.perm : NULL; }
 
 int codec_enc_stream_header(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t *len)
 {
@@ -409,30 +510,44 @@ static void intra_recon(const uint32_t *rec, size_t stride, size_t i, const stru
 
 /* Prediction of a Gaussian from reference slot r: moved by its forward
  * motion; motions continue at constant velocity. */
-struct pred { float pos[3], ls[3], op, rgb[3], rot[4], mb[3], mf[3]; };
+struct pred { float pos[3], ls[3], op, rgb[3], rot[4], mb[3], mf[3], rpos[3]; };
 
-static void predict(const struct keystate *ref, size_t r, struct pred *p)
+static void predict(const struct keystate *ref, size_t r, const float *cf, struct pred *p)
 {
     for (int c = 0; c < 3; c++) {
-        float m = ref->motion ? ref->mf[3 * r + c] : 0.0f;
-        p->pos[c] = ref->pos[3 * r + c] + m;
+        float f = ref->motion ? ref->mf[3 * r + c] : 0.0f, b = ref->motion ? ref->mb[3 * r + c] : 0.0f;
+        p->rpos[c] = ref->pos[3 * r + c];
+        p->pos[c] = ref->pos[3 * r + c] + (cf[0] * f + cf[1] * b);
         p->ls[c] = ref->ls[3 * r + c];
         p->rgb[c] = ref->rgb[3 * r + c];
-        p->mb[c] = -m;
-        p->mf[c] = m;
+        p->mf[c] = cf[2] * f + cf[3] * b;
+        p->mb[c] = cf[4] * f + cf[5] * b;
     }
     p->op = ref->op[r];
     for (int c = 0; c < 4; c++)
         p->rot[c] = ref->rot[4 * r + c];
 }
 
+/* The backward motion's third term needs the decoded position: c6 times the
+ * way back to the reference (exactly the backward motion when the motions
+ * span the key interval). */
+static void predict_mb(struct pred *p, const float *cf, const float *pos)
+{
+    if (cf[6] != 0.0f)
+        for (int c = 0; c < 3; c++)
+            p->mb[c] += cf[6] * (p->rpos[c] - pos[c]);
+}
+
 /* Applies residual record (all zero = copy) to the prediction into slot j. */
-static void resid_recon(const int32_t r[NCH], const struct pred *p, const struct qz *z, int rot_bits, int motion,
-                        struct keystate *k, size_t j)
+static void resid_recon(const int32_t r[NCH], const struct pred *p0, const float *cf, const struct qz *z,
+                        int rot_bits, int motion, struct keystate *k, size_t j)
 {
     float rs = rot_step(rot_bits);
-    for (int c = 0; c < 3; c++) {
+    struct pred pp = *p0, *p = &pp;
+    for (int c = 0; c < 3; c++)
         k->pos[3 * j + c] = dres(p->pos[c], z[c], r[CH_POS + c]);
+    predict_mb(p, cf, k->pos + 3 * j);
+    for (int c = 0; c < 3; c++) {
         k->ls[3 * j + c] = dres(p->ls[c], z[3 + c], r[CH_LS + c]);
         k->rgb[3 * j + c] = dres(p->rgb[c], z[7 + c], r[CH_RGB + c]);
         k->mb[3 * j + c] = motion ? dres(p->mb[c], z[QZ_MB + c], r[CH_MB + c]) : 0.0f;
@@ -487,6 +602,165 @@ static void intra_record(const struct splat_frame *f, size_t i, const struct qz 
         rec[(CH_ROT + c) * stride + j] = r[c];
 }
 
+/* Solves the k x k system a x = y (k <= 3) by elimination with pivoting;
+ * -1 when it is (nearly) singular. */
+static int solve3(double a[3][3], double y[3], int k, double x[3])
+{
+    for (int c = 0; c < k; c++) {
+        int pv = c;
+        for (int r = c + 1; r < k; r++)
+            if (fabs(a[r][c]) > fabs(a[pv][c]))
+                pv = r;
+        if (!(fabs(a[pv][c]) > 1e-12 * (fabs(a[0][0]) + fabs(a[1][1]) + fabs(a[2][2]) + 1e-300)))
+            return -1;
+        for (int j = 0; j < 3; j++) {
+            double t = a[c][j];
+            a[c][j] = a[pv][j];
+            a[pv][j] = t;
+        }
+        double t = y[c];
+        y[c] = y[pv];
+        y[pv] = t;
+        for (int r = c + 1; r < k; r++) {
+            double m = a[r][c] / a[c][c];
+            for (int j = c; j < k; j++)
+                a[r][j] -= m * a[c][j];
+            y[r] -= m * y[c];
+        }
+    }
+    for (int c = k - 1; c >= 0; c--) {
+        double v = y[c];
+        for (int j = c + 1; j < k; j++)
+            v -= a[c][j] * x[j];
+        x[c] = v / a[c][c];
+    }
+    return 0;
+}
+
+/* Least-squares predictor coefficients (see f4d_codec.h, "Predictor"), per
+ * target over the matched Gaussians and all three axes: displacement and mf
+ * on the reference's (mf, mb), mb on (mf, mb, way back to the reference);
+ * a fit is kept only where it beats the version-1 coefficients in squared
+ * error (so static or motionless takes keep those). */
+static void fit_predictor(const struct keystate *ref, const struct splat_frame *f, const int32_t *match, int motion,
+                          float cf[NCOEF])
+{
+    memcpy(cf, coef_v1, sizeof coef_v1);
+    if (!ref->motion)
+        return;
+    double sxx[3][3] = { { 0 } }, sxy[3][3] = { { 0 } }, syy[3] = { 0 };
+    for (size_t i = 0; i < f->count; i++) {
+        int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
+        if (r < 0)
+            continue;
+        for (int c = 0; c < 3; c++) {
+            size_t rc = 3 * (size_t)r + (size_t)c;
+            double back = (double)ref->pos[rc] - f->pos[3 * i + c];
+            double x[3] = { ref->mf[rc], ref->mb[rc], back };
+            double y[3] = { -back, motion ? f->motion_fwd[3 * i + c] : 0.0, motion ? f->motion_bwd[3 * i + c] : 0.0 };
+            for (int u = 0; u < 3; u++) {
+                for (int v = 0; v < 3; v++)
+                    sxx[u][v] += x[u] * x[v];
+                for (int t = 0; t < 3; t++)
+                    sxy[t][u] += x[u] * y[t];
+            }
+            for (int t = 0; t < 3; t++)
+                syy[t] += y[t] * y[t];
+        }
+    }
+    static const int first[3] = { 0, 2, 4 }, nreg[3] = { 2, 2, 3 };
+    for (int t = 0; t < (motion ? 3 : 1); t++) {
+        int k = nreg[t];
+        double a[3][3] = { { 0 } }, y[3] = { 0 }, x[3] = { 0 };
+        for (int u = 0; u < k; u++) {
+            y[u] = sxy[t][u];
+            for (int v = 0; v < k; v++)
+                a[u][v] = sxx[u][v];
+        }
+        if (solve3(a, y, k, x) < 0)
+            continue;
+        float fit[3] = { 0 };
+        double e_fit = syy[t], e_v1 = syy[t];
+        int ok = 1;
+        for (int u = 0; u < k; u++) {
+            ok &= fabs(x[u]) <= COEF_MAX;
+            fit[u] = (float)x[u];
+        }
+        for (int u = 0; u < k; u++) {
+            double fu = fit[u], vu = coef_v1[first[t] + u];
+            e_fit -= 2 * fu * sxy[t][u];
+            e_v1 -= 2 * vu * sxy[t][u];
+            for (int v = 0; v < k; v++) {
+                e_fit += fu * fit[v] * sxx[u][v];
+                e_v1 += vu * coef_v1[first[t] + v] * sxx[u][v];
+            }
+        }
+        if (ok && e_fit < e_v1)
+            for (int u = 0; u < k; u++)
+                cf[first[t] + u] = fit[u];
+    }
+}
+
+/* Keyed mf residual on axis c: kept (0) while this decoded position plus the
+ * predicted mf lands within 0.9 position bounds of the true next position,
+ * else the step count towards it (see codec_enc_key). */
+static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos, float pmf, struct qz z,
+                        float tol)
+{
+    double dt = ((double)f->pos[3 * i + c] + f->motion_fwd[3 * i + c]) - ((double)rpos + pmf);
+    double u = dt / (double)z.step;
+    return fabs(dt) <= 0.9 * tol ? 0 : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
+}
+
+/* With keyed motions, the temporal mf prediction carries each Gaussian's own
+ * reconstruction error (its decoded position and motions, up to about two
+ * position bounds, amplified by the fitted coefficients), which no order
+ * makes compressible; predicting nothing instead codes the velocity field
+ * itself, whose neighbours in Morton order agree wherever a part moves
+ * rigidly. Which wins depends on the take (smooth slow motion: temporal;
+ * fast articulated motion: spatial), so both are tried on the mf residuals
+ * alone: Morton order of the predicted positions, cost sum log2(1 + |delta|)
+ * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Uses the residual
+ * planes and the Morton buffers as scratch. */
+static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
+                                const int32_t *match, const struct qz *z, const float *pos_tol, float *cf)
+{
+    const size_t stride = e->cap ? e->cap : 1;
+    size_t m = 0;
+    for (size_t i = 0; i < f->count; i++) {
+        int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
+        if (r < 0)
+            continue;
+        struct pred p;
+        predict(ref, (size_t)r, cf, &p);
+        for (int c = 0; c < 3; c++) {
+            int32_t rp = resid(z[c], f->pos[3 * i + c], p.pos[c]);
+            if (fabsf(f->pos[3 * i + c] - p.pos[c]) <= pos_tol[c])
+                rp = 0;
+            float rpos = dres(p.pos[c], z[c], rp);
+            e->res[(size_t)c * stride + m] = zig(mf_resid(f, i, c, rpos, p.mf[c], z[QZ_MF + c], pos_tol[c]));
+            e->res[(size_t)(3 + c) * stride + m] = zig(mf_resid(f, i, c, rpos, 0.0f, z[QZ_MF + c], pos_tol[c]));
+        }
+        e->mo.key[m++] = morton_key(z, p.pos);
+    }
+    if (m < 2)
+        return;
+    morton_sort(&e->mo, m);
+    double cost[2] = { 0, 0 };
+    for (int k = 0; k < 2; k++)
+        for (int c = 0; c < 3; c++) {
+            const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
+            int32_t prev = 0;
+            for (size_t j = 0; j < m; j++) {
+                int32_t x = unzig(v[e->mo.perm[j]]);
+                cost[k] += log2(1.0 + fabs((double)x - (double)prev));
+                prev = x;
+            }
+        }
+    if (cost[1] < cost[0])
+        cf[2] = cf[3] = 0.0f;
+}
+
 static void put_qz(uint8_t *p, const struct qz *z)
 {
     for (int k = 0; k < NQZ; k++) {
@@ -517,7 +791,9 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     const int motion = f->motion_bwd && f->motion_fwd;
     const int nch = motion ? NCH : CH_MB;
     struct keystate *ref = &e->key[e->cur], *dst = &e->key[e->cur ^ 1];
-    int intra = mode == CODEC_KEY_INTRA || !e->have_ref;
+    if ((unsigned)mode > CODEC_KEY_STILL)
+        return f4d_fail(&e->err, F4D_EINVAL, "codec_enc_key: mode %d out of range", (int)mode);
+    int intra = mode != CODEC_KEY_AUTO || !e->have_ref, still = mode == CODEC_KEY_STILL;
     if (match && !intra)
         for (size_t i = 0; i < n; i++)
             if (match[i] < -1 || (match[i] >= 0 && (size_t)match[i] >= ref->count))
@@ -551,6 +827,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     z[6] = make_qz(0.0f, 1.0f, qi->opacity_bits, 0);
 
     memset(&e->st, 0, sizeof e->st);
+    e->last_still = 0;
     uint8_t *pl = out + CODEC_PACKET_HEADER;
     size_t off = FHDR + 8 * NQZ;
     if (cap < CODEC_PACKET_HEADER + off)
@@ -558,13 +835,25 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     size_t pcap = cap - CODEC_PACKET_HEADER;
     size_t n_changed = 0, n_new = 0, n_same = 0, matched = 0;
     int explicit_match = 0;
+    float cf[NCOEF];
+    memcpy(cf, coef_v1, sizeof cf);
     dst->count = n;
     dst->motion = motion;
 
     if (intra) {
-        for (size_t i = 0; i < n; i++) {
-            intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, i);
-            intra_recon(e->rec, stride, i, z, qi->rot_bits, motion, dst, i);
+        if (still && n > 1) {
+            /* Morton order of the positions: neighbours in space get
+             * neighbouring indices, so every plane's deltas shrink */
+            for (size_t i = 0; i < n; i++)
+                e->mo.key[i] = morton_key(z, f->pos + 3 * i);
+            morton_sort(&e->mo, n);
+        } else {
+            for (size_t i = 0; i < n; i++)
+                e->mo.perm[i] = (uint32_t)i;
+        }
+        for (size_t j = 0; j < n; j++) {
+            intra_record(f, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
+            intra_recon(e->rec, stride, j, z, qi->rot_bits, motion, dst, j);
         }
         n_new = n;
         for (int c = 0; c < nch; c++) {
@@ -573,6 +862,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 return rc;
             size_t *g[3] = { &e->st.bytes_pos, &e->st.bytes_attr, &e->st.bytes_motion };
             *g[stat_group(c)] += off - o0;
+            e->st.bytes_channel[c] += off - o0;
         }
     } else {
         explicit_match = 0;
@@ -587,10 +877,21 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         } else if (n > ref->count) {
             explicit_match = 0; /* identity: indices >= ref->count are new */
         }
+        fit_predictor(ref, f, match, motion, cf);
         float rs = rot_step(qi->rot_bits);
         float pos_tol[3];
         for (int c = 0; c < 3; c++)
             pos_tol[c] = 0.5f * (z[c].step > qi->pos_step_max ? z[c].step : qi->pos_step_max);
+        const float rot_tol = fminf(pos_tol[0], fminf(pos_tol[1], pos_tol[2]));
+        /* motions that span the key interval (the version-1 shape) */
+        const int keyed = fabsf(cf[0] - 1.0f) < 0.25f && fabsf(cf[1]) < 0.25f;
+        if (keyed && motion) { /* then mb is the way back (see above) */
+            cf[4] = cf[5] = 0.0f;
+            cf[6] = 1.0f;
+        }
+        const float mb_tol = 2.0f * fmaxf(pos_tol[0], fmaxf(pos_tol[1], pos_tol[2])) + 0.5f * qi->motion_step;
+        if (keyed && motion && n > 1)
+            choose_mf_predictor(e, ref, f, match, z, pos_tol, cf);
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -606,17 +907,45 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             e->idx[i] = zig(r - (prev + 1));
             prev = r;
             struct pred p;
-            predict(ref, (size_t)r, &p);
+            predict(ref, (size_t)r, cf, &p);
             int32_t res[NCH] = { 0 };
-            float ls[3];
+            float ls[3], rpos[3];
             log_scale(f->scale + 3 * i, ls);
+            /* positions first: the backward motion's prediction needs them.
+             * Dead zone: a prediction already within the level's bound is
+             * kept (the reference's own quantization error would otherwise
+             * flip it to +-1 from key to key). */
             for (int c = 0; c < 3; c++) {
                 res[CH_POS + c] = resid(z[c], f->pos[3 * i + c], p.pos[c]);
+                if (fabsf(f->pos[3 * i + c] - p.pos[c]) <= pos_tol[c])
+                    res[CH_POS + c] = 0;
+                rpos[c] = dres(p.pos[c], z[c], res[CH_POS + c]);
+            }
+            struct pred pb = p;
+            predict_mb(&pb, cf, rpos);
+            for (int c = 0; c < 3; c++) {
                 res[CH_LS + c] = resid(z[3 + c], ls[c], p.ls[c]);
                 res[CH_RGB + c] = resid(z[7 + c], f->rgb[3 * i + c], p.rgb[c]);
                 if (motion) {
-                    res[CH_MB + c] = resid(z[QZ_MB + c], f->motion_bwd[3 * i + c], p.mb[c]);
-                    res[CH_MF + c] = resid(z[QZ_MF + c], f->motion_fwd[3 * i + c], p.mf[c]);
+                    /* keyed: the next key is predicted at this key's
+                     * decoded position plus its decoded mf, so mf is judged
+                     * by where that lands: the prediction is kept while it
+                     * lands within 0.9 position bounds of the true next
+                     * position (true position + true mf), else coded
+                     * towards that target. Position errors then never add
+                     * up from key to key, and the decoded positions' own
+                     * quantization noise is not re-coded in every mf. */
+                    if (keyed) {
+                        res[CH_MF + c] = mf_resid(f, i, c, rpos[c], p.mf[c], z[QZ_MF + c], pos_tol[c]);
+                    } else {
+                        res[CH_MF + c] = resid(z[QZ_MF + c], f->motion_fwd[3 * i + c], p.mf[c]);
+                    }
+                    /* keyed: the prediction is the way back to the decoded
+                     * reference, off the true one by at most the two
+                     * position bounds; kept within them, so a decoded
+                     * key's mb leads exactly to the decoded reference */
+                    float mbd = f->motion_bwd[3 * i + c] - pb.mb[c];
+                    res[CH_MB + c] = keyed && fabsf(mbd) <= mb_tol ? 0 : resid(z[QZ_MB + c], f->motion_bwd[3 * i + c], pb.mb[c]);
                 }
             }
             res[CH_OP] = resid(z[6], f->opacity[i], p.op);
@@ -635,18 +964,22 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 res[CH_ROT + c] = (int32_t)llround(t);
                 rot_near &= fabs(t) <= 1.0;
             }
-            /* Dead zone: a channel whose prediction is already within the
-             * level's bound keeps it (the reference's own quantization error
-             * would otherwise flip it to +-1 from key to key). */
+            /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
+             * by at most 2 a (s_max - s_min): within the position bound it
+             * is kept (a near-isotropic Gaussian's rotation hardly shows). */
+            if (!rot_near && qn != 0.0f) {
+                const float *sc = f->scale + 3 * i;
+                float smax = fmaxf(sc[0], fmaxf(sc[1], sc[2])), smin = fminf(sc[0], fminf(sc[1], sc[2]));
+                float cd = fminf(1.0f, fabsf(dot) * fabsf(qn));
+                float ang = 2.0f * acosf(cd);
+                rot_near = 2.0f * ang * (smax - smin) <= rot_tol;
+            }
             if (rot_near)
                 res[CH_ROT] = res[CH_ROT + 1] = res[CH_ROT + 2] = res[CH_ROT + 3] = 0;
-            for (int c = 0; c < 3; c++)
-                if (fabsf(f->pos[3 * i + c] - p.pos[c]) <= pos_tol[c])
-                    res[CH_POS + c] = 0;
             int any = 0;
             for (int c = 0; c < nch; c++)
                 any |= res[c];
-            resid_recon(res, &p, z, qi->rot_bits, motion, dst, i);
+            resid_recon(res, &p, cf, z, qi->rot_bits, motion, dst, i);
             if (!any) {
                 e->flags[i] = 0;
                 n_same++;
@@ -655,26 +988,49 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             e->flags[i] = 1;
             for (int c = 0; c < nch; c++)
                 e->res[(size_t)c * stride + n_changed] = zig(res[c]);
+            e->mo.key[n_changed] = morton_key(z, p.pos);
             n_changed++;
         }
         size_t o0 = off;
         if (explicit_match && (rc = put_plane(e, e->idx, n, 0, pl, pcap, &off)) < 0)
             return rc;
+        e->st.bytes_match = off - o0;
         if ((rc = put_plane(e, e->flags, n, 0, pl, pcap, &off)) < 0)
             return rc;
         e->st.bytes_index = off - o0;
+        e->st.bytes_flags = e->st.bytes_index - e->st.bytes_match;
         size_t *g[3] = { &e->st.bytes_pos, &e->st.bytes_attr, &e->st.bytes_motion };
+        /* residual planes may be delta-coded too: neighbours in index order
+         * (pixel-aligned, or sampled along a surface) share their motion
+         * change, so differences along the index are smaller */
+        if (n_changed)
+            morton_sort(&e->mo, n_changed);
         for (int c = 0; c < nch; c++) {
             o0 = off;
-            if ((rc = put_plane(e, e->res + (size_t)c * stride, n_changed, 0, pl, pcap, &off)) < 0)
+            uint32_t *src = e->res + (size_t)c * stride;
+            if ((rc = put_plane(e, src, n_changed, 2, pl, pcap, &off)) < 0)
                 return rc;
+            if (n_changed > 1) {
+                /* the same plane in Morton order, kept when smaller (tag
+                 * bit 2); written after the first, so it may not fit */
+                for (size_t k = 0; k < n_changed; k++)
+                    e->mo.tmp[k] = src[e->mo.perm[k]];
+                size_t o1 = off;
+                if (put_plane(e, e->mo.tmp, n_changed, 2, pl, pcap, &o1) == 0 && o1 - off < off - o0) {
+                    memmove(pl + o0, pl + off, o1 - off);
+                    pl[o0] |= 4;
+                    off = o0 + (o1 - off);
+                }
+            }
             *g[stat_group(c)] += off - o0;
+            e->st.bytes_channel[c] += off - o0;
         }
         for (int c = 0; c < nch; c++) {
             o0 = off;
             if ((rc = put_plane(e, e->rec + (size_t)c * stride, n_new, 1, pl, pcap, &off)) < 0)
                 return rc;
             *g[stat_group(c)] += off - o0;
+            e->st.bytes_channel[c] += off - o0;
         }
     }
     finish_scales(dst);
@@ -687,6 +1043,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     codec__put_u32(pl + 8, intra ? 0u : (uint32_t)ref->count);
     codec__put_u32(pl + 12, (uint32_t)n_new);
     codec__put_u32(pl + 16, (uint32_t)n_changed);
+    for (int k = 0; k < NCOEF; k++)
+        codec__put_f32(pl + FHDR1 + 4 * k, cf[k]);
     put_qz(pl + FHDR, z);
 
     uint32_t s = e->seq;
@@ -702,10 +1060,12 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     e->st.dropped = intra ? 0 : (ref->count > matched ? ref->count - matched : 0);
     e->st.bytes_total = off;
     e->st.bytes_header = FHDR + 8 * NQZ;
+    memcpy(e->st.predictor, cf, sizeof cf);
     e->seq++;
     e->ref_seq = s;
     e->cur ^= 1;
-    e->have_ref = 1;
+    e->have_ref = !still; /* a still key's order is not the input's: never a reference */
+    e->last_still = still;
     return F4D_OK;
 }
 
@@ -720,6 +1080,7 @@ struct codec_dec {
     uint32_t last_seq, key_seq;
     uint64_t t_us;
     uint32_t *rec, *res, *idx, *flags;
+    struct morton mo;
     uint8_t *shuf;
     void *zws;
     ZSTD_DCtx *z;
@@ -747,7 +1108,8 @@ int codec_dec_new(size_t capacity, codec_dec **out, struct f4d_err *err)
     d->shuf = malloc(4 * c);
     size_t zsz = ZSTD_estimateDCtxSize();
     d->zws = malloc(zsz);
-    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || key_alloc(&d->key[0], capacity) ||
+    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || morton_alloc(&d->mo, c) ||
+              key_alloc(&d->key[0], capacity) ||
               key_alloc(&d->key[1], capacity);
     if (!bad)
         d->z = ZSTD_initStaticDCtx(d->zws, zsz);
@@ -764,6 +1126,7 @@ void codec_dec_free(codec_dec *d)
     if (!d)
         return;
     free(d->rec); free(d->res); free(d->idx); free(d->flags); free(d->shuf); free(d->zws);
+    morton_free(&d->mo);
     key_free(&d->key[0]);
     key_free(&d->key[1]);
     free(d);
@@ -778,15 +1141,21 @@ uint64_t codec_dec_time(const codec_dec *d) { return d ? d->t_us : 0; }
 const struct codec_dec_stats *codec_dec_stats(const codec_dec *d) { return d ? &d->st : NULL; }
 int codec_dec_quality(const codec_dec *d) { return d ? d->quality : -1; }
 
+/* morton: NULL where a plane may not be in Morton order, else set to
+ * whether it is (tag bit 2). */
 static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, size_t n, uint32_t *v,
-                     const char *what)
+                     const char *what, int *morton)
 {
     if (len - *off < 5)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: truncated at byte %zu", what, *off);
     int t = in[*off] & 15, w = in[*off] >> 4;
+    if (morton) {
+        *morton = t >> 2 & 1;
+        t &= 3;
+    }
     uint32_t zl = codec__u32(in + *off + 1);
     *off += 5;
-    if (t > 1 || w < 1 || w > 4)
+    if (t > 2 || w < 1 || w > 4)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: bad tag 0x%02x", what, in[*off - 5]);
     if (zl > len - *off)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: %u compressed bytes, %zu left", what, zl,
@@ -814,6 +1183,11 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
             v[i] = x;
             prev = x;
         }
+    else if (t == 2)
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = (int32_t)((uint32_t)(i ? unzig(v[i - 1]) : 0) + (uint32_t)unzig(v[i]));
+            v[i] = zig(x);
+        }
     return F4D_OK;
 }
 
@@ -833,7 +1207,8 @@ static int key_finite(codec_dec *d, const struct keystate *k)
 static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
 {
     const uint8_t *in = p->payload;
-    size_t len = p->payload_len, off = FHDR + 8 * NQZ;
+    const size_t fhdr = p->version >= 2 ? FHDR : FHDR1;
+    size_t len = p->payload_len, off = fhdr + 8 * NQZ;
     if (len < off)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu bytes, the header needs %zu", len, off);
     if (in[0] != (intra ? 1 : 2))
@@ -853,10 +1228,19 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     if (!intra && nref != ref->count)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: reference of %zu Gaussians, the decoder holds %zu", nref,
                         ref->count);
+    float cf[NCOEF];
+    memcpy(cf, coef_v1, sizeof cf);
+    if (p->version >= 2)
+        for (int k = 0; k < NCOEF; k++) {
+            cf[k] = codec__f32(in + FHDR1 + 4 * k);
+            if (!(fabsf(cf[k]) <= COEF_MAX))
+                return f4d_fail(&d->err, F4D_EFORMAT, "frame: predictor coefficient %d (%g) outside +-%g", k,
+                                (double)cf[k], (double)COEF_MAX);
+        }
     struct qz z[NQZ];
     for (int k = 0; k < NQZ; k++) {
-        z[k].lo = codec__f32(in + FHDR + 8 * k);
-        z[k].step = codec__f32(in + FHDR + 8 * k + 4);
+        z[k].lo = codec__f32(in + fhdr + 8 * k);
+        z[k].step = codec__f32(in + fhdr + 8 * k + 4);
         if (!isfinite(z[k].lo) || !isfinite(z[k].step) || z[k].step < 0 || fabsf(z[k].lo) > 1e18f ||
             z[k].step > 1e10f)
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: quantizer %d (%g, %g) out of range", k, (double)z[k].lo,
@@ -864,32 +1248,74 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     const int nch = motion ? NCH : CH_MB;
     const size_t stride = d->cap ? d->cap : 1;
-    int rc;
+    int rc, mort[NCH] = { 0 };
     char what[16];
     dst->count = n;
     dst->motion = motion;
     if (intra) {
         for (int c = 0; c < nch; c++) {
             snprintf(what, sizeof what, "%d", c);
-            if ((rc = get_plane(d, in, len, &off, n, d->rec + (size_t)c * stride, what)) < 0)
+            if ((rc = get_plane(d, in, len, &off, n, d->rec + (size_t)c * stride, what, NULL)) < 0)
                 return rc;
         }
         for (size_t i = 0; i < n; i++)
             intra_recon(d->rec, stride, i, z, rot_bits, motion, dst, i);
     } else {
-        if (explicit_match && (rc = get_plane(d, in, len, &off, n, d->idx, "index")) < 0)
+        if (explicit_match && (rc = get_plane(d, in, len, &off, n, d->idx, "index", NULL)) < 0)
             return rc;
-        if ((rc = get_plane(d, in, len, &off, n, d->flags, "flags")) < 0)
+        if ((rc = get_plane(d, in, len, &off, n, d->flags, "flags", NULL)) < 0)
             return rc;
         for (int c = 0; c < nch; c++) {
             snprintf(what, sizeof what, "r%d", c);
-            if ((rc = get_plane(d, in, len, &off, n_changed, d->res + (size_t)c * stride, what)) < 0)
+            if ((rc = get_plane(d, in, len, &off, n_changed, d->res + (size_t)c * stride, what,
+                                p->version >= 2 ? &mort[c] : NULL)) < 0)
                 return rc;
         }
         for (int c = 0; c < nch; c++) {
             snprintf(what, sizeof what, "n%d", c);
-            if ((rc = get_plane(d, in, len, &off, n_new, d->rec + (size_t)c * stride, what)) < 0)
+            if ((rc = get_plane(d, in, len, &off, n_new, d->rec + (size_t)c * stride, what, NULL)) < 0)
                 return rc;
+        }
+        int any_mort = 0;
+        for (int c = 0; c < nch; c++)
+            any_mort |= mort[c];
+        if (any_mort && n_changed) {
+            /* the residuals come in the Morton order of the changed
+             * Gaussians' predicted positions: find it, put them back in
+             * index order */
+            size_t kc = 0;
+            int64_t prev = -1;
+            for (size_t i = 0; i < n; i++) {
+                uint32_t fl = d->flags[i];
+                if (fl > 2)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
+                if (fl == 2)
+                    continue;
+                int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
+                if (r < 0 || r >= (int64_t)nref)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
+                                    (long long)r, nref);
+                prev = r;
+                if (fl != 1)
+                    continue;
+                if (kc >= n_changed)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: more changed Gaussians than the %zu announced",
+                                    n_changed);
+                struct pred pr;
+                predict(ref, (size_t)r, cf, &pr);
+                d->mo.key[kc++] = morton_key(z, pr.pos);
+            }
+            if (kc != n_changed)
+                return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed, header %zu", kc, n_changed);
+            morton_sort(&d->mo, n_changed);
+            for (int c = 0; c < nch; c++) {
+                if (!mort[c])
+                    continue;
+                uint32_t *v = d->res + (size_t)c * stride;
+                memcpy(d->mo.tmp, v, n_changed * sizeof(uint32_t));
+                for (size_t k = 0; k < n_changed; k++)
+                    v[d->mo.perm[k]] = d->mo.tmp[k];
+            }
         }
         size_t kc = 0, kn = 0;
         int64_t prev = -1;
@@ -909,7 +1335,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                                 (long long)r, nref);
             prev = r;
             struct pred pr;
-            predict(ref, (size_t)r, &pr);
+            predict(ref, (size_t)r, cf, &pr);
             int32_t res[NCH] = { 0 };
             if (fl == 1) {
                 if (kc >= n_changed)
@@ -919,7 +1345,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                     res[c] = unzig(d->res[(size_t)c * stride + kc]);
                 kc++;
             }
-            resid_recon(res, &pr, z, rot_bits, motion, dst, i);
+            resid_recon(res, &pr, cf, z, rot_bits, motion, dst, i);
         }
         if (kc != n_changed || kn != n_new)
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed / %zu new, header %zu / %zu", kc,
@@ -949,7 +1375,7 @@ int codec_dec_packet(codec_dec *d, const struct codec_packet *p)
     d->last_seq = p->seq;
     switch (p->type) {
     case CODEC_PKT_STREAM:
-        if (p->payload_len < 12 || codec__u32(p->payload) != CODEC_VERSION ||
+        if (p->payload_len < 12 || codec__u32(p->payload) < 1 || codec__u32(p->payload) > CODEC_VERSION ||
             codec__u32(p->payload + 4) >= CODEC_QUALITY_COUNT) {
             d->st.refused++;
             return f4d_fail(&d->err, F4D_EFORMAT, "stream header: bad version or quality");
@@ -965,7 +1391,10 @@ int codec_dec_packet(codec_dec *d, const struct codec_packet *p)
             d->st.skipped++;
             return 0;
         }
-        int rc = decode_key(d, p, intra);
+        struct codec_packet q = *p;
+        if (q.version == 0) /* built by hand, not parsed: the current version */
+            q.version = CODEC_VERSION;
+        int rc = decode_key(d, &q, intra);
         if (rc < 0) {
             d->st.refused++;
             d->have_ref = 0;

@@ -59,8 +59,8 @@ int codec_packet_parse(const uint8_t *buf, size_t len, struct codec_packet *p, s
         return f4d_fail(err, F4D_EEOF, "packet: %zu bytes, the header needs %d", len, CODEC_PACKET_HEADER);
     if (codec__u32(buf) != CODEC_PACKET_MAGIC)
         return f4d_fail(err, F4D_EFORMAT, "packet: bad magic 0x%08x", codec__u32(buf));
-    if (buf[4] != CODEC_VERSION)
-        return f4d_fail(err, F4D_EFORMAT, "packet: version %u, this build reads %d", buf[4], CODEC_VERSION);
+    if (buf[4] < 1 || buf[4] > CODEC_VERSION)
+        return f4d_fail(err, F4D_EFORMAT, "packet: version %u, this build reads 1..%d", buf[4], CODEC_VERSION);
     if (buf[5] < CODEC_PKT_STREAM || buf[5] > CODEC_PKT_END)
         return f4d_fail(err, F4D_EFORMAT, "packet: unknown type %u", buf[5]);
     if (codec__u16(buf + 6) != 0)
@@ -75,6 +75,7 @@ int codec_packet_parse(const uint8_t *buf, size_t len, struct codec_packet *p, s
         return f4d_fail(err, F4D_ECORRUPT, "packet seq %u: CRC 0x%08x, header says 0x%08x", codec__u32(buf + 8),
                         crc, codec__u32(buf + 28));
     p->type = buf[5];
+    p->version = buf[4];
     p->seq = codec__u32(buf + 8);
     p->ref_seq = codec__u32(buf + 12);
     p->t_us = codec__u64(buf + 16);

@@ -21,7 +21,7 @@
  * framing beside the codec means one reader to validate and fuzz.
  *
  * ---- Packet (all little-endian, 32-byte header) ----
- *   0  u32 magic 0x50443446 ("F4DP")     4  u8 version (1)   5 u8 type
+ *   0  u32 magic 0x50443446 ("F4DP")     4  u8 version (2; 1 read) 5 u8 type
  *   6  u16 flags (0)                     8  u32 seq (per packet, +1 each)
  *   12 u32 ref_seq (predicted: seq of the key it is coded against; else seq)
  *   16 u64 timestamp in microseconds     24 u32 payload length (<= 1 GiB)
@@ -34,7 +34,8 @@
  * the decoder holds is skipped until the next intra key.
  *
  * ---- Key frame payload ----
- * A 16-byte frame header, 16 channel quantizers (f32 lo, f32 step: position
+ * A 20-byte frame header (version 2: then 6 f32 predictor coefficients, see
+ * below), 16 channel quantizers (f32 lo, f32 step: position
  * x y z, log-scale x y z, opacity, rgb, motion_bwd x y z, motion_fwd x y z),
  * then planes. Each plane is one attribute component for every coded Gaussian,
  * as unsigned integers (residuals zigzagged), optionally delta-coded along the
@@ -58,25 +59,45 @@
  *     The encoder predicts from its own reconstruction, so errors never
  *     accumulate: every value is within the intra bound of the input.
  *
+ * Predictor (version 2). The reference's motions need not span the key
+ * interval (a 30 fps take keyed at 10 Hz carries 1/30 s motions), so the
+ * encoder fits, per key, by least squares over the matched Gaussians,
+ *   displacement ~ c0 mf + c1 mb,  mf ~ c2 mf + c3 mb,  mb ~ c4 mf + c5 mb
+ * (mf, mb: the reference's decoded motions) and sends c0..c5 (f32); version 1
+ * streams use (1, 0, 1, 0, -1, 0). With exact key-interval motion the fit
+ * finds that; with 1/3-interval motion it finds the second-order
+ * extrapolation (about 6 mf + 3 mb). The decoder checks |c| <= 1000.
+ *
  * Quality levels (error bounds, per value, against the encoder's input):
- *                      LOW               MEDIUM             HIGH
- *   position     step <= 1 mm, >=12 b  <= 0.1 mm, >=16 b  <= 0.02 mm, >=18 b
- *   log-scale    step 1/8             step 1/32          step 1/128
- *   opacity/rgb  6 bits / 6 bits      8 / 8              10 / 10  (of range)
- *   rotation     7 bits per comp.     10                 12
- *   motion       step 1 mm            step 0.1 mm        step 0.02 mm
+ *                      COMPACT          LOW               MEDIUM             HIGH
+ *   position     step <= 2 mm, >=10 b step <= 1 mm, >=12 b <= 0.1 mm, >=16 b <= 0.02 mm, >=18 b
+ *   log-scale    step 1/8             step 1/8             step 1/32          step 1/128
+ *   opacity/rgb  5 bits / 6 bits      6 bits / 6 bits      8 / 8              10 / 10  (of range)
+ *   rotation     6 bits per comp.     7 bits per comp.     10                 12
+ *   motion       step 2 mm            step 1 mm            step 0.1 mm        step 0.02 mm
+ * (COMPACT, number 3, came with version 2.)
  * The error bound is half a step (positions: the step is the frame's extent
  * over 2^bits - 1, so a 5 m scene at MEDIUM gets 16 bits = 76 um, i.e. 38 um
  * worst case; the 0.1 mm cap adds bits only beyond 6.5 m; rgb/opacity:
  * range / (2^bits - 1) / 2; rotation components: one rotation step
  * sqrt(2) / (2^bits - 1)). Predicted keys keep a reference value already
- * within half a step (+0.05 %), so the bounds hold for every key.
- * Measured (f4d-bench codec; walk preset, 37.6k Gaussians with motion, 10 Hz
- * keys, render PSNR vs uncompressed, 4 rig cameras 518x518, float renders):
- *   LOW    intra 4.54 B/G, predicted 1.81 B/G, 51.3 dB (min 50.7)
- *   MEDIUM intra 6.84 B/G, predicted 3.33 B/G, 60.7 dB (min 59.1)
- *   HIGH   intra 8.46 B/G, predicted 4.36 B/G, 72.0 dB (min 70.1)
- *   (SPZ v3 by codec_spz_encode, same key: 6.83 B/G, 56.5 dB, no motion.)
+ * within half a step (+0.05 %), so the bounds hold for every key. Version 2
+ * widens three dead zones where the render cannot tell: a rotation is kept
+ * while 2 x angle x (s_max - s_min) (how far it moves the 2-sigma
+ * ellipsoid) stays within the position bound; with motions that span the key
+ * interval (fitted c0 ~ 1, c1 ~ 0, "keyed") mf is kept while the next key's
+ * prediction (this decoded position + decoded mf) lands within 0.9 position
+ * bounds of the true next position (so mf is within 2 position bounds), and
+ * mb, predicted as the way back to the decoded reference, is kept within 2
+ * position bounds + half a motion step.
+ * Measured, version 2 (f4d-bench codec; walk preset, 37.6k Gaussians with
+ * motion over the key interval, 10 Hz keys, render PSNR vs uncompressed, 4
+ * rig cameras 518x518, float renders; version 1 in brackets):
+ *   COMPACT intra 3.87 B/G, predicted 1.34 B/G, 48.4 dB (min 47.4)
+ *   LOW     intra 4.54 B/G, predicted 1.59 B/G [1.81], 51.1 dB (min 50.2)
+ *   MEDIUM  intra 6.85 B/G, predicted 2.52 B/G [3.33], 60.6 dB (min 59.3)
+ *   HIGH    intra 8.46 B/G, predicted 3.36 B/G [4.36], 71.9 dB (min 69.6)
+ *   (SPZ v4 by codec_spz_encode, same key: 5.98 B/G, 56.5 dB, no motion.)
  *
  * Non-finite input: the encoder refuses a frame with a NaN or Inf anywhere
  * (F4D_EINVAL naming the Gaussian and attribute); the decoders never produce
@@ -99,7 +120,7 @@
 extern "C" {
 #endif
 
-#define CODEC_VERSION        1
+#define CODEC_VERSION        2   /* written; 1 and 2 are read */
 #define CODEC_PACKET_MAGIC   0x50443446u /* "F4DP" little-endian */
 #define CODEC_PACKET_HEADER  32
 #define CODEC_PAYLOAD_MAX    (1u << 30)
@@ -110,6 +131,7 @@ enum codec_quality {
     CODEC_Q_LOW    = 0,
     CODEC_Q_MEDIUM = 1,
     CODEC_Q_HIGH   = 2,
+    CODEC_Q_COMPACT = 3, /* version 2: the streaming level, below LOW (about 45-47 dB) */
     CODEC_QUALITY_COUNT
 };
 
@@ -129,11 +151,12 @@ struct codec_quality_info {
     float motion_step;       /* metres */
 };
 const struct codec_quality_info *codec_quality_get(enum codec_quality q); /* NULL if out of range */
-int codec_quality_from_name(const char *name, struct f4d_err *err);       /* low|medium|high */
+int codec_quality_from_name(const char *name, struct f4d_err *err);       /* low|medium|high|compact */
 
 /* ---- packets ---- */
 struct codec_packet {
     int            type;
+    int            version;     /* codec version of the packet (1..CODEC_VERSION) */
     uint32_t       seq, ref_seq;
     uint64_t       t_us;
     const uint8_t *payload;     /* points into the parsed buffer */
@@ -164,14 +187,26 @@ typedef struct codec_enc codec_enc;
 enum codec_key_mode {
     CODEC_KEY_AUTO  = 0, /* predicted when a reference exists, else intra */
     CODEC_KEY_INTRA = 1,
+    CODEC_KEY_STILL = 2, /* intra, Gaussians reordered (Morton order of their
+                          * positions) for size: decoded Gaussian j is input
+                          * Gaussian codec_enc_order(e)[j], and the next key
+                          * is intra (for still files, SPZ-like use) */
 };
 
-/* Bytes of the last encoded key by group (payload, before the packet header). */
+/* Bytes of the last encoded key by group (payload, before the packet header)
+ * and by channel (residual + new planes of one attribute component; the
+ * channels are named by codec_channel_name). */
+#define CODEC_CHANNELS 20
 struct codec_enc_stats {
     int    intra;
     size_t count, unchanged, changed, fresh, dropped;
     size_t bytes_total, bytes_header, bytes_index, bytes_pos, bytes_attr, bytes_motion;
+    size_t bytes_flags, bytes_match;         /* parts of bytes_index */
+    size_t bytes_channel[CODEC_CHANNELS];
+    float  predictor[7];                     /* see "Predictor" above */
 };
+/* "pos.x" ... "mf.z"; NULL when ch is out of range. */
+const char *codec_channel_name(int ch);
 
 int  codec_enc_new  (size_t capacity, enum codec_quality q, codec_enc **out, struct f4d_err *err);
 void codec_enc_free (codec_enc *e);
@@ -188,6 +223,10 @@ int  codec_enc_end  (codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size
 /* What a decoder holds after the last key (the encoder's reconstruction). */
 const struct splat_frame *codec_enc_recon(const codec_enc *e);
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e);
+/* Input index of each decoded Gaussian of the last key when it was
+ * CODEC_KEY_STILL; NULL when the order is the input's. Valid until the next
+ * call. */
+const uint32_t *codec_enc_order(const codec_enc *e);
 
 /* ---- decoder ---- */
 typedef struct codec_dec codec_dec;
@@ -214,16 +253,23 @@ const struct codec_dec_stats *codec_dec_stats(const codec_dec *d);
 /* The stream header fields seen last (0 when none). */
 int  codec_dec_quality(const codec_dec *d);
 
-/* ---- SPZ (Niantic, version 3: 16-byte header, gzip) and interop ----
- * Written as SPZ v3 (magic "NGSP", version 3, fractionalBits 12, flags 0,
- * shDegree 0): positions 24-bit fixed point (1/4096 m), alpha u8
- * (sigmoid(logit) * 255), colour u8 (f_dc * 0.15 * 255 + 127.5), log-scale u8
- * ((s + 10) * 16), rotation smallest-three in a u32 (2-bit index, 3 x 10 bits).
+/* ---- SPZ (Niantic) and interop ----
+ * Written as SPZ v4, the current version (32-byte plain header: magic "NGSP",
+ * version 4, numPoints, shDegree 0, fractionalBits 12, flags 0, numStreams 5,
+ * tocByteOffset 32; a TOC of (compressed, uncompressed) u64 pairs; one zstd
+ * frame per array: positions, alphas, colours, scales, rotations) or, on
+ * request, v3 (16-byte header and the same arrays, gzipped). Arrays:
+ * positions 24-bit fixed point (1/4096 m), alpha u8 (sigmoid(logit) * 255),
+ * colour u8 (f_dc * 0.15 * 255 + 127.5), log-scale u8 ((s + 10) * 16),
+ * rotation smallest-three in a u32 (2-bit index, 3 x 10 bits).
  * Axes: SPZ stores RUB; our frames (like INRIA PLY) are taken as RDF, so y and
  * z of positions and quaternions are flipped on the way in and out. Read: v2
- * and v3 (gzip), v4 is refused with a clear message. Round-trip error: 0.12 mm
- * in position, 1/32 in log-scale, 1/510 in opacity, (1/255)/0.15*C0/2 in rgb. */
-int codec_spz_encode(const struct splat_frame *f, uint8_t **out, size_t *len, struct f4d_err *err);
+ * and v3 (gzip) and v4 (extension records skipped through tocByteOffset, SH
+ * streams read and ignored). Round-trip error: 0.12 mm in position, 1/32 in
+ * log-scale, 1/510 in opacity, (1/255)/0.15*C0/2 in rgb. */
+int codec_spz_encode_version(const struct splat_frame *f, int version, uint8_t **out, size_t *len,
+                             struct f4d_err *err); /* version 3 or 4 */
+int codec_spz_encode(const struct splat_frame *f, uint8_t **out, size_t *len, struct f4d_err *err); /* v4 */
 int codec_spz_decode(const uint8_t *buf, size_t len, struct splat_frame *f, struct f4d_err *err);
 int codec_spz_write (const char *path, const struct splat_frame *f, struct f4d_err *err);
 int codec_spz_read  (const char *path, struct splat_frame *f, struct f4d_err *err);

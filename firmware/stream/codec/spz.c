@@ -1,6 +1,11 @@
-/* spz.c - Niantic SPZ export/import (v3 written, v2/v3 read), written from
- * the format description in ../shared/docs/gaussians.md §3.1 with zlib. */
+/* spz.c - Niantic SPZ export/import: v4 (the current version: 32-byte plain
+ * header, a TOC and one zstd stream per attribute) and v3 (16-byte header and
+ * the same arrays, gzipped) written; v2, v3 and v4 read. Written from the
+ * format description in ../shared/docs/gaussians.md §3.1 (facts checked
+ * against public SPZ v4 readers: streams positions, alphas, colours, scales,
+ * rotations[, SH], zero-size streams omitted). */
 #include <zlib.h>
+#include <zstd.h>
 
 #include <errno.h>
 #include <math.h>
@@ -11,6 +16,8 @@
 
 #define SPZ_MAGIC   0x5053474eu
 #define SPZ_HDR     16
+#define SPZ4_HDR    32
+#define SPZ4_ZLEVEL 12
 #define SPZ_FB      12
 #define SPZ_MAX_PTS ((size_t)1 << 26)
 
@@ -22,10 +29,61 @@ static uint8_t u8r(float v)
     return r <= 0.0f ? 0 : r >= 255.0f ? 255 : (uint8_t)r;
 }
 
+/* v4: header, TOC of (compressed, uncompressed) u64 pairs, the five
+ * attribute arrays of the v3 layout each as its own zstd frame. */
+static int spz4_pack(const uint8_t *arrays, size_t n, uint8_t **out, size_t *len, struct f4d_err *err)
+{
+    const size_t sz[5] = { 9 * n, n, 3 * n, 3 * n, 4 * n };
+    size_t cap = SPZ4_HDR + 5 * 16;
+    for (int k = 0; k < 5; k++)
+        cap += ZSTD_compressBound(sz[k]);
+    uint8_t *o = malloc(cap);
+    if (!o)
+        return f4d_fail(err, F4D_ENOMEM, "spz: out of memory for %zu Gaussians", n);
+    memset(o, 0, SPZ4_HDR);
+    codec__put_u32(o, SPZ_MAGIC);
+    codec__put_u32(o + 4, 4);
+    codec__put_u32(o + 8, (uint32_t)n);
+    o[12] = 0;      /* SH degree */
+    o[13] = SPZ_FB; /* fractional bits */
+    o[14] = 0;      /* flags: not antialiased, no extensions */
+    int ns = 0;
+    for (int k = 0; k < 5; k++)
+        ns += sz[k] > 0;
+    o[15] = (uint8_t)ns;
+    codec__put_u32(o + 16, SPZ4_HDR); /* TOC right after the header */
+    size_t off = SPZ4_HDR + 16 * (size_t)ns, src = 0, t = SPZ4_HDR;
+    for (int k = 0; k < 5; k++) {
+        if (!sz[k])
+            continue;
+        size_t z = ZSTD_compress(o + off, cap - off, arrays + src, sz[k], SPZ4_ZLEVEL);
+        if (ZSTD_isError(z)) {
+            free(o);
+            return f4d_fail(err, F4D_EIO, "spz: zstd: %s", ZSTD_getErrorName(z));
+        }
+        codec__put_u64(o + t, z);
+        codec__put_u64(o + t + 8, sz[k]);
+        t += 16;
+        off += z;
+        src += sz[k];
+    }
+    *out = o;
+    *len = off;
+    return F4D_OK;
+}
+
 int codec_spz_encode(const struct splat_frame *f, uint8_t **out, size_t *len, struct f4d_err *err)
+{
+    return codec_spz_encode_version(f, 4, out, len, err);
+}
+
+int codec_spz_encode_version(const struct splat_frame *f, int version, uint8_t **out, size_t *len,
+                             struct f4d_err *err)
 {
     if (!f || !out || !len)
         return f4d_fail(err, F4D_EINVAL, "spz: NULL argument");
+    if (version != 3 && version != 4)
+        return f4d_fail(err, F4D_ENOTSUP, "spz: writing version %d; versions 3 and 4 are written", version);
     int rc = splat_frame_validate(f, err);
     if (rc < 0)
         return rc;
@@ -94,7 +152,12 @@ int codec_spz_encode(const struct splat_frame *f, uint8_t **out, size_t *len, st
         }
         codec__put_u32(pr + 4 * i, comp);
     }
-    /* gzip */
+    if (version == 4) {
+        rc = spz4_pack(raw + SPZ_HDR, n, out, len, err);
+        free(raw);
+        return rc;
+    }
+    /* v3: gzip */
     z_stream zs;
     memset(&zs, 0, sizeof zs);
     if (deflateInit2(&zs, 9, Z_DEFLATED, 15 + 16, 9, Z_DEFAULT_STRATEGY) != Z_OK) {
@@ -156,54 +219,14 @@ static int gunzip(const uint8_t *in, size_t n, uint8_t *out, size_t cap, size_t 
     return F4D_OK;
 }
 
-int codec_spz_decode(const uint8_t *buf, size_t len, struct splat_frame *f, struct f4d_err *err)
+/* The arrays of the v2/v3 layout (v4 streams concatenated) into f. */
+static int spz_unpack(const uint8_t *arrays, size_t n, uint32_t ver, int fb, struct splat_frame *f,
+                      struct f4d_err *err)
 {
-    if (!buf || !f)
-        return f4d_fail(err, F4D_EINVAL, "spz: NULL argument");
-    if (len >= 8 && codec__u32(buf) == SPZ_MAGIC)
-        return f4d_fail(err, F4D_ENOTSUP, "spz: version %u (uncompressed header, zstd streams) is not read; "
-                        "versions 2 and 3 are", codec__u32(buf + 4));
-    if (len < 18 || buf[0] != 0x1f || buf[1] != 0x8b)
-        return f4d_fail(err, F4D_EFORMAT, "spz: not gzip data (no 1f 8b at the start)");
-    uint8_t h[SPZ_HDR];
-    size_t got;
-    int more, rc;
-    if ((rc = gunzip(buf, len, h, sizeof h, &got, &more, err)) < 0)
+    int rc = splat_frame_resize(f, n, 0, err);
+    if (rc < 0)
         return rc;
-    if (got < SPZ_HDR)
-        return f4d_fail(err, F4D_EFORMAT, "spz: %zu bytes after gunzip, the header needs %d", got, SPZ_HDR);
-    if (codec__u32(h) != SPZ_MAGIC)
-        return f4d_fail(err, F4D_EFORMAT, "spz: magic 0x%08x, expected 0x%08x (NGSP)", codec__u32(h), SPZ_MAGIC);
-    uint32_t ver = codec__u32(h + 4);
-    if (ver < 2 || ver > 3)
-        return f4d_fail(err, F4D_ENOTSUP, "spz: version %u, this reader takes 2 and 3", ver);
-    size_t n = codec__u32(h + 8);
-    int shd = h[12], fb = h[13];
-    if (n > SPZ_MAX_PTS)
-        return f4d_fail(err, F4D_ERANGE, "spz: numPoints %zu exceeds %zu", n, SPZ_MAX_PTS);
-    if (shd > 3)
-        return f4d_fail(err, F4D_EFORMAT, "spz: shDegree %d (0..3)", shd);
-    if (fb > 23)
-        return f4d_fail(err, F4D_EFORMAT, "spz: fractionalBits %d (0..23)", fb);
-    size_t rb = ver >= 3 ? 4 : 3, per = 9 + 1 + 3 + 3 + rb + 3 * (size_t)sh_coeffs(shd);
-    size_t total = SPZ_HDR + n * per;
-    uint8_t *raw = malloc(total ? total : 1);
-    if (!raw)
-        return f4d_fail(err, F4D_ENOMEM, "spz: out of memory for %zu points", n);
-    if ((rc = gunzip(buf, len, raw, total, &got, &more, err)) < 0) {
-        free(raw);
-        return rc;
-    }
-    if (got != total || more) {
-        free(raw);
-        return f4d_fail(err, F4D_EFORMAT, "spz: %zu points need %zu bytes, the data has %s%zu", n, total,
-                        more ? "more than " : "", got);
-    }
-    if ((rc = splat_frame_resize(f, n, 0, err)) < 0) {
-        free(raw);
-        return rc;
-    }
-    const uint8_t *pp = raw + SPZ_HDR, *pa = pp + 9 * n, *pc = pa + n, *ps = pc + 3 * n, *pr = ps + 3 * n;
+    const uint8_t *pp = arrays, *pa = pp + 9 * n, *pc = pa + n, *ps = pc + 3 * n, *pr = ps + 3 * n;
     const float sgn[3] = { 1.0f, -1.0f, -1.0f };
     float inv = 1.0f / (float)(1 << fb);
     for (size_t i = 0; i < n; i++) {
@@ -253,8 +276,126 @@ int codec_spz_decode(const uint8_t *buf, size_t len, struct splat_frame *f, stru
             r[3] = -q[2] * nn;
         }
     }
-    free(raw);
     return F4D_OK;
+}
+
+/* v4: 32-byte header, optional extension records up to tocByteOffset, TOC,
+ * streams back to back. Every size is checked against the file and against
+ * what numPoints and shDegree imply before anything is decompressed. */
+static int spz4_decode(const uint8_t *buf, size_t len, struct splat_frame *f, struct f4d_err *err)
+{
+    if (len < SPZ4_HDR)
+        return f4d_fail(err, F4D_EFORMAT, "spz: %zu bytes, the v4 header needs %d", len, SPZ4_HDR);
+    uint32_t ver = codec__u32(buf + 4);
+    if (ver != 4)
+        return f4d_fail(err, F4D_ENOTSUP, "spz: uncompressed header with version %u; only version 4 has one "
+                        "(versions 2 and 3 are gzipped)", ver);
+    size_t n = codec__u32(buf + 8);
+    int shd = buf[12], fb = buf[13], ns = buf[15];
+    size_t toc = codec__u32(buf + 16);
+    if (n > SPZ_MAX_PTS)
+        return f4d_fail(err, F4D_ERANGE, "spz: numPoints %zu exceeds %zu", n, SPZ_MAX_PTS);
+    if (shd > 3)
+        return f4d_fail(err, F4D_EFORMAT, "spz: shDegree %d (0..3)", shd);
+    if (fb > 23)
+        return f4d_fail(err, F4D_EFORMAT, "spz: fractionalBits %d (0..23)", fb);
+    const size_t want[6] = { 9 * n, n, 3 * n, 3 * n, 4 * n, 3 * (size_t)sh_coeffs(shd) * n };
+    int expect = 0;
+    for (int k = 0; k < 6; k++)
+        expect += want[k] > 0;
+    if (ns != expect)
+        return f4d_fail(err, F4D_EFORMAT, "spz: %d streams, %zu points at SH degree %d need %d", ns, n, shd, expect);
+    if (toc < SPZ4_HDR || toc > len || (len - toc) / 16 < (size_t)ns)
+        return f4d_fail(err, F4D_EFORMAT, "spz: TOC at byte %zu (%d entries) outside the %zu-byte file", toc, ns, len);
+    /* the whole TOC first: sizes as implied, streams inside the file, so a
+     * short file claiming many points is refused before any allocation */
+    size_t total = 0, end = toc + 16 * (size_t)ns;
+    for (int k = 0, s = 0; k < 6; k++) {
+        total += want[k];
+        if (!want[k])
+            continue;
+        uint64_t zc = codec__u64(buf + toc + 16 * (size_t)s), zu = codec__u64(buf + toc + 16 * (size_t)s + 8);
+        s++;
+        if (zu != want[k] || zc > len - end)
+            return f4d_fail(err, F4D_EFORMAT, "spz: stream %d: %llu bytes (%llu compressed at byte %zu), expected "
+                            "%zu in a %zu-byte file", k, (unsigned long long)zu, (unsigned long long)zc, end,
+                            want[k], len);
+        end += (size_t)zc;
+    }
+    uint8_t *raw = malloc(total ? total : 1);
+    if (!raw)
+        return f4d_fail(err, F4D_ENOMEM, "spz: out of memory for %zu points", n);
+    size_t off = toc + 16 * (size_t)ns, dst = 0;
+    for (int k = 0, s = 0; k < 6; k++) {
+        if (!want[k])
+            continue;
+        uint64_t zc = codec__u64(buf + toc + 16 * (size_t)s), zu = codec__u64(buf + toc + 16 * (size_t)s + 8);
+        s++;
+        if (zu != want[k] || zc > len - off) {
+            free(raw);
+            return f4d_fail(err, F4D_EFORMAT, "spz: stream %d: %llu bytes (%llu compressed at byte %zu), expected "
+                            "%zu in a %zu-byte file", k, (unsigned long long)zu, (unsigned long long)zc, off,
+                            want[k], len);
+        }
+        size_t got = ZSTD_decompress(raw + dst, want[k], buf + off, (size_t)zc);
+        if (ZSTD_isError(got) || got != want[k]) {
+            free(raw);
+            return f4d_fail(err, F4D_EFORMAT, "spz: stream %d: zstd gave %s, %zu bytes expected", k,
+                            ZSTD_isError(got) ? ZSTD_getErrorName(got) : "a different size", want[k]);
+        }
+        off += (size_t)zc;
+        dst += want[k];
+    }
+    int rc = spz_unpack(raw, n, 4, fb, f, err);
+    free(raw);
+    return rc;
+}
+
+int codec_spz_decode(const uint8_t *buf, size_t len, struct splat_frame *f, struct f4d_err *err)
+{
+    if (!buf || !f)
+        return f4d_fail(err, F4D_EINVAL, "spz: NULL argument");
+    if (len >= 4 && codec__u32(buf) == SPZ_MAGIC)
+        return spz4_decode(buf, len, f, err);
+    if (len < 18 || buf[0] != 0x1f || buf[1] != 0x8b)
+        return f4d_fail(err, F4D_EFORMAT, "spz: not gzip data (no 1f 8b at the start)");
+    uint8_t h[SPZ_HDR];
+    size_t got;
+    int more, rc;
+    if ((rc = gunzip(buf, len, h, sizeof h, &got, &more, err)) < 0)
+        return rc;
+    if (got < SPZ_HDR)
+        return f4d_fail(err, F4D_EFORMAT, "spz: %zu bytes after gunzip, the header needs %d", got, SPZ_HDR);
+    if (codec__u32(h) != SPZ_MAGIC)
+        return f4d_fail(err, F4D_EFORMAT, "spz: magic 0x%08x, expected 0x%08x (NGSP)", codec__u32(h), SPZ_MAGIC);
+    uint32_t ver = codec__u32(h + 4);
+    if (ver < 2 || ver > 3)
+        return f4d_fail(err, F4D_ENOTSUP, "spz: version %u, this reader takes 2 and 3", ver);
+    size_t n = codec__u32(h + 8);
+    int shd = h[12], fb = h[13];
+    if (n > SPZ_MAX_PTS)
+        return f4d_fail(err, F4D_ERANGE, "spz: numPoints %zu exceeds %zu", n, SPZ_MAX_PTS);
+    if (shd > 3)
+        return f4d_fail(err, F4D_EFORMAT, "spz: shDegree %d (0..3)", shd);
+    if (fb > 23)
+        return f4d_fail(err, F4D_EFORMAT, "spz: fractionalBits %d (0..23)", fb);
+    size_t rb = ver >= 3 ? 4 : 3, per = 9 + 1 + 3 + 3 + rb + 3 * (size_t)sh_coeffs(shd);
+    size_t total = SPZ_HDR + n * per;
+    uint8_t *raw = malloc(total ? total : 1);
+    if (!raw)
+        return f4d_fail(err, F4D_ENOMEM, "spz: out of memory for %zu points", n);
+    if ((rc = gunzip(buf, len, raw, total, &got, &more, err)) < 0) {
+        free(raw);
+        return rc;
+    }
+    if (got != total || more) {
+        free(raw);
+        return f4d_fail(err, F4D_EFORMAT, "spz: %zu points need %zu bytes, the data has %s%zu", n, total,
+                        more ? "more than " : "", got);
+    }
+    rc = spz_unpack(raw + SPZ_HDR, n, ver, fb, f, err);
+    free(raw);
+    return rc;
 }
 
 int codec_spz_write(const char *path, const struct splat_frame *f, struct f4d_err *err)

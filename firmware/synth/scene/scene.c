@@ -27,6 +27,9 @@ enum tex { T_SKIN, T_HEAD, T_SHIRT, T_SLEEVE, T_FOREARM, T_PANTS, T_SHOE, T_BALL
 struct scene {
     enum scene_preset preset;
     float    s;            /* body scale: height / 1.78 */
+    float    girth;        /* body x / y scale (scene_desc) */
+    float    speed;        /* time scale (scene_desc) */
+    float    place_q[4], place_p[3]; /* figure placement (scene_desc) */
     float    ball_radius;
     size_t   n, cap;
     size_t   n_figure;     /* Gaussians 0 .. n_figure-1: figure (and ball) */
@@ -341,12 +344,23 @@ static void ball_pose(const scene *S, double t, struct pose *P)
 static void pose_at(const scene *S, double t, struct xform X[B_COUNT])
 {
     struct pose P;
+    t *= (double)S->speed;
     base_pose(S, t, &P);
     if (S->preset == SCENE_THROW || S->preset == SCENE_EXIT)
         ball_pose(S, t, &P);
     else
         P.ball[2] = -100.0f; /* no ball in this preset (it has no Gaussians either) */
     forward_kinematics(S, &P, X);
+    /* placement: every moving bone (not the floor) turned and moved rigidly */
+    for (int b = 0; b < B_COUNT; b++) {
+        if (b == B_WORLD)
+            continue;
+        float w[3];
+        qrot(S->place_q, X[b].p, w);
+        for (int k = 0; k < 3; k++)
+            X[b].p[k] = w[k] + S->place_p[k];
+        qmul(S->place_q, X[b].q, X[b].q);
+    }
 }
 
 /* ---- building the figure ------------------------------------------------------ */
@@ -375,6 +389,10 @@ static int push(scene *S, int bone, const float p[3], const float n[3], float st
     size_t i = S->n++;
     S->bone[i] = (uint8_t)bone;
     memcpy(S->local + 3 * i, p, 3 * sizeof(float));
+    if (bone != B_WORLD && bone != B_BALL) { /* proportions: wider or slimmer, same height */
+        S->local[3 * i] *= S->girth;
+        S->local[3 * i + 1] *= S->girth;
+    }
     /* shortest arc from +z to the normal: the flat axis follows the surface */
     float *q = S->qlocal + 4 * i;
     if (n[2] < -0.9999f) {
@@ -590,12 +608,36 @@ static int build(scene *S, float body_sp, float floor_sp)
         rc |= add_ellipsoid(S, B_BALL, T_BALL, bc, br, 0.8f * sp);
     }
     S->n_figure = S->n;
-    rc |= add_floor(S, floor_sp);
+    if (floor_sp > 0.0f)
+        rc |= add_floor(S, floor_sp);
     return rc;
 }
 
 int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene **out, struct f4d_err *err)
 {
+    struct scene_desc d = { .preset = preset, .seed = seed, .gaussians = gaussians };
+    return scene_new_desc(&d, out, err);
+}
+
+int scene_new_desc(const struct scene_desc *d, scene **out, struct f4d_err *err)
+{
+    if (!d) {
+        if (err) snprintf(err->msg, sizeof err->msg, "scene_new: description is NULL");
+        return F4D_EINVAL;
+    }
+    enum scene_preset preset = d->preset;
+    uint64_t seed = d->seed;
+    size_t gaussians = d->gaussians;
+    float girth = d->girth == 0.0f ? 1.0f : d->girth, speed = d->speed == 0.0f ? 1.0f : d->speed;
+    if (!(girth >= 0.5f && girth <= 2.0f) || !(speed >= 0.1f && speed <= 5.0f) || !isfinite(d->yaw) ||
+        !isfinite(d->offset[0]) || !isfinite(d->offset[1]) || fabsf(d->offset[0]) > 100.0f ||
+        fabsf(d->offset[1]) > 100.0f) {
+        if (err)
+            snprintf(err->msg, sizeof err->msg,
+                     "scene_new: girth %g (0.5..2), speed %g (0.1..5), yaw and offset (|x| <= 100 m) must be finite",
+                     (double)girth, (double)speed);
+        return F4D_EINVAL;
+    }
     if (!out) {
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: out is NULL");
         return F4D_EINVAL;
@@ -615,6 +657,12 @@ int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene *
         return F4D_ENOMEM;
     }
     S->preset = preset;
+    S->girth = girth;
+    S->speed = speed;
+    qaxis(0, 0, 1, d->yaw, S->place_q);
+    S->place_p[0] = d->offset[0];
+    S->place_p[1] = d->offset[1];
+    S->place_p[2] = 0.0f;
     S->rng = seed * 0x9E3779B97F4A7C15ull + 0x1234567ull;
     for (int k = 0; k < 4; k++)
         urand(&S->rng);
@@ -637,7 +685,7 @@ int scene_new(enum scene_preset preset, uint64_t seed, size_t gaussians, scene *
         body_sp *= k;
         floor_sp *= k;
     }
-    if (build(S, body_sp * S->s, floor_sp) < 0) {
+    if (build(S, body_sp * S->s, d->no_floor ? 0.0f : floor_sp) < 0) {
         scene_free(S);
         if (err) snprintf(err->msg, sizeof err->msg, "scene_new: out of memory building the figure");
         return F4D_ENOMEM;

@@ -54,6 +54,22 @@ typedef struct scene scene;
  * otherwise the figure and floor are resampled to about that many. */
 int          scene_new      (enum scene_preset preset, uint64_t seed, size_t gaussians,
                              scene **out, struct f4d_err *err);
+
+/* The same with the knobs a venue varies (tools/f4d-scene venue): zero fields
+ * keep scene_new's behaviour, so scene_new(p, s, g) == scene_new_desc of
+ * { p, s, g } with everything else 0. The placement (offset, yaw) applies to
+ * the figure and its ball, never to the floor. */
+struct scene_desc {
+    enum scene_preset preset;
+    uint64_t seed;
+    size_t   gaussians;  /* 0 = default density                              */
+    int      no_floor;   /* 1: the figure only (the caller adds a floor)       */
+    float    offset[2];  /* figure moved by (x, y) metres on the floor        */
+    float    yaw;        /* figure turned about z (radians) around its origin  */
+    float    speed;      /* motion time scale, pose(t) = preset(speed * t); 0 = 1 */
+    float    girth;      /* body width / depth scale (0 = 1): 0.8 slim .. 1.3 broad */
+};
+int          scene_new_desc (const struct scene_desc *d, scene **out, struct f4d_err *err);
 void         scene_free     (scene *s);
 size_t       scene_count    (const scene *s);   /* Gaussians per frame, constant */
 /* Gaussians 0 .. scene_figure_count-1 are the figure (and the ball), the rest

@@ -65,6 +65,9 @@ int main(int argc, char **argv)
     if (codec_spz_encode(&f0, &z, &zn, NULL) || put(argv[2], "spz", 2, 1, z, zn))
         return 1;
     free(z);
+    if (codec_spz_encode_version(&f0, 3, &z, &zn, NULL) || put(argv[2], "spz3", 2, 1, z, zn))
+        return 1;
+    free(z);
     splat_frame_free(&f0);
     splat_frame_free(&f1);
     return 0;
