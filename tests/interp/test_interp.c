@@ -209,6 +209,79 @@ static int batch_average(void *user, const float *x, int n, float *out)
     return 0;
 }
 
+/* interp_pair_step (positions pos0 + a dpos, the rest prepared once) gives
+ * interp_pair_at's frame: every attribute but the position bit for bit, the
+ * position within 2e-6 (1 + |pos|) (the affine sum is associated
+ * differently); 1 and 2 threads write the same bytes. 40k Gaussians so that
+ * the step is large enough for fk_parallel_for to split it. */
+static void test_step_matches_pair_at(void **state)
+{
+    (void)state;
+    struct f4d_err err;
+    fk_ctx *c1, *c2;
+    struct fk_ctx_config kc1 = { .isa = FK_ISA_AUTO, .threads = 1 }, kc2 = { .isa = FK_ISA_AUTO, .threads = 2 };
+    assert_int_equal(fk_ctx_new(&kc1, &c1), 0);
+    assert_int_equal(fk_ctx_new(&kc2, &c2), 0);
+    scene *s;
+    assert_int_equal(scene_new(SCENE_WALK, 5, 40000, &s, &err), 0);
+    struct splat_rig rig;
+    scene_default_rig(s, 2, 128, 128, &rig);
+    struct splat_frame f0 = { 0 }, f1 = { 0 }, a = { 0 }, b = { 0 }, c = { 0 };
+    assert_int_equal(scene_eval(s, 0.3, 0.1, &f0, &err), 0);
+    assert_int_equal(scene_eval(s, 0.4, 0.1, &f1, &err), 0);
+    interp *ip1, *ip2;
+    assert_int_equal(interp_new(c1, &rig, &ip1, &err), 0);
+    assert_int_equal(interp_new(c2, &rig, &ip2, &err), 0);
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    assert_int_equal(interp_key_build(ip1, &f0, &k0, &err), 0);
+    assert_int_equal(interp_key_build(ip1, &f1, &k1, &err), 0);
+    struct interp_config cfg = interp_config_default();
+    struct interp_pair pr = { 0 };
+    assert_int_equal(interp_pair_build(ip1, &k0, &k1, &cfg, &pr, &err), 0);
+    assert_int_equal(interp_pair_prepare(ip1, &pr, &cfg, &b, &err), 0);
+    assert_int_equal(interp_pair_prepare(ip2, &pr, &cfg, &c, &err), 0);
+    assert_true(3 * b.count * 2 > 200000); /* above FK_PARALLEL_MIN_WORK: 2 threads do split it */
+    const float as[5] = { 0.0f, 0.25f, 0.5f, 0.8f, 1.0f };
+    for (int i = 0; i < 5; i++) {
+        struct interp_stats sa;
+        assert_int_equal(interp_pair_at(ip1, &pr, as[i], &cfg, &a, &sa, &err), 0);
+        assert_true(sa.fused > 0 && sa.kept_t + sa.kept_tm1 > 0);
+        assert_int_equal(interp_pair_step(ip1, &pr, as[i], &b, &err), 0);
+        assert_int_equal(interp_pair_step(ip2, &pr, as[i], &c, &err), 0);
+        assert_int_equal(a.count, b.count);
+        assert_memory_equal(a.scale, b.scale, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.rot, b.rot, 4 * a.count * sizeof(float));
+        assert_memory_equal(a.rgb, b.rgb, 3 * a.count * sizeof(float));
+        assert_memory_equal(a.opacity, b.opacity, a.count * sizeof(float));
+        for (size_t k = 0; k < 3 * a.count; k++) {
+            double want = a.pos[k], got = b.pos[k];
+            if (fabs(got - want) > 2e-6 * (1.0 + fabs(want)))
+                fail_msg("a %.2f: pos[%zu] = %.9g, interp_pair_at %.9g", (double)as[i], k, got, want);
+        }
+        assert_memory_equal(b.pos, c.pos, 3 * b.count * sizeof(float));
+    }
+    /* refused: a learned fusion, a out of range, a frame it did not prepare */
+    cfg.fuse_batch = batch_average;
+    assert_int_equal(interp_pair_prepare(ip1, &pr, &cfg, &b, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "averaging"));
+    assert_int_equal(interp_pair_step(ip1, &pr, 1.5f, &b, &err), F4D_EINVAL);
+    b.count--;
+    assert_int_equal(interp_pair_step(ip1, &pr, 0.5f, &b, &err), F4D_EINVAL);
+    interp_pair_free(&pr);
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    interp_free(ip1);
+    interp_free(ip2);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    splat_frame_free(&a);
+    splat_frame_free(&b);
+    splat_frame_free(&c);
+    scene_free(s);
+    fk_ctx_free(c1);
+    fk_ctx_free(c2);
+}
+
 /* interp_pair_at (partners found once per key pair) gives interp_at's frame
  * bit for bit at every a, on a real scene with fused, kept and dropped ones. */
 static void test_pair_matches_interp_at(void **state)
@@ -641,6 +714,7 @@ int main(void)
         cmocka_unit_test(test_dual_consistency_pairs),
         cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
         cmocka_unit_test(test_pair_matches_interp_at),
+        cmocka_unit_test(test_step_matches_pair_at),
         cmocka_unit_test(test_budget),
         cmocka_unit_test(test_budget_ws),
         cmocka_unit_test(test_budget_motion),

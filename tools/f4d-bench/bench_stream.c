@@ -19,7 +19,14 @@
  *     thread): a streaming read (sum) and memcpy over buffers much larger than
  *     the last-level cache; the time to stream the step's bytes once at the
  *     copy bandwidth, and the ratio interp / stream (goal <= 2);
- *   - the pixel-aligned key build (per key, not per step).
+ *   - the pixel-aligned key build (per key, not per step);
+ *   - the per-step path: interp_pair_build + interp_pair_prepare once per key
+ *     pair (timed), then interp_pair_step at a = 0.1, 0.4, 0.6, 0.9 with 1
+ *     and 2 threads: ms per step beside streaming the bytes the step moves
+ *     (pos0 + dpos read, pos written: 36 B per output Gaussian) and the
+ *     output frame's bytes (56 B per output Gaussian) once, at the memcpy
+ *     bandwidth per CPU second (the stricter of the two on a loaded machine);
+ *     warm (arrays left in the cache) and cold (the caches overwritten first).
  */
 #include <math.h>
 #include <stdio.h>
@@ -165,7 +172,8 @@ static int make_keys(const struct splat_rig *rig, int s, float occluded, struct 
     return 0;
 }
 
-struct srow { size_t n, out; int side; double ms_avg, ms_mlp, ms_bat, ms_key, mbytes, ms_stream, ratio_avg, ratio_mlp, ratio_bat, cpu_avg, cpu_mlp, cpu_bat, cpu_stream, cratio_avg, cratio_mlp, cratio_bat; };
+struct srow { size_t n, out; int side; double ms_avg, ms_mlp, ms_bat, ms_key, mbytes, ms_stream, ratio_avg, ratio_mlp, ratio_bat, cpu_avg, cpu_mlp, cpu_bat, cpu_stream, cratio_avg, cratio_mlp, cratio_bat,
+              ms_build, ms_prep, ms_step1, ms_step2, ms_cold1, ms_cold2, mb_step, ms_stream_step, ms_stream_out; };
 
 int bench_stream(int argc, char **argv)
 {
@@ -228,6 +236,18 @@ int bench_stream(int argc, char **argv)
         fprintf(stderr, "f4d-bench stream: cannot create the kernel context\n");
         return 1;
     }
+    /* Cold steps: a buffer of 2x the last-level cache (64 MiB .. 1 GiB)
+     * written before each, so the step's arrays come from memory. */
+    size_t evict_bytes = l3 > 0 ? 2 * (size_t)l3 : (size_t)64 << 20;
+    evict_bytes = evict_bytes < ((size_t)64 << 20) ? (size_t)64 << 20 : evict_bytes;
+    evict_bytes = evict_bytes > ((size_t)1 << 30) ? (size_t)1 << 30 : evict_bytes;
+    unsigned char *evict = malloc(evict_bytes); /* NULL: no cold rows */
+    fk_ctx *ctx2 = NULL; /* the per-step path with 2 threads */
+    if (fk_ctx_new(&(struct fk_ctx_config){ .isa = FK_ISA_AUTO, .threads = 2 }, &ctx2) != F4D_OK) {
+        fprintf(stderr, "f4d-bench stream: cannot create the kernel context\n");
+        fk_ctx_free(ctx);
+        return 1;
+    }
     struct model *m = NULL;
     interp_fuse_fn fuse = mlp_fuse;
     void *fuse_user = NULL;
@@ -285,7 +305,8 @@ int bench_stream(int argc, char **argv)
         }
         struct splat_frame f0 = { 0 }, f1 = { 0 }, out = { 0 };
         struct interp_key k0 = { 0 }, k1 = { 0 };
-        interp *ip = NULL;
+        interp *ip = NULL, *ip2 = NULL;
+        struct interp_pair pr = { 0 };
         struct f4d_err err = { 0 };
         struct interp_stats st = { 0 };
         struct srow *w = &rows[r];
@@ -330,8 +351,58 @@ int bench_stream(int argc, char **argv)
             *(pass == 2 ? &w->ms_bat : pass ? &w->ms_mlp : &w->ms_avg) = best;
             *(pass == 2 ? &w->cpu_bat : pass ? &w->cpu_mlp : &w->cpu_avg) = bc;
         }
+        /* The per-step path: the pair built and prepared once (timed), then
+         * steps at several a with 1 and 2 threads. */
+        w->ms_build = w->ms_prep = w->ms_step1 = w->ms_step2 = 1e30;
+        if (!rc && interp_new(ctx2, &rig, &ip2, &err) < 0) {
+            fprintf(stderr, "f4d-bench stream: %s\n", err.msg);
+            rc = 1;
+        }
+        for (int i = 0; i < reps && !rc; i++) {
+            struct interp_config cfg = interp_config_default();
+            double t0 = bench_now();
+            rc = interp_pair_build(ip, &k0, &k1, &cfg, &pr, &err) < 0;
+            double t1 = bench_now();
+            rc = rc || interp_pair_prepare(ip, &pr, &cfg, &out, &err) < 0;
+            double t2 = bench_now();
+            w->ms_build = fmin(w->ms_build, 1e3 * (t1 - t0));
+            w->ms_prep = fmin(w->ms_prep, 1e3 * (t2 - t1));
+            if (rc)
+                fprintf(stderr, "f4d-bench stream: %s\n", err.msg);
+        }
+        const float steps_a[4] = { 0.1f, 0.4f, 0.6f, 0.9f };
+        w->ms_cold1 = w->ms_cold2 = 1e30;
+        for (int th = 0; th < 2 && !rc && evict; th++) /* cold: the caches overwritten before each step */
+            for (int k = 0; k < 8 && !rc; k++) {
+                memset(evict, k + 1, evict_bytes);
+                double t0 = bench_now();
+                rc = interp_pair_step(th ? ip2 : ip, &pr, steps_a[k % 4], &out, &err) < 0;
+                double t = 1e3 * (bench_now() - t0);
+                *(th ? &w->ms_cold2 : &w->ms_cold1) = fmin(*(th ? &w->ms_cold2 : &w->ms_cold1), t);
+            }
+        for (int th = 0; th < 2 && !rc; th++)
+            for (int i = 0; i < reps + 1 && !rc; i++) { /* +1: warm */
+                double best = 1e30;
+                for (int k = 0; k < 4 && !rc; k++) {
+                    double t0 = bench_now();
+                    rc = interp_pair_step(th ? ip2 : ip, &pr, steps_a[k], &out, &err) < 0;
+                    best = fmin(best, 1e3 * (bench_now() - t0));
+                }
+                if (rc)
+                    fprintf(stderr, "f4d-bench stream: %s\n", err.msg);
+                else if (i)
+                    *(th ? &w->ms_step2 : &w->ms_step1) = fmin(*(th ? &w->ms_step2 : &w->ms_step1), best);
+            }
         if (!rc) {
             w->out = out.count;
+            /* the step reads pos0 and dpos and writes pos: 9 floats per output Gaussian */
+            double sb = (double)out.count * 9 * sizeof(float), ob = (double)out.count * 14 * sizeof(float);
+            w->mb_step = sb * 1e-6;
+            /* the copy's bandwidth per CPU second: what it reaches while it runs (the
+             * wall figure swings 2-3x with the other jobs here); the steps are
+             * best-of wall times, so this is the stricter side to compare with */
+            w->ms_stream_step = sb / (gc_copy * 1e9) * 1e3;
+            w->ms_stream_out = ob / (gc_copy * 1e9) * 1e3;
             double bytes = 2.0 * (double)w->n * 17 * sizeof(float) + (double)out.count * 14 * sizeof(float);
             w->mbytes = bytes * 1e-6;
             w->ms_stream = bytes / (gb_copy * 1e9) * 1e3;
@@ -347,14 +418,18 @@ int bench_stream(int argc, char **argv)
         }
         interp_key_free(&k0);
         interp_key_free(&k1);
+        interp_pair_free(&pr);
         interp_free(ip);
+        interp_free(ip2);
         splat_frame_free(&f0);
         splat_frame_free(&f1);
         splat_frame_free(&out);
     }
     f4d_sequence_close(sq);
+    free(evict);
     model_free(m);
     fk_ctx_free(ctx);
+    fk_ctx_free(ctx2);
     if (rc)
         return 1;
     printf("\n%-9s %-9s %-5s %11s %11s %11s %9s %11s %8s %8s %8s %9s\n", "N", "out", "clock", "avg", "MLP/pair",
@@ -369,6 +444,28 @@ int bench_stream(int argc, char **argv)
     }
     if (!sq)
         printf("(MLP batch: needs --weights with fusion.*; 0 here)\n");
+    printf("\nper-step path (averaging; interp_pair_build + interp_pair_prepare once per key pair, then\n"
+           "interp_pair_step per displayed frame: reads pos0 + dpos, writes pos, 36 B per output Gaussian;\n"
+           "best of 4 a x %d reps, wall clock; streams timed at the one-thread memcpy bandwidth per\n"
+           "CPU second; warm: the arrays in the cache as left by the previous step; cold: best of 8 steps,\n"
+           "%zu MiB written before each)\n",
+           reps, evict_bytes >> 20);
+    printf("%-9s %-9s %-5s %10s %10s %10s %10s %8s %10s %10s %8s %8s %8s %8s\n", "N", "out", "cache", "build",
+           "prepare", "step 1T", "step 2T", "MB/step", "stream st", "stream out", "r st 1T", "r st 2T", "r out 1T",
+           "r out 2T");
+    for (int r = 0; r < nn; r++)
+        for (int cold = 0; cold < 2; cold++) {
+            const struct srow *w = &rows[r];
+            double s1 = cold ? w->ms_cold1 : w->ms_step1, s2 = cold ? w->ms_cold2 : w->ms_step2;
+            if (cold && !evict)
+                continue;
+            printf("%-9zu %-9zu %-5s %7.2f ms %7.2f ms %7.3f ms %7.3f ms %8.1f %7.3f ms %7.3f ms %7.2fx %7.2fx %7.2fx "
+                   "%7.2fx\n", w->n, w->out, cold ? "cold" : "warm", w->ms_build, w->ms_prep, s1, s2, w->mb_step,
+                   w->ms_stream_step, w->ms_stream_out, s1 / w->ms_stream_step, s2 / w->ms_stream_step,
+                   s1 / w->ms_stream_out, s2 / w->ms_stream_out);
+        }
+    printf("(r st: the step against streaming its own bytes; r out: against streaming the output frame's\n"
+           "56 B per Gaussian once; r avg above: interp_at against the keys' and output's bytes)\n");
     printf("goal: interpolation per step within 2x of streaming its bytes once (ratio <= 2)\n");
     if (json) {
         FILE *f = fopen(json, "w");
@@ -383,10 +480,14 @@ int bench_stream(int argc, char **argv)
                        "\"mbytes\": %.3f, \"ms_stream\": %.4f, \"ratio_avg\": %.3f, \"ratio_mlp\": %.3f, "
                        "\"ms_key_build\": %.4f, \"cpu_ms_interp_avg\": %.4f, \"cpu_ms_interp_mlp\": %.4f, "
                        "\"cpu_ms_stream\": %.4f, \"cpu_ratio_avg\": %.3f, \"cpu_ratio_mlp\": %.3f, "
-                       "\"ms_interp_batch\": %.4f, \"cpu_ms_interp_batch\": %.4f, \"cpu_ratio_batch\": %.3f}",
+                       "\"ms_interp_batch\": %.4f, \"cpu_ms_interp_batch\": %.4f, \"cpu_ratio_batch\": %.3f, "
+                       "\"ms_pair_build\": %.4f, \"ms_pair_prepare\": %.4f, \"ms_step_1t\": %.4f, "
+                       "\"ms_step_2t\": %.4f, \"mbytes_step\": %.3f, \"ms_stream_step\": %.4f, "
+                       "\"ms_stream_out\": %.4f, \"ms_step_cold_1t\": %.4f, \"ms_step_cold_2t\": %.4f}",
                     r ? ", " : "", w->n, w->out, w->ms_avg, w->ms_mlp, w->mbytes, w->ms_stream, w->ratio_avg,
                     w->ratio_mlp, w->ms_key, w->cpu_avg, w->cpu_mlp, w->cpu_stream, w->cratio_avg, w->cratio_mlp,
-                    w->ms_bat, w->cpu_bat, w->cratio_bat);
+                    w->ms_bat, w->cpu_bat, w->cratio_bat, w->ms_build, w->ms_prep, w->ms_step1, w->ms_step2,
+                    w->mb_step, w->ms_stream_step, w->ms_stream_out, w->ms_cold1, w->ms_cold2);
         }
         fprintf(f, "]}\n");
         fclose(f);

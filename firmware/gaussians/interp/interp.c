@@ -481,6 +481,8 @@ void interp_pair_free(struct interp_pair *pr)
     free(pr->partner_t);
     free(pr->partner_tm1);
     free(pr->dist_t);
+    free(pr->pos0);
+    free(pr->dpos);
     memset(pr, 0, sizeof *pr);
 }
 
@@ -598,6 +600,94 @@ int interp_pair_at(interp *ip, const struct interp_pair *pr, float a, const stru
     out->count = o;
     if (stats)
         *stats = pr->st;
+    return F4D_OK;
+}
+
+/* ---- the per-step path: positions affine in a, everything else fixed ------------ */
+
+int interp_pair_prepare(interp *ip, struct interp_pair *pr, const struct interp_config *cfg,
+                        struct splat_frame *out, struct f4d_err *err)
+{
+    if (!ip || !pr || !pr->prev || !pr->next || !cfg || !out)
+        return fail(err, F4D_EINVAL, "interp_pair_prepare: NULL argument (the pair must be built)");
+    if (cfg->fuse != interp_fuse_average || cfg->fuse_batch)
+        return fail(err, F4D_EINVAL, "interp_pair_prepare: the per-step path takes averaging only "
+                                     "(cfg->fuse = interp_fuse_average, no fuse_batch)");
+    int rc = interp_pair_at(ip, pr, 0.0f, cfg, out, NULL, err); /* what a does not change, once */
+    if (rc < 0)
+        return rc;
+    const struct splat_frame *F0 = pr->prev->f, *F1 = pr->next->f;
+    size_t n = out->count;
+    if (3 * n > pr->cap_out) {
+        float *p = realloc(pr->pos0, (3 * n + 1) * sizeof *p);
+        if (p)
+            pr->pos0 = p;
+        float *d = realloc(pr->dpos, (3 * n + 1) * sizeof *d);
+        if (d)
+            pr->dpos = d;
+        if (!p || !d)
+            return fail(err, F4D_ENOMEM, "interp_pair_prepare: out of memory");
+        pr->cap_out = 3 * n + 1;
+    }
+    const float *p1 = F1->pos, *m1 = F1->motion_bwd, *p0 = F0->pos, *m0 = F0->motion_fwd;
+    float *b = pr->pos0, *d = pr->dpos;
+    size_t o = 0; /* interp_pair_at's output order */
+    for (size_t g = 0; g < F1->count; g++, o++) {
+        int32_t h = pr->partner_t[g];
+        for (int c = 0; c < 3; c++) {
+            size_t i = 3 * g + c, j = 3 * (size_t)h + c, k = 3 * o + c;
+            if (h < 0) { /* p1 + (1 - a) m1 */
+                b[k] = p1[i] + m1[i];
+                d[k] = -m1[i];
+            } else {     /* (p1 + (1 - a) m1 + p0 + a m0) / 2 */
+                b[k] = 0.5f * (p1[i] + m1[i] + p0[j]);
+                d[k] = 0.5f * (m0[j] - m1[i]);
+            }
+        }
+    }
+    for (size_t h = 0; h < F0->count; h++) {
+        if (pr->partner_tm1[h] >= 0)
+            continue;
+        for (int c = 0; c < 3; c++) { /* p0 + a m0 */
+            b[3 * o + c] = p0[3 * h + c];
+            d[3 * o + c] = m0[3 * h + c];
+        }
+        o++;
+    }
+    if (o != n)
+        return fail(err, F4D_EINVAL, "interp_pair_prepare: the pair's output count changed (internal)");
+    pr->n_out = n;
+    return F4D_OK;
+}
+
+#define STEP_CHUNK 16384 /* floats per task: 64 KiB of output, L2-sized pieces */
+
+struct step_job { const float *b, *d; float *p, a; size_t n; };
+
+static void step_task(void *arg, int task, int thread)
+{
+    (void)thread;
+    const struct step_job *j = arg;
+    size_t s = (size_t)task * STEP_CHUNK, e = s + STEP_CHUNK < j->n ? s + STEP_CHUNK : j->n;
+    const float *restrict b = j->b + s, *restrict d = j->d + s;
+    float *restrict p = j->p + s;
+    const float a = j->a;
+    for (size_t i = 0; i < e - s; i++) /* vectorised: a flat multiply-add */
+        p[i] = b[i] + a * d[i];
+}
+
+int interp_pair_step(interp *ip, const struct interp_pair *pr, float a, struct splat_frame *out,
+                     struct f4d_err *err)
+{
+    if (!ip || !pr || !out || !pr->pos0)
+        return fail(err, F4D_EINVAL, "interp_pair_step: NULL argument (the pair must be prepared)");
+    if (!(a >= 0.0f && a <= 1.0f))
+        return fail(err, F4D_EINVAL, "interp_pair_step: a must be in [0, 1]");
+    if (out->count != pr->n_out || out->capacity < pr->n_out)
+        return fail(err, F4D_EINVAL, "interp_pair_step: out is not the frame interp_pair_prepare wrote");
+    struct step_job j = { pr->pos0, pr->dpos, out->pos, a, 3 * pr->n_out };
+    int tasks = (int)((j.n + STEP_CHUNK - 1) / STEP_CHUNK);
+    fk_parallel_for(ip->ctx, tasks, 2.0 * (double)j.n, step_task, &j);
     return F4D_OK;
 }
 

@@ -149,6 +149,8 @@ struct interp_pair {
     size_t   cap_t, cap_tm1;
     float    tau;          /* the tau it was built with                        */
     struct interp_stats st;/* the a-independent counts                         */
+    float   *pos0, *dpos;  /* [3 * n_out] interp_pair_prepare: pos(a) = pos0 + a dpos */
+    size_t   n_out, cap_out;
 };
 int  interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
                        const struct interp_config *cfg, struct interp_pair *pr, struct f4d_err *err);
@@ -157,6 +159,24 @@ int  interp_pair_build(interp *ip, const struct interp_key *prev, const struct i
 int  interp_pair_at(interp *ip, const struct interp_pair *pr, float a, const struct interp_config *cfg,
                     struct splat_frame *out, struct interp_stats *stats, struct f4d_err *err);
 void interp_pair_free(struct interp_pair *pr);
+
+/* The per-step path (one call per displayed frame): with averaging only the
+ * positions depend on a, and linearly (mu_b and mu_f are affine in a, and so
+ * is their mean). interp_pair_prepare writes interp_pair_at(a = 0)'s frame
+ * into out (count, scale, rotation, opacity, colour: bit for bit, a does not
+ * change them) and, into the pair, pos0 and dpos per output Gaussian;
+ * interp_pair_step then writes only out->pos = pos0 + a dpos, a flat loop the
+ * compiler vectorises, split over ip's threads: it reads 24 and writes 12
+ * bytes per Gaussian, allocates nothing, and leaves out's other attributes as
+ * prepared (do not change them between steps). Its positions equal
+ * interp_pair_at's up to float rounding (the sum is associated differently:
+ * within 2e-6 (1 + |pos|) here). Averaging (cfg->fuse ==
+ * interp_fuse_average, no fuse_batch) only: F4D_EINVAL otherwise. Same
+ * result with any thread count (each element is computed alone). */
+int  interp_pair_prepare(interp *ip, struct interp_pair *pr, const struct interp_config *cfg,
+                         struct splat_frame *out, struct f4d_err *err);
+int  interp_pair_step(interp *ip, const struct interp_pair *pr, float a, struct splat_frame *out,
+                      struct f4d_err *err);
 
 /* ---- scene budget ---------------------------------------------------------- */
 
