@@ -78,16 +78,24 @@ static int rec_ready(void *user, const struct f4d_capture_stats *st)
     struct rec_ctx *c = user;
     if (!c->dir)
         return 0;
+    return run_take_create(&c->w, c->dir, c->board, st, &c->err);
+}
+
+int run_take_create(struct f4d_take_writer **w, const char *dir, const struct hal_board *board,
+                    const struct f4d_capture_stats *st, struct f4d_err *err)
+{
     struct f4d_take_info info = {0};
-    info.n_cams = c->board->n_cams;
-    info.rate_mhz = c->board->trigger.rate_mhz;
-    info.durability_ms = c->board->durability_ms;
+    info.n_cams = board->n_cams;
+    info.rate_mhz = board->trigger.rate_mhz;
+    info.durability_ms = board->durability_ms;
     for (uint32_t i = 0; i < info.n_cams; i++) {
         info.formats[i] = st->formats[i];
-        snprintf(info.cam_ids[i], sizeof info.cam_ids[i], "%.31s", c->board->cams[i].id);
+        snprintf(info.cam_ids[i], sizeof info.cam_ids[i], "%.31s", board->cams[i].id);
     }
-    char *js = hal_board_to_json(c->board);
-    int rc = f4d_take_create(&c->w, c->dir, &info, js, c->board->durability_ms, &c->err);
+    char *js = hal_board_to_json(board);
+    if (!js)
+        return f4d_fail(err, F4D_ENOMEM, "take %s: cannot describe the board as JSON", dir);
+    int rc = f4d_take_create(w, dir, &info, js, board->durability_ms, err);
     free(js);
     return rc;
 }

@@ -207,17 +207,7 @@ static int on_ready(void *user, const struct f4d_capture_stats *st)
         }
     if (!r->take_dir)
         return 0;
-    struct f4d_take_info info = {0};
-    info.n_cams = r->board->n_cams;
-    info.rate_mhz = r->board->trigger.rate_mhz;
-    info.durability_ms = r->board->durability_ms;
-    for (uint32_t i = 0; i < info.n_cams; i++) {
-        info.formats[i] = st->formats[i];
-        snprintf(info.cam_ids[i], sizeof info.cam_ids[i], "%.31s", r->board->cams[i].id);
-    }
-    char *js = hal_board_to_json(r->board);
-    int rc = f4d_take_create(&r->take, r->take_dir, &info, js, r->board->durability_ms, &err);
-    free(js);
+    int rc = run_take_create(&r->take, r->take_dir, r->board, st, &err);
     if (rc < 0)
         say(r, "%s", err.msg);
     return rc;

@@ -24,6 +24,15 @@
 #include "interp.h"
 #include "splat.h"
 
+/* ---- the take of a capture run (forge4d record and forge4d run) ----
+ * Creates the take in dir for the board's cameras with the formats capture
+ * negotiated (st->formats), the board's JSON embedded in it. */
+struct hal_board;
+struct f4d_capture_stats;
+struct f4d_take_writer;
+int run_take_create(struct f4d_take_writer **w, const char *dir, const struct hal_board *board,
+                    const struct f4d_capture_stats *st, struct f4d_err *err);
+
 /* ---- bounded FIFO of pointers (mutex + condvar; storage allocated once) ---- */
 struct run_fifo {
     pthread_mutex_t mu;

@@ -19,6 +19,9 @@ struct model_config;
 /* A GGUF weight file of `groups` (model.h MODEL_G_*) with random weights that
  * keep activations in a realistic range (bench_model.c); 0 or -1 (printed). */
 int bench_write_random_model(const char *path, const struct model_config *c, unsigned groups);
+/* The tiny model config of the model and token benchmarks (embed 128, depth 4,
+ * 126 px, DPT 32 wide on layers 0-3). */
+void bench_preset_tiny(struct model_config *c);
 
 /* Seconds on CLOCK_MONOTONIC. */
 double bench_now(void);

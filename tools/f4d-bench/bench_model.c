@@ -142,7 +142,7 @@ out:
     return rc;
 }
 
-static void preset_tiny(struct model_config *c)
+void bench_preset_tiny(struct model_config *c)
 {
     model_config_default(c);
     c->img_size = 126; c->embed_dim = 128; c->depth = 4; c->num_heads = 4;
@@ -172,7 +172,7 @@ static int write_preset(const char *path, const char *preset)
 {
     struct model_config c;
     if (!strcmp(preset, "tiny"))
-        preset_tiny(&c);
+        bench_preset_tiny(&c);
     else if (!strcmp(preset, "mid"))
         preset_mid(&c);
     else {
@@ -372,7 +372,7 @@ int bench_model(int argc, char **argv)
 
     /* ---- tiny: end to end, per stage ---- */
     struct model_config tiny;
-    preset_tiny(&tiny);
+    bench_preset_tiny(&tiny);
     /* the motion head as wide as the DPT heads: at 16 wide it measured no
      * faster here (its 8-channel convolutions ran at 4.9 GFLOP/s) */
     tiny.motion_dpt_features = tiny.dpt_features;

@@ -467,19 +467,6 @@ static void config_mid(struct model_config *c)
     c->dpt_layer_idx[2] = 5; c->dpt_layer_idx[3] = 7;
 }
 
-static void config_tiny(struct model_config *c)
-{
-    model_config_default(c);
-    c->img_size = 126; c->embed_dim = 128; c->depth = 4; c->num_heads = 4;
-    c->num_register_tokens = 4; c->dino_depth = 2; c->dino_num_heads = 4;
-    c->camera_trunk_depth = 1; c->camera_num_heads = 4; c->camera_iters = 4;
-    c->dpt_features = 32;
-    c->dpt_out_channels[0] = 32; c->dpt_out_channels[1] = 64;
-    c->dpt_out_channels[2] = 128; c->dpt_out_channels[3] = 128;
-    for (int i = 0; i < 4; i++)
-        c->dpt_layer_idx[i] = i;
-}
-
 int bench_tokens(int argc, char **argv)
 {
     const char *json = NULL, *tmpdir = "/tmp", *which = "both";
@@ -607,7 +594,7 @@ int bench_tokens(int argc, char **argv)
     }
     if (!strcmp(which, "tiny") || !strcmp(which, "both") || !strcmp(which, "all")) {
         res[nres].name = "tiny";
-        config_tiny(&res[nres++].c);
+        bench_preset_tiny(&res[nres++].c);
     }
     for (int ri = 0; ri < nres; ri++) {
         struct cfg_result *R = &res[ri];
