@@ -15,11 +15,11 @@ if [ -z "${F4D_IN_NETNS:-}" ]; then
       exec $u env F4D_IN_NETNS=1 bash "$0" "$@"
     fi
   done
-  echo "transport_netem: cannot make a private network namespace (unshare -n / -rn failed)"; exit 77
+  echo "[  SKIP    ] transport_netem: cannot make a private network namespace (unshare -n / -rn failed)"; exit 77
 fi
 ip link set lo up
 if ! why=$(tc qdisc add dev lo root netem loss 5% delay 5ms 2>&1); then
-  echo "transport_netem: tc netem is not available (kernel without sch_netem?): $why"; exit 77
+  echo "[  SKIP    ] transport_netem: tc netem is not available (kernel without sch_netem?): $why"; exit 77
 fi
 rm -rf "$dir" && mkdir -p "$dir"
 "$scenebin" --preset walk --frames 20 --views 1 --size 64x64 --gaussians 3000 -o "$dir/scene" >/dev/null

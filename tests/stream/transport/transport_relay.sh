@@ -20,7 +20,7 @@
 set -euo pipefail
 stream=$1 codec=$2 scenebin=$3 dir=$4
 if ! command -v srt-live-transmit >/dev/null; then
-  echo "transport_relay: srt-live-transmit is absent (Debian package srt-tools)"; exit 77
+  echo "[  SKIP    ] transport_relay: srt-live-transmit is absent (Debian package srt-tools)"; exit 77
 fi
 if [ -z "${F4D_IN_NETNS:-}" ]; then
   for u in "unshare -n" "unshare -rn"; do
@@ -28,7 +28,7 @@ if [ -z "${F4D_IN_NETNS:-}" ]; then
       exec $u env F4D_IN_NETNS=1 bash "$0" "$@"
     fi
   done
-  echo "transport_relay: cannot make a private network namespace (unshare -n / -rn failed)"; exit 77
+  echo "[  SKIP    ] transport_relay: cannot make a private network namespace (unshare -n / -rn failed)"; exit 77
 fi
 ip link set lo up
 ip link set lo multicast on
