@@ -13,7 +13,7 @@ rm -rf "$dir" && mkdir -p "$dir"
 status=0
 "$disp" --headless --png-dir "$dir/cpu" --rig "$dir/scene/rig.json" --camera 0 --no-status --renderer cpu \
   --fps 60 "$dir/s.f4ds" > "$dir/cpu.json" || status=$?
-[ $status -eq 77 ] && { echo "no surfaceless EGL display"; exit 77; }
+[ $status -eq 77 ] && { echo "[  SKIP    ] no surfaceless EGL display"; exit 77; }
 [ $status -eq 0 ] || { echo "f4d-display failed ($status)"; cat "$dir/cpu.json"; exit 1; }
 cat "$dir/cpu.json"
 # 5 keys at 30 Hz shown at 60 fps: 4/30 s of stream, 9 refreshes

@@ -9,7 +9,7 @@
 set -euo pipefail
 disp=$1 scenebin=$2 codec=$3 render=$4 metrics=$5 dir=$6
 rm -rf "$dir" && mkdir -p "$dir"
-command -v Xvfb >/dev/null || { echo "Xvfb is not installed (Debian package xvfb)"; exit 77; }
+command -v Xvfb >/dev/null || { echo "[  SKIP    ] Xvfb is not installed (Debian package xvfb)"; exit 77; }
 command -v xdotool >/dev/null || { echo "xdotool is not installed (Debian package xdotool)"; exit 1; }
 Xvfb -displayfd 3 -screen 0 640x480x24 -nolisten tcp 3> "$dir/displayno" 2> "$dir/xvfb.log" &
 xpid=$!
@@ -19,7 +19,7 @@ for _ in $(seq 100); do
   kill -0 $xpid 2>/dev/null || break
   sleep 0.1
 done
-if ! [ -s "$dir/displayno" ]; then echo "Xvfb did not start:"; cat "$dir/xvfb.log"; exit 77; fi
+if ! [ -s "$dir/displayno" ]; then echo "[  SKIP    ] Xvfb did not start:"; cat "$dir/xvfb.log"; exit 77; fi
 export DISPLAY=":$(head -n1 "$dir/displayno")"
 echo "Xvfb on $DISPLAY"
 "$scenebin" --preset wave --frames 3 --views 2 --size 200x150 --gaussians 8000 -o "$dir/scene" >/dev/null
