@@ -64,12 +64,14 @@ rigarg=()
 "$bin/tools/f4d-novel/f4d-novel" "$out/stream.f4ds" -o "$out" "${rigarg[@]}" --scene walk --seed 1 --views 4 --size 518
 
 field() { sed -n "s/.*\"$1\":[[:space:]]*\([-0-9.eE+]*\|null\).*/\1/p" "$2" | head -1; }
+# a number of the stats JSON to 2 decimals (null stays null)
+num() { local v; v=$(field "$1" "$2"); case "$v" in ''|null) echo "${v:-null}" ;; *) printf '%.2f' "$v" ;; esac; }
 {
   echo "weights:           $weights ($label)"
-  echo "key frames:        $(field key_frames "$out/run.json") at $(field key_hz "$out/run.json") Hz"
+  echo "key frames:        $(field key_frames "$out/run.json") at $(num key_hz "$out/run.json") Hz"
   echo "sets captured:     $(field sets_captured "$out/run.json") (skipped by inference: $(field sets_skipped_by_inference "$out/run.json"))"
-  echo "latency p50 / p95: $(field latency_ms_p50 "$out/run.json") / $(field latency_ms_p95 "$out/run.json") ms"
-  echo "bitrate:           $(field bitrate_mbps "$out/run.json") Mbit/s"
+  echo "latency p50 / p95: $(num latency_ms_p50 "$out/run.json") / $(num latency_ms_p95 "$out/run.json") ms"
+  echo "bitrate:           $(num bitrate_mbps "$out/run.json") Mbit/s"
   echo "displayed fps:     ${displayed:-null}"
   echo "novel-view PSNR:   $(field psnr_db_mean "$out/novel.json") dB (mean over keys, vs ground truth)"
   echo "files:             $out/take $out/stream.f4ds $out/novel.gif $out/run.json"
