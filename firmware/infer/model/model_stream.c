@@ -410,6 +410,29 @@ static int ln(struct model *m, const float *x, int rows, const float *w, const f
     return 0;
 }
 
+/* One cross-attention of a state block (no RoPE): LayerNorm both sides,
+ * project q from q_src and kv from kv_src, attend, and add the projection
+ * through epi (LayerScale, accumulate) into out. */
+struct xattn_io {
+    const float *q_src, *q_nw, *q_nb, *kv_src, *kv_nw, *kv_nb;
+    int          nq, nkv;
+    float       *q_ln, *kv_ln, *q, *kv, *o, *out;
+};
+
+static int cross_attend(struct model *m, const struct xattn *a, const struct xattn_io *io,
+                        const struct fk_epilogue *epi)
+{
+    const int C = m->cfg.embed_dim;
+    int rc;
+    if ((rc = ln(m, io->q_src, io->nq, io->q_nw, io->q_nb, io->q_ln)) < 0 ||
+        (rc = ln(m, io->kv_src, io->nkv, io->kv_nw, io->kv_nb, io->kv_ln)) < 0 ||
+        (rc = model_linear(m, &a->q, io->q_ln, io->nq, C, io->q, C, NULL)) < 0 ||
+        (rc = model_linear(m, &a->kv, io->kv_ln, io->nkv, C, io->kv, 2 * C, NULL)) < 0 ||
+        (rc = attend(m, io->q, io->nq, io->kv, io->nkv, NULL, NULL, io->o)) < 0)
+        return rc;
+    return model_linear(m, &a->proj, io->o, io->nq, C, io->out, C, epi);
+}
+
 static int state_block(struct model *m, const struct state_blk *b, float *x, int n, float *st,
                        const struct blk_bufs *bb)
 {
@@ -421,20 +444,14 @@ static int state_block(struct model *m, const struct state_blk *b, float *x, int
     struct fk_epilogue gelu = { .act = FK_ACT_GELU };
     int rc;
     /* read: the stream attends to the state of t-1 */
-    if ((rc = ln(m, x, n, b->nxw, b->nxb, bb->ln)) < 0 ||
-        (rc = ln(m, st, Ns, b->nsw, b->nsb, s->s_ln)) < 0 ||
-        (rc = model_linear(m, &b->r.q, bb->ln, n, C, bb->qkv, C, NULL)) < 0 ||
-        (rc = model_linear(m, &b->r.kv, s->s_ln, Ns, C, s->s_kv, 2 * C, NULL)) < 0 ||
-        (rc = attend(m, bb->qkv, n, s->s_kv, Ns, NULL, NULL, bb->o)) < 0 ||
-        (rc = model_linear(m, &b->r.proj, bb->o, n, C, x, C, &acc_r)) < 0)
-        return rc;
+    const struct xattn_io rd = { .q_src = x, .nq = n, .q_nw = b->nxw, .q_nb = b->nxb, .q_ln = bb->ln,
+                                 .kv_src = st, .nkv = Ns, .kv_nw = b->nsw, .kv_nb = b->nsb, .kv_ln = s->s_ln,
+                                 .q = bb->qkv, .kv = s->s_kv, .o = bb->o, .out = x };
     /* write: the state attends to the stream after the read */
-    if ((rc = ln(m, st, Ns, b->ns2w, b->ns2b, s->s_ln)) < 0 ||
-        (rc = ln(m, x, n, b->nx2w, b->nx2b, bb->ln)) < 0 ||
-        (rc = model_linear(m, &b->w.q, s->s_ln, Ns, C, s->s_q, C, NULL)) < 0 ||
-        (rc = model_linear(m, &b->w.kv, bb->ln, n, C, bb->qkv, 2 * C, NULL)) < 0 ||
-        (rc = attend(m, s->s_q, Ns, bb->qkv, n, NULL, NULL, s->s_o)) < 0 ||
-        (rc = model_linear(m, &b->w.proj, s->s_o, Ns, C, st, C, &acc_w)) < 0)
+    const struct xattn_io wr = { .q_src = st, .nq = Ns, .q_nw = b->ns2w, .q_nb = b->ns2b, .q_ln = s->s_ln,
+                                 .kv_src = x, .nkv = n, .kv_nw = b->nx2w, .kv_nb = b->nx2b, .kv_ln = bb->ln,
+                                 .q = s->s_q, .kv = bb->qkv, .o = s->s_o, .out = st };
+    if ((rc = cross_attend(m, &b->r, &rd, &acc_r)) < 0 || (rc = cross_attend(m, &b->w, &wr, &acc_w)) < 0)
         return rc;
     if ((rc = ln(m, st, Ns, b->nmw, b->nmb, s->s_ln)) < 0 ||
         (rc = model_linear(m, &b->fc1, s->s_ln, Ns, C, s->s_hid, hid, &gelu)) < 0)
