@@ -10,14 +10,18 @@
            model (the shipped GGUF) is exactly stage 1's;
   stage 3  motion blocks and head with the exact per-pixel 3D motion (M1[t], M2[t-1]) and
            a rendering loss at the mid time (Gaussians of t and t-1 moved half way, both
-           drawn), then the fusion MLP on matched pairs against the mid-time render.
+           drawn); keys run with the state carried, as the runtime runs them;
+  stage 4  the fusion MLP alone: the interpolated frame at the mid time built exactly as
+           firmware/gaussians/interp builds it (pairs by the projected motion, tau 0.05 m,
+           occluded Gaussians kept, t-1's matched ones dropped) and rendered at one input
+           camera (the model's own metric camera) against the true mid-time image.
 
 Frames and units: the model works in view 0's camera frame; ground truth is moved there
 and divided by the scene scale s (mean distance of the valid points of the key to view 0's
 centre), VGGT's normalisation. The gauge target is g* = 1 / s: model units per metre, the
 factor the runtime divides by (forge4d-arch.md 3), so metric = model / g.
 
-    /usr/bin/python3 tools/train/train.py --stage 1 --minutes 45 [--resume]
+    /usr/bin/python3 tools/train/train.py --stage 1 --minutes 45 [--resume | --init-gguf F]
     /usr/bin/python3 tools/train/train.py --export tools/train/shipped   # safetensors + config
 
 Checkpoints: tools/train/checkpoints/stage{N}.pt (model, optimiser, step, log), written
@@ -41,8 +45,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(HERE, "..", "reference"))
 import data  # noqa: E402
+import gguf_read  # noqa: E402
 import raster  # noqa: E402
-from forge4d_ref import Forge4D, gaussian_activate  # noqa: E402
+from forge4d_ref import Forge4D, fuse_pairs, gaussian_activate  # noqa: E402
 from vggt_ref import Config, pose_to_extri_intri  # noqa: E402
 
 SSIM_W = 0.25
@@ -56,7 +61,8 @@ SCALE_TRAIN_MAX = 1.5
 SMALL = dict(img_size=112, patch_size=14, embed_dim=96, depth=4, num_heads=4, mlp_ratio=4.0,
              num_register_tokens=4, patch_embed="conv", dino_depth=0, dino_num_heads=1,
              camera_trunk_depth=2, camera_num_heads=4, camera_iters=4, dpt_features=16,
-             dpt_out_channels=[16, 32, 48, 48], dpt_layer_idx=[0, 1, 2, 3])
+             dpt_out_channels=[16, 32, 48, 48], dpt_layer_idx=[0, 1, 2, 3],
+             motion_dpt_features=16)
 
 
 def make_model(cfgd, stream=True, seed=0):
@@ -248,6 +254,25 @@ def run_state_seq(model, take, views):
     return total, logs
 
 
+@torch.no_grad()
+def run_keys(model, take, views, upto):
+    """Keys 0..upto through the frozen base with the state carried (what the runtime
+    feeds the motion blocks); no gradients."""
+    s_prev = [model.state.tokens for _ in range(model.cfg.depth)]
+    outs = []
+    for k in range(upto + 1):
+        smp = Sample(take, k, views, with_eval=False)
+        s_new = list(s_prev)
+
+        def after_global(i, x, pos):
+            x, s_new[i] = model.state.blocks[i](x, s_prev[i])
+            return x
+
+        outs.append(run_base(model, smp.images, after_global))
+        s_prev = s_new
+    return outs
+
+
 def motion_targets(take, k, views, smp):
     """GT per-pixel motion of key k (to k-1 and k+1), view 0 frame, model units."""
     R0 = smp.w2c0[:3, :3]
@@ -256,14 +281,14 @@ def motion_targets(take, k, views, smp):
     return mb, mf
 
 
-def run_motion(model, take, k, views, mid_weight=2.0):
+def run_motion(model, take, k, views, mid_weight=1.0):
     """Stage 3: keys k-1 and k through the frozen base; M1[k] and M2[k-1] by the motion
     blocks and head; losses against exact motion and the mid-time render."""
     cfg = model.cfg
     a, b = Sample(take, k - 1, views), Sample(take, k, views)
     b.s = a.s  # one scale for the pair: motion vectors in the same units
-    with torch.no_grad():
-        oa, ob = run_base(model, a.images), run_base(model, b.images)
+    outs = run_keys(model, take, views, k)  # state carried from key 0, as the runtime runs
+    oa, ob = outs[k - 1], outs[k]
     H, W = a.images.shape[2:]
     pos = stream_pos(cfg, H, W)
     za, zb = model.motion.inputs(oa["layers"]), model.motion.inputs(ob["layers"])
@@ -292,9 +317,108 @@ def run_motion(model, take, k, views, mid_weight=2.0):
         r = raster.render(cat["mu"] * a.s, cat["sigma"] * a.s, cat["rot"], cat["opacity"], cat["rgb"], w2c, K, W, H,
                           bg=a.sky)
         L["mid"] = image_loss(r["rgb"], gt)
-    # model units are ~3-4 m, a key interval moves ~1 cm: weight 100 puts L1 motion on a cm scale
-    total = 100.0 * (L["m1"] + L["m2"]) + mid_weight * L.get("mid", 0.0)
+    # model units are ~3-4 m and a key interval moves a person ~1-5 cm while most pixels
+    # (floor, backdrop) stay still: the mean L1 starts near 3e-4, so weight 1000 puts it
+    # beside the mid-time image loss (~0.15) instead of under it
+    total = 1000.0 * (L["m1"] + L["m2"]) + mid_weight * L.get("mid", 0.0)
     return total, {kk: float(v) for kk, v in L.items()}
+
+
+# ---------------------------------------------------------------------------
+# stage 4: the fusion MLP, through firmware/gaussians/interp's pairing (interp.h)
+
+FUSION_TAU = 0.05  # metres, interp_config_default().tau
+
+
+def metric_key(o):
+    """One key's output in metres as the runtime hands it to interp (/ its own gauge)."""
+    g = o["gauge"].reshape(())
+    ext = o["ext"].clone()
+    ext[:, :, 3] = ext[:, :, 3] / g
+    a = o["act"]
+    return dict(mu=a["mu"] / g, sigma=a["sigma"] / g, rot=a["rot"], rgb=a["rgb"], opacity=a["opacity"],
+                ext=ext, K=o["K"])
+
+
+def to_attrs(mu, k):
+    """interp.c to_attrs: mu | colour | logit(opacity) | log(scale) | q, flattened [N, 14]."""
+    op = k["opacity"].reshape(-1).clamp(1e-6, 1 - 1e-6)
+    return torch.cat([mu.reshape(-1, 3), k["rgb"].reshape(-1, 3), torch.log(op / (1 - op))[:, None],
+                      torch.log(k["sigma"].reshape(-1, 3).clamp(min=1e-12)), k["rot"].reshape(-1, 4)], -1)
+
+
+def from_attrs(a):
+    n = a[:, 10:14].norm(dim=-1, keepdim=True)
+    ident = torch.zeros_like(a[:, 10:14])
+    ident[:, 0] = 1.0
+    rot = torch.where(n > 1e-12, a[:, 10:14] / n.clamp(min=1e-12), ident)
+    return a[:, :3], torch.exp(a[:, 7:10]), rot, torch.sigmoid(a[:, 6]), a[:, 3:6]
+
+
+def partners(mu, motion, other):
+    """interp.c partner() for pixel-aligned keys: X' = mu + motion projected into the same
+    view with the other key's cameras; -> X' [N,3], partner index [N], found [N]."""
+    S, H, W = mu.shape[:3]
+    X = mu + motion
+    R, T = other["ext"][:, :, :3], other["ext"][:, :, 3]
+    q = torch.einsum("sij,shwj->shwi", R, X) + T[:, None, None, :]
+    z = q[..., 2]
+    zs = torch.where(z > raster.NEAR, z, torch.ones_like(z))
+    K = other["K"]
+    u = K[:, 0, 0, None, None] * q[..., 0] / zs + K[:, 0, 2, None, None]
+    v = K[:, 1, 1, None, None] * q[..., 1] / zs + K[:, 1, 2, None, None]
+    ok = (z > raster.NEAR) & (u >= 0) & (v >= 0) & (u < W) & (v < H) & torch.isfinite(X).all(-1)
+    sidx = torch.arange(S)[:, None, None].expand(S, H, W)
+    idx = (sidx * H + v.clamp(0, H - 1).floor().long()) * W + u.clamp(0, W - 1).floor().long()
+    return X.reshape(-1, 3), idx.reshape(-1), ok.reshape(-1)
+
+
+def interp_fused(model, km, kt, m1, m2, a, fuse=True):
+    """Gaussians at t' = t - 1 + a as interp_at (INTERP_FUSED) builds them: occluded ones of
+    t and t-1 kept (deformed), matched pairs of t fused with their partner in t-1 (fusion
+    MLP, or averaging with fuse=False), t-1's matched ones dropped. -> render inputs."""
+    Xt, it, okt = partners(kt["mu"], m1, km)
+    Xm, im, okm = partners(km["mu"], m2, kt)
+    mum, mut = km["mu"].reshape(-1, 3), kt["mu"].reshape(-1, 3)
+    Dt = (Xt - mum[it]).norm(dim=-1)
+    Dm = (Xm - mut[im]).norm(dim=-1)
+    fz = okt & (Dt <= FUSION_TAU)
+    dropm = okm & (Dm <= FUSION_TAU)
+    at = to_attrs(kt["mu"] + (1 - a) * m1, kt)
+    am = to_attrs(km["mu"] + a * m2, km)
+    pa, pm = at[fz], am[it[fz]]
+    n = pa.shape[0]
+    if fuse:
+        fused = fuse_pairs(model.fusion, pa, pm, torch.full((n,), a), Dt[fz])
+    else:
+        mean = 0.5 * (pa[:, :10] + pm[:, :10])
+        sg = torch.where((pa[:, 10:] * pm[:, 10:]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+        fused = torch.cat([mean, pa[:, 10:] + sg * pm[:, 10:]], -1)
+    allv = torch.cat([at[~fz], fused, am[~dropm]])
+    return from_attrs(allv), dict(fused=n, kept_t=int((~fz).sum()), kept_tm1=int((~dropm).sum()))
+
+
+def run_fusion(model, take, k, views, a=0.5):
+    """Stage 4: keys k-1 and k (state carried, motion from the trained blocks, all frozen);
+    the interpolated frame at the mid time rendered at one input camera (the model's own
+    metric camera of key k) against the true mid-time image; only fusion.* trains."""
+    cfg = model.cfg
+    outs = run_keys(model, take, views, k)
+    oa, ob = outs[k - 1], outs[k]
+    H, W = take.H, take.W
+    with torch.no_grad():
+        pos = stream_pos(cfg, H, W)
+        za, zb = model.motion.inputs(oa["layers"]), model.motion.inputs(ob["layers"])
+        g = ob["gauge"].reshape(())
+        m1 = model.motion_head(model.motion(zb, za, pos), H, W, {}, "motion_head")[0] / g
+        m2 = model.motion_head(model.motion(za, zb, pos), H, W, {}, "motion_head")[0] / g
+    km, kt = metric_key(oa), metric_key(ob)
+    (mu, sig, rot, op, rgb), st = interp_fused(model, km, kt, m1, m2, a)
+    i = random.randrange(len(views))
+    w2c = torch.cat([kt["ext"][i], torch.tensor([[0.0, 0.0, 0.0, 1.0]])])
+    r = raster.render(mu, sig, rot, op, rgb, w2c, kt["K"][i], W, H, bg=take.sky)
+    L = image_loss(r["rgb"], take.mid_rgb[k - 1][views[i]])
+    return L, dict(mid=float(L), **{kk: float(v) for kk, v in st.items()})
 
 
 # ---------------------------------------------------------------------------
@@ -312,8 +436,10 @@ def trainable(model, stage):
             p.requires_grad_(not n.startswith(("state.", "motion.", "motion_head.", "fusion.")))
         elif stage == 2:
             p.requires_grad_(n.startswith("state."))
-        else:
+        elif stage == 3:
             p.requires_grad_(n.startswith(("motion.", "motion_head.")))
+        else:
+            p.requires_grad_(n.startswith("fusion."))
     return [p for p in model.parameters() if p.requires_grad]
 
 
@@ -378,6 +504,16 @@ def train(args):
         model.load_state_dict(ck["model"])
         state = ck["state"]
         print(f"resumed stage {args.stage} at step {state['step']}", flush=True)
+    elif args.init_gguf:
+        # no checkpoint at hand (ignored by git): continue from shipped weights; the
+        # optimiser starts afresh (warm-up again), modules the file lacks keep their init
+        _, sd = gguf_read.read(args.init_gguf)
+        missing, unexpected = model.load_state_dict(sd, strict=False)
+        if unexpected:
+            sys.exit(f"train.py: {args.init_gguf} has tensors this model lacks: {unexpected[:5]}")
+        state["init"] = args.init_gguf
+        print(f"stage {args.stage}: initialised from {args.init_gguf} ({len(sd)} tensors, "
+              f"{len(missing)} left at init)", flush=True)
     elif args.stage > 1:
         if not os.path.exists(prev):
             sys.exit(f"train.py: stage {args.stage} needs {prev}")
@@ -413,8 +549,10 @@ def train(args):
                 loss, logs, _ = stage1_losses(model, Sample(t, k, views), render=render)
             elif args.stage == 2:
                 loss, logs = run_state_seq(model, t, views)
-            else:
+            elif args.stage == 3:
                 loss, logs = run_motion(model, t, random.randrange(1, t.T), views)
+            else:
+                loss, logs = run_fusion(model, t, random.randrange(1, t.T), views)
         except raster.PairBudget as e:  # a degenerate render: skip the sample, keep going
             print(f"stage {args.stage} step {step}: skipped ({e})", flush=True)
             continue
@@ -469,11 +607,11 @@ def write_safetensors(path, sd):
 
 
 def export(args):
-    """Latest checkpoint -> OUT/forge4d_small.safetensors (the stage-1 model: VGGT +
-    Gaussian + scale heads, what f4d-convert knows) + config.json, and
-    OUT/forge4d_small_stream.safetensors (state / motion / fusion, when trained)."""
+    """Latest checkpoint -> OUT/forge4d_small.safetensors + config.json for f4d-convert:
+    the whole model (VGGT + Gaussian / scale heads, and from stage 2 on the state, motion
+    and fusion modules, which f4d-convert knows by name: one GGUF holds everything)."""
     ck = None
-    for st in (3, 2, 1):
+    for st in (4, 3, 2, 1):
         p = ckpt_path(args, st)
         if os.path.exists(p):
             ck = torch.load(p)
@@ -482,19 +620,19 @@ def export(args):
         sys.exit("train.py: no checkpoint to export")
     os.makedirs(args.export, exist_ok=True)
     sd = ck["model"]
-    base = {k: v for k, v in sd.items() if not k.startswith(("state.", "motion.", "motion_head.", "fusion."))}
-    stream = {k: v for k, v in sd.items() if k.startswith(("state.", "motion.", "motion_head.", "fusion."))}
-    write_safetensors(os.path.join(args.export, "forge4d_small.safetensors"), base)
-    if ck["stage"] >= 2:
-        write_safetensors(os.path.join(args.export, "forge4d_small_stream.safetensors"), stream)
+    stream = ("state.", "motion.", "motion_head.", "fusion.")
+    if ck["stage"] < 2:  # untrained stream modules would claim a motion model that is not there
+        sd = {k: v for k, v in sd.items() if not k.startswith(stream)}
+    write_safetensors(os.path.join(args.export, "forge4d_small.safetensors"), sd)
     with open(os.path.join(args.export, "config.json"), "w") as f:
         json.dump(ck["config"], f, indent=1)
-    print(f"exported stage {ck['stage']} checkpoint ({len(base)} base tensors, {len(stream)} stream tensors)")
+    ns = sum(1 for k in sd if k.startswith(stream))
+    print(f"exported stage {ck['stage']} checkpoint ({len(sd) - ns} base tensors, {ns} stream tensors)")
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--stage", type=int, default=1, choices=(1, 2, 3))
+    ap.add_argument("--stage", type=int, default=1, choices=(1, 2, 3, 4))
     ap.add_argument("--data", default=os.path.join(HERE, "data"))
     ap.add_argument("--ckpt-dir", default=os.path.join(HERE, "checkpoints"))
     ap.add_argument("--config", help="JSON overriding the model size (default SMALL)")
@@ -511,6 +649,7 @@ def main():
     ap.add_argument("--val-every", type=int, default=200)
     ap.add_argument("--save-every", type=int, default=50)
     ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--init-gguf", help="start this stage from a GGUF of ours (f32) instead of the previous stage's checkpoint")
     ap.add_argument("--export", help="write the latest checkpoint's weights to this directory and exit")
     args = ap.parse_args()
     if args.export:
