@@ -41,8 +41,10 @@ class Smoke(unittest.TestCase):
     def tearDownClass(cls):
         cls.tmp.cleanup()
 
-    def descend(self, stage, loss_fn, steps=8, lr=2e-3, factor=0.9, first=0):
+    def descend(self, stage, loss_fn, steps=8, lr=2e-3, factor=0.9, first=0, prep=None):
         model = train.make_model(TINY, stream=True, seed=0)
+        if prep:
+            prep(model)
         params = train.trainable(model, stage)
         opt = torch.optim.Adam(params, lr=lr)
         losses = []
@@ -73,6 +75,54 @@ class Smoke(unittest.TestCase):
         self.descend(3, lambda m: train.run_motion(m, self.take, 1, [0, 1], mid_weight=0.0)[0], lr=3e-4,
                      first=1)
 
+    def gt_keys(self, views):
+        """Keys t-1 = 0 and t = 1 as the runtime would hand them to interp if the model were
+        exact: true points (view 0's frame, metres), true cameras, the images' colours."""
+        keys = []
+        for k in (0, 1):
+            smp = train.Sample(self.take, k, views, with_eval=False)
+            S, H, W = smp.depth.shape
+            keys.append(dict(mu=smp.points, sigma=torch.full((S, H, W, 3), 0.01), rot=torch.tensor(
+                [1.0, 0, 0, 0]).expand(S, H, W, 4), rgb=smp.images.permute(0, 2, 3, 1),
+                opacity=torch.full((S, H, W), 0.9), ext=smp.rel[:, :3], K=smp.K))
+        return keys
+
+    def test_stage4_loss_decreases(self):
+        # fusion.fc2 starts at 0 (averaging). An untrained base puts its points outside the
+        # frustum (no pairs), so the keys handed to interp are the exact ones; the stage's
+        # own path (run_keys, motion, pairing, fusion, render) runs unchanged around them
+        views = [0, 1]
+        keys = self.gt_keys(views)
+        real = train.metric_key
+        calls = []
+
+        def exact(o):
+            calls.append(1)
+            return keys[(len(calls) - 1) % 2]
+
+        def loss(m):
+            L, logs = train.run_fusion(m, self.take, 1, views)
+            self.assertGreater(logs["fused"], 1000)
+            return L
+
+        train.metric_key = exact
+        try:
+            self.descend(4, loss, lr=1e-3, factor=0.95)
+        finally:
+            train.metric_key = real
+
+    def test_interp_fused_averaging_matches_untrained_mlp(self):
+        # with fc2 = 0 the MLP is averaging: both branches give the same Gaussians
+        model = train.make_model(TINY, stream=True, seed=0)
+        with torch.no_grad():
+            outs = train.run_keys(model, self.take, [0, 1], 1)
+            km, kt = train.metric_key(outs[0]), train.metric_key(outs[1])
+            m = torch.full_like(kt["mu"], 0.01)
+            a = train.interp_fused(model, km, kt, m, -m, 0.5, fuse=True)[0]
+            b = train.interp_fused(model, km, kt, m, -m, 0.5, fuse=False)[0]
+        for x, y in zip(a, b):
+            self.assertLess(float((x - y).abs().max()), 1e-5)
+
     def test_checkpoint_resume_export(self):
         cfgp = os.path.join(self.root, "tiny.json")
         with open(cfgp, "w") as f:
@@ -92,6 +142,18 @@ class Smoke(unittest.TestCase):
         self.assertIn("gaussian_head.scratch.output_conv2.2.weight", names)
         self.assertIn("scale_head.fc2.weight", names)
         self.assertFalse(any(k.startswith(("state.", "motion")) for k in names))
+        # the GGUF reader gives back what f4d-convert wrote (when the converter is built)
+        conv = os.environ.get("F4D_CONVERT_BIN", "build/tools/f4d-convert/f4d-convert")
+        if os.access(conv, os.X_OK):
+            import gguf_read
+            g = os.path.join(self.root, "ship", "m.gguf")
+            subprocess.run([conv, os.path.join(self.root, "ship", "forge4d_small.safetensors"), g, "--config",
+                            os.path.join(self.root, "ship", "config.json"), "--type", "f32"], check=True,
+                           stdout=subprocess.DEVNULL)
+            _, sd = gguf_read.read(g)
+            ref = torch.load(os.path.join(ck, "stage1.pt"))["model"]
+            for k, v in sd.items():
+                self.assertTrue(torch.equal(v, ref[k]), k)
 
 
 if __name__ == "__main__":
