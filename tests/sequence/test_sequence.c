@@ -10,7 +10,8 @@
  *     Gaussians, M1[t] on key t and M2[t-1] on key t-1 equal the reference
  *     sequence, and frames between keys are fused by the weights' MLP;
  *   - the fusion MLP with fc2 = 0 (weights zeroed in memory) gives exactly
- *     what averaging gives, pair by pair and through interp_at.
+ *     what averaging gives, pair by pair and through interp_at;
+ *   - set_fusion switches between the MLP and averaging on the same keys.
  *
  *   test_sequence FIXTURE_DIR GGUF_DIR
  */
@@ -161,6 +162,11 @@ static void interpolate(void **state)
         assert_int_equal(f4d_sequence_set_mode(f->sq, INTERP_FUSED, &err), F4D_EINVAL);
         assert_non_null(strstr(err.msg, "motion"));
     }
+    if (!f4d_sequence_has_fusion(f->sq)) {
+        assert_int_equal(f4d_sequence_set_fusion(f->sq, 1, &err), F4D_EINVAL);
+        assert_non_null(strstr(err.msg, "fusion"));
+        assert_int_equal(f4d_sequence_set_fusion(f->sq, 0, &err), 0);
+    }
     double ts[3] = { (double)kp.t, (double)kt.t - 0.5, (double)kt.t };
     for (int i = 0; i < 3; i++) {
         struct interp_stats st;
@@ -297,6 +303,77 @@ static void motion_parity(void **state)
         assert_int_equal(mid->count, st.fused + st.kept_t + st.kept_tm1);
     }
     assert_true(worst < 1e-4);
+    f4d_sequence_close(sq);
+    fk_ctx_free(ctx);
+}
+
+/* f4d_sequence_set_fusion: 0 gives exactly interp_at with averaging on the
+ * same keys, 1 gives the MLP's frame again (bit for bit); where pairs are
+ * fused, the fixture's MLP (not averaging) changes the frame. */
+static void fusion_switch(void **state)
+{
+    (void)state;
+    char p[1024];
+    snprintf(p, sizeof p, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    fk_ctx *ctx;
+    f4d_sequence *sq;
+    struct f4d_err err = { 0 };
+    const int S = 2, H = 28, W = 42;
+    const size_t n = (size_t)S * H * W;
+    assert_int_equal(fk_ctx_new(&(struct fk_ctx_config){ .isa = FK_ISA_AUTO, .threads = 1 }, &ctx), 0);
+    if (f4d_sequence_open(ctx, p, FK_W_F32, S, H, W, &sq, &err) < 0)
+        fail_msg("open: %s", err.msg);
+    const struct splat_frame *mid;
+    struct interp_stats st = { 0 }, sa;
+    double tm = 0; /* the first mid time with pairs to fuse */
+    for (int t = 0; t < 4 && !st.fused; t++) {
+        char name[64];
+        snprintf(name, sizeof name, "t%d/input", t);
+        float *x = load_seq(name, n * 3);
+        assert_int_equal(f4d_sequence_push(sq, x, &err), 0);
+        free(x);
+        tm = t - 0.5;
+        if (t)
+            assert_int_equal(f4d_sequence_at(sq, tm, &mid, &st, &err), 0);
+    }
+    /* the random fixture's motions rarely land within tau of a partner: with
+     * no pair the MLP and averaging agree trivially, and only the plumbing
+     * (same keys, same frame as interp_at) is checked */
+    printf("t' = %.1f: %zu pairs fused\n", tm, st.fused);
+    size_t cnt = mid->count;
+    float *mlp = malloc(3 * cnt * sizeof *mlp);
+    memcpy(mlp, mid->pos, 3 * cnt * sizeof *mlp);
+    assert_int_equal(f4d_sequence_set_fusion(sq, 0, &err), 0);
+    assert_int_equal(f4d_sequence_at(sq, tm, &mid, &sa, &err), 0);
+    assert_int_equal(sa.fused, st.fused);
+    assert_int_equal(mid->count, cnt);
+    /* averaging on the same keys through interp itself */
+    struct f4d_seq_key kt, kp;
+    assert_int_equal(f4d_sequence_key(sq, 0, &kt, &err), 0);
+    assert_int_equal(f4d_sequence_key(sq, 1, &kp, &err), 0);
+    interp *ip;
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    struct splat_frame avg = { 0 };
+    struct interp_config ca = interp_config_default();
+    assert_int_equal(interp_new(ctx, &kp.rig, &ip, &err), 0);
+    assert_int_equal(interp_key_build_aligned(ip, &kp.frame, &k0, &err), 0);
+    assert_int_equal(interp_set_rig(ip, &kt.rig, &err), 0);
+    assert_int_equal(interp_key_build_aligned(ip, &kt.frame, &k1, &err), 0);
+    assert_int_equal(interp_at(ip, &k0, &k1, (float)(tm - (double)kp.t), &ca, &avg, NULL, &err), 0);
+    assert_int_equal(avg.count, cnt);
+    assert_memory_equal(avg.pos, mid->pos, 3 * cnt * sizeof(float));
+    assert_memory_equal(avg.rgb, mid->rgb, 3 * cnt * sizeof(float));
+    if (st.fused)
+        assert_true(memcmp(mlp, mid->pos, 3 * cnt * sizeof(float)) != 0); /* the MLP is not averaging */
+    assert_int_equal(f4d_sequence_set_fusion(sq, 1, &err), 0);
+    assert_int_equal(f4d_sequence_at(sq, tm, &mid, NULL, &err), 0);
+    assert_memory_equal(mlp, mid->pos, 3 * cnt * sizeof(float));
+    assert_int_equal(f4d_sequence_set_fusion(NULL, 0, &err), F4D_EINVAL);
+    free(mlp);
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    splat_frame_free(&avg);
+    interp_free(ip);
     f4d_sequence_close(sq);
     fk_ctx_free(ctx);
 }
@@ -485,6 +562,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(motion_parity),
         cmocka_unit_test(fusion_fc2_zero_is_average),
         cmocka_unit_test(fusion_batch_parity),
+        cmocka_unit_test(fusion_switch),
     };
     return F4D_TEST_MAIN(argc, argv, "sequence", tests, setup, teardown);
 }

@@ -4,42 +4,74 @@
  *   f4d-eval --take DIR [--weights W.gguf] [--precision f32|f16|int8|all]
  *            [--keys N] [--threads N] [--json FILE]
  *
- * For every key time of the take the model sees the input views only; its
- * metric Gaussians are rendered (firmware/splat) at the take's evaluation
- * cameras, which it never saw, expressed in view 0's frame (the model's world):
- *   novel_view_psnr / _ssim  against the exact renders (3DGS PSNR / SSIM);
- *   point_dist_m             mean distance of each input pixel's metric
- *                            Gaussian centre to the true surface point of the
- *                            same pixel (no alignment: the gauge's metric scale
- *                            and the cameras both count);
- *   rot_err_deg, trans_err_m predicted metric cameras against the truth;
- *   key_ms                   wall time of one model_eval (all views).
- * Novel time, motion end-point error and TL-STD need the motion blocks and the
- * fusion MLP in the runtime, which it does not have yet: printed as n/a, null
- * in JSON. LPIPS needs network weights this project cannot ship: absent.
- * Without --weights the shipped model is used (firmware/infer/weights). */
+ * The take's keys 0..T-1 go in order through the streaming runtime
+ * (firmware/gaussians/sequence: state tokens carried from key to key, motion
+ * and fusion when the weights have them); the model sees the input views
+ * only. Everything is scored in view 0's frame (the model's world), the true
+ * cameras moved there, with no alignment. Per precision:
+ *   key_ms            mean wall time of one f4d_sequence_push (model with
+ *                     state and motion, all views; load average printed);
+ *   novel_view_psnr / _ssim   renders of each key at the held-out evaluation
+ *                     cameras against the take's exact renders (3DGS PSNR /
+ *                     SSIM, mean over keys x cameras);
+ *   novel_time_psnr / _ssim   renders of f4d_sequence_at(k + 1/2) (the
+ *                     weights' fusion MLP; averaging without one) at every
+ *                     camera of the take, held-out and input, against the
+ *                     take's mid-time renders, mean over mids x cameras;
+ *   motion_epe_m      mean |M - R0 m| (metres) of the predicted per-pixel
+ *                     motions M1[t] (key t -> t-1) and M2[t-1] (t-1 -> t)
+ *                     against the take's exact motion m of the same pixel
+ *                     (R0: view 0's true rotation), over foreground pixels:
+ *                     valid (alpha > 0.5) and moving (|m| > 1 um; the venue's
+ *                     floor and backdrop are static, exactly 0, so these are
+ *                     the people). The mean over every valid pixel is printed
+ *                     too (JSON "extra");
+ *   point_dist_m      mean distance of each valid input pixel's metric
+ *                     Gaussian centre to the true surface point of that pixel;
+ *   rot_err_deg, trans_err_m  predicted metric cameras against the truth;
+ *   tlstd_fused / _unfused    TL-STD (temporal luma standard deviation,
+ *                     splat_tlstd: Y = 0.2126 R + 0.7152 G + 0.0722 B in
+ *                     [0, 1], per-pixel population std over time, mean over
+ *                     pixels; mean over cameras) of the playback key 0, mid
+ *                     1/2, key 1, ..., key T-1 rendered at every camera of the
+ *                     take; the mids fused by the MLP, or averaged (fusion
+ *                     off, the paper's ablation) on the same keys. The truth's
+ *                     TL-STD of the same frames is printed beside them.
+ * n/a (null in JSON) with the reason printed: novel time, motion and TL-STD
+ * when the take has one key or the weights have no motion part; tlstd_fused
+ * when they have no fusion MLP. LPIPS needs network weights this project
+ * cannot ship: absent. Without --weights the shipped model is used
+ * (firmware/infer/weights). */
 #include <cjson/cJSON.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
+#include "f4d_sequence.h"
 #include "model.h"
 #include "npy.h"
 #include "splat.h"
 #include "weights.h"
 
+/* |m| above this (metres per key interval) marks a moving, foreground pixel */
+#define EVAL_MOVING_M 1e-6
+
 struct take {
     int    T, V, E, H, W;
     float *rgb, *depth, *alpha, *ergb;
+    float *mbwd, *mfwd, *mid;  /* [T,V,H,W,3] x 2, [T-1,V+E,H,W,3]; NULL when absent */
     struct splat_rig rig, erig;
     float  sky[3];
 };
 
 struct row {
     const char *precision;
-    double key_ms, psnr, ssim, point_dist, rot_err, trans_err;
+    double key_ms, psnr, ssim, nt_psnr, nt_ssim, epe, point_dist, rot_err, trans_err, tl_fused, tl_unfused;
+    double epe_all, epe_zero, nt_psnr_avg, tl_truth, fused_pairs; /* context: "extra" in JSON */
+    char   why_time[160], why_epe[160], why_fused[160]; /* reasons for n/a ("" = computed) */
 };
 
 static double now_ms(void)
@@ -61,9 +93,21 @@ static int load(const char *dir, const char *name, float **a, int64_t *shape, in
     return 0;
 }
 
+static int exists(const char *dir, const char *name)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
+    return access(path, R_OK) == 0;
+}
+
+static int same5(const int64_t *s, int64_t a, int64_t b, int64_t h, int64_t w)
+{
+    return s[0] == a && s[1] == b && s[2] == h && s[3] == w && s[4] == 3;
+}
+
 static int take_load(const char *dir, struct take *t, struct f4d_err *err)
 {
-    int64_t s[NPY_MAX_DIMS], s2[NPY_MAX_DIMS];
+    int64_t s[NPY_MAX_DIMS], s2[NPY_MAX_DIMS], s3[NPY_MAX_DIMS];
     memset(t, 0, sizeof *t);
     if (load(dir, "rgb", &t->rgb, s, 5, err) < 0)
         return -1;
@@ -74,6 +118,25 @@ static int take_load(const char *dir, struct take *t, struct f4d_err *err)
     t->E = (int)s2[1];
     if (s2[0] != t->T || s2[2] != t->H || s2[3] != t->W || s[4] != 3)
         return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
+    /* motion and mid times: only for takes of two keys or more (older takes
+     * without them still give the per-key columns) */
+    if (t->T >= 2 && exists(dir, "motion_bwd") && exists(dir, "motion_fwd") && exists(dir, "mid_rgb")) {
+        if (load(dir, "motion_bwd", &t->mbwd, s3, 5, err) < 0)
+            return -1;
+        if (!same5(s3, t->T, t->V, t->H, t->W))
+            return f4d_fail(err, F4D_EFORMAT, "take %s: motion_bwd is not [%d,%d,%d,%d,3]", dir, t->T, t->V, t->H,
+                            t->W);
+        if (load(dir, "motion_fwd", &t->mfwd, s3, 5, err) < 0)
+            return -1;
+        if (!same5(s3, t->T, t->V, t->H, t->W))
+            return f4d_fail(err, F4D_EFORMAT, "take %s: motion_fwd is not [%d,%d,%d,%d,3]", dir, t->T, t->V, t->H,
+                            t->W);
+        if (load(dir, "mid_rgb", &t->mid, s3, 5, err) < 0)
+            return -1;
+        if (!same5(s3, t->T - 1, t->V + t->E, t->H, t->W))
+            return f4d_fail(err, F4D_EFORMAT, "take %s: mid_rgb is not [%d,%d,%d,%d,3]", dir, t->T - 1, t->V + t->E,
+                            t->H, t->W);
+    }
     char path[4096];
     snprintf(path, sizeof path, "%s/rig.json", dir);
     if (splat_rig_load(path, &t->rig, err) < 0)
@@ -107,6 +170,7 @@ static int take_load(const char *dir, struct take *t, struct f4d_err *err)
 static void take_free(struct take *t)
 {
     free(t->rgb); free(t->depth); free(t->alpha); free(t->ergb);
+    free(t->mbwd); free(t->mfwd); free(t->mid);
 }
 
 /* c = a * b for 4x4 row-major. */
@@ -133,19 +197,115 @@ static void rigid_inv(const float *m, float *o)
     o[15] = 1.0f;
 }
 
+/* Temporal luma statistics per camera and pixel, one frame at a time: the
+ * sums splat_tlstd forms over a stored sequence, without storing it. */
+struct tl_acc {
+    double *s, *s2;
+    size_t  np;
+    int     cams, *n;
+};
+
+static int tl_new(struct tl_acc *a, int cams, size_t np)
+{
+    a->cams = cams;
+    a->np = np;
+    a->s = calloc((size_t)cams * np, sizeof *a->s);
+    a->s2 = calloc((size_t)cams * np, sizeof *a->s2);
+    a->n = calloc((size_t)cams, sizeof *a->n);
+    return a->s && a->s2 && a->n ? 0 : -1;
+}
+
+static void tl_free(struct tl_acc *a) { free(a->s); free(a->s2); free(a->n); }
+
+static void tl_add(struct tl_acc *a, int cam, const float *rgb)
+{
+    double *s = a->s + (size_t)cam * a->np, *s2 = a->s2 + (size_t)cam * a->np;
+    for (size_t i = 0; i < a->np; i++) {
+        const float *p = rgb + 3 * i;
+        double y = 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
+        s[i] += y;
+        s2[i] += y * y;
+    }
+    a->n[cam]++;
+}
+
+/* splat_tlstd of each camera's sequence, mean over cameras. */
+static double tl_value(const struct tl_acc *a)
+{
+    double acc = 0;
+    for (int c = 0; c < a->cams; c++) {
+        const double *s = a->s + (size_t)c * a->np, *s2 = a->s2 + (size_t)c * a->np, n = a->n[c];
+        if (a->n[c] < 2)
+            return NAN;
+        double cam = 0;
+        for (size_t i = 0; i < a->np; i++) {
+            double m = s[i] / n, v = s2[i] / n - m * m;
+            cam += v > 0.0 ? sqrt(v) : 0.0;
+        }
+        acc += cam / (double)a->np;
+    }
+    return acc / a->cams;
+}
+
+struct evalws {
+    splat_renderer *ren;
+    float *out, *ssim_scratch;
+    float  sky[3];
+    int    W, H;
+};
+
+/* Renders f at cam into ws->out, clamped to [0, 1] as an image is. */
+static int render(struct evalws *ws, const struct splat_camera *cam, const struct splat_frame *f, struct f4d_err *err)
+{
+    struct splat_render_out ro = { .rgb = ws->out };
+    if (splat_render(ws->ren, cam, f, ws->sky, &ro) < 0)
+        return f4d_fail(err, F4D_EINVAL, "%s", splat_renderer_error(ws->ren));
+    for (size_t i = 0; i < 3 * (size_t)ws->W * ws->H; i++)
+        ws->out[i] = ws->out[i] < 0 ? 0 : (ws->out[i] > 1 ? 1 : ws->out[i]);
+    return 0;
+}
+
+/* Sum of |pred - R0 gt| over valid pixels, all and moving (foreground). */
+static void epe_add(const float *pred, const float *gt, const float *alpha, const float *R0, size_t n, double *all,
+                    size_t *n_all, double *fg, double *fg_zero, size_t *n_fg)
+{
+    for (size_t i = 0; i < n; i++) {
+        if (alpha[i] <= 0.5f)
+            continue;
+        const float *m = gt + 3 * i, *p = pred + 3 * i;
+        double d2 = 0, g2 = 0;
+        for (int a = 0; a < 3; a++) {
+            double g = (double)R0[4 * a] * m[0] + (double)R0[4 * a + 1] * m[1] + (double)R0[4 * a + 2] * m[2];
+            d2 += ((double)p[a] - g) * ((double)p[a] - g);
+            g2 += (double)m[a] * m[a];
+        }
+        *all += sqrt(d2);
+        (*n_all)++;
+        if (g2 > EVAL_MOVING_M * EVAL_MOVING_M) {
+            *fg += sqrt(d2);
+            *fg_zero += sqrt(g2); /* what predicting no motion scores */
+            (*n_fg)++;
+        }
+    }
+}
+
 static int eval_precision(const struct take *t, const char *weights, enum fk_wtype wt, int keys, int threads,
                           struct row *r, struct f4d_err *err)
 {
     fk_ctx *ctx = NULL;
     struct model *m = NULL;
-    splat_renderer *ren = NULL;
+    f4d_sequence *sq = NULL;
+    struct evalws ws = { .W = t->W, .H = t->H };
+    struct tl_acc tl_f = { 0 }, tl_u = { 0 }, tl_g = { 0 };
     int rc = -1;
-    const int V = t->V, H = t->H, W = t->W;
+    const int V = t->V, E = t->E, C = t->V + t->E, H = t->H, W = t->W;
     const size_t np = (size_t)H * W;
-    float *img = malloc((size_t)V * 3 * np * sizeof(float)), *out = malloc(3 * np * sizeof(float));
-    float *ssim_scratch = malloc(splat_ssim_scratch_floats(W, H) * sizeof(float));
+    float *img = malloc((size_t)V * 3 * np * sizeof(float));
+    ws.out = malloc(3 * np * sizeof(float));
+    ws.ssim_scratch = malloc(splat_ssim_scratch_floats(W, H) * sizeof(float));
+    memcpy(ws.sky, t->sky, sizeof ws.sky);
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
-    if (!img || !out || !ssim_scratch) {
+    if (!img || !ws.out || !ws.ssim_scratch) {
         f4d_fail(err, F4D_ENOMEM, "f4d-eval: out of memory");
         goto done;
     }
@@ -155,57 +315,83 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     }
     if (model_init(ctx, weights, wt, &m, err) < 0)
         goto done;
-    if (model_prepare(m, V, H, W) < 0) {
-        f4d_fail(err, F4D_EINVAL, "%s", model_error(m));
+    if (!(model_groups(m) & MODEL_G_SCALE)) {
+        f4d_fail(err, F4D_ENOTSUP, "f4d-eval: %s has no scale head (scale_head.*): nothing is metric", weights);
         goto done;
     }
-    if (splat_renderer_new(ctx, W, H, &ren, err) < 0)
+    if (f4d_sequence_open_model(m, V, H, W, &sq, err) < 0)
         goto done;
-    float inv0[16];
-    rigid_inv(t->rig.cams[0].w2c, inv0);
-    double ms = 0, psnr = 0, ssim = 0, pd = 0, re = 0, te = 0;
-    int n_img = 0, n_cam = 0;
-    size_t n_pt = 0;
+    if (splat_renderer_new(ctx, W, H, &ws.ren, err) < 0)
+        goto done;
     if (keys <= 0 || keys > t->T)
         keys = t->T;
+    /* what this take and these weights allow beyond the per-key columns */
+    const int has_motion = f4d_sequence_has_motion(sq), has_fusion = f4d_sequence_has_fusion(sq);
+    r->why_time[0] = r->why_epe[0] = r->why_fused[0] = '\0';
+    if (keys < 2)
+        snprintf(r->why_time, sizeof r->why_time, "%s", t->T < 2 ? "the take has one key (no mid time, no motion)"
+                                                                  : "--keys 1 (no mid time, no motion)");
+    else if (!t->mid)
+        snprintf(r->why_time, sizeof r->why_time, "the take has no motion_bwd / motion_fwd / mid_rgb arrays");
+    else if (!has_motion)
+        snprintf(r->why_time, sizeof r->why_time, "the weights have no motion part (motion.*, motion_head.*)");
+    const int timed = r->why_time[0] == '\0';
+    if (timed && !has_fusion)
+        snprintf(r->why_fused, sizeof r->why_fused, "the weights have no fusion MLP (fusion.*): mids are averaged");
+    if (timed && (tl_new(&tl_f, C, np) < 0 || tl_new(&tl_u, C, np) < 0 || tl_new(&tl_g, C, np) < 0)) {
+        f4d_fail(err, F4D_ENOMEM, "f4d-eval: out of memory");
+        goto done;
+    }
+    /* the true cameras in view 0's frame (the model's world) */
+    struct splat_camera cams[2 * SPLAT_RIG_MAX];
+    float inv0[16];
+    rigid_inv(t->rig.cams[0].w2c, inv0);
+    for (int c = 0; c < C; c++) {
+        const struct splat_camera *src = c < V ? &t->rig.cams[c] : &t->erig.cams[c - V];
+        cams[c] = *src;
+        mul44(src->w2c, inv0, cams[c].w2c);
+    }
+    const float *R0 = t->rig.cams[0].w2c;
+    double ms = 0, psnr = 0, ssim = 0, pd = 0, re = 0, te = 0, ntp = 0, nts = 0, ntpa = 0, ea = 0, ef = 0, ez = 0;
+    double pairs = 0;
+    int n_img = 0, n_cam = 0, n_mid = 0;
+    size_t n_pt = 0, n_ea = 0, n_ef = 0;
     for (int k = 0; k < keys; k++) {
         for (int v = 0; v < V; v++)
             for (int c = 0; c < 3; c++)
                 for (size_t p = 0; p < np; p++)
                     img[((size_t)v * 3 + c) * np + p] = t->rgb[(((size_t)k * V + v) * np + p) * 3 + c];
-        struct model_outputs o;
         double t0 = now_ms();
-        if (model_eval(m, img, V, H, W, &o) < 0) {
-            f4d_fail(err, F4D_EINVAL, "%s", model_error(m));
+        if (f4d_sequence_push(sq, img, err) < 0)
             goto done;
-        }
         ms += now_ms() - t0;
-        if (!o.gaussians.count || !o.extrinsic_metric) {
-            f4d_fail(err, F4D_ENOTSUP, "f4d-eval: %s has no Gaussian / scale / camera heads", weights);
+        struct f4d_seq_key key;
+        if (f4d_sequence_key(sq, 0, &key, err) < 0)
+            goto done;
+        if (!key.has_gauge) {
+            f4d_fail(err, F4D_ENOTSUP, "f4d-eval: %s gives no metric gauge", weights);
             goto done;
         }
-        const struct model_gaussians *g = &o.gaussians;
-        struct splat_frame fr = { .count = g->count, .capacity = g->count, .pos = g->pos, .scale = g->scale,
-                                  .rot = g->rot, .opacity = g->opacity, .rgb = g->rgb };
-        for (int e = 0; e < t->E; e++) {
-            struct splat_camera cam = t->erig.cams[e];
-            mul44(t->erig.cams[e].w2c, inv0, cam.w2c); /* into view 0's frame */
-            struct splat_render_out ro = { .rgb = out };
-            if (splat_render(ren, &cam, &fr, t->sky, &ro) < 0) {
-                f4d_fail(err, F4D_EINVAL, "%s", splat_renderer_error(ren));
+        /* the key at every camera: held-out ones score novel views, and with
+         * motion all of them enter the flicker playback (same key both ways) */
+        for (int c = timed ? 0 : V; c < C; c++) {
+            if (render(&ws, &cams[c], &key.frame, err) < 0)
                 goto done;
+            const float *gt = c < V ? t->rgb + ((size_t)k * V + c) * np * 3 : t->ergb + ((size_t)k * E + c - V) * np * 3;
+            if (c >= V) {
+                psnr += splat_psnr(ws.out, gt, W, H, 3);
+                ssim += splat_ssim(ws.out, gt, W, H, 3, ws.ssim_scratch);
+                n_img++;
             }
-            for (size_t i = 0; i < 3 * np; i++)
-                out[i] = out[i] < 0 ? 0 : (out[i] > 1 ? 1 : out[i]);
-            const float *gt = t->ergb + ((size_t)k * t->E + e) * np * 3;
-            psnr += splat_psnr(out, gt, W, H, 3);
-            ssim += splat_ssim(out, gt, W, H, 3, ssim_scratch);
-            n_img++;
+            if (timed) {
+                tl_add(&tl_f, c, ws.out);
+                tl_add(&tl_u, c, ws.out);
+                tl_add(&tl_g, c, gt);
+            }
         }
         for (int v = 0; v < V; v++) {
             const struct splat_camera *cv = &t->rig.cams[v];
-            float rel[16];
-            mul44(cv->w2c, inv0, rel);
+            const float *rel = cams[v].w2c;
             for (size_t p = 0; p < np; p++) {
                 size_t i = ((size_t)k * V + v) * np + p;
                 if (t->alpha[i] <= 0.5f)
@@ -214,12 +400,12 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
                 float pc[3] = { (u - cv->cx) / cv->fx * d, (w - cv->cy) / cv->fy * d, d }, x[3];
                 for (int a = 0; a < 3; a++) /* camera v -> view 0: rel^-1 applied to pc */
                     x[a] = rel[a] * (pc[0] - rel[3]) + rel[4 + a] * (pc[1] - rel[7]) + rel[8 + a] * (pc[2] - rel[11]);
-                const float *q = g->pos + 3 * ((size_t)v * np + p);
+                const float *q = key.frame.pos + 3 * ((size_t)v * np + p);
                 pd += sqrt((double)(q[0] - x[0]) * (q[0] - x[0]) + (double)(q[1] - x[1]) * (q[1] - x[1]) +
                            (double)(q[2] - x[2]) * (q[2] - x[2]));
                 n_pt++;
             }
-            const float *pe = o.extrinsic_metric + 12 * v;
+            const float *pe = key.extrinsic + 12 * v;
             double tr = 0, dt = 0;
             for (int a = 0; a < 3; a++) {
                 for (int b = 0; b < 3; b++)
@@ -233,6 +419,51 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
             te += sqrt(dt);
             n_cam++;
         }
+        if (!timed || k == 0)
+            continue;
+        /* motion: M1[k] on key k, M2[k-1] on key k-1, against the exact motion */
+        struct f4d_seq_key prev;
+        if (f4d_sequence_key(sq, 1, &prev, err) < 0)
+            goto done;
+        if (!key.frame.motion_bwd || !prev.frame.motion_fwd) {
+            f4d_fail(err, F4D_EINVAL, "f4d-eval: key %d came without its motion", k);
+            goto done;
+        }
+        epe_add(key.frame.motion_bwd, t->mbwd + (size_t)k * V * np * 3, t->alpha + (size_t)k * V * np, R0,
+                (size_t)V * np, &ea, &n_ea, &ef, &ez, &n_ef);
+        epe_add(prev.frame.motion_fwd, t->mfwd + (size_t)(k - 1) * V * np * 3, t->alpha + (size_t)(k - 1) * V * np,
+                R0, (size_t)V * np, &ea, &n_ea, &ef, &ez, &n_ef);
+        /* mid time k - 1/2: the runtime's interpolation (MLP, or averaging
+         * without one), then with fusion off when there is an MLP */
+        for (int pass = 0; pass < (has_fusion ? 2 : 1); pass++) {
+            const struct splat_frame *mid;
+            struct interp_stats st;
+            if ((has_fusion && f4d_sequence_set_fusion(sq, pass == 0, err) < 0) ||
+                f4d_sequence_at(sq, (double)k - 0.5, &mid, &st, err) < 0)
+                goto done;
+            if (pass == 0)
+                pairs += (double)st.fused;
+            for (int c = 0; c < C; c++) {
+                if (render(&ws, &cams[c], mid, err) < 0)
+                    goto done;
+                const float *gt = t->mid + ((size_t)(k - 1) * C + c) * np * 3;
+                double p = splat_psnr(ws.out, gt, W, H, 3);
+                if (pass == 0) {
+                    ntp += p;
+                    nts += splat_ssim(ws.out, gt, W, H, 3, ws.ssim_scratch);
+                    n_mid++;
+                    tl_add(&tl_g, c, gt);
+                }
+                if (pass == 0 && has_fusion)
+                    tl_add(&tl_f, c, ws.out);
+                else {
+                    tl_add(&tl_u, c, ws.out);
+                    ntpa += p;
+                }
+            }
+        }
+        if (has_fusion && f4d_sequence_set_fusion(sq, 1, err) < 0)
+            goto done;
     }
     r->key_ms = ms / keys;
     r->psnr = n_img ? psnr / n_img : NAN;
@@ -240,10 +471,24 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     r->point_dist = n_pt ? pd / (double)n_pt : NAN;
     r->rot_err = re / n_cam;
     r->trans_err = te / n_cam;
+    r->nt_psnr = n_mid ? ntp / n_mid : NAN;
+    r->nt_ssim = n_mid ? nts / n_mid : NAN;
+    r->nt_psnr_avg = n_mid ? ntpa / n_mid : NAN;
+    r->epe = n_ef ? ef / (double)n_ef : NAN;
+    r->epe_all = n_ea ? ea / (double)n_ea : NAN;
+    r->epe_zero = n_ef ? ez / (double)n_ef : NAN;
+    r->fused_pairs = timed ? pairs / (keys - 1) : NAN;
+    if (timed && !n_ef)
+        snprintf(r->why_epe, sizeof r->why_epe, "no valid moving (foreground) pixel in the take");
+    r->tl_fused = timed && has_fusion ? tl_value(&tl_f) : NAN;
+    r->tl_unfused = timed ? tl_value(&tl_u) : NAN;
+    r->tl_truth = timed ? tl_value(&tl_g) : NAN;
     rc = 0;
 done:
-    free(img); free(out); free(ssim_scratch);
-    splat_renderer_free(ren);
+    free(img); free(ws.out); free(ws.ssim_scratch);
+    tl_free(&tl_f); tl_free(&tl_u); tl_free(&tl_g);
+    splat_renderer_free(ws.ren);
+    f4d_sequence_close(sq);
     model_free(m);
     fk_ctx_free(ctx);
     return rc;
@@ -255,6 +500,42 @@ static void json_num(FILE *f, const char *k, double v, int last)
         fprintf(f, "\"%s\": %.6g%s", k, v, last ? "" : ", ");
     else
         fprintf(f, "\"%s\": null%s", k, last ? "" : ", ");
+}
+
+/* A table cell: the value with `digits` decimals, or n/a (its reason is
+ * printed below the table). */
+static const char *cell(char *buf, size_t n, int digits, double v)
+{
+    if (!isfinite(v))
+        return "n/a";
+    snprintf(buf, n, "%.*f", digits, v);
+    return buf;
+}
+
+/* The 1-minute load average (the machine may be shared), NAN if unknown. */
+static double load_average(void)
+{
+    double l = NAN;
+    FILE *f = fopen("/proc/loadavg", "r");
+    if (f) {
+        if (fscanf(f, "%lf", &l) != 1)
+            l = NAN;
+        fclose(f);
+    }
+    return l;
+}
+
+/* The reasons for n/a cells, one line each ("" = none). */
+static int reasons(const struct row *r, char out[3][256])
+{
+    int n = 0;
+    if (r->why_time[0])
+        snprintf(out[n++], 256, "%s: novel time, motion EPE and TL-STD n/a: %s", r->precision, r->why_time);
+    if (r->why_epe[0])
+        snprintf(out[n++], 256, "%s: motion EPE n/a: %s", r->precision, r->why_epe);
+    if (r->why_fused[0])
+        snprintf(out[n++], 256, "%s: TL-STD fused n/a: %s", r->precision, r->why_fused);
+    return n;
 }
 
 int main(int argc, char **argv)
@@ -304,6 +585,7 @@ int main(int argc, char **argv)
         take_free(&t);
         return 1;
     }
+    const double load0 = load_average();
     struct row rows[3];
     int nr = 0;
     for (int p = 0; p < 3; p++) {
@@ -319,6 +601,7 @@ int main(int argc, char **argv)
             }
             w = wpath;
         }
+        memset(&rows[nr], 0, sizeof rows[nr]);
         rows[nr].precision = names[p];
         if (eval_precision(&t, w, types[p], keys, threads, &rows[nr], &err) < 0) {
             fprintf(stderr, "f4d-eval: %s: %s\n", names[p], err.msg);
@@ -327,16 +610,40 @@ int main(int argc, char **argv)
         }
         nr++;
     }
+    const int nkeys = keys > 0 && keys < t.T ? keys : t.T;
+    char thr[16] = "all";
+    if (threads > 0)
+        snprintf(thr, sizeof thr, "%d", threads);
     printf("| precision | key ms | novel-view PSNR | novel-view SSIM | novel-time PSNR | novel-time SSIM | "
            "motion EPE (m) | point dist (m) | rot err (deg) | trans err (m) | TL-STD fused | TL-STD unfused |\n");
     printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    for (int i = 0; i < nr; i++)
-        printf("| %s | %.1f | %.2f | %.4f | n/a | n/a | n/a | %.4f | %.2f | %.4f | n/a | n/a |\n", rows[i].precision,
-               rows[i].key_ms, rows[i].psnr, rows[i].ssim, rows[i].point_dist, rows[i].rot_err, rows[i].trans_err);
+    for (int i = 0; i < nr; i++) {
+        const struct row *r = &rows[i];
+        char b[12][32];
+        printf("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", r->precision,
+               cell(b[0], 32, 1, r->key_ms), cell(b[1], 32, 2, r->psnr), cell(b[2], 32, 4, r->ssim),
+               cell(b[3], 32, 2, r->nt_psnr), cell(b[4], 32, 4, r->nt_ssim), cell(b[5], 32, 5, r->epe),
+               cell(b[6], 32, 4, r->point_dist), cell(b[7], 32, 2, r->rot_err),
+               cell(b[8], 32, 4, r->trans_err), cell(b[9], 32, 4, r->tl_fused),
+               cell(b[10], 32, 4, r->tl_unfused));
+    }
     printf("| paper (518^2, H200) | 176.5 | 29.82 | 0.9606 | 29.04 | 0.9566 | 0.00953 | 0.0264 | - | - | 0.5379 | 0.9446 |\n");
-    printf("\n%d keys, %d input views, %d evaluation views, %dx%d. n/a: needs the motion blocks / fusion in the "
-           "runtime; LPIPS is not computed (no network weights).\n", keys > 0 && keys < t.T ? keys : t.T, t.V, t.E,
-           t.W, t.H);
+    printf("\n%d keys, %d input views, %d evaluation views, %dx%d. key ms: mean wall time of one push (model with "
+           "state and motion where the weights have them) on %s thread(s), 1-min load average %.2f at start. Motion EPE over valid moving "
+           "(foreground) pixels; TL-STD in [0,1] luma over the playback key, mid, key, ... at every camera (the "
+           "paper does not state its unit). LPIPS is not computed (no network weights).\n",
+           nkeys, t.V, t.E, t.W, t.H, thr, load0);
+    for (int i = 0; i < nr; i++) {
+        const struct row *r = &rows[i];
+        char why[3][256];
+        if (isfinite(r->nt_psnr))
+            printf("- %s: motion EPE over every valid pixel %.5f m, of zero motion on the foreground %.5f m; "
+                   "novel-time PSNR with averaging %.2f dB; %.0f pairs fused per mid; TL-STD of the truth on the "
+                   "same frames %.4f\n", r->precision, r->epe_all, r->epe_zero, r->nt_psnr_avg, r->fused_pairs,
+                   r->tl_truth);
+        for (int k = 0, n = reasons(r, why); k < n; k++)
+            printf("- n/a %s\n", why[k]);
+    }
     int rc = 0;
     if (json) {
         FILE *f = fopen(json, "w");
@@ -346,21 +653,46 @@ int main(int argc, char **argv)
         } else {
             fprintf(f, "{\"rows\": [");
             for (int i = 0; i < nr; i++) {
-                fprintf(f, "%s{\"precision\": \"%s\", ", i ? ", " : "", rows[i].precision);
-                json_num(f, "key_ms", rows[i].key_ms, 0);
-                json_num(f, "novel_view_psnr", rows[i].psnr, 0);
-                json_num(f, "novel_view_ssim", rows[i].ssim, 0);
-                json_num(f, "novel_time_psnr", NAN, 0);
-                json_num(f, "novel_time_ssim", NAN, 0);
-                json_num(f, "motion_epe_m", NAN, 0);
-                json_num(f, "point_dist_m", rows[i].point_dist, 0);
-                json_num(f, "rot_err_deg", rows[i].rot_err, 0);
-                json_num(f, "trans_err_m", rows[i].trans_err, 0);
-                json_num(f, "tlstd_fused", NAN, 0);
-                json_num(f, "tlstd_unfused", NAN, 1);
+                const struct row *r = &rows[i];
+                fprintf(f, "%s{\"precision\": \"%s\", ", i ? ", " : "", r->precision);
+                json_num(f, "key_ms", r->key_ms, 0);
+                json_num(f, "novel_view_psnr", r->psnr, 0);
+                json_num(f, "novel_view_ssim", r->ssim, 0);
+                json_num(f, "novel_time_psnr", r->nt_psnr, 0);
+                json_num(f, "novel_time_ssim", r->nt_ssim, 0);
+                json_num(f, "motion_epe_m", r->epe, 0);
+                json_num(f, "point_dist_m", r->point_dist, 0);
+                json_num(f, "rot_err_deg", r->rot_err, 0);
+                json_num(f, "trans_err_m", r->trans_err, 0);
+                json_num(f, "tlstd_fused", r->tl_fused, 0);
+                json_num(f, "tlstd_unfused", r->tl_unfused, 1);
                 fprintf(f, "}");
             }
-            fprintf(f, "]}\n");
+            /* context beside the table's columns: n/a reasons, the full-mask
+             * EPE, averaging's novel-time PSNR, the truth's flicker, the load */
+            fprintf(f, "], \"extra\": [");
+            for (int i = 0; i < nr; i++) {
+                const struct row *r = &rows[i];
+                fprintf(f, "%s{\"precision\": \"%s\", ", i ? ", " : "", r->precision);
+                json_num(f, "motion_epe_all_m", r->epe_all, 0);
+                json_num(f, "motion_epe_zero_m", r->epe_zero, 0);
+                json_num(f, "fused_pairs_per_mid", r->fused_pairs, 0);
+                json_num(f, "novel_time_psnr_averaged", r->nt_psnr_avg, 0);
+                json_num(f, "tlstd_truth", r->tl_truth, 0);
+                fprintf(f, "\"na\": [");
+                char why[3][256];
+                for (int k = 0, n = reasons(r, why); k < n; k++) {
+                    cJSON *s = cJSON_CreateString(why[k]);
+                    char *q = s ? cJSON_PrintUnformatted(s) : NULL;
+                    fprintf(f, "%s%s", k ? ", " : "", q ? q : "\"?\"");
+                    cJSON_free(q);
+                    cJSON_Delete(s);
+                }
+                fprintf(f, "]}");
+            }
+            fprintf(f, "], \"keys\": %d, \"threads\": %d, ", nkeys, threads);
+            json_num(f, "load_average", load0, 1);
+            fprintf(f, "}\n");
             if (fclose(f) != 0) {
                 fprintf(stderr, "f4d-eval: error writing '%s'\n", json);
                 rc = 1;

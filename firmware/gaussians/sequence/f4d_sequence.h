@@ -112,6 +112,11 @@ int  f4d_sequence_fuse_batch(void *sq, const float *x, int n, float *out);
  * the motion part, F4D_EINVAL otherwise). */
 enum interp_mode f4d_sequence_mode(const f4d_sequence *sq);
 int  f4d_sequence_set_mode(f4d_sequence *sq, enum interp_mode mode, struct f4d_err *err);
+/* learned = 1: matched pairs go through the weights' fusion MLP (the default
+ * when the file has fusion.*); 0: plain averaging (interp_fuse_average), the
+ * paper's "without fusion" ablation, which f4d-eval scores against it on the
+ * same keys. learned = 1 without fusion.* in the weights: F4D_EINVAL. */
+int  f4d_sequence_set_fusion(f4d_sequence *sq, int learned, struct f4d_err *err);
 int  f4d_sequence_has_motion(const f4d_sequence *sq);
 int  f4d_sequence_has_fusion(const f4d_sequence *sq);
 /* Bytes planned at open: slots, lookups, the interpolated frame (the model's

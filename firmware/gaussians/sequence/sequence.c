@@ -386,6 +386,26 @@ int f4d_sequence_set_mode(f4d_sequence *sq, enum interp_mode mode, struct f4d_er
     return F4D_OK;
 }
 
+int f4d_sequence_set_fusion(f4d_sequence *sq, int learned, struct f4d_err *err)
+{
+    if (!sq)
+        return f4d_fail(err, F4D_EINVAL, "sequence_set_fusion: NULL sequence");
+    if (learned && !sq->has_fusion)
+        return f4d_fail(err, F4D_EINVAL, "sequence_set_fusion: the weights have no fusion MLP (fusion.*)");
+    if (learned) {
+        sq->icfg.fuse = model_fusion_fuse;
+        sq->icfg.fuse_user = model_fusion(sq->m);
+        sq->icfg.fuse_batch = f4d_sequence_fuse_batch;
+        sq->icfg.fuse_batch_user = sq;
+    } else {
+        sq->icfg.fuse = interp_fuse_average;
+        sq->icfg.fuse_user = NULL;
+        sq->icfg.fuse_batch = NULL;
+        sq->icfg.fuse_batch_user = NULL;
+    }
+    return F4D_OK;
+}
+
 int    f4d_sequence_has_motion(const f4d_sequence *sq) { return sq->has_motion; }
 int    f4d_sequence_has_fusion(const f4d_sequence *sq) { return sq->has_fusion; }
 size_t f4d_sequence_bytes(const f4d_sequence *sq) { return sq->bytes; }
