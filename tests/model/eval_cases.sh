@@ -5,13 +5,15 @@
 #   motion, no fusion (tiny_f4d_seq with the fusion.* entries blanked out of the
 #     safetensors header, converted here)  tlstd_fused null with its reason, the rest numbers;
 #   no motion part (tiny_f4d)             novel time, motion EPE and TL-STD null, reason named;
-#   a take of one key                     the same, reason "one key"; no crash.
+#   a take of one key                     the same, reason "one key"; no crash;
+#   a take without held-out cameras       novel view null, reason named, the rest numbers.
 set -euo pipefail
 scene=$1 eval=$2 convert=$3 fix=$4 gguf=$5
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 "$scene" venue --seed 300001 --frames 3 --size 42x28 --views 2 --eval 1 -o "$tmp/t3" > /dev/null
 "$scene" venue --seed 300001 --frames 1 --size 42x28 --views 2 --eval 1 -o "$tmp/t1" > /dev/null
+"$scene" venue --seed 300001 --frames 2 --size 42x28 --views 2 --eval 0 -o "$tmp/t0" > /dev/null
 # same header length: each fusion entry (never the last one: names are sorted) becomes spaces
 perl -e 'local $/; my $d = <STDIN>; my $n = unpack("Q<", substr($d, 0, 8)); my $h = substr($d, 8, $n);
          my $c = ($h =~ s/("fusion\.[^"]*":\{[^{}]*\},)/" " x length($1)/ge);
@@ -51,5 +53,9 @@ grep -q "n/a: the take has one key" "$tmp/onekey.md" || { echo "onekey: no reaso
 # the markdown says n/a exactly where the JSON has null (row of the one-key take: 5 of 12 cells)
 nas=$(grep '^| f32 |' "$tmp/onekey.md" | grep -o 'n/a' | wc -l)
 [ "$nas" = 5 ] || { echo "onekey: $nas n/a cells in the markdown row, want 5"; fail=1; }
+run noeval "$gguf/tiny_f4d_seq_f32.gguf" "$tmp/t0"
+for k in novel_view_psnr novel_view_ssim; do check "$tmp/noeval.json" $k null; done
+for k in key_ms point_dist_m rot_err_deg trans_err_m $timecols tlstd_fused; do check "$tmp/noeval.json" $k num; done
+grep -q "novel view n/a: the take has no held-out" "$tmp/noeval.md" || { echo "noeval: no reason printed"; fail=1; }
 [ $fail = 0 ] && echo "f4d-eval: columns and n/a reasons as the weights and take allow"
 exit $fail

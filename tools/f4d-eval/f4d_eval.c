@@ -39,7 +39,8 @@
  *                     TL-STD of the same frames is printed beside them.
  * n/a (null in JSON) with the reason printed: novel time, motion and TL-STD
  * when the take has one key or the weights have no motion part; tlstd_fused
- * when they have no fusion MLP. LPIPS needs network weights this project
+ * when they have no fusion MLP; novel view when the take has no held-out
+ * cameras (venue --eval 0). LPIPS needs network weights this project
  * cannot ship: absent. Without --weights the shipped model is used
  * (firmware/infer/weights). */
 #include <cjson/cJSON.h>
@@ -71,7 +72,7 @@ struct row {
     const char *precision;
     double key_ms, psnr, ssim, nt_psnr, nt_ssim, epe, point_dist, rot_err, trans_err, tl_fused, tl_unfused;
     double epe_all, epe_zero, nt_psnr_avg, tl_truth, fused_pairs; /* context: "extra" in JSON */
-    char   why_time[160], why_epe[160], why_fused[160]; /* reasons for n/a ("" = computed) */
+    char   why_view[160], why_time[160], why_epe[160], why_fused[160]; /* reasons for n/a ("" = computed) */
 };
 
 static double now_ms(void)
@@ -112,12 +113,18 @@ static int take_load(const char *dir, struct take *t, struct f4d_err *err)
     if (load(dir, "rgb", &t->rgb, s, 5, err) < 0)
         return -1;
     t->T = (int)s[0], t->V = (int)s[1], t->H = (int)s[2], t->W = (int)s[3];
-    if (load(dir, "depth", &t->depth, s2, 4, err) < 0 || load(dir, "alpha", &t->alpha, s2, 4, err) < 0 ||
-        load(dir, "eval_rgb", &t->ergb, s2, 5, err) < 0)
+    if (load(dir, "depth", &t->depth, s2, 4, err) < 0 || load(dir, "alpha", &t->alpha, s2, 4, err) < 0)
         return -1;
-    t->E = (int)s2[1];
-    if (s2[0] != t->T || s2[2] != t->H || s2[3] != t->W || s[4] != 3)
-        return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
+    if (s[4] != 3)
+        return f4d_fail(err, F4D_EFORMAT, "take %s: rgb has %d channels, expected 3", dir, (int)s[4]);
+    /* a take without held-out cameras (venue --eval 0) has no eval_* files */
+    if (exists(dir, "eval_rgb")) {
+        if (load(dir, "eval_rgb", &t->ergb, s2, 5, err) < 0)
+            return -1;
+        t->E = (int)s2[1];
+        if (!same5(s2, t->T, t->E, t->H, t->W))
+            return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
+    }
     /* motion and mid times: only for takes of two keys or more (older takes
      * without them still give the per-key columns) */
     if (t->T >= 2 && exists(dir, "motion_bwd") && exists(dir, "motion_fwd") && exists(dir, "mid_rgb")) {
@@ -142,7 +149,7 @@ static int take_load(const char *dir, struct take *t, struct f4d_err *err)
     if (splat_rig_load(path, &t->rig, err) < 0)
         return -1;
     snprintf(path, sizeof path, "%s/eval_rig.json", dir);
-    if (splat_rig_load(path, &t->erig, err) < 0)
+    if (t->E && splat_rig_load(path, &t->erig, err) < 0)
         return -1;
     if (t->rig.count != t->V || t->erig.count != t->E)
         return f4d_fail(err, F4D_EFORMAT, "take %s: rigs have %d + %d cameras, arrays %d + %d", dir, t->rig.count,
@@ -327,7 +334,9 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
         keys = t->T;
     /* what this take and these weights allow beyond the per-key columns */
     const int has_motion = f4d_sequence_has_motion(sq), has_fusion = f4d_sequence_has_fusion(sq);
-    r->why_time[0] = r->why_epe[0] = r->why_fused[0] = '\0';
+    r->why_view[0] = r->why_time[0] = r->why_epe[0] = r->why_fused[0] = '\0';
+    if (!E)
+        snprintf(r->why_view, sizeof r->why_view, "the take has no held-out (evaluation) cameras");
     if (keys < 2)
         snprintf(r->why_time, sizeof r->why_time, "%s", t->T < 2 ? "the take has one key (no mid time, no motion)"
                                                                   : "--keys 1 (no mid time, no motion)");
@@ -526,9 +535,11 @@ static double load_average(void)
 }
 
 /* The reasons for n/a cells, one line each ("" = none). */
-static int reasons(const struct row *r, char out[3][256])
+static int reasons(const struct row *r, char out[4][256])
 {
     int n = 0;
+    if (r->why_view[0])
+        snprintf(out[n++], 256, "%s: novel view n/a: %s", r->precision, r->why_view);
     if (r->why_time[0])
         snprintf(out[n++], 256, "%s: novel time, motion EPE and TL-STD n/a: %s", r->precision, r->why_time);
     if (r->why_epe[0])
@@ -635,7 +646,7 @@ int main(int argc, char **argv)
            nkeys, t.V, t.E, t.W, t.H, thr, load0);
     for (int i = 0; i < nr; i++) {
         const struct row *r = &rows[i];
-        char why[3][256];
+        char why[4][256];
         if (isfinite(r->nt_psnr))
             printf("- %s: motion EPE over every valid pixel %.5f m, of zero motion on the foreground %.5f m; "
                    "novel-time PSNR with averaging %.2f dB; %.0f pairs fused per mid; TL-STD of the truth on the "
@@ -680,7 +691,7 @@ int main(int argc, char **argv)
                 json_num(f, "novel_time_psnr_averaged", r->nt_psnr_avg, 0);
                 json_num(f, "tlstd_truth", r->tl_truth, 0);
                 fprintf(f, "\"na\": [");
-                char why[3][256];
+                char why[4][256];
                 for (int k = 0, n = reasons(r, why); k < n; k++) {
                     cJSON *s = cJSON_CreateString(why[k]);
                     char *q = s ? cJSON_PrintUnformatted(s) : NULL;
