@@ -11,18 +11,21 @@
 #   - the whole test split (every take, every key; eval_test_split.json: mean over takes).
 # The stage-2/3 modules no longer ship as a separate forge4d_small_stream.safetensors.
 #
-#   bash tools/train/ship.sh [BUILD_DIR] [--data DIR] [--tables-only]   (from the repository root)
+#   bash tools/train/ship.sh [BUILD_DIR] [--ckpt-dir DIR] [--data DIR] [--tables-only]
+#                                                   (from the repository root)
 #     BUILD_DIR      a Release build with f4d-convert, f4d-scene and f4d-eval (default: build)
+#     --ckpt-dir DIR train.py's checkpoints and loss logs (default: tools/train/checkpoints)
 #     --data DIR     the takes of tools/train/gen_data.py; the test split is DIR/test/*
 #                    (default: tools/train/data)
 #     --tables-only  no export or conversion: only the tables, from the GGUFs already in
 #                    firmware/infer/weights
 # Time per key (key_ms) is measured with one thread; f4d-eval's JSON records the load average.
 set -euo pipefail
-build=build data=tools/train/data tables_only=0
+build=build data=tools/train/data tables_only=0 ckpt=tools/train/checkpoints
 while [ $# -gt 0 ]; do
   case $1 in
     --data) data=$2; shift 2 ;;
+    --ckpt-dir) ckpt=$2; shift 2 ;;
     --tables-only) tables_only=1; shift ;;
     -*) echo "ship.sh: unknown option $1" >&2; exit 2 ;;
     *) build=$1; shift ;;
@@ -36,7 +39,7 @@ for b in "$build/tools/f4d-convert/f4d-convert" "$build/tools/f4d-scene/f4d-scen
   [ -x "$b" ] || { echo "ship.sh: $b is missing (cmake --build $build --target f4d-convert f4d-scene f4d-eval)" >&2; exit 1; }
 done
 if [ $tables_only = 0 ]; then
-  "$py" tools/train/train.py --export "$exp"
+  "$py" tools/train/train.py --ckpt-dir "$ckpt" --export "$exp"
   for t in f32 int8; do
     out=$dst/forge4d_small.gguf
     [ $t = int8 ] && out=$dst/forge4d_small_int8.gguf
@@ -46,7 +49,7 @@ if [ $tables_only = 0 ]; then
   done
   tail -1 "$exp/convert_int8.log"
   cp "$exp/config.json" "$dst/config.json"
-  "$py" tools/train/plot_losses.py -o "$dst/loss_curves.png"
+  "$py" tools/train/plot_losses.py --ckpt-dir "$ckpt" -o "$dst/loss_curves.png"
 fi
 # the committed regression table: test take 300000, 3 keys (f4d-scene venue --seed 300000 --frames 3)
 tmp=$(mktemp -d)
