@@ -1,4 +1,4 @@
-"""plot_losses.py - loss curves of the training stages (checkpoints/stage{N}_log.csv) and
+"""plot_losses.py - loss curves of the training stages (checkpoints/stage{N}_log.csv, N = 1..4) and
 the stage-1 validation figures (stored in checkpoints/stage1.pt) into one PNG.
 
     /usr/bin/python3 tools/train/plot_losses.py [--ckpt-dir tools/train/checkpoints] -o OUT.png
@@ -37,7 +37,7 @@ def main():
     ap.add_argument("--ckpt-dir", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "checkpoints"))
     ap.add_argument("-o", "--out", required=True)
     a = ap.parse_args()
-    stages = [s for s in (1, 2, 3) if os.path.exists(os.path.join(a.ckpt_dir, f"stage{s}_log.csv"))]
+    stages = [s for s in (1, 2, 3, 4) if os.path.exists(os.path.join(a.ckpt_dir, f"stage{s}_log.csv"))]
     fig, axes = plt.subplots(1, len(stages) + 1, figsize=(5 * (len(stages) + 1), 4))
     for ax, s in zip(axes, stages):
         rows = read_log(os.path.join(a.ckpt_dir, f"stage{s}_log.csv"))
