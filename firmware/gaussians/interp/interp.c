@@ -486,6 +486,57 @@ void interp_pair_free(struct interp_pair *pr)
     memset(pr, 0, sizeof *pr);
 }
 
+#define PAIR_TASKS 16 /* partner search: tasks per key pair */
+
+struct pair_job {
+    interp                  *ip;
+    const struct interp_key *prev, *next;
+    struct interp_pair      *pr;
+    float                    tau;
+    struct interp_stats      st[PAIR_TASKS];
+};
+
+/* Task t of interp_pair_build: its share of both of interp_at's loops. */
+static void pair_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    struct pair_job *j = arg;
+    const struct splat_frame *F0 = j->prev->f, *F1 = j->next->f;
+    struct interp_stats *st = &j->st[t];
+    size_t per = (F1->count + PAIR_TASKS - 1) / PAIR_TASKS, lo = (size_t)t * per, hi = lo + per;
+    hi = hi < F1->count ? hi : F1->count;
+    for (size_t g = lo; g < hi; g++) { /* as interp_at's first loop */
+        float D = 0.0f;
+        int32_t h = partner(j->ip, j->next, j->prev, F1->motion_bwd, g, &D);
+        if (j->next->origin[g] < 0)
+            st->no_origin_t++;
+        if (h < 0 || D > j->tau) {
+            h = -1;
+            st->kept_t++;
+        } else {
+            st->fused++;
+        }
+        j->pr->partner_t[g] = h;
+        j->pr->dist_t[g] = D;
+    }
+    per = (F0->count + PAIR_TASKS - 1) / PAIR_TASKS;
+    lo = (size_t)t * per;
+    hi = lo + per < F0->count ? lo + per : F0->count;
+    for (size_t h = lo; h < hi; h++) { /* and its second */
+        float D = 0.0f;
+        int32_t g = partner(j->ip, j->prev, j->next, F0->motion_fwd, h, &D);
+        if (j->prev->origin[h] < 0)
+            st->no_origin_tm1++;
+        if (g < 0 || D > j->tau) {
+            g = -1;
+            st->kept_tm1++;
+        } else {
+            st->dropped_tm1++;
+        }
+        j->pr->partner_tm1[h] = g;
+    }
+}
+
 int interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
                       const struct interp_config *cfg, struct interp_pair *pr, struct f4d_err *err)
 {
@@ -514,33 +565,19 @@ int interp_pair_build(interp *ip, const struct interp_key *prev, const struct in
         pr->partner_tm1 = p;
         pr->cap_tm1 = F0->count + 1;
     }
+    /* every Gaussian's partner is found alone: split over the threads, the
+     * counts summed per task (same result with any thread count) */
+    struct pair_job j = { ip, prev, next, pr, cfg->tau, { { 0 } } };
+    fk_parallel_for(ip->ctx, PAIR_TASKS, 60.0 * (double)(F0->count + F1->count), pair_task, &j);
     struct interp_stats st = { 0 };
-    for (size_t g = 0; g < F1->count; g++) { /* as interp_at's first loop */
-        float D = 0.0f;
-        int32_t h = partner(ip, next, prev, F1->motion_bwd, g, &D);
-        if (next->origin[g] < 0)
-            st.no_origin_t++;
-        if (h < 0 || D > cfg->tau) {
-            h = -1;
-            st.kept_t++;
-        } else {
-            st.fused++;
-        }
-        pr->partner_t[g] = h;
-        pr->dist_t[g] = D;
-    }
-    for (size_t h = 0; h < F0->count; h++) { /* and its second */
-        float D = 0.0f;
-        int32_t g = partner(ip, prev, next, F0->motion_fwd, h, &D);
-        if (prev->origin[h] < 0)
-            st.no_origin_tm1++;
-        if (g < 0 || D > cfg->tau) {
-            g = -1;
-            st.kept_tm1++;
-        } else {
-            st.dropped_tm1++;
-        }
-        pr->partner_tm1[h] = g;
+    for (int t = 0; t < PAIR_TASKS; t++) {
+        const struct interp_stats *c = &j.st[t];
+        st.fused += c->fused;
+        st.kept_t += c->kept_t;
+        st.kept_tm1 += c->kept_tm1;
+        st.dropped_tm1 += c->dropped_tm1;
+        st.no_origin_t += c->no_origin_t;
+        st.no_origin_tm1 += c->no_origin_tm1;
     }
     pr->prev = prev;
     pr->next = next;
@@ -619,15 +656,18 @@ int interp_pair_prepare(interp *ip, struct interp_pair *pr, const struct interp_
     const struct splat_frame *F0 = pr->prev->f, *F1 = pr->next->f;
     size_t n = out->count;
     if (3 * n > pr->cap_out) {
-        float *p = realloc(pr->pos0, (3 * n + 1) * sizeof *p);
+        /* sized for out's capacity, not this pair's count: the pairs of a
+         * stream differ in size, and a later larger one must not allocate */
+        size_t want = 3 * (out->capacity > n ? out->capacity : n) + 1;
+        float *p = realloc(pr->pos0, want * sizeof *p);
         if (p)
             pr->pos0 = p;
-        float *d = realloc(pr->dpos, (3 * n + 1) * sizeof *d);
+        float *d = realloc(pr->dpos, want * sizeof *d);
         if (d)
             pr->dpos = d;
         if (!p || !d)
             return fail(err, F4D_ENOMEM, "interp_pair_prepare: out of memory");
-        pr->cap_out = 3 * n + 1;
+        pr->cap_out = want;
     }
     const float *p1 = F1->pos, *m1 = F1->motion_bwd, *p0 = F0->pos, *m0 = F0->motion_fwd;
     float *b = pr->pos0, *d = pr->dpos;
