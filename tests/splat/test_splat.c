@@ -461,19 +461,20 @@ static void test_simd_matches_scalar(void **state)
 
 /* rgba8 alone (a display's request: no depth, no top, so the compositor
  * skips their accumulators) is the full render's rgb quantised as PNG
- * writing does, byte for byte, on the scalar path and on the SIMD one. */
+ * writing does, byte for byte, on the scalar path and on the SIMD ones. */
 static void test_rgba8_matches_rgb(void **state)
 {
     (void)state;
-    enum fk_isa isas[2] = { FK_ISA_REF, fk_isa_supported(FK_ISA_AVX2) ? FK_ISA_AVX2
-                                        : fk_isa_supported(FK_ISA_NEON) ? FK_ISA_NEON : FK_ISA_REF };
+    enum fk_isa isas[3] = { FK_ISA_REF, fk_isa_supported(FK_ISA_AVX2) ? FK_ISA_AVX2
+                                        : fk_isa_supported(FK_ISA_NEON) ? FK_ISA_NEON : FK_ISA_REF,
+                            fk_isa_supported(FK_ISA_AVX512) ? FK_ISA_AVX512 : FK_ISA_REF };
     struct splat_camera cam = axis_camera(100, 60, 60.0f);
     struct splat_frame f = { 0 };
     random_frame(&f, 4003, 0.1f, 5.0f, 2.0f);
     const float bg[3] = { 0.1f, 0.5f, 1.0f };
     uint8_t *q = malloc(4 * 100 * 60);
     assert_non_null(q);
-    for (int k = 0; k < 2; k++) {
+    for (int k = 0; k < 3; k++) {
         fk_ctx *ctx = NULL;
         struct fk_ctx_config c = { .isa = isas[k], .threads = 2 };
         assert_int_equal(fk_ctx_new(&c, &ctx), F4D_OK);

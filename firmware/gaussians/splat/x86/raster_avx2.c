@@ -31,6 +31,44 @@ static inline __m256 exp_ps(__m256 x)
     return _mm256_mul_ps(p, _mm256_castsi256_ps(e));
 }
 
+/* The finished tile to an rgba8 image alone (a display's request): colour
+ * over bg quantised as splat__tile_write does (max with 0 first also sends
+ * NaN to 0, as its v > 0 test does), 8 pixels per step. */
+static void write_rgba8(const struct raster_job *j, int tile, const float *T, const float *C0, const float *C1,
+                        const float *C2)
+{
+    const struct raster_ctx *r = &j->rc;
+    const int W = r->width;
+    const int tx0 = (tile % r->tiles_x) * SPLAT_TILE, ty0 = (tile / r->tiles_x) * SPLAT_TILE;
+    const int tw = (W - tx0 < SPLAT_TILE) ? W - tx0 : SPLAT_TILE;
+    const int th = (r->height - ty0 < SPLAT_TILE) ? r->height - ty0 : SPLAT_TILE;
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    const __m256 s255 = _mm256_set1_ps(255.0f), half = _mm256_set1_ps(0.5f);
+    const __m256 bg[3] = { _mm256_set1_ps(j->bg ? j->bg[0] : 0.0f), _mm256_set1_ps(j->bg ? j->bg[1] : 0.0f),
+                           _mm256_set1_ps(j->bg ? j->bg[2] : 0.0f) };
+    const float *C[3] = { C0, C1, C2 };
+    for (int y = 0; y < th; y++)
+        for (int x = 0; x < tw; x += 8) {
+            const int p = y * SPLAT_TILE + x;
+            const __m256 t = _mm256_loadu_ps(T + p);
+            __m256i px = _mm256_set1_epi32((int)0xff000000u);
+            for (int c = 0; c < 3; c++) {
+                __m256 v = _mm256_add_ps(_mm256_loadu_ps(C[c] + p), _mm256_mul_ps(t, bg[c]));
+                v = _mm256_min_ps(_mm256_max_ps(v, zero), one);
+                __m256i q = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(v, s255), half));
+                px = _mm256_or_si256(px, _mm256_slli_epi32(q, 8 * c));
+            }
+            uint8_t *o = j->rgba8 + 4 * ((size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x));
+            if (tw - x >= 8) {
+                _mm256_storeu_si256((__m256i *)o, px);
+            } else { /* the image's last columns */
+                uint32_t tmp[8];
+                _mm256_storeu_si256((__m256i *)tmp, px);
+                memcpy(o, tmp, 4 * (size_t)(tw - x));
+            }
+        }
+}
+
 /* aux: also accumulate expected depth and the dominant Gaussian. A display
  * asks for colour only, and the 3 accumulators it skips are about a quarter
  * of the inner loop's loads and stores; colour and T are computed by the same
@@ -142,7 +180,10 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
             }
         }
     }
-    splat__tile_write(j, tile, T, C0, C1, C2, D, top);
+    if (!aux && j->rgba8 && !j->rgb && !j->alpha)
+        write_rgba8(j, tile, T, C0, C1, C2);
+    else
+        splat__tile_write(j, tile, T, C0, C1, C2, D, top);
 }
 
 void splat__raster_tile_avx2(const struct raster_job *j, int tile)
