@@ -121,6 +121,18 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
         const int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
         if (x0 > x1)
             continue;
+        /* what depends on the column only, once per Gaussian: the box is at
+         * most a tile wide, so two 8-lane columns (the same products the
+         * rows computed each time before: the image is unchanged) */
+        const int ncol = x1 - x0 >= 8 ? 2 : 1;
+        __m256 cmask[2], adxdx[2], bdx[2];
+        for (int v = 0; v < ncol; v++) {
+            const __m256 xs = _mm256_add_ps(_mm256_set1_ps((float)(x0 + 8 * v)), lane);
+            const __m256 dx = _mm256_sub_ps(vmx, xs);
+            cmask[v] = _mm256_cmp_ps(xs, _mm256_set1_ps((float)x1), _CMP_LE_OQ);
+            adxdx[v] = _mm256_mul_ps(_mm256_mul_ps(vA, dx), dx); /* A * dx * dx */
+            bdx[v] = _mm256_mul_ps(vB, dx);                      /* B * dx */
+        }
         for (int y = y0; y <= y1; y++) {
             if (row_left[y - ty0] == 0)
                 continue;
@@ -128,18 +140,14 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
             const __m256 vdy = _mm256_set1_ps(dy);
             const __m256 cdy = _mm256_mul_ps(_mm256_mul_ps(vC, vdy), vdy); /* Cc * dy * dy */
             const int row = (y - ty0) * SPLAT_TILE - tx0;
-            for (int x = x0; x <= x1; x += 8) {
-                const int p = row + x;
-                const __m256 xs = _mm256_add_ps(_mm256_set1_ps((float)x), lane);
-                __m256 m = _mm256_cmp_ps(xs, _mm256_set1_ps((float)x1), _CMP_LE_OQ);
-                m = _mm256_andnot_ps(_mm256_loadu_ps(done + p), m);
+            for (int v = 0; v < ncol; v++) {
+                const int p = row + x0 + 8 * v;
+                __m256 m = _mm256_andnot_ps(_mm256_loadu_ps(done + p), cmask[v]);
                 if (_mm256_testz_ps(m, m))
                     continue;
-                const __m256 dx = _mm256_sub_ps(vmx, xs);
                 /* -0.5f * (A*dx*dx + Cc*dy*dy) - B*dx*dy, in the scalar order */
-                __m256 power = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(vA, dx), dx), cdy);
-                power = _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(-0.5f), power),
-                                      _mm256_mul_ps(_mm256_mul_ps(vB, dx), vdy));
+                __m256 power = _mm256_add_ps(adxdx[v], cdy);
+                power = _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(-0.5f), power), _mm256_mul_ps(bdx[v], vdy));
                 m = _mm256_and_ps(m, _mm256_cmp_ps(power, zero, _CMP_LE_OQ));
                 m = _mm256_and_ps(m, _mm256_cmp_ps(power, vcut, _CMP_GE_OQ));
                 if (_mm256_testz_ps(m, m))
