@@ -1,5 +1,6 @@
 /* test_splat.c - the splat core: rasterizer against analytic cases, each
  * threshold at its boundary, a brute-force per-pixel reference, hard cases,
+ * the colour-only rgba8 output against the float image on every ISA,
  * PLY / rig / PNG / .npy I/O, metrics, and the real donut.ply when present. */
 #include <setjmp.h>
 #include <stdarg.h>
