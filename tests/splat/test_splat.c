@@ -1,5 +1,6 @@
 /* test_splat.c - the splat core: rasterizer against analytic cases, each
  * threshold at its boundary, a brute-force per-pixel reference, hard cases,
+ * the colour-only rgba8 output against the float image on every ISA,
  * PLY / rig / PNG / .npy I/O, metrics, and the real donut.ply when present. */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -459,6 +460,51 @@ static void test_simd_matches_scalar(void **state)
     fk_ctx_free(simd);
 }
 
+/* rgba8 alone (a display's request: no depth, no top, so the compositor
+ * skips their accumulators) is the full render's rgb quantised as PNG
+ * writing does, byte for byte, on the scalar path and on the SIMD ones. */
+static void test_rgba8_matches_rgb(void **state)
+{
+    (void)state;
+    enum fk_isa isas[3] = { FK_ISA_REF, fk_isa_supported(FK_ISA_AVX2) ? FK_ISA_AVX2
+                                        : fk_isa_supported(FK_ISA_NEON) ? FK_ISA_NEON : FK_ISA_REF,
+                            fk_isa_supported(FK_ISA_AVX512) ? FK_ISA_AVX512 : FK_ISA_REF };
+    struct splat_camera cam = axis_camera(100, 60, 60.0f);
+    struct splat_frame f = { 0 };
+    random_frame(&f, 4003, 0.1f, 5.0f, 2.0f);
+    const float bg[3] = { 0.1f, 0.5f, 1.0f };
+    uint8_t *q = malloc(4 * 100 * 60);
+    assert_non_null(q);
+    for (int k = 0; k < 3; k++) {
+        fk_ctx *ctx = NULL;
+        struct fk_ctx_config c = { .isa = isas[k], .threads = 2 };
+        assert_int_equal(fk_ctx_new(&c, &ctx), F4D_OK);
+        struct img a = render(ctx, &cam, &f, bg);
+        splat_renderer *r;
+        assert_int_equal(splat_renderer_new(ctx, 100, 60, &r, NULL), 0);
+        memset(q, 7, 4 * 100 * 60);
+        struct splat_render_out o = { .rgba8 = q };
+        assert_int_equal(splat_render(r, &cam, &f, bg, &o), 0);
+        size_t lit = 0;
+        for (size_t i = 0; i < 100 * 60; i++) {
+            for (int ch = 0; ch < 3; ch++) {
+                float v = a.rgb[3 * i + (size_t)ch];
+                v = v > 0.0f ? v : 0.0f;
+                v = v < 1.0f ? v : 1.0f;
+                assert_int_equal(q[4 * i + (size_t)ch], (uint8_t)floorf(v * 255.0f + 0.5f));
+            }
+            assert_int_equal(q[4 * i + 3], 255);
+            lit += a.alpha[i] > 0.5f;
+        }
+        assert_true(lit > 100 * 60 / 10); /* the frame covers part of the view */
+        splat_renderer_free(r);
+        img_free(&a);
+        fk_ctx_free(ctx);
+    }
+    free(q);
+    splat_frame_free(&f);
+}
+
 /* Flow of a fronto-parallel surface moving sideways: fx * dx / z everywhere
  * it is seen, 0 elsewhere. */
 static void test_flow_from_motion(void **state)
@@ -872,6 +918,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_rig_json),
         cmocka_unit_test(test_png_and_npy),
         cmocka_unit_test(test_metrics),
+        cmocka_unit_test(test_rgba8_matches_rgb),
         cmocka_unit_test(test_donut_renders),
     };
     return F4D_TEST_MAIN(argc, argv, "splat", tests, setup, teardown);

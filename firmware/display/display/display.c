@@ -219,26 +219,13 @@ static void apply_input(display *d, const struct display_input *in)
 
 static int draw_cpu(display *d, const struct splat_frame *f)
 {
-    struct splat_render_out ro = { .rgb = d->rgbf };
+    /* the renderer writes the 8-bit image the texture takes, quantised as
+     * splat_png_write_rgb does: no float image, no second pass over it */
+    struct splat_render_out ro = { .rgba8 = d->rgba };
     double t0 = display__now_ms();
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &ro) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));
     d->st.raster_ms += display__now_ms() - t0;
-    size_t n = (size_t)d->W * (size_t)d->H;
-    const float *s = d->rgbf;
-    uint8_t *o = d->rgba;
-    /* as splat_png_write_rgb quantises: floor(v * 255 + 0.5) of v clamped to
-     * [0, 1]; the argument is >= 0.5, where truncation is floor (and it
-     * vectorises, floorf does not on baseline x86-64) */
-    for (size_t i = 0; i < n; i++, s += 3, o += 4) {
-        for (int c = 0; c < 3; c++) {
-            float v = s[c];
-            v = v > 0.0f ? v : 0.0f; /* also NaN -> 0 */
-            v = v < 1.0f ? v : 1.0f;
-            o[c] = (uint8_t)(v * 255.0f + 0.5f);
-        }
-        o[3] = 255;
-    }
     return display__gl_upload(d->gl, d->rgba, &d->err);
 }
 

@@ -236,8 +236,8 @@ static int warm_up(display_player *p)
     struct interp_config cfg = interp_config_default();
     if (rc == 0)
         rc = interp_pair_build(p->ip, &p->slot[0].k, &p->slot[1].k, &cfg, &p->pair, &p->err);
-    if (rc == 0)
-        rc = interp_pair_at(p->ip, &p->pair, 0.5f, &cfg, &p->out, NULL, &p->err);
+    if (rc == 0) /* sizes the per-step buffers too */
+        rc = interp_pair_prepare(p->ip, &p->pair, &cfg, &p->out, &p->err);
     splat_frame_free(&tmp);
     p->slot[0].built = p->slot[1].built = 0;
     p->pair_ok = 0;
@@ -312,16 +312,21 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
         return rc;
     struct interp_config cfg = interp_config_default();
     cfg.mode = mode;
-    if (mode == INTERP_FUSED && !p->pair_ok) { /* the partners, once per key pair */
+    if (mode == INTERP_FUSED && !p->pair_ok) {
+        /* once per key pair: the partners, then everything the refreshes do
+         * not change (averaging fuses every attribute but the position
+         * independently of a), so a refresh only moves positions */
         double t0 = display__now_ms();
         rc = interp_pair_build(p->ip, &prev->k, &next->k, &cfg, &p->pair, &p->err);
+        if (rc == 0)
+            rc = interp_pair_prepare(p->ip, &p->pair, &cfg, &p->out, &p->err);
         p->st.lookup_ms += display__now_ms() - t0;
         if (rc < 0)
             return rc;
         p->pair_ok = 1;
     }
     double t0 = display__now_ms();
-    rc = mode == INTERP_FUSED ? interp_pair_at(p->ip, &p->pair, (float)a, &cfg, &p->out, NULL, &p->err)
+    rc = mode == INTERP_FUSED ? interp_pair_step(p->ip, &p->pair, (float)a, &p->out, &p->err)
                               : interp_at(p->ip, &prev->k, &next->k, (float)a, &cfg, &p->out, NULL, &p->err);
     p->st.interp_ms += display__now_ms() - t0;
     if (rc < 0)

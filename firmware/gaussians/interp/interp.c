@@ -143,6 +143,31 @@ static int grow_i32(int32_t **p, size_t *cap, size_t need)
     return 0;
 }
 
+/* The pixel each Gaussian of f is seen at in cam (-1: outside, or hidden
+ * behind the surface that pixel shows), split over the threads. */
+#define PIX_TASKS 16
+
+struct pix_job {
+    interp                    *ip;
+    const struct splat_camera *cam;
+    const struct splat_frame  *f;
+};
+
+static void pix_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    const struct pix_job *j = arg;
+    size_t n = j->f->count, per = (n + PIX_TASKS - 1) / PIX_TASKS, lo = (size_t)t * per, hi = lo + per;
+    hi = hi < n ? hi : n;
+    for (size_t g = lo; g < hi; g++) {
+        float z;
+        long p = pixel_of(j->cam, j->f->pos + 3 * g, &z);
+        if (p >= 0 && !(fabsf(z - j->ip->depth[p]) <= INTERP_VISIBLE_TOL))
+            p = -1; /* hidden behind the surface this pixel shows */
+        j->ip->pix[g] = p;
+    }
+}
+
 int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err)
 {
     if (!ip || !f || !k)
@@ -179,15 +204,11 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
             return fail(err, F4D_EINVAL, splat_renderer_error(ip->r));
         int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
         memset(start, 0, (np + 1) * sizeof *start);
-        for (size_t g = 0; g < n; g++) {
-            float z;
-            long p = pixel_of(cam, f->pos + 3 * g, &z);
-            if (p >= 0 && !(fabsf(z - ip->depth[p]) <= INTERP_VISIBLE_TOL))
-                p = -1; /* hidden behind the surface this pixel shows */
-            ip->pix[g] = p;
-            if (p >= 0)
-                start[p + 1]++;
-        }
+        struct pix_job pj = { ip, cam, f };
+        fk_parallel_for(ip->ctx, PIX_TASKS, 30.0 * (double)n, pix_task, &pj);
+        for (size_t g = 0; g < n; g++)
+            if (ip->pix[g] >= 0)
+                start[ip->pix[g] + 1]++;
         for (size_t p = 0; p < np; p++)
             start[p + 1] += start[p];
         for (size_t g = 0; g < n; g++) {
@@ -486,6 +507,57 @@ void interp_pair_free(struct interp_pair *pr)
     memset(pr, 0, sizeof *pr);
 }
 
+#define PAIR_TASKS 16 /* partner search: tasks per key pair */
+
+struct pair_job {
+    interp                  *ip;
+    const struct interp_key *prev, *next;
+    struct interp_pair      *pr;
+    float                    tau;
+    struct interp_stats      st[PAIR_TASKS];
+};
+
+/* Task t of interp_pair_build: its share of both of interp_at's loops. */
+static void pair_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    struct pair_job *j = arg;
+    const struct splat_frame *F0 = j->prev->f, *F1 = j->next->f;
+    struct interp_stats *st = &j->st[t];
+    size_t per = (F1->count + PAIR_TASKS - 1) / PAIR_TASKS, lo = (size_t)t * per, hi = lo + per;
+    hi = hi < F1->count ? hi : F1->count;
+    for (size_t g = lo; g < hi; g++) { /* as interp_at's first loop */
+        float D = 0.0f;
+        int32_t h = partner(j->ip, j->next, j->prev, F1->motion_bwd, g, &D);
+        if (j->next->origin[g] < 0)
+            st->no_origin_t++;
+        if (h < 0 || D > j->tau) {
+            h = -1;
+            st->kept_t++;
+        } else {
+            st->fused++;
+        }
+        j->pr->partner_t[g] = h;
+        j->pr->dist_t[g] = D;
+    }
+    per = (F0->count + PAIR_TASKS - 1) / PAIR_TASKS;
+    lo = (size_t)t * per;
+    hi = lo + per < F0->count ? lo + per : F0->count;
+    for (size_t h = lo; h < hi; h++) { /* and its second */
+        float D = 0.0f;
+        int32_t g = partner(j->ip, j->prev, j->next, F0->motion_fwd, h, &D);
+        if (j->prev->origin[h] < 0)
+            st->no_origin_tm1++;
+        if (g < 0 || D > j->tau) {
+            g = -1;
+            st->kept_tm1++;
+        } else {
+            st->dropped_tm1++;
+        }
+        j->pr->partner_tm1[h] = g;
+    }
+}
+
 int interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
                       const struct interp_config *cfg, struct interp_pair *pr, struct f4d_err *err)
 {
@@ -514,33 +586,19 @@ int interp_pair_build(interp *ip, const struct interp_key *prev, const struct in
         pr->partner_tm1 = p;
         pr->cap_tm1 = F0->count + 1;
     }
+    /* every Gaussian's partner is found alone: split over the threads, the
+     * counts summed per task (same result with any thread count) */
+    struct pair_job j = { ip, prev, next, pr, cfg->tau, { { 0 } } };
+    fk_parallel_for(ip->ctx, PAIR_TASKS, 60.0 * (double)(F0->count + F1->count), pair_task, &j);
     struct interp_stats st = { 0 };
-    for (size_t g = 0; g < F1->count; g++) { /* as interp_at's first loop */
-        float D = 0.0f;
-        int32_t h = partner(ip, next, prev, F1->motion_bwd, g, &D);
-        if (next->origin[g] < 0)
-            st.no_origin_t++;
-        if (h < 0 || D > cfg->tau) {
-            h = -1;
-            st.kept_t++;
-        } else {
-            st.fused++;
-        }
-        pr->partner_t[g] = h;
-        pr->dist_t[g] = D;
-    }
-    for (size_t h = 0; h < F0->count; h++) { /* and its second */
-        float D = 0.0f;
-        int32_t g = partner(ip, prev, next, F0->motion_fwd, h, &D);
-        if (prev->origin[h] < 0)
-            st.no_origin_tm1++;
-        if (g < 0 || D > cfg->tau) {
-            g = -1;
-            st.kept_tm1++;
-        } else {
-            st.dropped_tm1++;
-        }
-        pr->partner_tm1[h] = g;
+    for (int t = 0; t < PAIR_TASKS; t++) {
+        const struct interp_stats *c = &j.st[t];
+        st.fused += c->fused;
+        st.kept_t += c->kept_t;
+        st.kept_tm1 += c->kept_tm1;
+        st.dropped_tm1 += c->dropped_tm1;
+        st.no_origin_t += c->no_origin_t;
+        st.no_origin_tm1 += c->no_origin_tm1;
     }
     pr->prev = prev;
     pr->next = next;
@@ -605,6 +663,78 @@ int interp_pair_at(interp *ip, const struct interp_pair *pr, float a, const stru
 
 /* ---- the per-step path: positions affine in a, everything else fixed ------------ */
 
+/* interp_pair_prepare's work, split over the threads: output slot g holds
+ * Gaussian g of key t (fused or kept, one each, in order), then key t-1's
+ * unpartnered ones in order, each task's from its offset (prefix of the
+ * per-task counts). Every slot is computed alone, as interp_pair_at(a = 0)
+ * computes it: the same frame with any thread count. */
+#define PREP_TASKS 16
+
+struct prep_job {
+    const struct interp_pair *pr;
+    struct splat_frame       *out;
+    size_t                    off[PREP_TASKS + 1]; /* first slot of each task's key t-1 share */
+};
+
+static void prep_range(size_t n, int t, size_t *lo, size_t *hi)
+{
+    size_t per = (n + PREP_TASKS - 1) / PREP_TASKS;
+    *lo = (size_t)t * per < n ? (size_t)t * per : n;
+    *hi = *lo + per < n ? *lo + per : n;
+}
+
+static void prep_count_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    struct prep_job *j = arg;
+    size_t lo, hi, c = 0;
+    prep_range(j->pr->prev->f->count, t, &lo, &hi);
+    for (size_t h = lo; h < hi; h++)
+        c += j->pr->partner_tm1[h] < 0;
+    j->off[t + 1] = c;
+}
+
+static void prep_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    struct prep_job *j = arg;
+    const struct interp_pair *pr = j->pr;
+    const struct splat_frame *F0 = pr->prev->f, *F1 = pr->next->f;
+    const float *p1 = F1->pos, *m1 = F1->motion_bwd, *p0 = F0->pos, *m0 = F0->motion_fwd;
+    float *b = pr->pos0, *d = pr->dpos;
+    size_t lo, hi;
+    prep_range(F1->count, t, &lo, &hi);
+    for (size_t g = lo; g < hi; g++) { /* interp_pair_at's first loop at a = 0: slot g */
+        int32_t h = pr->partner_t[g];
+        if (h < 0)
+            copy_deformed(F1, g, m1, 1.0f, j->out, g);
+        else
+            average_pair(F1, g, m1, 1.0f, F0, (size_t)h, m0, 0.0f, j->out, g);
+        for (int c = 0; c < 3; c++) {
+            size_t i = 3 * g + (size_t)c, k = 3 * g + (size_t)c, jj = 3 * (size_t)h + (size_t)c;
+            if (h < 0) { /* p1 + (1 - a) m1 */
+                b[k] = p1[i] + m1[i];
+                d[k] = -m1[i];
+            } else {     /* (p1 + (1 - a) m1 + p0 + a m0) / 2 */
+                b[k] = 0.5f * (p1[i] + m1[i] + p0[jj]);
+                d[k] = 0.5f * (m0[jj] - m1[i]);
+            }
+        }
+    }
+    prep_range(F0->count, t, &lo, &hi);
+    size_t o = F1->count + j->off[t];
+    for (size_t h = lo; h < hi; h++) { /* and its second: key t-1's unpartnered, in order */
+        if (pr->partner_tm1[h] >= 0)
+            continue;
+        copy_deformed(F0, h, m0, 0.0f, j->out, o);
+        for (int c = 0; c < 3; c++) { /* p0 + a m0 */
+            b[3 * o + (size_t)c] = p0[3 * h + (size_t)c];
+            d[3 * o + (size_t)c] = m0[3 * h + (size_t)c];
+        }
+        o++;
+    }
+}
+
 int interp_pair_prepare(interp *ip, struct interp_pair *pr, const struct interp_config *cfg,
                         struct splat_frame *out, struct f4d_err *err)
 {
@@ -613,49 +743,34 @@ int interp_pair_prepare(interp *ip, struct interp_pair *pr, const struct interp_
     if (cfg->fuse != interp_fuse_average || cfg->fuse_batch)
         return fail(err, F4D_EINVAL, "interp_pair_prepare: the per-step path takes averaging only "
                                      "(cfg->fuse = interp_fuse_average, no fuse_batch)");
-    int rc = interp_pair_at(ip, pr, 0.0f, cfg, out, NULL, err); /* what a does not change, once */
+    if (cfg->mode != INTERP_FUSED || !(cfg->tau >= 0.0f) || cfg->tau != pr->tau)
+        return fail(err, F4D_EINVAL, "interp_pair_prepare: fused mode with the tau the pair was built with");
+    const struct splat_frame *F0 = pr->prev->f, *F1 = pr->next->f;
+    int rc = splat_frame_reserve(out, F0->count + F1->count, 0, err);
     if (rc < 0)
         return rc;
-    const struct splat_frame *F0 = pr->prev->f, *F1 = pr->next->f;
-    size_t n = out->count;
+    struct prep_job j = { .pr = pr, .out = out };
+    fk_parallel_for(ip->ctx, PREP_TASKS, 2.0 * (double)F0->count, prep_count_task, &j);
+    j.off[0] = 0;
+    for (int t = 0; t < PREP_TASKS; t++)
+        j.off[t + 1] += j.off[t];
+    size_t n = F1->count + j.off[PREP_TASKS];
     if (3 * n > pr->cap_out) {
-        float *p = realloc(pr->pos0, (3 * n + 1) * sizeof *p);
+        /* sized for out's capacity, not this pair's count: the pairs of a
+         * stream differ in size, and a later larger one must not allocate */
+        size_t want = 3 * (out->capacity > n ? out->capacity : n) + 1;
+        float *p = realloc(pr->pos0, want * sizeof *p);
         if (p)
             pr->pos0 = p;
-        float *d = realloc(pr->dpos, (3 * n + 1) * sizeof *d);
+        float *d = realloc(pr->dpos, want * sizeof *d);
         if (d)
             pr->dpos = d;
         if (!p || !d)
             return fail(err, F4D_ENOMEM, "interp_pair_prepare: out of memory");
-        pr->cap_out = 3 * n + 1;
+        pr->cap_out = want;
     }
-    const float *p1 = F1->pos, *m1 = F1->motion_bwd, *p0 = F0->pos, *m0 = F0->motion_fwd;
-    float *b = pr->pos0, *d = pr->dpos;
-    size_t o = 0; /* interp_pair_at's output order */
-    for (size_t g = 0; g < F1->count; g++, o++) {
-        int32_t h = pr->partner_t[g];
-        for (int c = 0; c < 3; c++) {
-            size_t i = 3 * g + c, j = 3 * (size_t)h + c, k = 3 * o + c;
-            if (h < 0) { /* p1 + (1 - a) m1 */
-                b[k] = p1[i] + m1[i];
-                d[k] = -m1[i];
-            } else {     /* (p1 + (1 - a) m1 + p0 + a m0) / 2 */
-                b[k] = 0.5f * (p1[i] + m1[i] + p0[j]);
-                d[k] = 0.5f * (m0[j] - m1[i]);
-            }
-        }
-    }
-    for (size_t h = 0; h < F0->count; h++) {
-        if (pr->partner_tm1[h] >= 0)
-            continue;
-        for (int c = 0; c < 3; c++) { /* p0 + a m0 */
-            b[3 * o + c] = p0[3 * h + c];
-            d[3 * o + c] = m0[3 * h + c];
-        }
-        o++;
-    }
-    if (o != n)
-        return fail(err, F4D_EINVAL, "interp_pair_prepare: the pair's output count changed (internal)");
+    fk_parallel_for(ip->ctx, PREP_TASKS, 80.0 * (double)n, prep_task, &j);
+    out->count = n;
     pr->n_out = n;
     return F4D_OK;
 }

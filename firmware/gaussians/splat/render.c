@@ -492,6 +492,15 @@ void splat__tile_write(const struct raster_job *j, int tile, const float *T, con
                     j->rgb[3 * o + 2] = C2[p] + T[p] * bg2;
                 }
             }
+            if (j->rgba8) { /* as splat_png_write_rgb quantises (NaN -> 0) */
+                const float v[3] = { C0[p] + T[p] * bg0, C1[p] + T[p] * bg1, C2[p] + T[p] * bg2 };
+                for (int c = 0; c < 3; c++) {
+                    float q = v[c] > 0.0f ? v[c] : 0.0f;
+                    q = q < 1.0f ? q : 1.0f;
+                    j->rgba8[4 * o + (size_t)c] = (uint8_t)(q * 255.0f + 0.5f);
+                }
+                j->rgba8[4 * o + 3] = 255;
+            }
             if (j->alpha)
                 j->alpha[o] = acc;
             if (j->depth)
@@ -619,7 +628,7 @@ static double now_ms(void)
 
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                        const float *features, const float *bg, float *rgb, float *alpha, float *depth,
-                       int32_t *top, int normalize, size_t *visible_out, size_t *pairs_out, double *ms)
+                       int32_t *top, uint8_t *rgba8, int normalize, size_t *visible_out, size_t *pairs_out, double *ms)
 {
     double t0 = now_ms(), t1, t2, t3;
     if (!r)
@@ -698,7 +707,7 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     /* 4. compositing */
     struct raster_job rj = { .rc = { .sorted = r->sorted, .pairs = r->pairs, .tile_start = r->tile_start,
                                      .width = r->width, .height = r->height, .tiles_x = r->tiles_x },
-                             .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top,
+                             .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top, .rgba8 = rgba8,
                              .normalize = normalize };
     fk_parallel_for(r->ctx, r->n_tiles, 1e9, pj.simd ? raster_task_simd : raster_task_ref, &rj);
     if (ms) {
@@ -719,7 +728,7 @@ int splat_render(splat_renderer *r, const struct splat_camera *cam, const struct
 {
     if (!out)
         return r ? fail(r, F4D_EINVAL, "render: out is NULL", NULL) : F4D_EINVAL;
-    return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, 0,
+    return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, out->rgba8, 0,
                        &out->visible, &out->pairs, out->ms_stage);
 }
 
@@ -728,5 +737,5 @@ int splat_render_features(splat_renderer *r, const struct splat_camera *cam, con
 {
     if (!features || !out)
         return r ? fail(r, F4D_EINVAL, "render_features: features or out is NULL", NULL) : F4D_EINVAL;
-    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, 1, NULL, NULL, NULL);
+    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 1, NULL, NULL, NULL);
 }

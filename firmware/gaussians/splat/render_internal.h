@@ -50,6 +50,7 @@ struct raster_job {
     const float    *bg;
     float          *rgb, *alpha, *depth;
     int32_t        *top;
+    uint8_t        *rgba8;     /* quantised colour over bg, alpha 255 */
     int             normalize; /* features: divide by accumulated alpha */
 };
 

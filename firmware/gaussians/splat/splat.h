@@ -154,6 +154,11 @@ struct splat_render_out {
                          0 where nothing was drawn; or NULL                   */
     int32_t *top;     /* [H * W] index of the Gaussian with the largest
                          weight a T at the pixel, -1 where none; or NULL      */
+    uint8_t *rgba8;   /* [H * W * 4] the rgb image quantised as PNG writing
+                         does, floor(clamp(v, 0, 1) * 255 + 0.5), alpha 255:
+                         what a display uploads, without a float image; or
+                         NULL. Without depth and top the compositing skips
+                         their accumulators (the colour is bit-identical).   */
     /* Statistics of the last render (written, never read). */
     size_t visible;   /* Gaussians that passed culling                        */
     size_t pairs;     /* Gaussian-tile overlaps                               */

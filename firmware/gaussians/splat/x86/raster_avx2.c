@@ -31,7 +31,49 @@ static inline __m256 exp_ps(__m256 x)
     return _mm256_mul_ps(p, _mm256_castsi256_ps(e));
 }
 
-void splat__raster_tile_avx2(const struct raster_job *j, int tile)
+/* The finished tile to an rgba8 image alone (a display's request): colour
+ * over bg quantised as splat__tile_write does (max with 0 first also sends
+ * NaN to 0, as its v > 0 test does), 8 pixels per step. */
+static void write_rgba8(const struct raster_job *j, int tile, const float *T, const float *C0, const float *C1,
+                        const float *C2)
+{
+    const struct raster_ctx *r = &j->rc;
+    const int W = r->width;
+    const int tx0 = (tile % r->tiles_x) * SPLAT_TILE, ty0 = (tile / r->tiles_x) * SPLAT_TILE;
+    const int tw = (W - tx0 < SPLAT_TILE) ? W - tx0 : SPLAT_TILE;
+    const int th = (r->height - ty0 < SPLAT_TILE) ? r->height - ty0 : SPLAT_TILE;
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    const __m256 s255 = _mm256_set1_ps(255.0f), half = _mm256_set1_ps(0.5f);
+    const __m256 bg[3] = { _mm256_set1_ps(j->bg ? j->bg[0] : 0.0f), _mm256_set1_ps(j->bg ? j->bg[1] : 0.0f),
+                           _mm256_set1_ps(j->bg ? j->bg[2] : 0.0f) };
+    const float *C[3] = { C0, C1, C2 };
+    for (int y = 0; y < th; y++)
+        for (int x = 0; x < tw; x += 8) {
+            const int p = y * SPLAT_TILE + x;
+            const __m256 t = _mm256_loadu_ps(T + p);
+            __m256i px = _mm256_set1_epi32((int)0xff000000u);
+            for (int c = 0; c < 3; c++) {
+                __m256 v = _mm256_add_ps(_mm256_loadu_ps(C[c] + p), _mm256_mul_ps(t, bg[c]));
+                v = _mm256_min_ps(_mm256_max_ps(v, zero), one);
+                __m256i q = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(v, s255), half));
+                px = _mm256_or_si256(px, _mm256_slli_epi32(q, 8 * c));
+            }
+            uint8_t *o = j->rgba8 + 4 * ((size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x));
+            if (tw - x >= 8) {
+                _mm256_storeu_si256((__m256i *)o, px);
+            } else { /* the image's last columns */
+                uint32_t tmp[8];
+                _mm256_storeu_si256((__m256i *)tmp, px);
+                memcpy(o, tmp, 4 * (size_t)(tw - x));
+            }
+        }
+}
+
+/* aux: also accumulate expected depth and the dominant Gaussian. A display
+ * asks for colour only, and the 3 accumulators it skips are about a quarter
+ * of the inner loop's loads and stores; colour and T are computed by the same
+ * operations either way, so the image is bit-identical. */
+static inline __attribute__((always_inline)) void raster_tile(const struct raster_job *j, int tile, const int aux)
 {
     const struct raster_ctx *r = &j->rc;
     const int W = r->width, H = r->height;
@@ -79,6 +121,18 @@ void splat__raster_tile_avx2(const struct raster_job *j, int tile)
         const int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
         if (x0 > x1)
             continue;
+        /* what depends on the column only, once per Gaussian: the box is at
+         * most a tile wide, so two 8-lane columns (the same products the
+         * rows computed each time before: the image is unchanged) */
+        const int ncol = x1 - x0 >= 8 ? 2 : 1;
+        __m256 cmask[2], adxdx[2], bdx[2];
+        for (int v = 0; v < ncol; v++) {
+            const __m256 xs = _mm256_add_ps(_mm256_set1_ps((float)(x0 + 8 * v)), lane);
+            const __m256 dx = _mm256_sub_ps(vmx, xs);
+            cmask[v] = _mm256_cmp_ps(xs, _mm256_set1_ps((float)x1), _CMP_LE_OQ);
+            adxdx[v] = _mm256_mul_ps(_mm256_mul_ps(vA, dx), dx); /* A * dx * dx */
+            bdx[v] = _mm256_mul_ps(vB, dx);                      /* B * dx */
+        }
         for (int y = y0; y <= y1; y++) {
             if (row_left[y - ty0] == 0)
                 continue;
@@ -86,18 +140,14 @@ void splat__raster_tile_avx2(const struct raster_job *j, int tile)
             const __m256 vdy = _mm256_set1_ps(dy);
             const __m256 cdy = _mm256_mul_ps(_mm256_mul_ps(vC, vdy), vdy); /* Cc * dy * dy */
             const int row = (y - ty0) * SPLAT_TILE - tx0;
-            for (int x = x0; x <= x1; x += 8) {
-                const int p = row + x;
-                const __m256 xs = _mm256_add_ps(_mm256_set1_ps((float)x), lane);
-                __m256 m = _mm256_cmp_ps(xs, _mm256_set1_ps((float)x1), _CMP_LE_OQ);
-                m = _mm256_andnot_ps(_mm256_loadu_ps(done + p), m);
+            for (int v = 0; v < ncol; v++) {
+                const int p = row + x0 + 8 * v;
+                __m256 m = _mm256_andnot_ps(_mm256_loadu_ps(done + p), cmask[v]);
                 if (_mm256_testz_ps(m, m))
                     continue;
-                const __m256 dx = _mm256_sub_ps(vmx, xs);
                 /* -0.5f * (A*dx*dx + Cc*dy*dy) - B*dx*dy, in the scalar order */
-                __m256 power = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(vA, dx), dx), cdy);
-                power = _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(-0.5f), power),
-                                      _mm256_mul_ps(_mm256_mul_ps(vB, dx), vdy));
+                __m256 power = _mm256_add_ps(adxdx[v], cdy);
+                power = _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(-0.5f), power), _mm256_mul_ps(bdx[v], vdy));
                 m = _mm256_and_ps(m, _mm256_cmp_ps(power, zero, _CMP_LE_OQ));
                 m = _mm256_and_ps(m, _mm256_cmp_ps(power, vcut, _CMP_GE_OQ));
                 if (_mm256_testz_ps(m, m))
@@ -116,25 +166,38 @@ void splat__raster_tile_avx2(const struct raster_job *j, int tile)
                 }
                 if (_mm256_testz_ps(add, add))
                     continue;
-                const __m256 w = _mm256_mul_ps(alpha, Tp);
                 /* lanes not added keep their value exactly (blend, not + 0) */
 #define ACC(arr, c) _mm256_storeu_ps(arr + p, _mm256_blendv_ps(_mm256_loadu_ps(arr + p), \
                     _mm256_add_ps(_mm256_loadu_ps(arr + p), _mm256_mul_ps(_mm256_mul_ps(c, alpha), Tp)), add))
                 ACC(C0, cr);
                 ACC(C1, cg);
                 ACC(C2, cb);
-                ACC(D, vz);
+                if (aux) {
+                    ACC(D, vz);
+                    const __m256 bp = _mm256_loadu_ps(best + p);
+                    const __m256 w = _mm256_mul_ps(alpha, Tp);
+                    const __m256 better = _mm256_and_ps(add, _mm256_cmp_ps(w, bp, _CMP_GT_OQ));
+                    _mm256_storeu_ps(best + p, _mm256_blendv_ps(bp, w, better));
+                    const __m256i tp = _mm256_loadu_si256((const __m256i *)(top + p));
+                    _mm256_storeu_si256((__m256i *)(top + p),
+                                        _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(tp),
+                                                                             _mm256_castsi256_ps(vid), better)));
+                }
 #undef ACC
-                const __m256 bp = _mm256_loadu_ps(best + p);
-                const __m256 better = _mm256_and_ps(add, _mm256_cmp_ps(w, bp, _CMP_GT_OQ));
-                _mm256_storeu_ps(best + p, _mm256_blendv_ps(bp, w, better));
-                const __m256i tp = _mm256_loadu_si256((const __m256i *)(top + p));
-                _mm256_storeu_si256((__m256i *)(top + p),
-                                    _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(tp),
-                                                                         _mm256_castsi256_ps(vid), better)));
                 _mm256_storeu_ps(T + p, _mm256_blendv_ps(Tp, test_T, add));
             }
         }
     }
-    splat__tile_write(j, tile, T, C0, C1, C2, D, top);
+    if (!aux && j->rgba8 && !j->rgb && !j->alpha)
+        write_rgba8(j, tile, T, C0, C1, C2);
+    else
+        splat__tile_write(j, tile, T, C0, C1, C2, D, top);
+}
+
+void splat__raster_tile_avx2(const struct raster_job *j, int tile)
+{
+    if (j->depth || j->top)
+        raster_tile(j, tile, 1);
+    else
+        raster_tile(j, tile, 0);
 }
