@@ -83,6 +83,8 @@ static void test_vs_reference(void **state)
         { 3, 64, 131, 131, 1, 1, 0 }, { 2, 64, 200, 200, 0, 0, 0 }, { 2, 32, 16, 301, 0, 0, 1 },
         { 2, 64, 301, 16, 0, 1, 1 }, { 1, 128, 13, 5, 0, 0, 1 },  { 2, 8, 9, 11, 1, 1, 0 },
         { 1, 12, 5, 70, 1, 0, 1 },  { 2, 64, 65, 65, 1, 1, 0 },
+        /* d = 48, 80: AVX-512's P V tile runs 32 columns, then a 16-column tail */
+        { 2, 48, 70, 70, 1, 1, 0 }, { 1, 80, 29, 130, 0, 1, 0 },
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
         run_case(&cases[i], 40 + i, 1.0f);
