@@ -21,6 +21,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include <cjson/cJSON.h>
 
@@ -46,7 +47,22 @@ struct opts {
     int         all_isas; /* --isa all: int8 on every optimized ISA too */
     const char *only;   /* "gemm", "attention" or NULL for both */
     int         openblas_native;
+    int         cpu_clock; /* --clock cpu: time 1-thread rows on the thread's CPU clock */
 };
+
+/* Seconds on the clock the rows are timed with. --clock cpu, one thread: the
+ * calling thread's CPU time (our 1-thread GEMM and OpenBLAS with one thread
+ * both run on it), so time spent descheduled on a shared machine is not
+ * counted; otherwise the wall clock. */
+static double now_for(const struct opts *o, int threads)
+{
+    if (o->cpu_clock && threads == 1) {
+        struct timespec ts;
+        clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+        return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+    }
+    return bench_now();
+}
 
 struct row {
     const char *kernel, *precision;
@@ -191,8 +207,23 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         struct fk_linear L[MAX_VAR];
         double t[MAX_VAR][64], tb[64];
         int nv = 3 * n_ctx;
+        /* AVX2-VNNI runs AVX2's f32 and f16 code (only its int8 kernel
+         * differs): where AVX2 is in the run too, its f32 / f16 rows are left
+         * out and its int8 is paired with AVX2's f32 */
+        int skip[MAX_VAR] = { 0 }, ref32[MAX_VAR];
+        for (int v = 0; v < nv; v++)
+            ref32[v] = v - v % 3;
+        for (int c = 0; c < n_ctx; c++)
+            if (fk_ctx_isa(ctxs[c]) == FK_ISA_AVX2_VNNI)
+                for (int c2 = 0; c2 < n_ctx; c2++)
+                    if (fk_ctx_isa(ctxs[c2]) == FK_ISA_AVX2) {
+                        skip[3 * c] = skip[3 * c + 1] = 1;
+                        ref32[3 * c + 2] = 3 * c2;
+                    }
         for (int v = 0; v < nv; v++) {
             fk_ctx *c = ctxs[v / 3];
+            if (skip[v])
+                continue;
             if (fk_linear_pack(c, &L[v], types[v % 3], w, n, k, b) != F4D_OK) {
                 fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(c));
                 exit(1);
@@ -208,6 +239,8 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
 #endif
         double emax[MAX_VAR], emean[MAX_VAR];
         for (int v = 0; v < nv; v++) {
+            if (skip[v])
+                continue;
             run_linear(ctxs[v / 3], &L[v], x, m, y);
             if (v % 3 == 0) { /* f32 of every ISA: against OpenBLAS, as the first */
                 emax[v] = blas_max;
@@ -219,20 +252,24 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         for (int r = 0; r < reps; r++) {
             tb[r] = NAN;
 #ifdef F4D_HAVE_OPENBLAS
-            double t0 = bench_now();
+            double t0 = now_for(o, threads);
             run_openblas(x, w, b, yb, m, n, k);
-            tb[r] = bench_now() - t0;
+            tb[r] = now_for(o, threads) - t0;
 #endif
             for (int v = 0; v < nv; v++) {
-                double t1 = bench_now();
+                if (skip[v])
+                    continue;
+                double t1 = now_for(o, threads);
                 run_linear(ctxs[v / 3], &L[v], x, m, y);
-                t[v][r] = bench_now() - t1;
+                t[v][r] = now_for(o, threads) - t1;
             }
         }
         double best_b = 1e30;
         for (int r = 0; r < reps; r++)
             best_b = tb[r] < best_b ? tb[r] : best_b;
         for (int v = 0; v < nv; v++) {
+            if (skip[v])
+                continue;
             double best = 1e30;
             for (int r = 0; r < reps; r++)
                 best = t[v][r] < best ? t[v][r] : best;
@@ -243,7 +280,7 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
             *rw = (struct row){ "gemm", names[v % 3], threads, m, n, k, flops / best * 1e-9,
                                 flops / best_b * 1e-9, emax[v], emean[v],
                                 paired_ratio(tb, t[v], reps),
-                                v % 3 ? paired_ratio(t[v - v % 3], t[v], reps) : NAN,
+                                v % 3 ? paired_ratio(t[ref32[v]], t[v], reps) : NAN,
                                 types[v % 3] == FK_W_Q8 ? fk_ctx_q8_path(c) : fk_isa_name(fk_ctx_isa(c)),
                                 fk_ctx_isa(c) };
             fk_linear_free(&L[v]);
@@ -296,13 +333,13 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
             fk_ctx *ctx = ctxs[c];
             double best = 1e30;
             for (int r = 0; r < o->reps; r++) {
-                double t0 = bench_now();
+                double t0 = now_for(o, threads);
                 if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
                                  out, C) != F4D_OK) {
                     fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
                     exit(1);
                 }
-                double dt = bench_now() - t0;
+                double dt = now_for(o, threads) - t0;
                 if (dt < best)
                     best = dt;
             }
@@ -406,13 +443,16 @@ static void print_cpu(void)
 
 static int parse(int argc, char **argv, struct opts *o)
 {
-    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0 };
+    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0, 0 };
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--quick")) {
             o->quick = 1;
         } else if (!strcmp(a, "--json") && i + 1 < argc) {
             o->json = argv[++i];
+        } else if (!strcmp(a, "--clock") && i + 1 < argc &&
+                   (!strcmp(argv[i + 1], "cpu") || !strcmp(argv[i + 1], "wall"))) {
+            o->cpu_clock = !strcmp(argv[++i], "cpu");
         } else if (!strcmp(a, "--openblas-native")) {
             o->openblas_native = 1;
         } else if (!strcmp(a, "--only") && i + 1 < argc) {
@@ -436,7 +476,7 @@ static int parse(int argc, char **argv, struct opts *o)
             }
         } else {
             fprintf(stderr, "usage: f4d-bench kernels [--quick] [--reps N] [--threads N] "
-                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--json FILE]\n"
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--clock wall|cpu] [--json FILE]\n"
                             "f4d-bench kernels: unexpected argument '%s'\n", a);
             return 2;
         }
@@ -535,6 +575,7 @@ int bench_kernels(int argc, char **argv)
            "rep after rep; xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 =\n"
            "median of the same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our\n"
            "f32 GEMM (same ISA, tokens, 1024 -> 1024), best of runs. xpeak = ours / the FMA peak for\n"
-           "those threads (zmm for avx512 rows, ymm otherwise).\n", o.reps);
+           "those threads (zmm for avx512 rows, ymm otherwise). Clock: %s.\n", o.reps,
+           o.cpu_clock ? "the thread's CPU time for 1-thread rows (--clock cpu), wall otherwise" : "wall");
     return o.json ? write_json(o.json, peak, rows, n, isa) : 0;
 }
