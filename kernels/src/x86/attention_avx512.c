@@ -3,11 +3,15 @@
  * fk__attention_avx2 when the context's ISA is FK_ISA_AVX512; q/k LayerNorm
  * and RoPE (per token, not per pair) stay AVX2. Same packed layouts as the
  * AVX2 pieces: a 6-row query panel [d][6], key panels [d][16] (the four of a
- * block adjacent), values [BK][d]. */
+ * block adjacent), values [BK][d]. Every output element is computed with the
+ * AVX2 pieces' operations in their order (S and O along k / keys one FMA at a
+ * time, the same exp2, the row sums in 8 lanes), so AVX-512 attention gives
+ * the AVX2 bits (test_attention checks it): only the width differs. */
 #include <immintrin.h>
 #include <math.h>
 
 #include "../attention_plan.h"
+#include "vecmath_avx2.h"
 
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
@@ -77,13 +81,17 @@ void fk__attn_softmax_block_avx512(float *s, int valid, float *m, float *l, floa
     _mm512_mask_storeu_ps(alpha, (__mmask16)0xff, al);
     for (int r = 0; r < MR; r++) {
         float *sr = s + r * BK;
-        __m512 mv = _mm512_set1_ps(m_new[r]), sum = _mm512_setzero_ps();
+        /* the row sum in 8 lanes, added in the AVX2 piece's order (and
+         * reduced by the same hsum), so both give the same bits */
+        __m512 mv = _mm512_set1_ps(m_new[r]);
+        __m256 sum = _mm256_setzero_ps();
         for (int jj = 0; jj < BK; jj += 16) {
             __m512 p = exp2_softmax(_mm512_sub_ps(_mm512_loadu_ps(sr + jj), mv));
             _mm512_storeu_ps(sr + jj, p);
-            sum = _mm512_add_ps(sum, p);
+            sum = _mm256_add_ps(sum, _mm512_castps512_ps256(p));
+            sum = _mm256_add_ps(sum, _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(p), 1)));
         }
-        l[r] = l[r] * alpha[r] + _mm512_reduce_add_ps(sum);
+        l[r] = l[r] * alpha[r] + fk__hsum_avx2(sum);
         m[r] = m_new[r];
     }
 }
