@@ -124,8 +124,12 @@ static void attn_task(void *arg, int task, int thread)
         int valid = j->nk - kb * BK < BK ? j->nk - kb * BK : BK;
         for (int i = 0; i < panels; i++) {
             const float *qi = qp + (size_t)(q0 / MR + i) * (size_t)d * MR;
-            for (int p = 0; p < BK / NR; p++)
-                isa->ukr_6x16(d, qi, kp + (size_t)(kb * (BK / NR) + p) * (size_t)d * NR, s + p * NR, BK, 0);
+            const float *kb_p = kp + (size_t)kb * (BK / NR) * (size_t)d * NR;
+            if (isa->s_block)
+                isa->s_block(d, qi, kb_p, s);
+            else
+                for (int p = 0; p < BK / NR; p++)
+                    isa->ukr_6x16(d, qi, kb_p + (size_t)p * (size_t)d * NR, s + p * NR, BK, 0);
             isa->softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha);
             isa->pv_tile(d, s, vp + (size_t)kb * BK * (size_t)d, o + (size_t)i * MR * (size_t)d, alpha);
         }

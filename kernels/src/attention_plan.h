@@ -48,7 +48,18 @@ struct fk__attn_isa {
     void (*softmax_block)(float *s, int valid, float *m, float *l, float *alpha);
     /* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
     void (*pv_tile)(int d, const float *p, const float *v, float *o, const float *alpha);
+    /* optional: s[6][BK] = a[d][6] panel . the BK / 16 key panels [d][16] at
+     * kp (adjacent); NULL: ukr_6x16 once per panel */
+    void (*s_block)(int d, const float *a, const float *kp, float *s);
 };
+
+#if defined(__x86_64__)
+/* The AVX-512 pieces (x86/attention_avx512.c, called only where the context's
+ * ISA is FK_ISA_AVX512): the whole-block S, the softmax block, the P V tile. */
+void fk__attn_s_block_avx512(int d, const float *q, const float *kp, float *s);
+void fk__attn_softmax_block_avx512(float *s, int valid, float *m, float *l, float *alpha);
+void fk__attn_pv_tile_avx512(int d, const float *p, const float *v, float *o, const float *alpha);
+#endif
 
 /* fk__attention_avx2 / _neon: validated arguments, the ISA's pieces. */
 int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,

@@ -3,6 +3,7 @@
 
 #include "../fk_fp16.h"
 #include "fk_internal.h"
+#include "arm/arm.h"
 #include "x86/x86.h"
 
 fk_f16 fk_f32_to_f16_ref(float x)
@@ -84,6 +85,8 @@ int fk_f32_to_f16(fk_ctx *ctx, const float *src, fk_f16 *dst, size_t n)
         return st;
     if (fk__isa_avx2(ctx->isa))
         fk__f32_to_f16_avx2(src, dst, n);
+    else if (fk__isa_neon(ctx->isa))
+        fk__f32_to_f16_neon(src, dst, n);
     else
         for (size_t i = 0; i < n; i++)
             dst[i] = fk_f32_to_f16_ref(src[i]);
@@ -97,6 +100,8 @@ int fk_f16_to_f32(fk_ctx *ctx, const fk_f16 *src, float *dst, size_t n)
         return st;
     if (fk__isa_avx2(ctx->isa))
         fk__f16_to_f32_avx2(src, dst, n);
+    else if (fk__isa_neon(ctx->isa))
+        fk__f16_to_f32_neon(src, dst, n);
     else
         for (size_t i = 0; i < n; i++)
             dst[i] = fk_f16_to_f32_ref(src[i]);

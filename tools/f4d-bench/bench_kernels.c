@@ -12,13 +12,16 @@
  * where from), the GEMM blocks chosen from them (FK_GEMM_BLOCKS / FK_CACHES
  * override) and the int8 path. Each row names its path; xf32 is an f16 or
  * int8 GEMM's speed over our f32 GEMM on the same shape in the same run.
- * --isa NAME forces one ISA; --isa all runs f32/f16/int8 on the best ISA and
- * int8 again on every other optimized ISA this CPU has (avx2-7bit beside
- * vnni-8bit and avx512-vnni-8bit on one machine). */
+ * --isa NAME forces one ISA; --isa all runs f32/f16/int8 on every optimized
+ * ISA this CPU has (xf32 always against the same ISA's f32), attention on the
+ * best ISA and on AVX2. The variants of a shape and OpenBLAS are timed in
+ * turn, rep after rep, and the ratios are medians of those pairs: on a
+ * shared machine a slow phase then slows both sides of a pair. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include <cjson/cJSON.h>
 
@@ -44,7 +47,22 @@ struct opts {
     int         all_isas; /* --isa all: int8 on every optimized ISA too */
     const char *only;   /* "gemm", "attention" or NULL for both */
     int         openblas_native;
+    int         cpu_clock; /* --clock cpu: time 1-thread rows on the thread's CPU clock */
 };
+
+/* Seconds on the clock the rows are timed with. --clock cpu, one thread: the
+ * calling thread's CPU time (our 1-thread GEMM and OpenBLAS with one thread
+ * both run on it), so time spent descheduled on a shared machine is not
+ * counted; otherwise the wall clock. */
+static double now_for(const struct opts *o, int threads)
+{
+    if (o->cpu_clock && threads == 1) {
+        struct timespec ts;
+        clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+        return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+    }
+    return bench_now();
+}
 
 struct row {
     const char *kernel, *precision;
@@ -53,6 +71,7 @@ struct row {
     double peer_ratio; /* gemm: ours / OpenBLAS; attention: ours / our f32 GEMM */
     double vs_f32;     /* gemm f16/int8: ours / our f32 GEMM, same shape and run */
     const char *path;  /* the kernel path that ran (ISA, int8 path) */
+    enum fk_isa isa;   /* the context's ISA (its FMA peak, its f32 peer)  */
 };
 
 /* Attention's peer: our f32 GEMM on the same token count, 1024 -> 1024, same
@@ -61,22 +80,14 @@ static void attention_ratios(struct row *rows, int n)
 {
     for (int i = 0; i < n; i++) {
         struct row *r = &rows[i];
-        if (strcmp(r->kernel, "gemm") == 0) {
-            r->peer_ratio = r->gflops / r->openblas_gflops;
-            r->vs_f32 = NAN;
-            for (int j = 0; j < n; j++)
-                if (!strcmp(rows[j].kernel, "gemm") && !strcmp(rows[j].precision, "f32") &&
-                    rows[j].m == r->m && rows[j].n == r->n && rows[j].k == r->k &&
-                    rows[j].threads == r->threads)
-                    r->vs_f32 = r->gflops / rows[j].gflops;
+        if (strcmp(r->kernel, "attention") != 0)
             continue;
-        }
         r->vs_f32 = NAN;
         r->peer_ratio = NAN;
         for (int j = 0; j < n; j++)
             if (!strcmp(rows[j].kernel, "gemm") && !strcmp(rows[j].precision, "f32") &&
                 rows[j].m == r->m && rows[j].n == 1024 && rows[j].k == 1024 &&
-                rows[j].threads == r->threads)
+                rows[j].threads == r->threads && rows[j].isa == r->isa)
                 r->peer_ratio = r->gflops / rows[j].gflops;
     }
 }
@@ -130,43 +141,46 @@ static fk_ctx *make_ctx(enum fk_isa isa, int threads)
     return ctx;
 }
 
-/* Best-of-reps seconds for one fk_linear_forward. */
-static double time_linear(fk_ctx *ctx, const struct fk_linear *L, const float *x, int m, float *y,
-                          int reps)
+static int cmp_double(const void *a, const void *b)
 {
-    double best = 1e30;
-    for (int r = 0; r < reps; r++) {
-        double t0 = bench_now();
-        if (fk_linear_forward(ctx, L, x, m, L->k, y, L->n, NULL) != F4D_OK) {
-            fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
-            exit(1);
-        }
-        double dt = bench_now() - t0;
-        if (dt < best)
-            best = dt;
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* Median of num[r] / den[r] over the reps: the ratio of two kernels timed in
+ * turn (A B A B ...), so a slow phase of a shared machine hits both sides of
+ * a pair instead of one side's best. */
+static double paired_ratio(const double *num, const double *den, int reps)
+{
+    double q[64];
+    int n = reps < 64 ? reps : 64;
+    for (int r = 0; r < n; r++)
+        q[r] = num[r] / den[r];
+    qsort(q, (size_t)n, sizeof q[0], cmp_double);
+    return n % 2 ? q[n / 2] : 0.5 * (q[n / 2 - 1] + q[n / 2]);
+}
+
+static void run_linear(fk_ctx *ctx, const struct fk_linear *L, const float *x, int m, float *y)
+{
+    if (fk_linear_forward(ctx, L, x, m, L->k, y, L->n, NULL) != F4D_OK) {
+        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
+        exit(1);
     }
-    return best;
 }
 
 #ifdef F4D_HAVE_OPENBLAS
-static double time_openblas(const float *x, const float *w, const float *b, float *y, int m, int n,
-                            int k, int threads, int reps)
+static void run_openblas(const float *x, const float *w, const float *b, float *y, int m, int n, int k)
 {
-    openblas_set_num_threads(threads);
-    double best = 1e30;
-    for (int r = 0; r < reps; r++) {
-        double t0 = bench_now();
-        for (int i = 0; i < m; i++) /* y = b, then y += x W^T: the same work as ours */
-            memcpy(y + (size_t)i * n, b, (size_t)n * sizeof *y);
-        cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasTrans, m, n, k, 1.0f, x, k, w, k, 1.0f, y, n);
-        double dt = bench_now() - t0;
-        if (dt < best)
-            best = dt;
-    }
-    return best;
+    for (int i = 0; i < m; i++) /* y = b, then y += x W^T: the same work as ours */
+        memcpy(y + (size_t)i * n, b, (size_t)n * sizeof *y);
+    cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasTrans, m, n, k, 1.0f, x, k, w, k, 1.0f, y, n);
 }
 #endif
 
+#define MAX_VAR 12 /* 4 ISAs x f32 / f16 / int8 */
+
+/* One shape: f32, f16 and int8 on each ISA of the run, and OpenBLAS, all
+ * packed first and then timed in turn, rep after rep. */
 static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct row *rows, int nrows)
 {
     float *x = rand_buf((size_t)m * k, 1.0f), *w = rand_buf((size_t)n * k, 1.0f / sqrtf((float)k));
@@ -177,50 +191,102 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         fprintf(stderr, "f4d-bench: out of memory\n");
         exit(1);
     }
-    int count = 0;
+    int count = 0, reps = o->reps < 64 ? o->reps : 64;
+    double flops = 2.0 * m * (double)n * k;
     for (int threads = o->quick ? o->threads_max : 1; threads <= o->threads_max; threads++) {
-        fk_ctx *ctx = make_ctx(o->isa, threads);
-        /* --isa all: int8 also on each other optimized ISA (its own int8 path) */
-        fk_ctx *xctx[3] = { NULL, NULL, NULL };
-        int n_x = 0;
+        fk_ctx *ctxs[4];
+        int n_ctx = 0;
+        ctxs[n_ctx++] = make_ctx(o->isa, threads);
+        /* --isa all: every other optimized ISA this CPU has, each with its own paths */
         static const enum fk_isa others[3] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_AVX512 };
         for (int i = 0; o->all_isas && i < 3; i++)
-            if (others[i] != fk_ctx_isa(ctx) && fk_isa_supported(others[i]))
-                xctx[n_x++] = make_ctx(others[i], threads);
-        double blas_gflops = NAN, blas_max = NAN, blas_mean = NAN;
-        static const enum fk_wtype types[] = { FK_W_F32, FK_W_F16, FK_W_Q8, FK_W_Q8, FK_W_Q8, FK_W_Q8 };
-        static const char *names[] = { "f32", "f16", "int8", "int8", "int8", "int8" };
-        for (int t = 0; t < 3 + n_x; t++) {
-            fk_ctx *c = t < 3 ? ctx : xctx[t - 3];
-            struct fk_linear L;
-            if (fk_linear_pack(c, &L, types[t], w, n, k, b) != F4D_OK) {
+            if (others[i] != fk_ctx_isa(ctxs[0]) && fk_isa_supported(others[i]))
+                ctxs[n_ctx++] = make_ctx(others[i], threads);
+        static const enum fk_wtype types[3] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
+        static const char *names[3] = { "f32", "f16", "int8" };
+        struct fk_linear L[MAX_VAR];
+        double t[MAX_VAR][64], tb[64];
+        int nv = 3 * n_ctx;
+        /* AVX2-VNNI runs AVX2's f32 and f16 code (only its int8 kernel
+         * differs): where AVX2 is in the run too, its f32 / f16 rows are left
+         * out and its int8 is paired with AVX2's f32 */
+        int skip[MAX_VAR] = { 0 }, ref32[MAX_VAR];
+        for (int v = 0; v < nv; v++)
+            ref32[v] = v - v % 3;
+        for (int c = 0; c < n_ctx; c++)
+            if (fk_ctx_isa(ctxs[c]) == FK_ISA_AVX2_VNNI)
+                for (int c2 = 0; c2 < n_ctx; c2++)
+                    if (fk_ctx_isa(ctxs[c2]) == FK_ISA_AVX2) {
+                        skip[3 * c] = skip[3 * c + 1] = 1;
+                        ref32[3 * c + 2] = 3 * c2;
+                    }
+        for (int v = 0; v < nv; v++) {
+            fk_ctx *c = ctxs[v / 3];
+            if (skip[v])
+                continue;
+            if (fk_linear_pack(c, &L[v], types[v % 3], w, n, k, b) != F4D_OK) {
                 fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(c));
                 exit(1);
             }
-            double sec = time_linear(c, &L, x, m, t == 0 ? y32 : y, o->reps);
-            double flops = 2.0 * m * (double)n * k;
-            struct row *r = &rows[count++];
+        }
+        /* one untimed call each (also the outputs the errors come from) */
+        double blas_max = NAN, blas_mean = NAN;
+        run_linear(ctxs[0], &L[0], x, m, y32);
+#ifdef F4D_HAVE_OPENBLAS
+        openblas_set_num_threads(threads);
+        run_openblas(x, w, b, yb, m, n, k);
+        errors_vs(y32, yb, (size_t)m * n, &blas_max, &blas_mean);
+#endif
+        double emax[MAX_VAR], emean[MAX_VAR];
+        for (int v = 0; v < nv; v++) {
+            if (skip[v])
+                continue;
+            run_linear(ctxs[v / 3], &L[v], x, m, y);
+            if (v % 3 == 0) { /* f32 of every ISA: against OpenBLAS, as the first */
+                emax[v] = blas_max;
+                emean[v] = blas_mean;
+            } else {
+                errors_vs(y, y32, (size_t)m * n, &emax[v], &emean[v]);
+            }
+        }
+        for (int r = 0; r < reps; r++) {
+            tb[r] = NAN;
+#ifdef F4D_HAVE_OPENBLAS
+            double t0 = now_for(o, threads);
+            run_openblas(x, w, b, yb, m, n, k);
+            tb[r] = now_for(o, threads) - t0;
+#endif
+            for (int v = 0; v < nv; v++) {
+                if (skip[v])
+                    continue;
+                double t1 = now_for(o, threads);
+                run_linear(ctxs[v / 3], &L[v], x, m, y);
+                t[v][r] = now_for(o, threads) - t1;
+            }
+        }
+        double best_b = 1e30;
+        for (int r = 0; r < reps; r++)
+            best_b = tb[r] < best_b ? tb[r] : best_b;
+        for (int v = 0; v < nv; v++) {
+            if (skip[v])
+                continue;
+            double best = 1e30;
+            for (int r = 0; r < reps; r++)
+                best = t[v][r] < best ? t[v][r] : best;
+            fk_ctx *c = ctxs[v / 3];
+            struct row *rw = &rows[count++];
             if (count > nrows)
                 exit(1);
-            *r = (struct row){ "gemm", names[t], threads, m, n, k, flops / sec * 1e-9, NAN, NAN, NAN, NAN,
-                               NAN, types[t] == FK_W_Q8 ? fk_ctx_q8_path(c) : fk_isa_name(fk_ctx_isa(c)) };
-            if (t == 0) {
-#ifdef F4D_HAVE_OPENBLAS
-                double bs = time_openblas(x, w, b, yb, m, n, k, threads, o->reps);
-                blas_gflops = flops / bs * 1e-9;
-                errors_vs(y32, yb, (size_t)m * n, &blas_max, &blas_mean);
-#endif
-                r->max_rel_err = blas_max;
-                r->mean_rel_err = blas_mean;
-            } else {
-                errors_vs(y, y32, (size_t)m * n, &r->max_rel_err, &r->mean_rel_err);
-            }
-            r->openblas_gflops = blas_gflops;
-            fk_linear_free(&L);
+            *rw = (struct row){ "gemm", names[v % 3], threads, m, n, k, flops / best * 1e-9,
+                                flops / best_b * 1e-9, emax[v], emean[v],
+                                paired_ratio(tb, t[v], reps),
+                                v % 3 ? paired_ratio(t[ref32[v]], t[v], reps) : NAN,
+                                types[v % 3] == FK_W_Q8 ? fk_ctx_q8_path(c) : fk_isa_name(fk_ctx_isa(c)),
+                                fk_ctx_isa(c) };
+            fk_linear_free(&L[v]);
         }
-        fk_ctx_free(ctx);
-        for (int i = 0; i < n_x; i++)
-            fk_ctx_free(xctx[i]);
+        for (int i = 0; i < n_ctx; i++)
+            fk_ctx_free(ctxs[i]);
     }
     free(x); free(w); free(b); free(y32); free(y); free(yb);
     return count;
@@ -257,25 +323,33 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
     fk_ctx_free(rctx);
     int count = 0;
     for (int threads = o->quick ? o->threads_max : 1; threads <= o->threads_max; threads++) {
-        fk_ctx *ctx = make_ctx(o->isa, threads);
-        double best = 1e30;
-        for (int r = 0; r < o->reps; r++) {
-            double t0 = bench_now();
-            if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
-                             out, C) != F4D_OK) {
-                fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
-                exit(1);
+        /* --isa all: also AVX2's attention where the first ISA is another
+         * (AVX2-VNNI runs the same attention code as AVX2) */
+        fk_ctx *ctxs[2] = { make_ctx(o->isa, threads), NULL };
+        int n_ctx = 1;
+        if (o->all_isas && fk_ctx_isa(ctxs[0]) == FK_ISA_AVX512 && fk_isa_supported(FK_ISA_AVX2))
+            ctxs[n_ctx++] = make_ctx(FK_ISA_AVX2, threads);
+        for (int c = 0; c < n_ctx; c++) {
+            fk_ctx *ctx = ctxs[c];
+            double best = 1e30;
+            for (int r = 0; r < o->reps; r++) {
+                double t0 = now_for(o, threads);
+                if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
+                                 out, C) != F4D_OK) {
+                    fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
+                    exit(1);
+                }
+                double dt = now_for(o, threads) - t0;
+                if (dt < best)
+                    best = dt;
             }
-            double dt = bench_now() - t0;
-            if (dt < best)
-                best = dt;
+            struct row *r = &rows[count++];
+            *r = (struct row){ "attention", "f32", threads, ntok, ntok, d,
+                               4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
+                               NAN, fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_isa(ctx) };
+            errors_vs(out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
+            fk_ctx_free(ctx);
         }
-        struct row *r = &rows[count++];
-        *r = (struct row){ "attention", "f32", threads, ntok, ntok, d,
-                           4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
-                           NAN, fk_isa_name(fk_ctx_isa(ctx)) };
-        errors_vs(out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
-        fk_ctx_free(ctx);
     }
     free(qkv); free(out); free(nw); free(nb); free(pos); free(ref);
     return count;
@@ -305,6 +379,9 @@ static int write_json(const char *path, double peak, const struct row *rows, int
         cJSON_AddItemToObject(o, "max_rel_err", num_or_null(r->max_rel_err));
         cJSON_AddItemToObject(o, "mean_rel_err", num_or_null(r->mean_rel_err));
         cJSON_AddItemToObject(o, "path", cJSON_CreateString(r->path));
+        cJSON_AddItemToObject(o, "isa", cJSON_CreateString(fk_isa_name(r->isa)));
+        if (!strcmp(r->kernel, "gemm")) /* median of paired reps: ours vs OpenBLAS */
+            cJSON_AddItemToObject(o, "vs_openblas", num_or_null(r->peer_ratio));
         if (!strcmp(r->kernel, "gemm") && strcmp(r->precision, "f32")) /* extra: vs our f32 */
             cJSON_AddItemToObject(o, "vs_f32", num_or_null(r->vs_f32));
         if (!strcmp(r->kernel, "attention")) /* extra: the goal is stated against our f32 GEMM */
@@ -366,13 +443,16 @@ static void print_cpu(void)
 
 static int parse(int argc, char **argv, struct opts *o)
 {
-    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0 };
+    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0, 0 };
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--quick")) {
             o->quick = 1;
         } else if (!strcmp(a, "--json") && i + 1 < argc) {
             o->json = argv[++i];
+        } else if (!strcmp(a, "--clock") && i + 1 < argc &&
+                   (!strcmp(argv[i + 1], "cpu") || !strcmp(argv[i + 1], "wall"))) {
+            o->cpu_clock = !strcmp(argv[++i], "cpu");
         } else if (!strcmp(a, "--openblas-native")) {
             o->openblas_native = 1;
         } else if (!strcmp(a, "--only") && i + 1 < argc) {
@@ -396,7 +476,7 @@ static int parse(int argc, char **argv, struct opts *o)
             }
         } else {
             fprintf(stderr, "usage: f4d-bench kernels [--quick] [--reps N] [--threads N] "
-                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--json FILE]\n"
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--clock wall|cpu] [--json FILE]\n"
                             "f4d-bench kernels: unexpected argument '%s'\n", a);
             return 2;
         }
@@ -416,14 +496,18 @@ int bench_kernels(int argc, char **argv)
     if (st)
         return st;
 #ifdef F4D_HAVE_OPENBLAS
-    /* Our kernels use AVX2/FMA only (the appliance's ISA). OpenBLAS picks its
-     * kernels at load time; unless asked for its native choice, restart once
-     * with its AVX2 (Haswell) kernels so that both sides use the same ISA. */
+    /* OpenBLAS picks its kernels at load time; unless asked for its native
+     * choice, restart once with the kernels of our ISA so that both sides use
+     * the same vectors: SkylakeX (AVX-512) when the run's ISA is AVX-512 alone,
+     * else Haswell (AVX2; --isa all compares every ISA with that one). */
     if (!o.openblas_native && !getenv("OPENBLAS_CORETYPE") && fk_isa_supported(FK_ISA_AVX2)) {
-        setenv("OPENBLAS_CORETYPE", "Haswell", 1);
+        fk_ctx *p0 = make_ctx(o.isa, 1);
+        const char *core = fk_ctx_isa(p0) == FK_ISA_AVX512 && !o.all_isas ? "SkylakeX" : "Haswell";
+        fk_ctx_free(p0);
+        setenv("OPENBLAS_CORETYPE", core, 1);
         execv("/proc/self/exe", argv - 1);
-        fprintf(stderr, "f4d-bench kernels: cannot restart with OPENBLAS_CORETYPE=Haswell; "
-                        "OpenBLAS keeps its own choice\n");
+        fprintf(stderr, "f4d-bench kernels: cannot restart with OPENBLAS_CORETYPE=%s; "
+                        "OpenBLAS keeps its own choice\n", core);
     }
 #endif
     fk_ctx *probe = make_ctx(o.isa, 1);
@@ -439,10 +523,17 @@ int bench_kernels(int argc, char **argv)
            getenv("FK_GEMM_BLOCKS") ? " (FK_GEMM_BLOCKS)" : "", bl.kc, bl.mc, bl.nc, fk_ctx_q8_path(probe));
     fk_ctx_free(probe);
 
+    /* the FMA peak per vector width: ymm for the AVX2 ISAs, zmm for AVX-512 */
     double peak = bench_fma_peak_gflops(o.threads_max, 3);
     double peak1 = bench_fma_peak_gflops(1, 3);
-    printf("f4d-bench kernels: isa %s, fp32 FMA peak %.1f GFLOP/s (1 thread) %.1f (%d threads)\n",
+    int zmm = isa == FK_ISA_AVX512 || (o.all_isas && fk_isa_supported(FK_ISA_AVX512));
+    double zpeak = zmm ? bench_fma_peak_gflops_isa(o.threads_max, 3, FK_ISA_AVX512) : NAN;
+    double zpeak1 = zmm ? bench_fma_peak_gflops_isa(1, 3, FK_ISA_AVX512) : NAN;
+    printf("f4d-bench kernels: isa %s, fp32 FMA peak %.1f GFLOP/s (1 thread) %.1f (%d threads) with ymm",
            fk_isa_name(isa), peak1, peak, o.threads_max);
+    if (zmm)
+        printf("; %.1f / %.1f with zmm (the AVX-512 rows' peak)", zpeak1, zpeak);
+    printf("\n");
 #ifdef F4D_HAVE_OPENBLAS
     printf("peer: OpenBLAS sgemm, %s kernels%s\n", openblas_get_corename(),
            getenv("OPENBLAS_CORETYPE") ? " (OPENBLAS_CORETYPE)" : "");
@@ -467,19 +558,24 @@ int bench_kernels(int argc, char **argv)
         n += bench_attention_shape(&o, 226, 4, 16, rows + n);
 
     attention_ratios(rows, n);
-    printf("\n%-9s %-5s %-10s %2s %5s %5s %5s %9s %9s %7s %6s %7s %10s %10s\n", "kernel", "prec", "path",
+    printf("\n%-9s %-5s %-16s %2s %5s %5s %5s %9s %9s %7s %6s %7s %10s %10s\n", "kernel", "prec", "path",
            "th", "m", "n", "k", "GFLOP/s", "OpenBLAS", "xpeer", "xf32", "xpeak", "max_rel", "mean_rel");
     for (int i = 0; i < n; i++) {
         const struct row *r = &rows[i];
-        double pk = r->threads == 1 ? peak1 : peak * r->threads / o.threads_max;
-        printf("%-9s %-5s %-10s %2d %5d %5d %5d %9.1f %9.1f %7.2f %6.2f %7.2f %10.2e %10.2e\n", r->kernel,
+        int z = r->isa == FK_ISA_AVX512;
+        double pk = r->threads == 1 ? (z ? zpeak1 : peak1)
+                                    : (z ? zpeak : peak) * r->threads / o.threads_max;
+        printf("%-9s %-5s %-16s %2d %5d %5d %5d %9.1f %9.1f %7.2f %6.2f %7.2f %10.2e %10.2e\n", r->kernel,
                r->precision, r->path, r->threads, r->m, r->n, r->k, r->gflops, r->openblas_gflops,
                r->peer_ratio, r->vs_f32, r->gflops / pk, r->max_rel_err, r->mean_rel_err);
     }
     printf("\nerrors are relative to the RMS of the fp32 output: f32 vs OpenBLAS, f16/int8 vs our f32,\n"
-           "attention vs the scalar reference on 48 query rows. xpeer = ours / OpenBLAS sgemm for GEMM,\n"
-           "ours / our f32 GEMM (same tokens, 1024 -> 1024) for attention; xf32 = f16/int8 GEMM / our\n"
-           "f32 GEMM on the same shape; same threads, same run.\n"
-           "xpeak = ours / the FMA peak measured for those threads. Best of %d runs each.\n", o.reps);
+           "attention vs the scalar reference on 48 query rows. GFLOP/s: best of %d runs.\n"
+           "GEMM: every variant of a shape (each ISA's f32 / f16 / int8, and OpenBLAS) runs in turn,\n"
+           "rep after rep; xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 =\n"
+           "median of the same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our\n"
+           "f32 GEMM (same ISA, tokens, 1024 -> 1024), best of runs. xpeak = ours / the FMA peak for\n"
+           "those threads (zmm for avx512 rows, ymm otherwise). Clock: %s.\n", o.reps,
+           o.cpu_clock ? "the thread's CPU time for 1-thread rows (--clock cpu), wall otherwise" : "wall");
     return o.json ? write_json(o.json, peak, rows, n, isa) : 0;
 }

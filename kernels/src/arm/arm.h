@@ -24,6 +24,10 @@ void fk__softmax_rows_neon   (const float *x, int rows, int cols, int ldx, float
 void fk__residual_rows_neon  (float *x, int ldx, const float *r, int ldr, const float *gamma,
                               int rows, int cols);
 
+/* fp16_neon.c: bulk conversion (fk_fp16.h), bit-exact with the reference. */
+void fk__f32_to_f16_neon(const float *src, uint16_t *dst, size_t n);
+void fk__f16_to_f32_neon(const uint16_t *src, float *dst, size_t n);
+
 #else
 static inline void fk__gelu_array_neon(const float *x, float *y, size_t n) { (void)x; (void)y; (void)n; }
 static inline void fk__silu_array_neon(const float *x, float *y, size_t n) { (void)x; (void)y; (void)n; }
@@ -36,6 +40,8 @@ static inline void fk__softmax_rows_neon(const float *x, int rows, int cols, int
 static inline void fk__residual_rows_neon(float *x, int ldx, const float *r, int ldr, const float *gamma,
                                           int rows, int cols)
 { (void)x; (void)ldx; (void)r; (void)ldr; (void)gamma; (void)rows; (void)cols; }
+static inline void fk__f32_to_f16_neon(const float *src, uint16_t *dst, size_t n) { (void)src; (void)dst; (void)n; }
+static inline void fk__f16_to_f32_neon(const uint16_t *src, float *dst, size_t n) { (void)src; (void)dst; (void)n; }
 #endif
 
 #endif

@@ -150,12 +150,20 @@ __attribute__((noinline)) static void softmax_block(float *s, int valid, float *
 }
 
 static const struct fk__attn_isa attn_avx2 = {
-    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile,
+    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, NULL,
+};
+
+/* AVX-512: the per-pair work in zmm (attention_avx512.c), the per-token prep
+ * as above. */
+static const struct fk__attn_isa attn_avx512 = {
+    head_norm, rope_apply, fk__ukr_f32_6x16, fk__attn_softmax_block_avx512, fk__attn_pv_tile_avx512,
+    fk__attn_s_block_avx512,
 };
 
 int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,
                        int nq, const float *k, int ldk, const float *v, int ldv, int nk,
                        float *out, int ldo)
 {
-    return fk__attention_plan_run(&attn_avx2, ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
+    const struct fk__attn_isa *isa = ctx->isa == FK_ISA_AVX512 ? &attn_avx512 : &attn_avx2;
+    return fk__attention_plan_run(isa, ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
 }

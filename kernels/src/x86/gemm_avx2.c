@@ -153,39 +153,57 @@ static inline int load_u32(const uint8_t *p)
 __attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
                                                   int accumulate);
 
-/* Rows [r0, r0 + R) of ukr_q7_avx2: R <= 4 keeps accumulators, weights,
- * ones and the broadcast in 16 registers (six rows at once spilled). */
+/* One row of ukr_q7_avx2's k step: t = the row's four activation bytes
+ * broadcast; u8 x s7 pairs (vpmaddubsw), widened and summed in pairs with
+ * ones (vpmaddwd), added to the row's two accumulators. */
+#define Q7_ROW(r, c0, c1)                                                                 \
+    do {                                                                                  \
+        __m256i t_ = _mm256_set1_epi32(load_u32(a + 4 * (r)));                            \
+        __m256i u_ = _mm256_maddubs_epi16(t_, b0);                                        \
+        t_ = _mm256_maddubs_epi16(t_, b1);                                                \
+        c0 = _mm256_add_epi32(c0, _mm256_madd_epi16(u_, ones));                           \
+        c1 = _mm256_add_epi32(c1, _mm256_madd_epi16(t_, ones));                           \
+    } while (0)
+
+/* Rows [r0, r0 + 3) of ukr_q7_avx2. Named accumulators (six), weights (two),
+ * ones and two temporaries fit the 16 ymm registers; written as an array of
+ * accumulators GCC copied each one through a spare register every step and
+ * spilled one. */
 static inline __attribute__((always_inline)) void
-q7_rows(int k4, const uint8_t *a, int r0, int R, const int8_t *b, int32_t *c, int accumulate)
+q7_rows3(int k4, const uint8_t *a, int r0, const int8_t *b, int32_t *c, int accumulate)
 {
     const __m256i ones = _mm256_set1_epi16(1);
-    __m256i acc[4][2];
-    for (int r = 0; r < R; r++)
-        for (int h = 0; h < 2; h++)
-            acc[r][h] = accumulate ? _mm256_load_si256((const __m256i *)(c + NR * (r0 + r) + 8 * h))
-                                   : _mm256_setzero_si256();
+    int32_t *cr = c + NR * r0;
+    __m256i c00, c01, c10, c11, c20, c21;
+    if (accumulate) {
+        c00 = _mm256_load_si256((const __m256i *)(cr + 0));  c01 = _mm256_load_si256((const __m256i *)(cr + 8));
+        c10 = _mm256_load_si256((const __m256i *)(cr + 16)); c11 = _mm256_load_si256((const __m256i *)(cr + 24));
+        c20 = _mm256_load_si256((const __m256i *)(cr + 32)); c21 = _mm256_load_si256((const __m256i *)(cr + 40));
+    } else {
+        c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_si256();
+    }
     a += 4 * r0;
+#pragma GCC unroll 2
     for (int k = 0; k < k4; k++) {
         __m256i b0 = _mm256_load_si256((const __m256i *)b);
         __m256i b1 = _mm256_load_si256((const __m256i *)(b + 32));
-        for (int r = 0; r < R; r++) {
-            __m256i t = _mm256_set1_epi32(load_u32(a + 4 * r));
-            acc[r][0] = _mm256_add_epi32(acc[r][0], _mm256_madd_epi16(_mm256_maddubs_epi16(t, b0), ones));
-            acc[r][1] = _mm256_add_epi32(acc[r][1], _mm256_madd_epi16(_mm256_maddubs_epi16(t, b1), ones));
-        }
+        Q7_ROW(0, c00, c01);
+        Q7_ROW(1, c10, c11);
+        Q7_ROW(2, c20, c21);
         a += 4 * MR;
         b += 4 * NR;
     }
-    for (int r = 0; r < R; r++)
-        for (int h = 0; h < 2; h++)
-            _mm256_store_si256((__m256i *)(c + NR * (r0 + r) + 8 * h), acc[r][h]);
+    _mm256_store_si256((__m256i *)(cr + 0), c00);  _mm256_store_si256((__m256i *)(cr + 8), c01);
+    _mm256_store_si256((__m256i *)(cr + 16), c10); _mm256_store_si256((__m256i *)(cr + 24), c11);
+    _mm256_store_si256((__m256i *)(cr + 32), c20); _mm256_store_si256((__m256i *)(cr + 40), c21);
 }
+#undef Q7_ROW
 
 __attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
                                                   int accumulate)
 {
-    q7_rows(k4, a, 0, 4, b, c, accumulate);
-    q7_rows(k4, a, 4, 2, b, c, accumulate);
+    q7_rows3(k4, a, 0, b, c, accumulate);
+    q7_rows3(k4, a, 3, b, c, accumulate);
 }
 
 /* ----------------------------------------------------------------- packing */
