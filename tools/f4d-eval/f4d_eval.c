@@ -26,16 +26,9 @@
 #include <time.h>
 
 #include "model.h"
-#include "npy.h"
+#include "f4d_score.h"
 #include "splat.h"
 #include "weights.h"
-
-struct take {
-    int    T, V, E, H, W;
-    float *rgb, *depth, *alpha, *ergb;
-    struct splat_rig rig, erig;
-    float  sky[3];
-};
 
 struct row {
     const char *precision;
@@ -49,103 +42,18 @@ static double now_ms(void)
     return 1e3 * (double)ts.tv_sec + 1e-6 * (double)ts.tv_nsec;
 }
 
-static int load(const char *dir, const char *name, float **a, int64_t *shape, int want_nd, struct f4d_err *err)
-{
-    char path[4096];
-    int nd;
-    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-    if (npy_load_f32(path, a, shape, &nd, err) < 0)
-        return -1;
-    if (nd != want_nd)
-        return f4d_fail(err, F4D_EFORMAT, "%s: %d dimensions, expected %d", path, nd, want_nd);
-    return 0;
-}
-
-static int take_load(const char *dir, struct take *t, struct f4d_err *err)
-{
-    int64_t s[NPY_MAX_DIMS], s2[NPY_MAX_DIMS];
-    memset(t, 0, sizeof *t);
-    if (load(dir, "rgb", &t->rgb, s, 5, err) < 0)
-        return -1;
-    t->T = (int)s[0], t->V = (int)s[1], t->H = (int)s[2], t->W = (int)s[3];
-    if (load(dir, "depth", &t->depth, s2, 4, err) < 0 || load(dir, "alpha", &t->alpha, s2, 4, err) < 0 ||
-        load(dir, "eval_rgb", &t->ergb, s2, 5, err) < 0)
-        return -1;
-    t->E = (int)s2[1];
-    if (s2[0] != t->T || s2[2] != t->H || s2[3] != t->W || s[4] != 3)
-        return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
-    char path[4096];
-    snprintf(path, sizeof path, "%s/rig.json", dir);
-    if (splat_rig_load(path, &t->rig, err) < 0)
-        return -1;
-    snprintf(path, sizeof path, "%s/eval_rig.json", dir);
-    if (splat_rig_load(path, &t->erig, err) < 0)
-        return -1;
-    if (t->rig.count != t->V || t->erig.count != t->E)
-        return f4d_fail(err, F4D_EFORMAT, "take %s: rigs have %d + %d cameras, arrays %d + %d", dir, t->rig.count,
-                        t->erig.count, t->V, t->E);
-    snprintf(path, sizeof path, "%s/take.json", dir);
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return f4d_fail(err, F4D_EIO, "cannot open %s", path);
-    char buf[8192];
-    size_t n = fread(buf, 1, sizeof buf - 1, f);
-    fclose(f);
-    buf[n] = '\0';
-    cJSON *j = cJSON_Parse(buf);
-    cJSON *sky = j ? cJSON_GetObjectItem(j, "sky") : NULL;
-    if (!cJSON_IsArray(sky) || cJSON_GetArraySize(sky) != 3) {
-        cJSON_Delete(j);
-        return f4d_fail(err, F4D_EFORMAT, "%s: no \"sky\": [r, g, b]", path);
-    }
-    for (int k = 0; k < 3; k++)
-        t->sky[k] = (float)cJSON_GetArrayItem(sky, k)->valuedouble;
-    cJSON_Delete(j);
-    return 0;
-}
-
-static void take_free(struct take *t)
-{
-    free(t->rgb); free(t->depth); free(t->alpha); free(t->ergb);
-}
-
-/* c = a * b for 4x4 row-major. */
-static void mul44(const float *a, const float *b, float *c)
-{
-    for (int i = 0; i < 4; i++)
-        for (int j = 0; j < 4; j++) {
-            double s = 0;
-            for (int k = 0; k < 4; k++)
-                s += (double)a[4 * i + k] * b[4 * k + j];
-            c[4 * i + j] = (float)s;
-        }
-}
-
-/* Inverse of a rigid [R | t] (row-major 4x4). */
-static void rigid_inv(const float *m, float *o)
-{
-    memset(o, 0, 16 * sizeof *o);
-    for (int i = 0; i < 3; i++) {
-        for (int j = 0; j < 3; j++)
-            o[4 * i + j] = m[4 * j + i];
-        o[4 * i + 3] = -(m[i] * m[3] + m[4 + i] * m[7] + m[8 + i] * m[11]);
-    }
-    o[15] = 1.0f;
-}
-
-static int eval_precision(const struct take *t, const char *weights, enum fk_wtype wt, int keys, int threads,
+static int eval_precision(const struct score_take *t, const char *weights, enum fk_wtype wt, int keys, int threads,
                           struct row *r, struct f4d_err *err)
 {
     fk_ctx *ctx = NULL;
     struct model *m = NULL;
-    splat_renderer *ren = NULL;
+    score_view *sv = NULL;
     int rc = -1;
     const int V = t->V, H = t->H, W = t->W;
-    const size_t np = (size_t)H * W;
-    float *img = malloc((size_t)V * 3 * np * sizeof(float)), *out = malloc(3 * np * sizeof(float));
-    float *ssim_scratch = malloc(splat_ssim_scratch_floats(W, H) * sizeof(float));
+    float *img = malloc((size_t)V * 3 * (size_t)H * W * sizeof(float));
+    float *scratch = malloc(score_input_scratch_floats(t) * sizeof(float));
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
-    if (!img || !out || !ssim_scratch) {
+    if (!img || !scratch) {
         f4d_fail(err, F4D_ENOMEM, "f4d-eval: out of memory");
         goto done;
     }
@@ -159,20 +67,16 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
         f4d_fail(err, F4D_EINVAL, "%s", model_error(m));
         goto done;
     }
-    if (splat_renderer_new(ctx, W, H, &ren, err) < 0)
+    if (score_view_new(ctx, t, &sv, err) < 0)
         goto done;
-    float inv0[16];
-    rigid_inv(t->rig.cams[0].w2c, inv0);
     double ms = 0, psnr = 0, ssim = 0, pd = 0, re = 0, te = 0;
     int n_img = 0, n_cam = 0;
     size_t n_pt = 0;
     if (keys <= 0 || keys > t->T)
         keys = t->T;
     for (int k = 0; k < keys; k++) {
-        for (int v = 0; v < V; v++)
-            for (int c = 0; c < 3; c++)
-                for (size_t p = 0; p < np; p++)
-                    img[((size_t)v * 3 + c) * np + p] = t->rgb[(((size_t)k * V + v) * np + p) * 3 + c];
+        if (score_take_input(ctx, t, k, H, W, scratch, img, err) < 0)
+            goto done;
         struct model_outputs o;
         double t0 = now_ms();
         if (model_eval(m, img, V, H, W, &o) < 0) {
@@ -187,52 +91,19 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
         const struct model_gaussians *g = &o.gaussians;
         struct splat_frame fr = { .count = g->count, .capacity = g->count, .pos = g->pos, .scale = g->scale,
                                   .rot = g->rot, .opacity = g->opacity, .rgb = g->rgb };
-        for (int e = 0; e < t->E; e++) {
-            struct splat_camera cam = t->erig.cams[e];
-            mul44(t->erig.cams[e].w2c, inv0, cam.w2c); /* into view 0's frame */
-            struct splat_render_out ro = { .rgb = out };
-            if (splat_render(ren, &cam, &fr, t->sky, &ro) < 0) {
-                f4d_fail(err, F4D_EINVAL, "%s", splat_renderer_error(ren));
-                goto done;
-            }
-            for (size_t i = 0; i < 3 * np; i++)
-                out[i] = out[i] < 0 ? 0 : (out[i] > 1 ? 1 : out[i]);
-            const float *gt = t->ergb + ((size_t)k * t->E + e) * np * 3;
-            psnr += splat_psnr(out, gt, W, H, 3);
-            ssim += splat_ssim(out, gt, W, H, 3, ssim_scratch);
-            n_img++;
-        }
-        for (int v = 0; v < V; v++) {
-            const struct splat_camera *cv = &t->rig.cams[v];
-            float rel[16];
-            mul44(cv->w2c, inv0, rel);
-            for (size_t p = 0; p < np; p++) {
-                size_t i = ((size_t)k * V + v) * np + p;
-                if (t->alpha[i] <= 0.5f)
-                    continue;
-                float d = t->depth[i], u = (float)(p % W) + 0.5f, w = (float)(p / W) + 0.5f;
-                float pc[3] = { (u - cv->cx) / cv->fx * d, (w - cv->cy) / cv->fy * d, d }, x[3];
-                for (int a = 0; a < 3; a++) /* camera v -> view 0: rel^-1 applied to pc */
-                    x[a] = rel[a] * (pc[0] - rel[3]) + rel[4 + a] * (pc[1] - rel[7]) + rel[8 + a] * (pc[2] - rel[11]);
-                const float *q = g->pos + 3 * ((size_t)v * np + p);
-                pd += sqrt((double)(q[0] - x[0]) * (q[0] - x[0]) + (double)(q[1] - x[1]) * (q[1] - x[1]) +
-                           (double)(q[2] - x[2]) * (q[2] - x[2]));
-                n_pt++;
-            }
-            const float *pe = o.extrinsic_metric + 12 * v;
-            double tr = 0, dt = 0;
-            for (int a = 0; a < 3; a++) {
-                for (int b = 0; b < 3; b++)
-                    tr += (double)pe[4 * a + b] * rel[4 * a + b];
-                dt += ((double)pe[4 * a + 3] - rel[4 * a + 3]) * ((double)pe[4 * a + 3] - rel[4 * a + 3]);
-            }
-            /* pe's rotation need not be exactly orthonormal: clamp the cosine */
-            double cs = (tr - 1.0) / 2.0;
-            cs = cs > 1 ? 1 : (cs < -1 ? -1 : cs);
-            re += acos(cs) * 180.0 / 3.14159265358979323846;
-            te += sqrt(dt);
-            n_cam++;
-        }
+        double p, s, sum, rs, ts;
+        size_t n;
+        if (score_novel_view(sv, &fr, k, &p, &s, err) < 0 || score_points(t, k, g->pos, H, W, &sum, &n, err) < 0)
+            goto done;
+        psnr += p * t->E;
+        ssim += s * t->E;
+        n_img += t->E;
+        pd += sum;
+        n_pt += n;
+        score_cameras(t, o.extrinsic_metric, &rs, &ts);
+        re += rs;
+        te += ts;
+        n_cam += V;
     }
     r->key_ms = ms / keys;
     r->psnr = n_img ? psnr / n_img : NAN;
@@ -242,8 +113,9 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     r->trans_err = te / n_cam;
     rc = 0;
 done:
-    free(img); free(out); free(ssim_scratch);
-    splat_renderer_free(ren);
+    free(img);
+    free(scratch);
+    score_view_free(sv);
     model_free(m);
     fk_ctx_free(ctx);
     return rc;
@@ -298,10 +170,10 @@ int main(int argc, char **argv)
         return 2;
     }
     struct f4d_err err = { 0 };
-    struct take t;
-    if (take_load(take_dir, &t, &err) < 0) {
+    struct score_take t;
+    if (score_take_load(take_dir, &t, &err) < 0) {
         fprintf(stderr, "f4d-eval: %s\n", err.msg);
-        take_free(&t);
+        score_take_free(&t);
         return 1;
     }
     struct row rows[3];
@@ -314,7 +186,7 @@ int main(int argc, char **argv)
         if (!w) {
             if (f4d_weights_default(types[p] == FK_W_Q8, wpath, sizeof wpath, &err) < 0) {
                 fprintf(stderr, "f4d-eval: no --weights and %s\n", err.msg);
-                take_free(&t);
+                score_take_free(&t);
                 return 1;
             }
             w = wpath;
@@ -322,7 +194,7 @@ int main(int argc, char **argv)
         rows[nr].precision = names[p];
         if (eval_precision(&t, w, types[p], keys, threads, &rows[nr], &err) < 0) {
             fprintf(stderr, "f4d-eval: %s: %s\n", names[p], err.msg);
-            take_free(&t);
+            score_take_free(&t);
             return 1;
         }
         nr++;
@@ -367,6 +239,6 @@ int main(int argc, char **argv)
             }
         }
     }
-    take_free(&t);
+    score_take_free(&t);
     return rc;
 }
