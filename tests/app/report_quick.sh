@@ -2,7 +2,7 @@
 # app/report_quick: `forge4d report --quick` on a short venue take that f4d-scene
 # generates from a test-split seed (2 views, 3 keys), then report_check on what it
 # wrote (JSON fields, a non-dominated non-empty front, the goal line, PNGs that
-# decode). The checker is also run on broken copies, which it must refuse, and a
+# decode). The take carries its empty-venue plate (--background) for the foreground model. The checker is also run on broken copies, which it must refuse, and a
 # missing take must fail with a clear message.
 #   report_quick.sh FORGE4D F4D-SCENE REPORT_CHECK WEIGHTS [SIZE] [--motion]
 set -euo pipefail
@@ -10,7 +10,7 @@ forge4d=$1 scene=$2 check=$3 weights=$4 size=${5:-112x112} motion=${6:-}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 [ -s "$weights" ] || { echo "missing weights $weights"; exit 1; }
-"$scene" venue --seed 300000 --frames 3 --views 2 --size "$size" -o "$tmp/take" > /dev/null
+"$scene" venue --seed 300000 --frames 3 --views 2 --size "$size" --background -o "$tmp/take" > /dev/null
 
 # no take / not a take: a clear error, not a crash
 if "$forge4d" report --quick -o "$tmp/none" 2> "$tmp/err"; then echo "report without a take succeeded"; exit 1; fi
@@ -22,6 +22,9 @@ grep -q "not a venue take" "$tmp/err" || { echo "unclear error for a missing tak
 
 "$forge4d" report --quick -o "$tmp/out" --take "$tmp/take" --weights "$weights" --threads 2
 "$check" "$tmp/out" $motion
+# the take has the empty-venue plate (--background): the foreground model learned from it
+grep -q '"background_plate":[[:space:]]*true' "$tmp/out/report.json" ||
+  { echo "the report did not use the take's background plate"; exit 1; }
 
 # the checker must catch a wrong front, a broken plot and a missing figure
 cp -r "$tmp/out" "$tmp/bad1"
