@@ -758,6 +758,7 @@ done:
     free(pt);
     free(best);
     fk_ctx_free(sctx);
+    report_plot_done();
     return status;
 }
 

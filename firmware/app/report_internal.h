@@ -45,5 +45,7 @@ struct report_plot {
 };
 /* PNG through cairo; F4D_EIO naming the file when it cannot be written. */
 int report_plot_write(const struct report_plot *p, struct f4d_err *err);
+/* Releases cairo's static caches (fonts) once every plot is written. */
+void report_plot_done(void);
 
 #endif

@@ -3,6 +3,7 @@
  * markers, the Pareto front as a line, a legend. Text uses cairo's toy font
  * API (fontconfig picks a sans face). */
 #include <cairo.h>
+#include <fontconfig/fontconfig.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -254,4 +255,13 @@ int report_plot_write(const struct report_plot *p, struct f4d_err *err)
     if (st != CAIRO_STATUS_SUCCESS)
         return f4d_fail(err, F4D_EIO, "plot: cannot write %s: %s", p->path, cairo_status_to_string(st));
     return 0;
+}
+
+void report_plot_done(void)
+{
+    /* cairo's toy font faces hold fontconfig patterns, and fontconfig its
+     * configuration, until these: a leak checker would report them otherwise
+     * (no surface may be alive; the process draws no text afterwards) */
+    cairo_debug_reset_static_data();
+    FcFini();
 }
