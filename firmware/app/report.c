@@ -680,7 +680,7 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
                 int idx = (((p * NSCALE + s) * NTOK + tk) * NBUD + b) * NCOD + c;
                 struct acc *a = &acc[idx];
                 /* the model's share is the same for every stream setting */
-                a->model_ms += am.model_ms; a->keys += am.keys;
+                a->model_ms += am.model_ms; a->model_cpu_ms += am.model_cpu_ms; a->keys += am.keys;
                 a->pt += am.pt; a->pt_n += am.pt_n;
                 a->rot += am.rot; a->trans += am.trans; a->cams += am.cams;
                 a->mot += am.mot; a->mot_n += am.mot_n;

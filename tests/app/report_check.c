@@ -122,7 +122,7 @@ int main(int argc, char **argv)
         return 1;
     }
     /* every figure; null only where it may be missing (no mid times, no motion) */
-    static const char *const must[] = {"key_ms", "key_hz", "model_ms", "budget_ms", "encode_ms", "decode_ms",
+    static const char *const must[] = {"key_ms", "key_hz", "model_ms", "model_cpu_ms", "budget_ms", "encode_ms", "decode_ms",
                                        "tokens_ran_fraction", "gaussians_per_key", "bytes_per_key",
                                        "mbps_at_take_rate", "novel_view_psnr", "novel_view_ssim", "point_dist_m",
                                        "rot_err_deg", "trans_err_m", "speedup_vs_baseline",
@@ -155,6 +155,7 @@ int main(int argc, char **argv)
         hz[i] = get(o, "key_hz", &ok);
         ps[i] = get(o, "novel_view_psnr", &ok);
         CHECK(hz[i] > 0, "point %d: key_hz %g", i, hz[i]);
+        CHECK(get(o, "model_cpu_ms", &ok) > 0 && get(o, "model_ms", &ok) > 0, "point %d: no model time", i);
         CHECK(fabs(hz[i] * get(o, "key_ms", &ok) - 1e3) < 1e-3 * 1e3, "point %d: key_hz and key_ms disagree", i);
         motion_pts += isfinite(get(o, "motion_epe_m", &ok));
     }
