@@ -6,6 +6,7 @@
  *   forge4d sheet DIR -o PNG [--set N]
  *   forge4d replay DIR [--fast] [--stats-json FILE]
  *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] ...
+ *   forge4d report [--quick] -o DIR --take TAKE [--take TAKE ...] [--weights W]
  *
  * record: opens the board's rig, captures N trigger pulses (or S seconds),
  * writes every synchronized set to the take DIR as it arrives, prints a live
@@ -13,7 +14,8 @@
  * JSON. verify: checks every record's CRC, truncates a torn tail and rebuilds
  * the index after a crash. sheet: PNG contact sheet of one set. replay: runs a
  * take back through the synchronizer and prints the same stats. run: the
- * appliance daemon, capture to stream (run.c).
+ * appliance daemon, capture to stream (run.c). report: the speed-vs-error
+ * study on venue takes with ground truth (report.c).
  */
 #include <signal.h>
 #include <stdio.h>
@@ -32,6 +34,7 @@
 #include "hal_registry.h"
 #include "hal_replay.h"
 #include "hal_sim.h"
+#include "report_internal.h"
 #include "run_internal.h"
 
 static volatile sig_atomic_t g_stop; /* set by SIGINT/SIGTERM: finish the take cleanly */
@@ -52,7 +55,9 @@ static int usage(void)
             "  forge4d sheet DIR -o PNG [--set N]\n"
             "  forge4d replay DIR [--fast] [--stats-json FILE]\n"
             "  forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream file:PATH]\n"
-            "              [--record DIR] [--seconds S] [--stats-json FILE] [--precision P] (run --help)\n");
+            "              [--record DIR] [--seconds S] [--stats-json FILE] [--precision P] (run --help)\n"
+            "  forge4d report [--quick] -o DIR --take TAKE [--take TAKE ...] [--weights W] [--threads N]\n"
+            "                 [--keys N]\n");
     return 2;
 }
 
@@ -412,5 +417,14 @@ int main(int argc, char **argv)
         return cmd_replay(argc - 2, argv + 2);
     if (!strcmp(argv[1], "run"))
         return forge4d_run_main(argc - 2, argv + 2, &g_stop);
+    if (!strcmp(argv[1], "report")) {
+#ifdef F4D_RUN_HAVE_REPORT
+        return forge4d_report_main(argc - 2, argv + 2, &g_stop);
+#else
+        fprintf(stderr, "forge4d report: not built here: it needs the display's player (F4D_WITH_DISPLAY) "
+                        "and the scorer (firmware/gaussians/score)\n");
+        return 2;
+#endif
+    }
     return usage();
 }

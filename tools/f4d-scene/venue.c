@@ -15,7 +15,9 @@
  *   eval_rgb [T,E,H,W,3]  eval_depth, eval_alpha [T,E,H,W]
  *   mid_rgb [T-1,V+E,H,W,3]  (renders at the mid times k + 1/2, inputs first)
  *   rig.json, eval_rig.json (splat rig format), take.json (what was drawn),
- *   and with --ply gaussians_t0.ply (the Gaussians of the first key). */
+ *   and with --ply gaussians_t0.ply (the Gaussians of the first key); with
+ *   --background background_rgb [V,H,W,3]: the empty venue (no people) from
+ *   the input views, the plate a foreground model learns (forge4d report). */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -251,11 +253,15 @@ int venue_main(int argc, char **argv)
 {
     const char *outdir = NULL;
     long seed = -1, frames = 3, W = 112, H = 112, evals = 2, pg = 5000, views = 0, threads = 1;
-    int want_ply = 0;
+    int want_ply = 0, want_bg = 0;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--ply")) {
             want_ply = 1;
+            continue;
+        }
+        if (!strcmp(a, "--background")) {
+            want_bg = 1;
             continue;
         }
         if (i + 1 >= argc) {
@@ -290,7 +296,8 @@ int venue_main(int argc, char **argv)
     }
     if (seed < 0 || !outdir) {
         fprintf(stderr, "usage: f4d-scene venue --seed S -o DIR [--frames T] [--size WxH] [--eval E]\n"
-                        "                       [--views V] [--person-gaussians N] [--ply] [--threads N]\n");
+                        "                       [--views V] [--person-gaussians N] [--ply] [--background]\n"
+                        "                       [--threads N]\n");
         return 2;
     }
     if (mkdir(outdir, 0777) != 0 && errno != EEXIST) {
@@ -419,6 +426,25 @@ int venue_main(int argc, char **argv)
         if (bad)
             goto done;
     }
+    size_t drawn = fr.count; /* take.json's count, before the background frame reuses fr */
+    if (want_bg) { /* the static venue alone, same exposure and sky: key 0's slots are free now */
+        if (venue_frame(ppl, 0, &st, v.exposure, v.t0, dt, &tmp, &fr, &err) < 0) {
+            fprintf(stderr, "f4d-scene venue: %s\n", err.msg);
+            goto done;
+        }
+        for (int c = 0; c < V; c++) {
+            struct splat_render_out o = { .rgb = rgb + 3 * np * (size_t)c };
+            if (splat_render(ren, &rig.cams[c], &fr, sky, &o) < 0) {
+                fprintf(stderr, "f4d-scene venue: %s\n", splat_renderer_error(ren));
+                goto done;
+            }
+        }
+        size_t b4[4] = { (size_t)V, (size_t)H, (size_t)W, 3 };
+        if (write_npy(outdir, "background_rgb", rgb, b4, 4, &err) < 0) {
+            fprintf(stderr, "f4d-scene venue: %s\n", err.msg);
+            goto done;
+        }
+    }
     char path[4096];
     snprintf(path, sizeof path, "%s/rig.json", outdir);
     if (splat_rig_save(path, &rig, &err) < 0) {
@@ -442,7 +468,7 @@ int venue_main(int argc, char **argv)
                 "\"width\": %ld, \"height\": %ld, \"exposure\": %.4f, \"sky\": [%.4f, %.4f, %.4f], "
                 "\"gaussians\": %zu, \"people\": [",
             seed, T, SCENE_FPS, (double)v.t0, V, E, W, H, (double)v.exposure, (double)sky[0], (double)sky[1],
-            (double)sky[2], fr.count);
+            (double)sky[2], drawn);
     for (int i = 0; i < v.people; i++)
         fprintf(fp, "%s{\"preset\": \"%s\", \"seed\": %llu, \"x\": %.4f, \"y\": %.4f, \"yaw\": %.4f, "
                     "\"speed\": %.4f, \"girth\": %.4f, \"height_m\": %.4f}",

@@ -93,6 +93,12 @@ void f4d_sequence_close(f4d_sequence *sq);
  * dropped and the model's state is reset: the next push starts over (its key
  * time still counts on), as the model requires after a failed Eval. */
 int  f4d_sequence_push(f4d_sequence *sq, const float *images, struct f4d_err *err);
+/* The same with model_eval_masked: only the patches with patch_keep[s * P +
+ * r * w + c] != 0 run (P patches per view; NULL = all, exactly push), the
+ * others reuse the last key's features (model.h, "Foreground-only
+ * evaluation"; firmware/infer/foreground makes the lists). */
+int  f4d_sequence_push_masked(f4d_sequence *sq, const float *images, const uint8_t *patch_keep,
+                              struct f4d_err *err);
 /* Keys held: 0 before the first push, 1 after it, 2 from the second on. */
 int  f4d_sequence_steps(const f4d_sequence *sq);
 /* which = 0: the newest key t, 1: the key before it (t - 1). */

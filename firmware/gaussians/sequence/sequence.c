@@ -263,10 +263,15 @@ void f4d_sequence_close(f4d_sequence *sq)
 
 int f4d_sequence_push(f4d_sequence *sq, const float *images, struct f4d_err *err)
 {
+    return f4d_sequence_push_masked(sq, images, NULL, err);
+}
+
+int f4d_sequence_push_masked(f4d_sequence *sq, const float *images, const uint8_t *patch_keep, struct f4d_err *err)
+{
     if (!sq || !images)
         return f4d_fail(err, F4D_EINVAL, "sequence_push: NULL argument");
     struct model_outputs o;
-    int rc = model_eval(sq->m, images, sq->S, sq->H, sq->W, &o);
+    int rc = model_eval_masked(sq->m, images, sq->S, sq->H, sq->W, patch_keep, &o);
     if (rc < 0) {
         /* the model's state is undefined now: start over at the next push
          * (its key time goes on counting) */
