@@ -83,6 +83,8 @@ static void test_vs_reference(void **state)
         { 3, 64, 131, 131, 1, 1, 0 }, { 2, 64, 200, 200, 0, 0, 0 }, { 2, 32, 16, 301, 0, 0, 1 },
         { 2, 64, 301, 16, 0, 1, 1 }, { 1, 128, 13, 5, 0, 0, 1 },  { 2, 8, 9, 11, 1, 1, 0 },
         { 1, 12, 5, 70, 1, 0, 1 },  { 2, 64, 65, 65, 1, 1, 0 },
+        /* off the 16-wide tiles: the shipped model's 24 (4 views of 8x8 patches + 5 specials), 40 */
+        { 4, 24, 276, 276, 1, 1, 0 }, { 2, 40, 37, 130, 0, 1, 1 }, { 3, 24, 69, 69, 1, 0, 0 },
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
         run_case(&cases[i], 40 + i, 1.0f);
