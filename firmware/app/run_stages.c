@@ -214,6 +214,12 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
     }
     if ((rc = model_init(im->ctx, cfg->weights, (enum fk_wtype)cfg->wtype, &im->m, err)) < 0)
         goto fail;
+    /* the stream carries Gaussians and cameras: the depth head's map would go
+     * unread (a third of the DPT work of a key) */
+    if ((rc = model_skip_head(im->m, "depth_head")) < 0) {
+        rc = f4d_fail(err, rc, "inference: %s", model_error(im->m));
+        goto fail;
+    }
     im->T = model_get_config(im->m)->img_size;
     for (int i = 0; i < im->S; i++) {
         const struct hal_camera_config *c = &board->cams[i];
