@@ -124,6 +124,9 @@ struct run {
     int cam_reported[HAL_RIG_CAMERAS_MAX];
     float *lat_ms;
     counter lat_n;
+    /* per-stage wall time of the keys streamed (stream thread only), for the
+     * stats: preprocessing, model, budget, encoder */
+    double stage_ms[4];
     /* capture statistics, copied by the progress callback */
     pthread_mutex_t st_mu;
     struct f4d_capture_stats cap_st;
@@ -449,6 +452,7 @@ static void *stream_main(void *arg)
         hb_busy(&r->hb_stream);
         bool intra = resync || n % r->cfg->intra_every == 0;
         len = r->enc.packet_cap;
+        uint64_t e0 = mono_ns();
         int rc = r->enc.key(r->enc.self, k, intra, r->pkt, &len, &err);
         if (rc < 0) {
             uint64_t e = atomic_fetch_add(&r->stream_errors, 1);
@@ -461,6 +465,10 @@ static void *stream_main(void *arg)
             n++;
             t_last = k->t_us;
             uint64_t now = mono_ns();
+            r->stage_ms[0] += k->prep_ms;
+            r->stage_ms[1] += k->model_ms;
+            r->stage_ms[2] += k->budget_ms;
+            r->stage_ms[3] += (double)(now - e0) * 1e-6;
             double ms = (double)(k->delivery_ns + (now - k->arrive_wall_ns)) * 1e-6;
             uint64_t i = atomic_fetch_add(&r->lat_n, 1);
             r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
@@ -605,6 +613,12 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
     cJSON_AddNumberToObject(o, "bitrate_mbps", wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0);
     NUM_OR_NULL("rss_mb_start", r->rss_start);
     NUM_OR_NULL("rss_mb_end", r->rss_end);
+    /* where a key's time goes (mean wall ms of the keys streamed; the model
+     * part includes the sequence's key build; the encoder's, the sink write) */
+    cJSON *sm = keys ? cJSON_AddObjectToObject(o, "key_stage_ms") : NULL;
+    static const char *const stage_names[4] = { "preprocess", "model", "budget", "encode" };
+    for (int i = 0; sm && i < 4; i++)
+        cJSON_AddNumberToObject(sm, stage_names[i], r->stage_ms[i] / (double)keys);
 #undef NUM_OR_NULL
     char *s = cJSON_Print(o);
     cJSON_Delete(o);
