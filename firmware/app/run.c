@@ -78,7 +78,11 @@
 #define RUN_KEYS 3
 /* Inference (its thread and the kernel pool's) runs this much nicer than
  * capture, recorder and stream: on a 2-core box the model would otherwise
- * starve the capture thread and frames arrive late. */
+ * starve the capture thread and frames arrive late. Not on a simulated rig
+ * whose clock waits for its renderer ("realtime": false): no frame can be
+ * late there, and the CPU rasterizer that stands in for the cameras (about
+ * 120 ms of CPU per 4 x 518^2 set, 3.7 cores at 30 Hz) would take nearly all
+ * of both cores from the stages being demonstrated. */
 #define RUN_INFER_NICE 5
 #define RUN_LAT_MAX (1u << 16) /* latency samples kept (the last ones) */
 
@@ -320,12 +324,25 @@ static void *record_main(void *arg)
 /* Lowers the calling thread's priority (Linux: PRIO_PROCESS with 0 is the
  * calling thread; threads it creates inherit the value). Raising nice needs
  * no privilege; failure only leaves the priority as it was. */
-static void nicer(void)
+static void nicer(int by)
 {
+    if (by <= 0)
+        return;
     errno = 0;
     int cur = getpriority(PRIO_PROCESS, 0);
     if (errno == 0)
-        (void)setpriority(PRIO_PROCESS, 0, cur + RUN_INFER_NICE);
+        (void)setpriority(PRIO_PROCESS, 0, cur + by);
+}
+
+/* RUN_INFER_NICE, or 0 on a rig of simulated cameras on a waiting clock. */
+static int infer_nice_for(const struct hal_board *b)
+{
+    if (b->sim.realtime || b->n_cams == 0)
+        return RUN_INFER_NICE;
+    for (uint32_t i = 0; i < b->n_cams; i++)
+        if (strcmp(b->cams[i].backend, "sim") != 0)
+            return RUN_INFER_NICE;
+    return 0;
 }
 
 /* Builds the inference stage on its own thread at the lowered priority, so
@@ -341,7 +358,7 @@ struct infer_setup {
 static void *infer_setup_main(void *arg)
 {
     struct infer_setup *s = arg;
-    nicer();
+    nicer(infer_nice_for(s->board));
     s->rc = run_infer_model_new(s->st, s->cfg, s->board, s->err);
     return NULL;
 }
@@ -374,7 +391,7 @@ static struct run_key *key_buffer(struct run *r)
 static void *infer_main(void *arg)
 {
     struct run *r = arg;
-    nicer();
+    nicer(infer_nice_for(r->board));
     void *it;
     while (run_fifo_pop(&r->infer_box, &it) == 1) {
         struct run_slot *s = it;

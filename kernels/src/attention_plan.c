@@ -42,7 +42,7 @@ static void prep_vec(const struct attn_job *j, int which, const float *src, cons
     const float *w = which == 0 ? a->q_norm_w : a->k_norm_w;
     const float *b = which == 0 ? a->q_norm_b : a->k_norm_b;
     if (a->qk_norm || w || b) {
-        if (d % 16 == 0)
+        if (d % 8 == 0)
             j->isa->head_norm(dst, d, w, b, a->norm_eps);
         else
             fk__head_layernorm_ref(dst, d, w, b, a->norm_eps);

@@ -37,7 +37,7 @@ struct fk__rope_table {
 
 /* The vector pieces of one ISA. */
 struct fk__attn_isa {
-    /* LayerNorm over t[d] (d a multiple of 16); NULL w / b mean 1 / 0 */
+    /* LayerNorm over t[d] (d a multiple of 8); NULL w / b mean 1 / 0 */
     void (*head_norm)(float *t, int d, const float *w, const float *b, float eps);
     /* 2D RoPE of t[d] at pos[2] from the table */
     void (*rope_apply)(const struct fk__rope_table *rt, float *t, int d, const int32_t *pos);
