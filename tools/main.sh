@@ -38,6 +38,7 @@ if [ -z "$weights" ]; then
   "$bin/tools/f4d-bench/f4d-bench" model --write-random "$weights" --preset tiny >/dev/null
 fi
 
+load0=$(cut -d' ' -f1-3 /proc/loadavg)
 echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label)"
 "$bin/firmware/app/forge4d" run --no-config --board board/sim-4cam.json --weights "$weights" \
   --seconds "${SECONDS_RUN:-20}" --record "$out/take" --stream "file:$out/stream.f4ds" \
@@ -71,8 +72,10 @@ num() { local v; v=$(field "$1" "$2"); case "$v" in ''|null) echo "${v:-null}" ;
   echo "key frames:        $(field key_frames "$out/run.json") at $(num key_hz "$out/run.json") Hz"
   echo "sets captured:     $(field sets_captured "$out/run.json") (skipped by inference: $(field sets_skipped_by_inference "$out/run.json"))"
   echo "latency p50 / p95: $(num latency_ms_p50 "$out/run.json") / $(num latency_ms_p95 "$out/run.json") ms"
+  echo "key stages (ms):   preprocess $(num preprocess "$out/run.json"), model $(num model "$out/run.json"), budget $(num budget "$out/run.json"), encode $(num encode "$out/run.json") (mean wall time a key)"
   echo "bitrate:           $(num bitrate_mbps "$out/run.json") Mbit/s"
   echo "displayed fps:     ${displayed:-null}"
   echo "novel-view PSNR:   $(field psnr_db_mean "$out/novel.json") dB (mean over keys, vs ground truth)"
   echo "files:             $out/take $out/stream.f4ds $out/novel.gif $out/run.json"
+  echo "machine:           $(nproc) cores, load average $load0 at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end (other jobs slow every figure above)"
 } | tee "$out/summary.txt"

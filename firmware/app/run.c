@@ -78,7 +78,11 @@
 #define RUN_KEYS 3
 /* Inference (its thread and the kernel pool's) runs this much nicer than
  * capture, recorder and stream: on a 2-core box the model would otherwise
- * starve the capture thread and frames arrive late. */
+ * starve the capture thread and frames arrive late. Not on a simulated rig
+ * whose clock waits for its renderer ("realtime": false): no frame can be
+ * late there, and the CPU rasterizer that stands in for the cameras (about
+ * 120 ms of CPU per 4 x 518^2 set, 3.7 cores at 30 Hz) would take nearly all
+ * of both cores from the stages being demonstrated. */
 #define RUN_INFER_NICE 5
 #define RUN_LAT_MAX (1u << 16) /* latency samples kept (the last ones) */
 
@@ -124,6 +128,9 @@ struct run {
     int cam_reported[HAL_RIG_CAMERAS_MAX];
     float *lat_ms;
     counter lat_n;
+    /* per-stage wall time of the keys streamed (stream thread only), for the
+     * stats: preprocessing, model, budget, encoder */
+    double stage_ms[4];
     /* capture statistics, copied by the progress callback */
     pthread_mutex_t st_mu;
     struct f4d_capture_stats cap_st;
@@ -317,12 +324,25 @@ static void *record_main(void *arg)
 /* Lowers the calling thread's priority (Linux: PRIO_PROCESS with 0 is the
  * calling thread; threads it creates inherit the value). Raising nice needs
  * no privilege; failure only leaves the priority as it was. */
-static void nicer(void)
+static void nicer(int by)
 {
+    if (by <= 0)
+        return;
     errno = 0;
     int cur = getpriority(PRIO_PROCESS, 0);
     if (errno == 0)
-        (void)setpriority(PRIO_PROCESS, 0, cur + RUN_INFER_NICE);
+        (void)setpriority(PRIO_PROCESS, 0, cur + by);
+}
+
+/* RUN_INFER_NICE, or 0 on a rig of simulated cameras on a waiting clock. */
+static int infer_nice_for(const struct hal_board *b)
+{
+    if (b->sim.realtime || b->n_cams == 0)
+        return RUN_INFER_NICE;
+    for (uint32_t i = 0; i < b->n_cams; i++)
+        if (strcmp(b->cams[i].backend, "sim") != 0)
+            return RUN_INFER_NICE;
+    return 0;
 }
 
 /* Builds the inference stage on its own thread at the lowered priority, so
@@ -338,7 +358,7 @@ struct infer_setup {
 static void *infer_setup_main(void *arg)
 {
     struct infer_setup *s = arg;
-    nicer();
+    nicer(infer_nice_for(s->board));
     s->rc = run_infer_model_new(s->st, s->cfg, s->board, s->err);
     return NULL;
 }
@@ -371,7 +391,7 @@ static struct run_key *key_buffer(struct run *r)
 static void *infer_main(void *arg)
 {
     struct run *r = arg;
-    nicer();
+    nicer(infer_nice_for(r->board));
     void *it;
     while (run_fifo_pop(&r->infer_box, &it) == 1) {
         struct run_slot *s = it;
@@ -449,6 +469,7 @@ static void *stream_main(void *arg)
         hb_busy(&r->hb_stream);
         bool intra = resync || n % r->cfg->intra_every == 0;
         len = r->enc.packet_cap;
+        uint64_t e0 = mono_ns();
         int rc = r->enc.key(r->enc.self, k, intra, r->pkt, &len, &err);
         if (rc < 0) {
             uint64_t e = atomic_fetch_add(&r->stream_errors, 1);
@@ -461,6 +482,10 @@ static void *stream_main(void *arg)
             n++;
             t_last = k->t_us;
             uint64_t now = mono_ns();
+            r->stage_ms[0] += k->prep_ms;
+            r->stage_ms[1] += k->model_ms;
+            r->stage_ms[2] += k->budget_ms;
+            r->stage_ms[3] += (double)(now - e0) * 1e-6;
             double ms = (double)(k->delivery_ns + (now - k->arrive_wall_ns)) * 1e-6;
             uint64_t i = atomic_fetch_add(&r->lat_n, 1);
             r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
@@ -605,6 +630,12 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
     cJSON_AddNumberToObject(o, "bitrate_mbps", wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0);
     NUM_OR_NULL("rss_mb_start", r->rss_start);
     NUM_OR_NULL("rss_mb_end", r->rss_end);
+    /* where a key's time goes (mean wall ms of the keys streamed; the model
+     * part includes the sequence's key build; the encoder's, the sink write) */
+    cJSON *sm = keys ? cJSON_AddObjectToObject(o, "key_stage_ms") : NULL;
+    static const char *const stage_names[4] = { "preprocess", "model", "budget", "encode" };
+    for (int i = 0; sm && i < 4; i++)
+        cJSON_AddNumberToObject(sm, stage_names[i], r->stage_ms[i] / (double)keys);
 #undef NUM_OR_NULL
     char *s = cJSON_Print(o);
     cJSON_Delete(o);

@@ -72,6 +72,8 @@ struct run_key {
     uint64_t seq, t_us;        /* trigger sequence and time */
     uint64_t arrive_wall_ns, delivery_ns;
     double infer_ms;           /* preprocessing + model + budget */
+    double prep_ms, model_ms, budget_ms; /* its parts (wall): preprocessing, the sequence push
+                                            (model + key build), the budget with the codec match */
 };
 
 /* ---- stage: synchronized set -> metric Gaussians (one key) ----

@@ -49,7 +49,7 @@ struct infer_seq {
     size_t n;                  /* views * H * W */
     bool motion, held;         /* held: the newest key waits for its forward motion */
     uint64_t held_seq, held_t_us, held_arrive, held_delivery;
-    double held_ms;
+    double held_ms, held_prep_ms, held_model_ms;
     uint32_t delay_ms;
     struct splat_rig rig;      /* cameras of the last key out */
     bool have_rig;
@@ -129,6 +129,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     int rc = prep_batch(ims, im->S, PREP_CROP, im->T, im->scratch, im->scratch_bytes, im->input, &H, &W, err);
     if (rc < 0)
         return rc;
+    uint64_t t1 = mono_ns();
     if (H != im->H || W != im->W)
         return f4d_fail(err, F4D_EINVAL, "inference: frames preprocess to %dx%d, the sequence runs at %dx%d", W, H,
                         im->W, im->H);
@@ -136,14 +137,20 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
         im->held = im->have_prev = false; /* the sequence restarted: no key to finish, no reference */
         return rc;
     }
+    uint64_t t2 = mono_ns();
     infer_delay(im);
     double ms = (double)(mono_ns() - t0) * 1e-6;
+    double prep_ms = (double)(t1 - t0) * 1e-6, model_ms = (double)(t2 - t1) * 1e-6;
     uint64_t seq = set->seq, t_us = set->trigger_ts_ns / 1000u, arrive = k->arrive_wall_ns,
              delivery = k->delivery_ns;
     if (!im->motion) {
+        uint64_t b0 = mono_ns();
         if ((rc = infer_emit(im, 0, seq, k, err)) < 0)
             return rc;
         k->t_us = t_us;
+        k->prep_ms = prep_ms;
+        k->model_ms = model_ms;
+        k->budget_ms = (double)(mono_ns() - b0) * 1e-6;
         k->infer_ms = (double)(mono_ns() - t0) * 1e-6;
         return 1;
     }
@@ -157,7 +164,10 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
         k->t_us = im->held_t_us;
         k->arrive_wall_ns = im->held_arrive;
         k->delivery_ns = im->held_delivery;
-        k->infer_ms = im->held_ms + (double)(mono_ns() - b0) * 1e-6;
+        k->prep_ms = im->held_prep_ms;
+        k->model_ms = im->held_model_ms;
+        k->budget_ms = (double)(mono_ns() - b0) * 1e-6;
+        k->infer_ms = im->held_ms + k->budget_ms;
     }
     im->held = true;
     im->held_seq = seq;
@@ -165,6 +175,8 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     im->held_arrive = arrive;
     im->held_delivery = delivery;
     im->held_ms = ms;
+    im->held_prep_ms = prep_ms;
+    im->held_model_ms = model_ms;
     return out ? 1 : 0;
 }
 
@@ -181,7 +193,10 @@ static int infer_flush(void *self, struct run_key *k, struct f4d_err *err)
     k->t_us = im->held_t_us;
     k->arrive_wall_ns = im->held_arrive;
     k->delivery_ns = im->held_delivery;
-    k->infer_ms = im->held_ms + (double)(mono_ns() - b0) * 1e-6;
+    k->prep_ms = im->held_prep_ms;
+    k->model_ms = im->held_model_ms;
+    k->budget_ms = (double)(mono_ns() - b0) * 1e-6;
+    k->infer_ms = im->held_ms + k->budget_ms;
     return 1;
 }
 
@@ -214,6 +229,12 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
     }
     if ((rc = model_init(im->ctx, cfg->weights, (enum fk_wtype)cfg->wtype, &im->m, err)) < 0)
         goto fail;
+    /* the stream carries Gaussians and cameras: the depth head's map would go
+     * unread (a third of the DPT work of a key) */
+    if ((rc = model_skip_head(im->m, "depth_head")) < 0) {
+        rc = f4d_fail(err, rc, "inference: %s", model_error(im->m));
+        goto fail;
+    }
     im->T = model_get_config(im->m)->img_size;
     for (int i = 0; i < im->S; i++) {
         const struct hal_camera_config *c = &board->cams[i];

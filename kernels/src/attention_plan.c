@@ -20,6 +20,7 @@ struct attn_job {
     const struct fk_attention_desc *a;
     const float *q, *k, *v;
     int    ldq, ldk, ldv, nq, nk, ldo, d, nk_pad, nq_pad;
+    int    dp;                           /* d rounded up to 16: the tiles' width, zero-padded */
     int    h0, hn;                       /* heads of this group           */
     float  qscale;
     float *out;
@@ -40,8 +41,12 @@ static void prep_vec(const struct attn_job *j, int which, const float *src, cons
     memcpy(dst, src, (size_t)d * sizeof *dst);
     const float *w = which == 0 ? a->q_norm_w : a->k_norm_w;
     const float *b = which == 0 ? a->q_norm_b : a->k_norm_b;
-    if (a->qk_norm || w || b)
-        j->isa->head_norm(dst, d, w, b, a->norm_eps);
+    if (a->qk_norm || w || b) {
+        if (d % 8 == 0)
+            j->isa->head_norm(dst, d, w, b, a->norm_eps);
+        else
+            fk__head_layernorm_ref(dst, d, w, b, a->norm_eps);
+    }
     if (pos) {
         if (j->rope.on)
             j->isa->rope_apply(&j->rope, dst, d, pos);
@@ -53,7 +58,7 @@ static void prep_vec(const struct attn_job *j, int which, const float *src, cons
 static void prep_task(void *arg, int task, int thread)
 {
     const struct attn_job *j = arg;
-    int d = j->d;
+    int d = j->d, dp = j->dp;
     float buf[1024] __attribute__((aligned(32)));
     (void)thread;
     if (task < j->k_chunks) { /* keys and values */
@@ -62,18 +67,20 @@ static void prep_task(void *arg, int task, int thread)
             float *kp = j->kp + (size_t)(h - j->h0) * j->head_k;
             float *vp = j->vp + (size_t)(h - j->h0) * j->head_v;
             for (int t = t0; t < t1; t++) {
-                float *kd = kp + (size_t)(t / NR) * (size_t)d * NR + (size_t)(t % NR);
+                float *kd = kp + (size_t)(t / NR) * (size_t)dp * NR + (size_t)(t % NR);
+                float *vd = vp + (size_t)t * (size_t)dp;
+                int c0 = 0;
                 if (t < j->nk) {
                     prep_vec(j, 1, j->k + (size_t)t * (size_t)j->ldk + (size_t)h * (size_t)d,
                              j->a->pos_k ? j->a->pos_k + 2 * t : NULL, buf);
                     for (int c = 0; c < d; c++)
                         kd[(size_t)c * NR] = buf[c];
-                    memcpy(vp + (size_t)t * (size_t)d, j->v + (size_t)t * (size_t)j->ldv + (size_t)h * (size_t)d,
-                           (size_t)d * sizeof(float));
-                } else {
-                    for (int c = 0; c < d; c++)
-                        kd[(size_t)c * NR] = 0;
-                    memset(vp + (size_t)t * (size_t)d, 0, (size_t)d * sizeof(float));
+                    memcpy(vd, j->v + (size_t)t * (size_t)j->ldv + (size_t)h * (size_t)d, (size_t)d * sizeof(float));
+                    c0 = d;
+                }
+                for (int c = c0; c < dp; c++) { /* padding keys and padding columns: zeros */
+                    kd[(size_t)c * NR] = 0;
+                    vd[c] = 0;
                 }
             }
         }
@@ -84,16 +91,17 @@ static void prep_task(void *arg, int task, int thread)
     for (int h = j->h0; h < j->h0 + j->hn; h++) {
         float *qp = j->qp + (size_t)(h - j->h0) * j->head_q;
         for (int t = t0; t < t1; t++) {
-            float *qd = qp + (size_t)(t / MR) * (size_t)d * MR + (size_t)(t % MR);
+            float *qd = qp + (size_t)(t / MR) * (size_t)dp * MR + (size_t)(t % MR);
+            int c0 = 0;
             if (t < j->nq) {
                 prep_vec(j, 0, j->q + (size_t)t * (size_t)j->ldq + (size_t)h * (size_t)d,
                          j->a->pos_q ? j->a->pos_q + 2 * t : NULL, buf);
                 for (int c = 0; c < d; c++)
                     qd[(size_t)c * MR] = buf[c] * j->qscale;
-            } else {
-                for (int c = 0; c < d; c++)
-                    qd[(size_t)c * MR] = 0;
+                c0 = d;
             }
+            for (int c = c0; c < dp; c++)
+                qd[(size_t)c * MR] = 0;
         }
     }
 }
@@ -104,18 +112,18 @@ static void attn_task(void *arg, int task, int thread)
 {
     const struct attn_job *j = arg;
     const struct fk__attn_isa *isa = j->isa;
-    int hh = task / j->q_blocks, qb = task % j->q_blocks, d = j->d;
+    int hh = task / j->q_blocks, qb = task % j->q_blocks, d = j->d, dp = j->dp;
     int h = j->h0 + hh;
     const float *kp = j->kp + (size_t)hh * j->head_k, *vp = j->vp + (size_t)hh * j->head_v;
     const float *qp = j->qp + (size_t)hh * j->head_q;
     char *scr = fk__scratch(j->ctx, thread);
     float *s = (float *)scr;                  /* [6][BK]    */
-    float *o = (float *)(scr + j->off_o);     /* [QB][d]    */
+    float *o = (float *)(scr + j->off_o);     /* [QB][dp]   */
     float *ml = (float *)(scr + j->off_ml);   /* m[QB] l[QB] alpha[8] */
     float *mrow = ml, *lrow = ml + QB, *alpha = ml + 2 * QB;
     int q0 = qb * QB, rows = j->nq - q0 < QB ? j->nq - q0 : QB;
     int panels = (rows + MR - 1) / MR;
-    memset(o, 0, (size_t)panels * MR * (size_t)d * sizeof *o);
+    memset(o, 0, (size_t)panels * MR * (size_t)dp * sizeof *o);
     for (int r = 0; r < panels * MR; r++) {
         mrow[r] = -INFINITY;
         lrow[r] = 0;
@@ -123,21 +131,21 @@ static void attn_task(void *arg, int task, int thread)
     for (int kb = 0; kb < j->nk_pad / BK; kb++) {
         int valid = j->nk - kb * BK < BK ? j->nk - kb * BK : BK;
         for (int i = 0; i < panels; i++) {
-            const float *qi = qp + (size_t)(q0 / MR + i) * (size_t)d * MR;
-            const float *kb_p = kp + (size_t)kb * (BK / NR) * (size_t)d * NR;
+            const float *qi = qp + (size_t)(q0 / MR + i) * (size_t)dp * MR;
+            const float *kb_p = kp + (size_t)kb * (BK / NR) * (size_t)dp * NR;
             if (isa->s_block)
-                isa->s_block(d, qi, kb_p, s);
+                isa->s_block(dp, qi, kb_p, s);
             else
                 for (int p = 0; p < BK / NR; p++)
-                    isa->ukr_6x16(d, qi, kb_p + (size_t)p * (size_t)d * NR, s + p * NR, BK, 0);
+                    isa->ukr_6x16(dp, qi, kb_p + (size_t)p * (size_t)dp * NR, s + p * NR, BK, 0);
             isa->softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha);
-            isa->pv_tile(d, s, vp + (size_t)kb * BK * (size_t)d, o + (size_t)i * MR * (size_t)d, alpha);
+            isa->pv_tile(dp, s, vp + (size_t)kb * BK * (size_t)dp, o + (size_t)i * MR * (size_t)dp, alpha);
         }
     }
     /* one rounding per element (o * (1 / l)), as the vector versions did */
     for (int r = 0; r < rows; r++) {
         float *dst = j->out + (size_t)(q0 + r) * (size_t)j->ldo + (size_t)h * (size_t)d;
-        const float *orow = o + (size_t)r * (size_t)d;
+        const float *orow = o + (size_t)r * (size_t)dp;
         float inv = 1.0f / lrow[r];
         for (int c = 0; c < d; c++)
             dst[c] = orow[c] * inv;
@@ -186,18 +194,21 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
                            int ldo)
 {
     int d = a->head_dim;
-    if (d % 16 != 0 || d > 1024)
+    if (d > 1024)
         return fk__attention_ref(ctx, a, q, ldq, nq, k, ldk, v, ldv, nk, out, ldo);
     struct attn_job j = { 0 };
     j.isa = isa;
     j.ctx = ctx; j.a = a; j.q = q; j.k = k; j.v = v;
     j.ldq = ldq; j.ldk = ldk; j.ldv = ldv; j.ldo = ldo; j.nq = nq; j.nk = nk; j.d = d; j.out = out;
+    /* Head dims off the 16-wide tiles (the shipped model's 24) run on tiles
+     * padded with zero columns: they add nothing to q.k or to P V. */
+    j.dp = (int)fk__round_up((size_t)d, 16);
     j.nk_pad = (int)fk__round_up((size_t)nk, BK);
     j.nq_pad = (int)fk__round_up((size_t)nq, MR);
     j.qscale = (a->scale > 0 ? a->scale : 1.0f / sqrtf((float)d)) * LOG2E;
-    j.head_k = (size_t)j.nk_pad * (size_t)d;
-    j.head_v = (size_t)j.nk_pad * (size_t)d;
-    j.head_q = (size_t)j.nq_pad * (size_t)d;
+    j.head_k = (size_t)j.nk_pad * (size_t)j.dp;
+    j.head_v = (size_t)j.nk_pad * (size_t)j.dp;
+    j.head_q = (size_t)j.nq_pad * (size_t)j.dp;
     size_t per_head = (j.head_k + j.head_v + j.head_q) * sizeof(float);
     int group = (int)(GROUP_BYTES / per_head);
     if (group < 1)
@@ -211,7 +222,7 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
         span = 0; /* per-token sinf/cosf instead of a table */
     size_t table = fk__round_up((size_t)span * (size_t)(d / 4) * 2 * sizeof(float), FK_ALIGN);
     j.off_o = fk__round_up((size_t)MR * BK * sizeof(float), FK_ALIGN);
-    j.off_ml = j.off_o + fk__round_up((size_t)QB * (size_t)d * sizeof(float), FK_ALIGN);
+    j.off_ml = j.off_o + fk__round_up((size_t)QB * (size_t)j.dp * sizeof(float), FK_ALIGN);
     size_t local = j.off_ml + (2 * QB + 8) * sizeof(float) + FK_ALIGN;
     /* Reserve a bound that grows monotonically with nq / nk, not per_head * group
      * itself: a smaller problem may fit more heads per group and need more (4 views

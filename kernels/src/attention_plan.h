@@ -13,8 +13,9 @@
  *   phase 2 (parallel over head x 96-query blocks): for each 64-key block,
  *     S = Q K^T by the GEMM's 6x16 register tile, the running max / sum
  *     update, and O = alpha O + P V by a 6x16 tile, all in L1. Nothing
- *     N_q x N_k is ever stored. Head dims that are not a multiple of 16 use
- *     the reference. */
+ *     N_q x N_k is ever stored. Head dims that are not a multiple of 16 run
+ *     on tiles padded to the next multiple with zero columns (LayerNorm and
+ *     RoPE see the true head dim); above 1024 they use the reference. */
 #ifndef FK_ATTENTION_PLAN_H
 #define FK_ATTENTION_PLAN_H
 
@@ -36,7 +37,7 @@ struct fk__rope_table {
 
 /* The vector pieces of one ISA. */
 struct fk__attn_isa {
-    /* LayerNorm over t[d] (d a multiple of 16); NULL w / b mean 1 / 0 */
+    /* LayerNorm over t[d] (d a multiple of 8); NULL w / b mean 1 / 0 */
     void (*head_norm)(float *t, int d, const float *w, const float *b, float eps);
     /* 2D RoPE of t[d] at pos[2] from the table */
     void (*rope_apply)(const struct fk__rope_table *rt, float *t, int d, const int32_t *pos);

@@ -94,20 +94,30 @@ static double num(const cJSON *o, const char *key)
     return v->valuedouble;
 }
 
-/* Exactly the keys, in its order; displayed figures null (no display). */
+/* Exactly the issue's keys, in its order, then key_stage_ms (where a key's
+ * time went: four means, present once a key was streamed); displayed
+ * figures null (no display). */
 static cJSON *check_stats(const char *path)
 {
     cJSON *st = read_json(path);
     static const char *const keys[] = {"sets_captured", "sets_skipped_by_inference", "key_frames", "key_hz",
                                        "displayed_fps", "latency_ms_p50", "latency_ms_p95", "bitrate_mbps",
-                                       "rss_mb_start", "rss_mb_end"};
+                                       "rss_mb_start", "rss_mb_end", "key_stage_ms"};
     int k = 0;
     for (const cJSON *it = st->child; it; it = it->next, k++) {
-        if (k >= 10)
+        if (k >= 11)
             fail_msg("stats: extra key \"%s\"", it->string);
         assert_string_equal(it->string, keys[k]);
     }
-    assert_int_equal(k, 10);
+    const cJSON *kf = cJSON_GetObjectItemCaseSensitive(st, "key_frames");
+    assert_int_equal(k, cJSON_IsNumber(kf) && kf->valuedouble > 0 ? 11 : 10);
+    const cJSON *sm = cJSON_GetObjectItemCaseSensitive(st, "key_stage_ms");
+    static const char *const stages[] = {"preprocess", "model", "budget", "encode"};
+    for (int i = 0; sm && i < 4; i++) {
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(sm, stages[i]);
+        if (!cJSON_IsNumber(v) || !(v->valuedouble >= 0))
+            fail_msg("stats: key_stage_ms.%s missing or negative", stages[i]);
+    }
     assert_true(cJSON_IsNull(cJSON_GetObjectItemCaseSensitive(st, "displayed_fps")));
     return st;
 }

@@ -96,6 +96,8 @@ static void test_vs_reference(void **state)
         { 1, 12, 5, 70, 1, 0, 1 },  { 2, 64, 65, 65, 1, 1, 0 },
         /* d = 48, 80: AVX-512's P V tile runs 32 columns, then a 16-column tail */
         { 2, 48, 70, 70, 1, 1, 0 }, { 1, 80, 29, 130, 0, 1, 0 },
+        /* off the 16-wide tiles: the shipped model's 24 (4 views of 8x8 patches + 5 specials), 40 */
+        { 4, 24, 276, 276, 1, 1, 0 }, { 2, 40, 37, 130, 0, 1, 1 }, { 3, 24, 69, 69, 1, 0, 0 },
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
         run_case(&cases[i], 40 + i, 1.0f);

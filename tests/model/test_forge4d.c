@@ -246,6 +246,52 @@ static void test_plain_vggt(void **state)
     fk_ctx_free(ctx);
 }
 
+/* model_skip_head: the streaming path leaves the depth head out. The
+ * Gaussians, cameras and gauge are bit-identical to a full Eval, the depth is
+ * absent and the arena smaller; heads the Gaussian head reads, and skips after
+ * model_prepare, are refused. */
+static void test_skip_depth_head(void **state)
+{
+    (void)state;
+    char path[2200];
+    struct f4d_err err = {0};
+    snprintf(path, sizeof path, "%s/tiny_f4d_f32.gguf", gguf_dir);
+    fk_ctx *ctx = new_ctx();
+    struct model *full, *lean;
+    if (model_init(ctx, path, FK_W_F32, &full, &err) < 0 || model_init(ctx, path, FK_W_F32, &lean, &err) < 0)
+        fail_msg("%s", err.msg);
+    assert_int_equal(model_skip_head(lean, "point_head"), F4D_EINVAL);
+    assert_int_equal(model_skip_head(lean, "camera_head"), F4D_EINVAL);
+    assert_int_equal(model_skip_head(lean, "depth_head"), 0);
+    assert_int_equal(model_skip_head(lean, "depth_head"), 0); /* gone already: nothing to do */
+    assert_int_equal(model_prepare(full, FIX_S, FIX_H, FIX_W), 0);
+    assert_int_equal(model_prepare(lean, FIX_S, FIX_H, FIX_W), 0);
+    assert_int_equal(model_skip_head(full, "depth_head"), F4D_EINVAL);
+    assert_true(model_arena_bytes(lean) < model_arena_bytes(full));
+    float *img = load_input();
+    struct model_outputs a, b;
+    assert_int_equal(model_eval(full, img, FIX_S, FIX_H, FIX_W, &a), 0);
+    assert_int_equal(model_eval(lean, img, FIX_S, FIX_H, FIX_W, &b), 0);
+    assert_non_null(a.depth);
+    assert_null(b.depth);
+    assert_null(b.depth_conf);
+    assert_non_null(b.world_points);
+    size_t n = a.gaussians.count;
+    assert_int_equal(b.gaussians.count, n);
+    assert_memory_equal(a.gaussians.pos, b.gaussians.pos, 3 * n * sizeof(float));
+    assert_memory_equal(a.gaussians.scale, b.gaussians.scale, 3 * n * sizeof(float));
+    assert_memory_equal(a.gaussians.rot, b.gaussians.rot, 4 * n * sizeof(float));
+    assert_memory_equal(a.gaussians.opacity, b.gaussians.opacity, n * sizeof(float));
+    assert_memory_equal(a.gaussians.rgb, b.gaussians.rgb, 3 * n * sizeof(float));
+    assert_memory_equal(a.extrinsic_metric, b.extrinsic_metric, FIX_S * 12 * sizeof(float));
+    assert_memory_equal(a.intrinsic, b.intrinsic, FIX_S * 9 * sizeof(float));
+    assert_true(a.gauge == b.gauge);
+    free(img);
+    model_free(full);
+    model_free(lean);
+    fk_ctx_free(ctx);
+}
+
 /* ---- hard cases: the f32 file with one weight edit ----------------------- */
 
 struct mem_gguf {
@@ -523,6 +569,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_parity_f16),
         cmocka_unit_test(test_parity_int8),
         cmocka_unit_test(test_plain_vggt),
+        cmocka_unit_test(test_skip_depth_head),
         cmocka_unit_test(test_hard_near_zero_translations),
         cmocka_unit_test(test_hard_huge_scale),
         cmocka_unit_test(test_hard_zero_quaternion),

@@ -40,6 +40,14 @@
  * JSON: {"tiny": [{"stage","ms","gflops"}], "full": [{"precision","seconds",
  *        "max_rel_err", ...}], "stream": {...}, ...}.
  *
+ *   f4d-bench model --weights W.gguf [--views S] [--size HxW] [--reps R]
+ *                   [--skip-head PREFIX]
+ *
+ * times a given weight file (the shipped model: its own img_size unless
+ * --size) per stage at f32, f16 and int8, best of R steps (with motion
+ * weights, motion steps), and exits; --skip-head depth_head times what the
+ * streaming path (forge4d run, f4d_sequence_open) runs.
+ *
  *   f4d-bench model --write-random OUT.gguf [--preset tiny|mid]
  *
  * writes a random-weight model with every head (Forge4D's Gaussian and scale
@@ -209,6 +217,7 @@ struct result {
     struct model_stage st[16];
     int    n_st;
     double total;
+    double cpu;             /* least process CPU time of one run (all threads, spinning included) */
     float *layer, *depth;   /* copies for the error columns */
     size_t n_layer, n_depth;
     size_t arena, weights;
@@ -226,8 +235,18 @@ static double thread_cpu_s(void)
 }
 
 /* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run. */
+/* CPU seconds of this process: under load from other jobs (this 2-core box
+ * often runs at load 8-10) wall times vary 3x between runs, CPU time much less */
+static double cpu_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* skip_head: a head left out (model_skip_head, as the streaming path does), or NULL */
 static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int H, int W,
-                     int reps, int layer, int cpu_clock, struct result *r)
+                     int reps, int layer, int cpu_clock, const char *skip_head, struct result *r)
 {
     struct f4d_err err = {0};
     struct model *m;
@@ -237,7 +256,11 @@ static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int
         return -1;
     }
     float *img = malloc((size_t)S * 3 * H * W * sizeof *img);
-    int rc = img ? model_prepare(m, S, H, W) : -1;
+    int rc = img ? 0 : -1;
+    if (rc == 0 && skip_head)
+        rc = model_skip_head(m, skip_head);
+    if (rc == 0)
+        rc = model_prepare(m, S, H, W);
     if (rc < 0) {
         fprintf(stderr, "f4d-bench model: %s\n", img ? model_error(m) : "out of memory");
         free(img);
@@ -245,22 +268,24 @@ static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int
         return -1;
     }
     random_images(img, (size_t)S * 3 * H * W, 42);
-    r->total = INFINITY;
+    r->total = r->cpu = INFINITY;
     /* with motion weights the first step has no motion: time the later ones */
     const int warm = (model_groups(m) & MODEL_G_MOTION) ? 1 : 0;
     for (int i = 0; i < reps + warm; i++) {
         struct model_outputs o;
-        double t0 = bench_now(), c0 = thread_cpu_s();
+        double t0 = bench_now(), c0 = thread_cpu_s(), p0 = cpu_now();
         if (model_eval(m, img, S, H, W, &o) < 0) {
             fprintf(stderr, "f4d-bench model: %s\n", model_error(m));
             rc = -1;
             break;
         }
-        double t = bench_now() - t0, scale = 1.0;
+        double t = bench_now() - t0, scale = 1.0, tc = cpu_now() - p0;
         if (cpu_clock && fk_ctx_threads(ctx) == 1 && t > 0) {
             scale = (thread_cpu_s() - c0) / t;
             t *= scale;
         }
+        if (i >= warm && tc < r->cpu)
+            r->cpu = tc;
         if (i >= warm && !o.has_motion && warm) {
             fprintf(stderr, "f4d-bench model: step %d has no motion\n", i + 1);
             rc = -1;
@@ -316,10 +341,42 @@ static double stage_sec(const struct result *r, const char *name, double *flops)
     return 0;
 }
 
+/* --weights: one file, per stage and precision. */
+static int bench_weights(fk_ctx *ctx, const char *path, int S, int H, int W, int reps, const char *skip)
+{
+    if (H == 0) { /* the file's own input size */
+        struct f4d_err err = {0};
+        struct model *m;
+        if (model_init(ctx, path, FK_W_F32, &m, &err) < 0) {
+            fprintf(stderr, "f4d-bench model: %s\n", err.msg);
+            return 1;
+        }
+        H = W = model_get_config(m)->img_size;
+        model_free(m);
+    }
+    static const enum fk_wtype wt[3] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
+    static const char *const wn[3] = { "f32", "f16", "int8" };
+    for (int p = 0; p < 3; p++) {
+        struct result r;
+        if (run_model(ctx, path, wt[p], S, H, W, reps, 0, 0, skip, &r) < 0)
+            return 1;
+        printf("model %s%s%s: %d views %dx%d, %s, isa %s, %d threads, best of %d: %.2f ms wall, %.2f ms CPU, "
+               "arena %zu bytes\n", path, skip ? " without " : "", skip ? skip : "", S, W, H, wn[p],
+               fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_threads(ctx), reps, 1e3 * r.total, 1e3 * r.cpu, r.arena);
+        for (int i = 0; i < r.n_st; i++)
+            printf("  %-14s %9.3f ms %8.2f GFLOP/s\n", r.st[i].name, 1e3 * r.st[i].seconds,
+                   r.st[i].seconds > 0 ? 1e-9 * r.st[i].flops / r.st[i].seconds : 0.0);
+        free(r.layer);
+        free(r.depth);
+    }
+    return 0;
+}
+
 int bench_model(int argc, char **argv)
 {
-    const char *json = NULL, *tmpdir = "/tmp", *write_path = NULL, *preset = "tiny";
-    int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0, all_isas = 0;
+    const char *json = NULL, *tmpdir = "/tmp", *write_path = NULL, *preset = "tiny", *weights = NULL;
+    const char *skip_head = NULL;
+    int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0, all_isas = 0, sized = 0;
     int stream_only = 0, skip_stream = 0, cpu_clock = 0;
     enum fk_isa isa = FK_ISA_AUTO;
     for (int i = 1; i < argc; i++) {
@@ -330,7 +387,11 @@ int bench_model(int argc, char **argv)
         else if (!strcmp(argv[i], "--views") && i + 1 < argc)
             S = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--size") && i + 1 < argc && sscanf(argv[i + 1], "%dx%d", &H, &W) == 2)
-            i++;
+            i++, sized = 1;
+        else if (!strcmp(argv[i], "--weights") && i + 1 < argc)
+            weights = argv[++i];
+        else if (!strcmp(argv[i], "--skip-head") && i + 1 < argc)
+            skip_head = argv[++i];
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
             reps = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--write-random") && i + 1 < argc)
@@ -363,6 +424,8 @@ int bench_model(int argc, char **argv)
             fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
                             "[--size HxW] [--reps R] [--skip-full] [--stream-only | --skip-stream] [--clock wall|cpu] [--tmp DIR] "
                             "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n"
+                            "       f4d-bench model --weights W.gguf [--views S] [--size HxW] [--reps R] "
+                            "[--threads N] [--isa NAME] [--skip-head PREFIX]\n"
                             "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid]\n");
             return 2;
         }
@@ -388,6 +451,13 @@ int bench_model(int argc, char **argv)
             if (fk_ctx_new(&xc, &xctx[n_x]) == F4D_OK)
                 n_x++;
         }
+    if (weights) {
+        int wrc = bench_weights(ctx, weights, S, sized ? H : 0, sized ? W : 0, reps, skip_head);
+        for (int i = 0; i < n_x; i++)
+            fk_ctx_free(xctx[i]);
+        fk_ctx_free(ctx);
+        return wrc;
+    }
     printf("model: isa %s, int8 path %s", fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_q8_path(ctx));
     for (int i = 0; i < n_x; i++)
         printf(", also int8 on %s (%s)", fk_isa_name(fk_ctx_isa(xctx[i])), fk_ctx_q8_path(xctx[i]));
@@ -408,7 +478,7 @@ int bench_model(int argc, char **argv)
     const int tS = 4, tH = 126, tW = 168;
     struct result tr;
     if (bench_write_random_model(path, &tiny, MODEL_G_ALL) < 0 ||
-        run_model(ctx, path, FK_W_F32, tS, tH, tW, 5 * reps, tiny.depth - 1, cpu_clock, &tr) < 0)
+        run_model(ctx, path, FK_W_F32, tS, tH, tW, 5 * reps, tiny.depth - 1, cpu_clock, NULL, &tr) < 0)
         goto done;
     remove(path);
     printf("model tiny (embed %d, depth %d, dino %d; %d views %dx%d), f32, %d threads, "
@@ -505,7 +575,7 @@ int bench_model(int argc, char **argv)
             /* the machine may be shared: the peak of this run's vector width
              * (zmm for AVX-512, else ymm) is re-measured beside each run */
             peak_run[p] = bench_fma_peak_gflops_isa(nthr, 3, fk_ctx_isa(rctx[p]));
-            ok = run_model(rctx[p], path, wts[p], S, H, W, 1, 0, cpu_clock, &fr[p]) == 0;
+            ok = run_model(rctx[p], path, wts[p], S, H, W, 1, 0, cpu_clock, NULL, &fr[p]) == 0;
             if (ok) {
                 printf("full dims, one block each, %d views %dx%d, %s weights (%zu bytes "
                        "packed, arena %zu bytes):\n", S, W, H, wn[p], fr[p].weights, fr[p].arena);
@@ -590,7 +660,7 @@ stream:;
             struct result wr;
             if (bench_write_random_model(path, &sc, g | (k ? 0u : MODEL_G_DEPTH)) < 0)
                 goto done;
-            sok = run_model(ctx, path, FK_W_F32, S, H, W, k ? 1 : reps, 0, cpu_clock, k ? &wr : &sr) == 0;
+            sok = run_model(ctx, path, FK_W_F32, S, H, W, k ? 1 : reps, 0, cpu_clock, NULL, k ? &wr : &sr) == 0;
             remove(path);
             if (!sok)
                 goto done;

@@ -1039,7 +1039,9 @@ int budget_prune_origin_ws(const struct splat_frame *in, const struct splat_rig 
         double w = 0, p[3] = { 0, 0, 0 }, c3[3] = { 0, 0, 0 }, S[3][3] = { { 0 } }, P2[3][3] = { { 0 } };
         float omax = -1.0f;
         uint32_t best = vx[s].i;
-        for (size_t k = s; k < e; k++) {
+        if (e - s == 1) /* a Gaussian alone in its cell is copied below: no moments to gather (most of them) */
+            omax = in->opacity[best] > omax ? in->opacity[best] : omax; /* as the loop would */
+        for (size_t k = s; k < e && e - s > 1; k++) {
             uint32_t i = vx[k].i;
             double wi = in->opacity[i] + 1e-6;
             w += wi;

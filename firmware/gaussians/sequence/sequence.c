@@ -236,6 +236,12 @@ int f4d_sequence_open(fk_ctx *ctx, const char *weights, enum fk_wtype wtype, int
     int rc = model_init(ctx, weights, wtype, &m, err);
     if (rc < 0)
         return rc;
+    /* keys need Gaussians, cameras, gauge and motion, never the depth map */
+    if ((rc = model_skip_head(m, "depth_head")) < 0) {
+        f4d_fail(err, rc, "sequence: %s", model_error(m));
+        model_free(m);
+        return rc;
+    }
     if ((rc = open_common(m, 1, views, height, width, out, err)) < 0) {
         model_free(m);
         return rc;

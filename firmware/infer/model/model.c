@@ -361,6 +361,35 @@ int model_register_head(struct model *m, const struct model_head_ops *ops)
     return 0;
 }
 
+int model_skip_head(struct model *m, const char *prefix)
+{
+    if (!m || !prefix)
+        return F4D_EINVAL;
+    if (m->arena)
+        return model_fail(m, F4D_EINVAL, "model: head '%s' skipped after model_prepare", prefix);
+    int at = -1, gauss = 0;
+    for (int i = 0; i < m->n_heads; i++) {
+        at = strcmp(m->head_ops[i]->prefix, prefix) ? at : i;
+        gauss |= !strcmp(m->head_ops[i]->prefix, "gaussian_head");
+    }
+    if (at < 0)
+        return 0; /* not in this file: nothing runs anyway */
+    /* the Gaussian head reads the point head's X and the camera head's poses */
+    if (gauss && (!strcmp(prefix, "point_head") || !strcmp(prefix, "camera_head")))
+        return model_fail(m, F4D_EINVAL, "model: '%s' cannot be skipped: gaussian_head reads it", prefix);
+    m->head_ops[at]->free(m->head[at]);
+    for (int i = at; i + 1 < m->n_heads; i++) {
+        m->head_ops[i] = m->head_ops[i + 1];
+        m->head[i] = m->head[i + 1];
+    }
+    m->n_heads--;
+    /* layers only the skipped head read are no longer kept */
+    m->keep = 0; /* only heads ask for kept layers (model_register_head) */
+    for (int i = 0; i < m->n_heads; i++)
+        m->keep |= m->head_ops[i]->layers(m->head[i]);
+    return 0;
+}
+
 /* Every tensor of the file belongs to the schema of a group (or is an int8
  * scale) or to a registered head: anything else is refused by name. */
 static int check_unknown(struct model *m)

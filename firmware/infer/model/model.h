@@ -323,6 +323,13 @@ int   model_init_gguf   (fk_ctx *ctx, gguf_file *gf, enum fk_wtype wtype,
                          struct model **out, struct f4d_err *err);
 /* Adds a head after the built-in ones; before model_prepare. */
 int   model_register_head(struct model *m, const struct model_head_ops *ops);
+/* Leaves a loaded head out of Eval (its outputs stay NULL, its arena share and
+ * any layer only it read are not planned); before model_prepare. For consumers
+ * that never read an output: the streaming path needs no depth map, so it
+ * skips "depth_head", a third of a key frame's DPT work. 0 also when the file
+ * has no such head; F4D_EINVAL after model_prepare or for a head another one
+ * reads (point_head, camera_head under gaussian_head). */
+int   model_skip_head   (struct model *m, const char *prefix);
 int   model_prepare     (struct model *m, int max_views, int max_h, int max_w);
 /* S <= max_views, H <= max_h, W <= max_w of model_prepare, else F4D_EINVAL. */
 int   model_eval        (struct model *m, const float *images, int S, int H, int W,

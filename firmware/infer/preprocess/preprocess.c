@@ -61,6 +61,7 @@ static size_t bytes_for(int w, int h, int nw, int nh)
 {
     size_t b = (size_t)w * h * 3 + (size_t)nw * h * 3 + (size_t)nw * nh * 3;
     b += coeff_bytes(w, nw) + coeff_bytes(h, nh) + 64;
+    b += (size_t)nw * 3 * sizeof(int32_t) + 64; /* the vertical pass's row of sums */
     return b;
 }
 
@@ -182,54 +183,78 @@ static int place(const struct prep_image *im, enum prep_mode mode, int target, v
     /* scratch: int32 coefficients first (aligned), then the byte images */
     int32_t *hb = scratch, *hk = hb + 2 * nw;
     int32_t *vb = hk + (size_t)nw * ksize_of(w, nw), *vk = vb + 2 * nh;
-    uint8_t *rgb = (uint8_t *)(vk + (size_t)nh * ksize_of(h, nh));
+    int32_t *acc = vk + (size_t)nh * ksize_of(h, nh); /* [nw * 3] */
+    uint8_t *rgb = (uint8_t *)(acc + (size_t)nw * 3);
     uint8_t *tmp = rgb + (size_t)w * h * 3, *res = tmp + (size_t)nw * h * 3;
 
-    for (int y = 0; y < h; y++) {
-        const uint8_t *row = im->data + (size_t)y * im->stride;
-        uint8_t *o = rgb + (size_t)y * w * 3;
-        if (im->pixfmt == PREP_PIXFMT_RGB8)
-            memcpy(o, row, (size_t)w * 3);
-        else if (im->pixfmt == PREP_PIXFMT_MONO8)
-            for (int x = 0; x < w; x++)
-                o[3 * x] = o[3 * x + 1] = o[3 * x + 2] = row[x];
+    /* RGB8 frames are read in place (rows of `stride` bytes); the others are
+     * converted to packed RGB8 first */
+    const uint8_t *src = im->data;
+    size_t src_stride = im->stride;
+    if (im->pixfmt != PREP_PIXFMT_RGB8) {
+        if (im->pixfmt == PREP_PIXFMT_MONO8)
+            for (int y = 0; y < h; y++) {
+                const uint8_t *row = im->data + (size_t)y * im->stride;
+                uint8_t *o = rgb + (size_t)y * w * 3;
+                for (int x = 0; x < w; x++)
+                    o[3 * x] = o[3 * x + 1] = o[3 * x + 2] = row[x];
+            }
+        else
+            prep_demosaic_rggb(im->data, im->stride, w, h, rgb);
+        src = rgb;
+        src_stride = (size_t)w * 3;
     }
-    if (im->pixfmt == PREP_PIXFMT_BAYER_RG8)
-        prep_demosaic_rggb(im->data, im->stride, w, h, rgb);
 
-    /* PIL: horizontal pass first, each pass rounded to 8 bits. */
-    const uint8_t *hsrc = rgb;
+    /* PIL: horizontal pass first, each pass rounded to 8 bits. The sums are
+     * PIL's integer sums (exact in any order), taken three channels at a time
+     * horizontally and a whole row at a time vertically. */
+    const uint8_t *hsrc = src;
+    size_t hstride = src_stride;
     if (nw != w) {
         const int ks = ksize_of(w, nw);
         coeffs(w, nw, hb, hk);
-        for (int y = 0; y < h; y++)
+        for (int y = 0; y < h; y++) {
+            const uint8_t *row = src + (size_t)y * src_stride;
+            uint8_t *o = tmp + (size_t)y * nw * 3;
             for (int x = 0; x < nw; x++) {
                 const int32_t *k = hk + (size_t)x * ks;
-                const uint8_t *p = rgb + ((size_t)y * w + hb[2 * x]) * 3;
-                for (int c = 0; c < 3; c++) {
-                    int32_t ss = 1 << (PREC_BITS - 1);
-                    for (int j = 0; j < hb[2 * x + 1]; j++)
-                        ss += p[3 * j + c] * k[j];
-                    tmp[((size_t)y * nw + x) * 3 + c] = clip8(ss);
+                const uint8_t *p = row + (size_t)hb[2 * x] * 3;
+                int32_t s0 = 1 << (PREC_BITS - 1), s1 = s0, s2 = s0;
+                for (int j = 0; j < hb[2 * x + 1]; j++) {
+                    s0 += p[3 * j] * k[j];
+                    s1 += p[3 * j + 1] * k[j];
+                    s2 += p[3 * j + 2] * k[j];
                 }
+                o[3 * x] = clip8(s0);
+                o[3 * x + 1] = clip8(s1);
+                o[3 * x + 2] = clip8(s2);
             }
+        }
         hsrc = tmp;
+        hstride = (size_t)nw * 3;
     }
     const uint8_t *img = hsrc;
+    size_t istride = hstride;
     if (nh != h) {
         const int ks = ksize_of(h, nh);
+        const size_t n3 = (size_t)nw * 3;
         coeffs(h, nh, vb, vk);
         for (int y = 0; y < nh; y++) {
             const int32_t *k = vk + (size_t)y * ks;
-            for (int x = 0; x < nw; x++)
-                for (int c = 0; c < 3; c++) {
-                    int32_t ss = 1 << (PREC_BITS - 1);
-                    for (int j = 0; j < vb[2 * y + 1]; j++)
-                        ss += hsrc[(((size_t)vb[2 * y] + j) * nw + x) * 3 + c] * k[j];
-                    res[((size_t)y * nw + x) * 3 + c] = clip8(ss);
-                }
+            for (size_t i = 0; i < n3; i++)
+                acc[i] = 1 << (PREC_BITS - 1);
+            for (int j = 0; j < vb[2 * y + 1]; j++) {
+                const uint8_t *row = hsrc + ((size_t)vb[2 * y] + (size_t)j) * hstride;
+                const int32_t kj = k[j];
+                for (size_t i = 0; i < n3; i++)
+                    acc[i] += row[i] * kj;
+            }
+            uint8_t *o = res + (size_t)y * n3;
+            for (size_t i = 0; i < n3; i++)
+                o[i] = clip8(acc[i]);
         }
         img = res;
+        istride = (size_t)nw * 3;
     }
     /* crop: centre rows; pad: centred with white; then the batch offset. */
     int r0 = 0, rows = nh, pt = 0, pl = 0;
@@ -249,7 +274,7 @@ static int place(const struct prep_image *im, enum prep_mode mode, int target, v
         for (int y = 0; y < rows; y++)
             for (int x = 0; x < nw; x++)
                 out[((size_t)c * OH + top + y) * OW + left + x] =
-                    (float)img[(((size_t)r0 + y) * nw + x) * 3 + c] / 255.0f;
+                    (float)img[((size_t)r0 + y) * istride + (size_t)x * 3 + c] / 255.0f;
     return 0;
 }
 

@@ -40,7 +40,7 @@ static void rope_apply(const struct fk__rope_table *rt, float *t, int d, const i
     }
 }
 
-/* LayerNorm over d (a multiple of 16) in registers. */
+/* LayerNorm over d (a multiple of 8) in registers. */
 static void head_norm(float *t, int d, const float *w, const float *b, float eps)
 {
     float32x4_t s = vdupq_n_f32(0.0f);

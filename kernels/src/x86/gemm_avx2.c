@@ -16,6 +16,7 @@
  * bit-identical results. int8 packs A whole (rows are quantized with their
  * full-row scale) and walks it in k blocks of 4 kc. */
 #include <immintrin.h>
+#include <limits.h>
 #include <math.h>
 #include <string.h>
 
@@ -234,23 +235,62 @@ static inline void transpose_6x8(const float *const r[MR], int k0, float *d)
     _mm256_storeu_ps(d + 7 * MR, _mm256_permute2f128_ps(u3, u7, 0x31));
 }
 
+/* pack_a_f32 for a convolution: each tap's run of channels is transposed
+ * straight from the image (or the zero row for padding and rows past the
+ * end), six output pixels at a time, without gathering whole im2col rows
+ * first (at 8 channels a tap that was a memcpy call per 8 floats). */
+static void pack_a_conv_f32(const struct fk__asrc *src, int m0, int rows, int k0, int k, float *ap,
+                            const float *zeros)
+{
+    for (int i = 0; i * MR < rows; i++) {
+        int oy[MR], ox[MR];
+        for (int rr = 0; rr < MR; rr++) {
+            int row = i * MR + rr, m = m0 + row;
+            oy[rr] = row < rows ? m / src->wo * src->stride - src->pad : INT_MIN / 2;
+            ox[rr] = row < rows ? m % src->wo * src->stride - src->pad : INT_MIN / 2;
+        }
+        float *d = ap + (size_t)i * (size_t)k * MR;
+        for (int kk = 0; kk < k;) {
+            int kab = k0 + kk, tap = kab / src->cin, c = kab % src->cin;
+            int ky = tap / src->kw, kx = tap % src->kw, run = src->cin - c;
+            run = run < k - kk ? run : k - kk;
+            const float *r[MR];
+            for (int rr = 0; rr < MR; rr++) {
+                int iy = oy[rr] + ky, ix = ox[rr] + kx;
+                r[rr] = iy < 0 || iy >= src->h || ix < 0 || ix >= src->w
+                            ? zeros
+                            : src->x + ((size_t)iy * (size_t)src->w + (size_t)ix) * (size_t)src->cin + (size_t)c;
+            }
+            float *dk = d + (size_t)kk * MR;
+            int j = 0;
+            for (; j + 8 <= run; j += 8)
+                transpose_6x8(r, j, dk + (size_t)j * MR);
+            for (; j < run; j++)
+                for (int rr = 0; rr < MR; rr++)
+                    dk[(size_t)j * MR + (size_t)rr] = r[rr][j];
+            kk += run;
+        }
+    }
+}
+
 /* Columns [k0, k0 + k) of rows [m0, m0 + rows) of A as micro-panels
  * [i][k][6], zero rows to pad (zeros holds k floats). Writes up to 2 floats
  * past the last panel (the scratch has room). */
 static void pack_a_f32(const struct fk__asrc *src, int m0, int rows, int k0, int k, float *ap,
-                       float *tmp, const float *zeros)
+                       const float *zeros)
 {
+    if (src->conv) {
+        pack_a_conv_f32(src, m0, rows, k0, k, ap, zeros);
+        return;
+    }
     for (int i = 0; i * MR < rows; i++) {
         const float *r[MR];
         for (int rr = 0; rr < MR; rr++) {
             int row = i * MR + rr;
             if (row >= rows) {
                 r[rr] = zeros;
-            } else if (!src->conv) {
-                r[rr] = src->x + (size_t)(m0 + row) * (size_t)src->ldx + (size_t)k0;
             } else {
-                fk__asrc_row(src, m0 + row, k0, k, tmp + (size_t)rr * (size_t)k);
-                r[rr] = tmp + (size_t)rr * (size_t)k;
+                r[rr] = src->x + (size_t)(m0 + row) * (size_t)src->ldx + (size_t)k0;
             }
         }
         float *d = ap + (size_t)i * (size_t)k * MR;
@@ -416,6 +456,9 @@ store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0,
 
 enum q8_path { Q8_EXACT16, Q8_VNNI, Q8_7BIT };
 
+/* fewest input channels of a stride-1 convolution read in place (see fk__gemm_avx2) */
+#define FK_DIRECT_MIN_CIN 16
+
 struct gemm_job {
     fk_ctx                   *ctx;
     const struct fk_linear   *L;
@@ -471,7 +514,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
             kc = j->direct ? src->cin - k0 % src->cin : k - k0;
             kc = kc < KC ? kc : KC;
             if (!j->direct)
-                pack_a_f32(src, m0, rows, k0, kc, ap, (float *)(s + j->off_tmp), zeros);
+                pack_a_f32(src, m0, rows, k0, kc, ap, zeros);
             /* AVX-512: two panels per step (a 6x32 tile), the direct conv stays 6x16 */
             int step = j->wide && !j->direct ? 2 : 1;
             size_t esz = f32 ? 4 : 2, sliver_lines = (size_t)kc * NR * esz / 64;
@@ -630,8 +673,13 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     if (j.wide) /* two slivers share the half of L1 that one had */
         j.kc = bl.kc / 2 / 8 * 8 > 8 ? bl.kc / 2 / 8 * 8 : 8;
     j.nc_panels = bl.nc / NR > 0 ? bl.nc / NR : 1;
-    /* stride-1 convolutions (3x3 in the DPT heads) read A in place */
-    j.direct = !q8 && a->conv && a->stride == 1;
+    /* stride-1 convolutions (3x3 in the DPT heads) read A in place when a
+     * tap's channels make a k block worth a micro-kernel call: at 8 channels
+     * (the shipped model's full-resolution 3x3, 8 -> 32 at 112 x 112) a call
+     * per tap of 8 k-steps spends more on row pointers and C-tile reloads
+     * than on FMAs: packed (pack_a_conv_f32) it ran 1.6-2x faster (CPU time,
+     * one thread); at 16 channels both ways ran alike */
+    j.direct = !q8 && a->conv && a->stride == 1 && a->cin >= FK_DIRECT_MIN_CIN;
     int mc = bl.mc / MR * MR;
     if (mc < MR)
         mc = MR;
@@ -679,7 +727,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.off_c = bytes_a;
     j.off_b = j.off_c + fk__round_up(mcp * (size_t)np * NR * 4, FK_ALIGN);
     j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : fk__round_up((size_t)kcb * NR * 4 * 2, FK_ALIGN));
-    size_t tmp = a->conv && !j.direct ? (q8 ? (size_t)k * 4 : (size_t)MR * (size_t)kcb * 4) : 0;
+    size_t tmp = a->conv && q8 ? (size_t)k * 4 : 0; /* pack_a_q8's im2col row */
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
     /* a row of zeros stands in for the padding rows of the last micro-panel */
