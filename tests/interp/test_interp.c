@@ -282,6 +282,44 @@ static void test_step_matches_pair_at(void **state)
     fk_ctx_free(c2);
 }
 
+/* Two empty keys (a budget that pruned everything): prepared and stepped like
+ * any pair, zero Gaussians out, no error (the display met this in a report run). */
+static void test_step_empty_pair(void **state)
+{
+    (void)state;
+    struct f4d_err err;
+    fk_ctx *c;
+    struct fk_ctx_config kc = { .isa = FK_ISA_AUTO, .threads = 1 };
+    assert_int_equal(fk_ctx_new(&kc, &c), 0);
+    scene *s;
+    assert_int_equal(scene_new(SCENE_WALK, 5, 1000, &s, &err), 0);
+    struct splat_rig rig;
+    scene_default_rig(s, 2, 32, 32, &rig);
+    struct splat_frame f0 = { 0 }, f1 = { 0 }, out = { 0 };
+    assert_int_equal(splat_frame_resize(&f0, 0, 1, &err), 0);
+    assert_int_equal(splat_frame_resize(&f1, 0, 1, &err), 0);
+    interp *ip;
+    assert_int_equal(interp_new(c, &rig, &ip, &err), 0);
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    assert_int_equal(interp_key_build(ip, &f0, &k0, &err), 0);
+    assert_int_equal(interp_key_build(ip, &f1, &k1, &err), 0);
+    struct interp_config cfg = interp_config_default();
+    struct interp_pair pr = { 0 };
+    assert_int_equal(interp_pair_build(ip, &k0, &k1, &cfg, &pr, &err), 0);
+    assert_int_equal(interp_pair_prepare(ip, &pr, &cfg, &out, &err), 0);
+    assert_int_equal(interp_pair_step(ip, &pr, 0.5f, &out, &err), 0);
+    assert_int_equal(out.count, 0);
+    interp_pair_free(&pr);
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    interp_free(ip);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    splat_frame_free(&out);
+    scene_free(s);
+    fk_ctx_free(c);
+}
+
 /* interp_pair_at (partners found once per key pair) gives interp_at's frame
  * bit for bit at every a, on a real scene with fused, kept and dropped ones. */
 static void test_pair_matches_interp_at(void **state)
@@ -715,6 +753,7 @@ int main(void)
         cmocka_unit_test(test_gt_interpolation_beats_nearest_on_every_preset),
         cmocka_unit_test(test_pair_matches_interp_at),
         cmocka_unit_test(test_step_matches_pair_at),
+        cmocka_unit_test(test_step_empty_pair),
         cmocka_unit_test(test_budget),
         cmocka_unit_test(test_budget_ws),
         cmocka_unit_test(test_budget_motion),

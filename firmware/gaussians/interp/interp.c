@@ -755,9 +755,11 @@ int interp_pair_prepare(interp *ip, struct interp_pair *pr, const struct interp_
     for (int t = 0; t < PREP_TASKS; t++)
         j.off[t + 1] += j.off[t];
     size_t n = F1->count + j.off[PREP_TASKS];
-    if (3 * n > pr->cap_out) {
+    if (3 * n >= pr->cap_out) {
         /* sized for out's capacity, not this pair's count: the pairs of a
-         * stream differ in size, and a later larger one must not allocate */
+         * stream differ in size, and a later larger one must not allocate;
+         * ">=": an empty pair (n = 0) still leaves the buffers non-NULL, so
+         * interp_pair_step can tell prepared from not */
         size_t want = 3 * (out->capacity > n ? out->capacity : n) + 1;
         float *p = realloc(pr->pos0, want * sizeof *p);
         if (p)
