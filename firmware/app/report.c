@@ -583,7 +583,9 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
         goto done;
     }
     for (int i = 0; i < ntakes; i++)
-        if (score_take_load(take_dirs[i], &takes[i], &err) < 0) {
+        if (score_take_load(take_dirs[i], &takes[i], &err) < 0 ||
+            (!takes[i].E && f4d_fail(&err, F4D_EFORMAT, "take %s: no held-out cameras (eval_rgb.npy; venue --eval 0): "
+                                     "the report scores novel views", take_dirs[i]) < 0)) {
             fprintf(stderr, "forge4d report: %s\n", err.msg);
             goto done;
         }

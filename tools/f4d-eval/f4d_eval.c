@@ -42,31 +42,25 @@
  * when they have no fusion MLP; novel view when the take has no held-out
  * cameras (venue --eval 0). LPIPS needs network weights this project
  * cannot ship: absent. Without --weights the shipped model is used
- * (firmware/infer/weights). */
+ * (firmware/infer/weights). The take, its cameras in view 0's frame, the
+ * renders, PSNR / SSIM, point distance and camera errors come from
+ * firmware/gaussians/score (f4d_score.h), which forge4d report scores with
+ * too; the foreground motion EPE (both directions) and TL-STD are f4d-eval's. */
 #include <cjson/cJSON.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-#include <unistd.h>
 
+#include "f4d_score.h"
 #include "f4d_sequence.h"
 #include "model.h"
-#include "npy.h"
 #include "splat.h"
 #include "weights.h"
 
 /* |m| above this (metres per key interval) marks a moving, foreground pixel */
 #define EVAL_MOVING_M 1e-6
-
-struct take {
-    int    T, V, E, H, W;
-    float *rgb, *depth, *alpha, *ergb;
-    float *mbwd, *mfwd, *mid;  /* [T,V,H,W,3] x 2, [T-1,V+E,H,W,3]; NULL when absent */
-    struct splat_rig rig, erig;
-    float  sky[3];
-};
 
 struct row {
     const char *precision;
@@ -80,128 +74,6 @@ static double now_ms(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return 1e3 * (double)ts.tv_sec + 1e-6 * (double)ts.tv_nsec;
-}
-
-static int load(const char *dir, const char *name, float **a, int64_t *shape, int want_nd, struct f4d_err *err)
-{
-    char path[4096];
-    int nd;
-    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-    if (npy_load_f32(path, a, shape, &nd, err) < 0)
-        return -1;
-    if (nd != want_nd)
-        return f4d_fail(err, F4D_EFORMAT, "%s: %d dimensions, expected %d", path, nd, want_nd);
-    return 0;
-}
-
-static int exists(const char *dir, const char *name)
-{
-    char path[4096];
-    snprintf(path, sizeof path, "%s/%s.npy", dir, name);
-    return access(path, R_OK) == 0;
-}
-
-static int same5(const int64_t *s, int64_t a, int64_t b, int64_t h, int64_t w)
-{
-    return s[0] == a && s[1] == b && s[2] == h && s[3] == w && s[4] == 3;
-}
-
-static int take_load(const char *dir, struct take *t, struct f4d_err *err)
-{
-    int64_t s[NPY_MAX_DIMS], s2[NPY_MAX_DIMS], s3[NPY_MAX_DIMS];
-    memset(t, 0, sizeof *t);
-    if (load(dir, "rgb", &t->rgb, s, 5, err) < 0)
-        return -1;
-    t->T = (int)s[0], t->V = (int)s[1], t->H = (int)s[2], t->W = (int)s[3];
-    if (load(dir, "depth", &t->depth, s2, 4, err) < 0 || load(dir, "alpha", &t->alpha, s2, 4, err) < 0)
-        return -1;
-    if (s[4] != 3)
-        return f4d_fail(err, F4D_EFORMAT, "take %s: rgb has %d channels, expected 3", dir, (int)s[4]);
-    /* a take without held-out cameras (venue --eval 0) has no eval_* files */
-    if (exists(dir, "eval_rgb")) {
-        if (load(dir, "eval_rgb", &t->ergb, s2, 5, err) < 0)
-            return -1;
-        t->E = (int)s2[1];
-        if (!same5(s2, t->T, t->E, t->H, t->W))
-            return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
-    }
-    /* motion and mid times: only for takes of two keys or more (older takes
-     * without them still give the per-key columns) */
-    if (t->T >= 2 && exists(dir, "motion_bwd") && exists(dir, "motion_fwd") && exists(dir, "mid_rgb")) {
-        if (load(dir, "motion_bwd", &t->mbwd, s3, 5, err) < 0)
-            return -1;
-        if (!same5(s3, t->T, t->V, t->H, t->W))
-            return f4d_fail(err, F4D_EFORMAT, "take %s: motion_bwd is not [%d,%d,%d,%d,3]", dir, t->T, t->V, t->H,
-                            t->W);
-        if (load(dir, "motion_fwd", &t->mfwd, s3, 5, err) < 0)
-            return -1;
-        if (!same5(s3, t->T, t->V, t->H, t->W))
-            return f4d_fail(err, F4D_EFORMAT, "take %s: motion_fwd is not [%d,%d,%d,%d,3]", dir, t->T, t->V, t->H,
-                            t->W);
-        if (load(dir, "mid_rgb", &t->mid, s3, 5, err) < 0)
-            return -1;
-        if (!same5(s3, t->T - 1, t->V + t->E, t->H, t->W))
-            return f4d_fail(err, F4D_EFORMAT, "take %s: mid_rgb is not [%d,%d,%d,%d,3]", dir, t->T - 1, t->V + t->E,
-                            t->H, t->W);
-    }
-    char path[4096];
-    snprintf(path, sizeof path, "%s/rig.json", dir);
-    if (splat_rig_load(path, &t->rig, err) < 0)
-        return -1;
-    snprintf(path, sizeof path, "%s/eval_rig.json", dir);
-    if (t->E && splat_rig_load(path, &t->erig, err) < 0)
-        return -1;
-    if (t->rig.count != t->V || t->erig.count != t->E)
-        return f4d_fail(err, F4D_EFORMAT, "take %s: rigs have %d + %d cameras, arrays %d + %d", dir, t->rig.count,
-                        t->erig.count, t->V, t->E);
-    snprintf(path, sizeof path, "%s/take.json", dir);
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return f4d_fail(err, F4D_EIO, "cannot open %s", path);
-    char buf[8192];
-    size_t n = fread(buf, 1, sizeof buf - 1, f);
-    fclose(f);
-    buf[n] = '\0';
-    cJSON *j = cJSON_Parse(buf);
-    cJSON *sky = j ? cJSON_GetObjectItem(j, "sky") : NULL;
-    if (!cJSON_IsArray(sky) || cJSON_GetArraySize(sky) != 3) {
-        cJSON_Delete(j);
-        return f4d_fail(err, F4D_EFORMAT, "%s: no \"sky\": [r, g, b]", path);
-    }
-    for (int k = 0; k < 3; k++)
-        t->sky[k] = (float)cJSON_GetArrayItem(sky, k)->valuedouble;
-    cJSON_Delete(j);
-    return 0;
-}
-
-static void take_free(struct take *t)
-{
-    free(t->rgb); free(t->depth); free(t->alpha); free(t->ergb);
-    free(t->mbwd); free(t->mfwd); free(t->mid);
-}
-
-/* c = a * b for 4x4 row-major. */
-static void mul44(const float *a, const float *b, float *c)
-{
-    for (int i = 0; i < 4; i++)
-        for (int j = 0; j < 4; j++) {
-            double s = 0;
-            for (int k = 0; k < 4; k++)
-                s += (double)a[4 * i + k] * b[4 * k + j];
-            c[4 * i + j] = (float)s;
-        }
-}
-
-/* Inverse of a rigid [R | t] (row-major 4x4). */
-static void rigid_inv(const float *m, float *o)
-{
-    memset(o, 0, 16 * sizeof *o);
-    for (int i = 0; i < 3; i++) {
-        for (int j = 0; j < 3; j++)
-            o[4 * i + j] = m[4 * j + i];
-        o[4 * i + 3] = -(m[i] * m[3] + m[4 + i] * m[7] + m[8 + i] * m[11]);
-    }
-    o[15] = 1.0f;
 }
 
 /* Temporal luma statistics per camera and pixel, one frame at a time: the
@@ -254,24 +126,6 @@ static double tl_value(const struct tl_acc *a)
     return acc / a->cams;
 }
 
-struct evalws {
-    splat_renderer *ren;
-    float *out, *ssim_scratch;
-    float  sky[3];
-    int    W, H;
-};
-
-/* Renders f at cam into ws->out, clamped to [0, 1] as an image is. */
-static int render(struct evalws *ws, const struct splat_camera *cam, const struct splat_frame *f, struct f4d_err *err)
-{
-    struct splat_render_out ro = { .rgb = ws->out };
-    if (splat_render(ws->ren, cam, f, ws->sky, &ro) < 0)
-        return f4d_fail(err, F4D_EINVAL, "%s", splat_renderer_error(ws->ren));
-    for (size_t i = 0; i < 3 * (size_t)ws->W * ws->H; i++)
-        ws->out[i] = ws->out[i] < 0 ? 0 : (ws->out[i] > 1 ? 1 : ws->out[i]);
-    return 0;
-}
-
 /* Sum of |pred - R0 gt| over valid pixels, all and moving (foreground). */
 static void epe_add(const float *pred, const float *gt, const float *alpha, const float *R0, size_t n, double *all,
                     size_t *n_all, double *fg, double *fg_zero, size_t *n_fg)
@@ -296,23 +150,21 @@ static void epe_add(const float *pred, const float *gt, const float *alpha, cons
     }
 }
 
-static int eval_precision(const struct take *t, const char *weights, enum fk_wtype wt, int keys, int threads,
+static int eval_precision(const struct score_take *t, const char *weights, enum fk_wtype wt, int keys, int threads,
                           struct row *r, struct f4d_err *err)
 {
     fk_ctx *ctx = NULL;
     struct model *m = NULL;
     f4d_sequence *sq = NULL;
-    struct evalws ws = { .W = t->W, .H = t->H };
+    score_view *sv = NULL;
     struct tl_acc tl_f = { 0 }, tl_u = { 0 }, tl_g = { 0 };
     int rc = -1;
     const int V = t->V, E = t->E, C = t->V + t->E, H = t->H, W = t->W;
     const size_t np = (size_t)H * W;
     float *img = malloc((size_t)V * 3 * np * sizeof(float));
-    ws.out = malloc(3 * np * sizeof(float));
-    ws.ssim_scratch = malloc(splat_ssim_scratch_floats(W, H) * sizeof(float));
-    memcpy(ws.sky, t->sky, sizeof ws.sky);
+    float *scratch = malloc(score_input_scratch_floats(t) * sizeof(float));
     struct fk_ctx_config cc = { .isa = FK_ISA_AUTO, .threads = threads };
-    if (!img || !ws.out || !ws.ssim_scratch) {
+    if (!img || !scratch) {
         f4d_fail(err, F4D_ENOMEM, "f4d-eval: out of memory");
         goto done;
     }
@@ -328,7 +180,7 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     }
     if (f4d_sequence_open_model(m, V, H, W, &sq, err) < 0)
         goto done;
-    if (splat_renderer_new(ctx, W, H, &ws.ren, err) < 0)
+    if (score_view_new(ctx, t, &sv, err) < 0)
         goto done;
     if (keys <= 0 || keys > t->T)
         keys = t->T;
@@ -340,7 +192,7 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     if (keys < 2)
         snprintf(r->why_time, sizeof r->why_time, "%s", t->T < 2 ? "the take has one key (no mid time, no motion)"
                                                                   : "--keys 1 (no mid time, no motion)");
-    else if (!t->mid)
+    else if (!t->mid || !t->motion_bwd || !t->motion_fwd)
         snprintf(r->why_time, sizeof r->why_time, "the take has no motion_bwd / motion_fwd / mid_rgb arrays");
     else if (!has_motion)
         snprintf(r->why_time, sizeof r->why_time, "the weights have no motion part (motion.*, motion_head.*)");
@@ -353,12 +205,11 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     }
     /* the true cameras in view 0's frame (the model's world) */
     struct splat_camera cams[2 * SPLAT_RIG_MAX];
-    float inv0[16];
-    rigid_inv(t->rig.cams[0].w2c, inv0);
     for (int c = 0; c < C; c++) {
-        const struct splat_camera *src = c < V ? &t->rig.cams[c] : &t->erig.cams[c - V];
-        cams[c] = *src;
-        mul44(src->w2c, inv0, cams[c].w2c);
+        if (c < V)
+            score_input_camera(t, c, &cams[c]);
+        else
+            score_eval_camera(t, c - V, &cams[c]);
     }
     const float *R0 = t->rig.cams[0].w2c;
     double ms = 0, psnr = 0, ssim = 0, pd = 0, re = 0, te = 0, ntp = 0, nts = 0, ntpa = 0, ea = 0, ef = 0, ez = 0;
@@ -366,10 +217,8 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     int n_img = 0, n_cam = 0, n_mid = 0;
     size_t n_pt = 0, n_ea = 0, n_ef = 0;
     for (int k = 0; k < keys; k++) {
-        for (int v = 0; v < V; v++)
-            for (int c = 0; c < 3; c++)
-                for (size_t p = 0; p < np; p++)
-                    img[((size_t)v * 3 + c) * np + p] = t->rgb[(((size_t)k * V + v) * np + p) * 3 + c];
+        if (score_take_input(ctx, t, k, H, W, scratch, img, err) < 0)
+            goto done;
         double t0 = now_ms();
         if (f4d_sequence_push(sq, img, err) < 0)
             goto done;
@@ -384,50 +233,32 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
         /* the key at every camera: held-out ones score novel views, and with
          * motion all of them enter the flicker playback (same key both ways) */
         for (int c = timed ? 0 : V; c < C; c++) {
-            if (render(&ws, &cams[c], &key.frame, err) < 0)
+            if (score_render(sv, &cams[c], &key.frame, err) < 0)
                 goto done;
             const float *gt = c < V ? t->rgb + ((size_t)k * V + c) * np * 3 : t->ergb + ((size_t)k * E + c - V) * np * 3;
             if (c >= V) {
-                psnr += splat_psnr(ws.out, gt, W, H, 3);
-                ssim += splat_ssim(ws.out, gt, W, H, 3, ws.ssim_scratch);
+                double p, s;
+                score_compare(sv, gt, &p, &s);
+                psnr += p;
+                ssim += s;
                 n_img++;
             }
             if (timed) {
-                tl_add(&tl_f, c, ws.out);
-                tl_add(&tl_u, c, ws.out);
+                tl_add(&tl_f, c, score_view_rgb(sv));
+                tl_add(&tl_u, c, score_view_rgb(sv));
                 tl_add(&tl_g, c, gt);
             }
         }
-        for (int v = 0; v < V; v++) {
-            const struct splat_camera *cv = &t->rig.cams[v];
-            const float *rel = cams[v].w2c;
-            for (size_t p = 0; p < np; p++) {
-                size_t i = ((size_t)k * V + v) * np + p;
-                if (t->alpha[i] <= 0.5f)
-                    continue;
-                float d = t->depth[i], u = (float)(p % W) + 0.5f, w = (float)(p / W) + 0.5f;
-                float pc[3] = { (u - cv->cx) / cv->fx * d, (w - cv->cy) / cv->fy * d, d }, x[3];
-                for (int a = 0; a < 3; a++) /* camera v -> view 0: rel^-1 applied to pc */
-                    x[a] = rel[a] * (pc[0] - rel[3]) + rel[4 + a] * (pc[1] - rel[7]) + rel[8 + a] * (pc[2] - rel[11]);
-                const float *q = key.frame.pos + 3 * ((size_t)v * np + p);
-                pd += sqrt((double)(q[0] - x[0]) * (q[0] - x[0]) + (double)(q[1] - x[1]) * (q[1] - x[1]) +
-                           (double)(q[2] - x[2]) * (q[2] - x[2]));
-                n_pt++;
-            }
-            const float *pe = key.extrinsic + 12 * v;
-            double tr = 0, dt = 0;
-            for (int a = 0; a < 3; a++) {
-                for (int b = 0; b < 3; b++)
-                    tr += (double)pe[4 * a + b] * rel[4 * a + b];
-                dt += ((double)pe[4 * a + 3] - rel[4 * a + 3]) * ((double)pe[4 * a + 3] - rel[4 * a + 3]);
-            }
-            /* pe's rotation need not be exactly orthonormal: clamp the cosine */
-            double cs = (tr - 1.0) / 2.0;
-            cs = cs > 1 ? 1 : (cs < -1 ? -1 : cs);
-            re += acos(cs) * 180.0 / 3.14159265358979323846;
-            te += sqrt(dt);
-            n_cam++;
-        }
+        double sum, rs, ts;
+        size_t n;
+        if (score_points(t, k, key.frame.pos, H, W, &sum, &n, err) < 0)
+            goto done;
+        pd += sum;
+        n_pt += n;
+        score_cameras(t, key.extrinsic, &rs, &ts);
+        re += rs;
+        te += ts;
+        n_cam += V;
         if (!timed || k == 0)
             continue;
         /* motion: M1[k] on key k, M2[k-1] on key k-1, against the exact motion */
@@ -438,9 +269,9 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
             f4d_fail(err, F4D_EINVAL, "f4d-eval: key %d came without its motion", k);
             goto done;
         }
-        epe_add(key.frame.motion_bwd, t->mbwd + (size_t)k * V * np * 3, t->alpha + (size_t)k * V * np, R0,
+        epe_add(key.frame.motion_bwd, t->motion_bwd + (size_t)k * V * np * 3, t->alpha + (size_t)k * V * np, R0,
                 (size_t)V * np, &ea, &n_ea, &ef, &ez, &n_ef);
-        epe_add(prev.frame.motion_fwd, t->mfwd + (size_t)(k - 1) * V * np * 3, t->alpha + (size_t)(k - 1) * V * np,
+        epe_add(prev.frame.motion_fwd, t->motion_fwd + (size_t)(k - 1) * V * np * 3, t->alpha + (size_t)(k - 1) * V * np,
                 R0, (size_t)V * np, &ea, &n_ea, &ef, &ez, &n_ef);
         /* mid time k - 1/2: the runtime's interpolation (MLP, or averaging
          * without one), then with fusion off when there is an MLP */
@@ -453,20 +284,21 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
             if (pass == 0)
                 pairs += (double)st.fused;
             for (int c = 0; c < C; c++) {
-                if (render(&ws, &cams[c], mid, err) < 0)
+                if (score_render(sv, &cams[c], mid, err) < 0)
                     goto done;
                 const float *gt = t->mid + ((size_t)(k - 1) * C + c) * np * 3;
-                double p = splat_psnr(ws.out, gt, W, H, 3);
+                double p, s;
+                score_compare(sv, gt, &p, pass == 0 ? &s : NULL);
                 if (pass == 0) {
                     ntp += p;
-                    nts += splat_ssim(ws.out, gt, W, H, 3, ws.ssim_scratch);
+                    nts += s;
                     n_mid++;
                     tl_add(&tl_g, c, gt);
                 }
                 if (pass == 0 && has_fusion)
-                    tl_add(&tl_f, c, ws.out);
+                    tl_add(&tl_f, c, score_view_rgb(sv));
                 else {
-                    tl_add(&tl_u, c, ws.out);
+                    tl_add(&tl_u, c, score_view_rgb(sv));
                     ntpa += p;
                 }
             }
@@ -494,9 +326,9 @@ static int eval_precision(const struct take *t, const char *weights, enum fk_wty
     r->tl_truth = timed ? tl_value(&tl_g) : NAN;
     rc = 0;
 done:
-    free(img); free(ws.out); free(ws.ssim_scratch);
+    free(img); free(scratch);
     tl_free(&tl_f); tl_free(&tl_u); tl_free(&tl_g);
-    splat_renderer_free(ws.ren);
+    score_view_free(sv);
     f4d_sequence_close(sq);
     model_free(m);
     fk_ctx_free(ctx);
@@ -590,10 +422,10 @@ int main(int argc, char **argv)
         return 2;
     }
     struct f4d_err err = { 0 };
-    struct take t;
-    if (take_load(take_dir, &t, &err) < 0) {
+    struct score_take t;
+    if (score_take_load(take_dir, &t, &err) < 0) {
         fprintf(stderr, "f4d-eval: %s\n", err.msg);
-        take_free(&t);
+        score_take_free(&t);
         return 1;
     }
     const double load0 = load_average();
@@ -607,7 +439,7 @@ int main(int argc, char **argv)
         if (!w) {
             if (f4d_weights_default(types[p] == FK_W_Q8, wpath, sizeof wpath, &err) < 0) {
                 fprintf(stderr, "f4d-eval: no --weights and %s\n", err.msg);
-                take_free(&t);
+                score_take_free(&t);
                 return 1;
             }
             w = wpath;
@@ -616,7 +448,7 @@ int main(int argc, char **argv)
         rows[nr].precision = names[p];
         if (eval_precision(&t, w, types[p], keys, threads, &rows[nr], &err) < 0) {
             fprintf(stderr, "f4d-eval: %s: %s\n", names[p], err.msg);
-            take_free(&t);
+            score_take_free(&t);
             return 1;
         }
         nr++;
@@ -710,6 +542,6 @@ int main(int argc, char **argv)
             }
         }
     }
-    take_free(&t);
+    score_take_free(&t);
     return rc;
 }

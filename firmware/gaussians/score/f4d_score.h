@@ -5,9 +5,11 @@
  * (the speed-vs-error study), so both score a take the same way.
  *
  * A venue take (tools/f4d-scene venue, tools/train/gen_data.py) is a folder:
- *   rgb [T,V,H,W,3], depth / alpha [T,V,H,W], eval_rgb [T,E,H,W,3],
- *   rig.json / eval_rig.json (splat rig format), take.json ("sky", "fps"),
- *   optional: motion_bwd / motion_fwd [T,V,H,W,3] (per-pixel 3-D motion to
+ *   rgb [T,V,H,W,3], depth / alpha [T,V,H,W], rig.json (splat rig format),
+ *   take.json ("sky", "fps"),
+ *   optional: eval_rgb [T,E,H,W,3] with eval_rig.json (held-out cameras; a
+ *   take of venue --eval 0 has none: E = 0, and novel views cannot be scored),
+ *   motion_bwd / motion_fwd [T,V,H,W,3] (per-pixel 3-D motion to
  *   the key before / after, metres), mid_rgb [T-1,V+E,H,W,3] (renders at the
  *   mid times k + 1/2, input views first), background_rgb [V,H,W,3] (the
  *   venue without people).
@@ -58,9 +60,9 @@ struct score_take {
     int    T, V, E, H, W;
     float  fps;                     /* key rate of the take (take.json "fps", else 30) */
     float *rgb, *depth, *alpha;     /* [T,V,H,W,3], [T,V,H,W], [T,V,H,W]               */
-    float *ergb;                    /* [T,E,H,W,3]                                     */
+    float *ergb;                    /* [T,E,H,W,3] or NULL (E = 0)                     */
     float *mid;                     /* [T-1,V+E,H,W,3] or NULL                         */
-    float *motion_bwd;              /* [T,V,H,W,3] or NULL                             */
+    float *motion_bwd, *motion_fwd; /* [T,V,H,W,3] each, or NULL                       */
     float *background;              /* [V,H,W,3] or NULL                               */
     struct splat_rig rig, erig;     /* input and evaluation cameras (venue world)      */
     float  sky[3];
@@ -87,14 +89,20 @@ void score_input_camera(const struct score_take *t, int v, struct splat_camera *
 typedef struct score_view score_view;
 int  score_view_new(fk_ctx *ctx, const struct score_take *t, score_view **out, struct f4d_err *err);
 void score_view_free(score_view *sv);
-/* Mean PSNR / SSIM of f over the evaluation cameras at key k. */
+/* Mean PSNR / SSIM of f over the evaluation cameras at key k (E >= 1). */
 int  score_novel_view(score_view *sv, const struct splat_frame *f, int k, double *psnr, double *ssim,
                       struct f4d_err *err);
 /* The same at mid time k + 1/2 (0 <= k < T - 1; F4D_ENOENT without mid_rgb). */
 int  score_novel_time(score_view *sv, const struct splat_frame *f, int k, double *psnr, double *ssim,
                       struct f4d_err *err);
-/* Renders f at camera cam into the view's buffer (for timing a displayed frame). */
+/* Renders f at camera cam into the view's buffer, colours clamped to [0, 1]
+ * (for timing a displayed frame, or scoring it at a camera of the caller's
+ * choice with score_compare). */
 int  score_render(score_view *sv, const struct splat_camera *cam, const struct splat_frame *f, struct f4d_err *err);
+/* The view's buffer: the last render, [H,W,3]. */
+const float *score_view_rgb(const score_view *sv);
+/* PSNR and SSIM of the last render against gt [H,W,3] (ssim may be NULL: not computed). */
+void score_compare(score_view *sv, const float *gt, double *psnr, double *ssim);
 
 /* Sum of point distances (m) and the pixels counted, key k, pos [3 * V*h*w]. */
 int  score_points(const struct score_take *t, int k, const float *pos, int h, int w, double *sum, size_t *n,

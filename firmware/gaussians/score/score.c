@@ -69,16 +69,23 @@ int score_take_load(const char *dir, struct score_take *t, struct f4d_err *err)
         return -1;
     if (!same(s, 4, tv))
         return f4d_fail(err, F4D_EFORMAT, "take %s: alpha.npy is not [T,V,H,W] of rgb.npy", dir);
-    if (load(dir, "eval_rgb", &t->ergb, s, 5, 0, err) < 0)
-        return -1;
-    t->E = (int)s[1];
-    if (s[0] != t->T || s[2] != t->H || s[3] != t->W || s[4] != 3 || t->E < 1)
-        return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
-    int rc = load(dir, "motion_bwd", &t->motion_bwd, s, 5, 1, err);
+    /* a take without held-out cameras (venue --eval 0) has no eval_* files */
+    int rc = load(dir, "eval_rgb", &t->ergb, s, 5, 1, err);
     if (rc < 0)
+        return -1;
+    if (rc == 0) {
+        t->E = (int)s[1];
+        if (s[0] != t->T || s[2] != t->H || s[3] != t->W || s[4] != 3 || t->E < 1)
+            return f4d_fail(err, F4D_EFORMAT, "take %s: eval_rgb and rgb disagree on keys or size", dir);
+    }
+    if ((rc = load(dir, "motion_bwd", &t->motion_bwd, s, 5, 1, err)) < 0)
         return -1;
     if (rc == 0 && !same(s, 5, tv3))
         return f4d_fail(err, F4D_EFORMAT, "take %s: motion_bwd.npy is not [T,V,H,W,3]", dir);
+    if ((rc = load(dir, "motion_fwd", &t->motion_fwd, s, 5, 1, err)) < 0)
+        return -1;
+    if (rc == 0 && !same(s, 5, tv3))
+        return f4d_fail(err, F4D_EFORMAT, "take %s: motion_fwd.npy is not [T,V,H,W,3]", dir);
     if (t->T > 1) {
         int64_t m5[5] = { t->T - 1, t->V + t->E, t->H, t->W, 3 };
         if ((rc = load(dir, "mid_rgb", &t->mid, s, 5, 1, err)) < 0)
@@ -95,7 +102,7 @@ int score_take_load(const char *dir, struct score_take *t, struct f4d_err *err)
     if (splat_rig_load(path, &t->rig, err) < 0)
         return -1;
     snprintf(path, sizeof path, "%s/eval_rig.json", dir);
-    if (splat_rig_load(path, &t->erig, err) < 0)
+    if (t->E && splat_rig_load(path, &t->erig, err) < 0)
         return -1;
     if (t->rig.count != t->V || t->erig.count != t->E)
         return f4d_fail(err, F4D_EFORMAT, "take %s: rigs have %d + %d cameras, arrays %d + %d", dir, t->rig.count,
@@ -132,7 +139,7 @@ void score_take_free(struct score_take *t)
 {
     if (!t)
         return;
-    free(t->rgb); free(t->depth); free(t->alpha); free(t->ergb); free(t->mid); free(t->motion_bwd);
+    free(t->rgb); free(t->depth); free(t->alpha); free(t->ergb); free(t->mid); free(t->motion_bwd); free(t->motion_fwd);
     free(t->background);
     memset(t, 0, sizeof *t);
 }
@@ -272,6 +279,19 @@ int score_render(score_view *sv, const struct splat_camera *cam, const struct sp
     return 0;
 }
 
+const float *score_view_rgb(const score_view *sv)
+{
+    return sv->out;
+}
+
+void score_compare(score_view *sv, const float *gt, double *psnr, double *ssim)
+{
+    const struct score_take *t = sv->t;
+    *psnr = splat_psnr(sv->out, gt, t->W, t->H, 3);
+    if (ssim)
+        *ssim = splat_ssim(sv->out, gt, t->W, t->H, 3, sv->ssim);
+}
+
 /* Mean PSNR / SSIM of f at every evaluation camera against gt + e * image. */
 static int score_images(score_view *sv, const struct splat_frame *f, const float *gt, double *psnr, double *ssim,
                         struct f4d_err *err)
@@ -284,8 +304,10 @@ static int score_images(score_view *sv, const struct splat_frame *f, const float
         score_eval_camera(t, e, &cam);
         if (score_render(sv, &cam, f, err) < 0)
             return -1;
-        p += splat_psnr(sv->out, gt + (size_t)e * img, t->W, t->H, 3);
-        s += splat_ssim(sv->out, gt + (size_t)e * img, t->W, t->H, 3, sv->ssim);
+        double pe, se;
+        score_compare(sv, gt + (size_t)e * img, &pe, &se);
+        p += pe;
+        s += se;
     }
     *psnr = p / t->E;
     *ssim = s / t->E;
@@ -296,6 +318,8 @@ int score_novel_view(score_view *sv, const struct splat_frame *f, int k, double 
                      struct f4d_err *err)
 {
     const struct score_take *t = sv->t;
+    if (!t->E)
+        return f4d_fail(err, F4D_ENOENT, "take %s: no held-out cameras (eval_rgb.npy)", t->dir);
     if (k < 0 || k >= t->T)
         return f4d_fail(err, F4D_EINVAL, "take %s: key %d of %d", t->dir, k, t->T);
     return score_images(sv, f, t->ergb + (size_t)k * t->E * 3 * (size_t)t->H * (size_t)t->W, psnr, ssim, err);
