@@ -403,6 +403,26 @@ static int flush_batch(interp *ip, const struct interp_config *cfg, int nb, stru
     return F4D_OK;
 }
 
+/* The partner of Gaussian g of key self in key other, or -1 when it has none
+ * within tau (occluded there: kept, deformed); counts the case into
+ * *no_origin, *kept or *matched. The one rule of interp_at and
+ * interp_pair_build. */
+static int32_t match(const interp *ip, const struct interp_key *self, const struct interp_key *other,
+                     const float *motion, size_t g, float tau, float *D, size_t *no_origin, size_t *kept,
+                     size_t *matched)
+{
+    *D = 0.0f;
+    int32_t h = partner(ip, self, other, motion, g, D);
+    if (self->origin[g] < 0)
+        (*no_origin)++;
+    if (h < 0 || *D > tau) {
+        (*kept)++;
+        return -1;
+    }
+    (*matched)++;
+    return h;
+}
+
 int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key *next, float a,
               const struct interp_config *cfg, struct splat_frame *out, struct interp_stats *stats,
               struct f4d_err *err)
@@ -441,13 +461,11 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
         float at[INTERP_ATTRS], am[INTERP_ATTRS], af[INTERP_ATTRS];
         int nb = 0; /* rows waiting for the batched fusion */
         for (size_t g = 0; g < F1->count; g++) {
-            float D = 0.0f;
-            int32_t h = partner(ip, next, prev, F1->motion_bwd, g, &D);
-            if (next->origin[g] < 0)
-                st.no_origin_t++;
-            if (h < 0 || D > cfg->tau) {
+            float D;
+            int32_t h = match(ip, next, prev, F1->motion_bwd, g, cfg->tau, &D, &st.no_origin_t, &st.kept_t,
+                              &st.fused);
+            if (h < 0) {
                 copy_deformed(F1, g, F1->motion_bwd, kb, out, o++);
-                st.kept_t++;
             } else if (cfg->fuse_batch) { /* a row now, the MLP per INTERP_FUSE_BATCH rows */
                 float *x = ip->bx + (size_t)nb * INTERP_FUSE_IN;
                 to_attrs(F1, g, F1->motion_bwd, kb, x);
@@ -455,7 +473,6 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
                 x[2 * INTERP_ATTRS] = a;
                 x[2 * INTERP_ATTRS + 1] = D;
                 ip->bslot[nb++] = o++;
-                st.fused++;
                 if (nb == INTERP_FUSE_BATCH) {
                     if ((rc = flush_batch(ip, cfg, nb, out, err)) < 0)
                         return rc;
@@ -463,28 +480,20 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
                 }
             } else if (cfg->fuse == interp_fuse_average) {
                 average_pair(F1, g, F1->motion_bwd, kb, F0, (size_t)h, F0->motion_fwd, kf, out, o++);
-                st.fused++;
             } else {
                 to_attrs(F1, g, F1->motion_bwd, kb, at);
                 to_attrs(F0, (size_t)h, F0->motion_fwd, kf, am);
                 cfg->fuse(cfg->fuse_user, at, am, a, D, af);
                 from_attrs(af, out, o++);
-                st.fused++;
             }
         }
         if (nb && (rc = flush_batch(ip, cfg, nb, out, err)) < 0)
             return rc;
         for (size_t h = 0; h < F0->count; h++) {
-            float D = 0.0f;
-            int32_t g = partner(ip, prev, next, F0->motion_fwd, h, &D);
-            if (prev->origin[h] < 0)
-                st.no_origin_tm1++;
-            if (g < 0 || D > cfg->tau) {
+            float D;
+            if (match(ip, prev, next, F0->motion_fwd, h, cfg->tau, &D, &st.no_origin_tm1, &st.kept_tm1,
+                      &st.dropped_tm1) < 0)
                 copy_deformed(F0, h, F0->motion_fwd, kf, out, o++);
-                st.kept_tm1++;
-            } else {
-                st.dropped_tm1++;
-            }
         }
     }
     out->count = o;
@@ -527,34 +536,18 @@ static void pair_task(void *arg, int t, int thread)
     size_t per = (F1->count + PAIR_TASKS - 1) / PAIR_TASKS, lo = (size_t)t * per, hi = lo + per;
     hi = hi < F1->count ? hi : F1->count;
     for (size_t g = lo; g < hi; g++) { /* as interp_at's first loop */
-        float D = 0.0f;
-        int32_t h = partner(j->ip, j->next, j->prev, F1->motion_bwd, g, &D);
-        if (j->next->origin[g] < 0)
-            st->no_origin_t++;
-        if (h < 0 || D > j->tau) {
-            h = -1;
-            st->kept_t++;
-        } else {
-            st->fused++;
-        }
-        j->pr->partner_t[g] = h;
+        float D;
+        j->pr->partner_t[g] = match(j->ip, j->next, j->prev, F1->motion_bwd, g, j->tau, &D, &st->no_origin_t,
+                                    &st->kept_t, &st->fused);
         j->pr->dist_t[g] = D;
     }
     per = (F0->count + PAIR_TASKS - 1) / PAIR_TASKS;
     lo = (size_t)t * per;
     hi = lo + per < F0->count ? lo + per : F0->count;
     for (size_t h = lo; h < hi; h++) { /* and its second */
-        float D = 0.0f;
-        int32_t g = partner(j->ip, j->prev, j->next, F0->motion_fwd, h, &D);
-        if (j->prev->origin[h] < 0)
-            st->no_origin_tm1++;
-        if (g < 0 || D > j->tau) {
-            g = -1;
-            st->kept_tm1++;
-        } else {
-            st->dropped_tm1++;
-        }
-        j->pr->partner_tm1[h] = g;
+        float D;
+        j->pr->partner_tm1[h] = match(j->ip, j->prev, j->next, F0->motion_fwd, h, j->tau, &D,
+                                      &st->no_origin_tm1, &st->kept_tm1, &st->dropped_tm1);
     }
 }
 
