@@ -249,9 +249,15 @@ class FusionMLP(nn.Module):
 
 def fuse_pairs(fusion, at, am, a, D):
     """forge4d-arch.md 6. at, am [N, 14] (attrs of t and t-1, deformed to t'), a, D [N]
-    -> [N, 14] pre-activation: mean (q: normalised sign-aligned sum) + fc2(GELU(fc1(x)))."""
+    -> [N, 14] pre-activation: average_pairs + fc2(GELU(fc1(x)))."""
     x = torch.cat([at, am, a[:, None], D[:, None]], dim=-1)
-    y = fusion.fc2(F.gelu(fusion.fc1(x)))
+    return average_pairs(at, am) + fusion.fc2(F.gelu(fusion.fc1(x)))
+
+
+def average_pairs(at, am):
+    """What fusion adds its MLP's output to (and all an untrained one gives, interp's
+    averaging): the mean of the first 10 attributes, q the normalised sign-aligned sum
+    (the identity below QUAT_EPS)."""
     mean = 0.5 * (at[:, :10] + am[:, :10])
     qt, qm = at[:, 10:], am[:, 10:]
     sg = torch.where((qt * qm).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(at.dtype)
@@ -260,7 +266,7 @@ def fuse_pairs(fusion, at, am, a, D):
     ident = torch.zeros_like(qs)
     ident[:, 0] = 1.0
     q = torch.where(n >= QUAT_EPS, qs / torch.clamp(n, min=QUAT_EPS), ident)
-    return torch.cat([mean, q], dim=-1) + y
+    return torch.cat([mean, q], dim=-1)
 
 
 def gaussian_activate(raw, world_points, images, extrinsic, intrinsic):

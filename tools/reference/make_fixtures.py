@@ -341,7 +341,7 @@ def fusion_pairs(gen, n):
 
 
 def forge4d_seq_fixtures(out_root):
-    from forge4d_ref import fuse_pairs
+    from forge4d_ref import average_pairs, fuse_pairs
     # A motion-layer subset: no block at layer 0 (the stream starts at layer 1), one at
     # layer 2 that the motion head does not read, a repeated DPT layer, and the motion
     # head at half the DPT width.
@@ -395,7 +395,7 @@ def forge4d_seq_fixtures(out_root):
     np.save(os.path.join(d, "fusion_in.npy"), fin.to(torch.float32).numpy())
     np.save(os.path.join(d, "fusion_out.npy"), fo.to(torch.float32).numpy())
     print(f"tiny_f4d_seq fusion: {SEQ_PAIRS} pairs, |out - mean| max "
-          f"{(fo - fuse_pairs_mean(at, am)).abs().max().item():.3g}")
+          f"{(fo - average_pairs(at, am)).abs().max().item():.3g}")
 
 
 # Masked Forge4D steps (Forge4D.step_masked, model_eval_masked with state and motion
@@ -447,13 +447,6 @@ def forge4d_seq_masked_fixtures(out_root):
             msg += f", |M1| max {out['motion_head.m1'].abs().max().item():.3g}" \
                    f", |M2| max {out['motion_head.m2'].abs().max().item():.3g}"
         print(msg)
-
-
-def fuse_pairs_mean(at, am):
-    """The averaging part alone (fc2 = 0), to show the MLP's share in the log."""
-    from forge4d_ref import FusionMLP, fuse_pairs
-    return fuse_pairs(FusionMLP().double(), at, am, torch.zeros(len(at), dtype=torch.float64),
-                      torch.zeros(len(at), dtype=torch.float64))
 
 
 def main():

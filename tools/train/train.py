@@ -47,7 +47,7 @@ sys.path.insert(0, os.path.join(HERE, "..", "reference"))
 import data  # noqa: E402
 import gguf_read  # noqa: E402
 import raster  # noqa: E402
-from forge4d_ref import Forge4D, fuse_pairs, gaussian_activate  # noqa: E402
+from forge4d_ref import Forge4D, average_pairs, fuse_pairs, gaussian_activate  # noqa: E402
 from vggt_ref import Config, pose_to_extri_intri  # noqa: E402
 
 SSIM_W = 0.25
@@ -231,35 +231,11 @@ def stream_pos(cfg, H, W):
     return pos
 
 
-def run_state_seq(model, take, views):
-    """Stage 2: the keys in order with the state carried (training: gradients through it)."""
+def state_steps(model, take, views, upto):
+    """Keys 0..upto in order through the base with the state carried from key 0 (the
+    runtime's order): yields (sample, outputs) per key; gradients flow through the state
+    unless the caller turns them off."""
     s_prev = [model.state.tokens for _ in range(model.cfg.depth)]
-    total, logs = 0.0, {}
-    for k in range(take.T):
-        smp = Sample(take, k, views, with_eval=False)
-        s_new = list(s_prev)
-
-        def after_global(i, x, pos):
-            x, s_new[i] = model.state.blocks[i](x, s_prev[i])
-            return x
-
-        out = run_base(model, smp.images, after_global)
-        s = smp.s
-        lk = camera_loss(out["poses"], smp.pose_enc()) + conf_l1(out["depth"], smp.depth / s, out["dconf"], smp.mask) \
-            + conf_l1(out["pts"], smp.points / s, out["pconf"], smp.mask) \
-            + (torch.log(out["gauge"]) - torch.log(1.0 / s)).abs()
-        total = total + lk / take.T
-        logs[f"k{k}"] = float(lk)
-        s_prev = s_new
-    return total, logs
-
-
-@torch.no_grad()
-def run_keys(model, take, views, upto):
-    """Keys 0..upto through the frozen base with the state carried (what the runtime
-    feeds the motion blocks); no gradients."""
-    s_prev = [model.state.tokens for _ in range(model.cfg.depth)]
-    outs = []
     for k in range(upto + 1):
         smp = Sample(take, k, views, with_eval=False)
         s_new = list(s_prev)
@@ -268,9 +244,28 @@ def run_keys(model, take, views, upto):
             x, s_new[i] = model.state.blocks[i](x, s_prev[i])
             return x
 
-        outs.append(run_base(model, smp.images, after_global))
+        yield smp, run_base(model, smp.images, after_global)
         s_prev = s_new
-    return outs
+
+
+def run_state_seq(model, take, views):
+    """Stage 2: the keys in order with the state carried (training: gradients through it)."""
+    total, logs = 0.0, {}
+    for k, (smp, out) in enumerate(state_steps(model, take, views, take.T - 1)):
+        s = smp.s
+        lk = camera_loss(out["poses"], smp.pose_enc()) + conf_l1(out["depth"], smp.depth / s, out["dconf"], smp.mask) \
+            + conf_l1(out["pts"], smp.points / s, out["pconf"], smp.mask) \
+            + (torch.log(out["gauge"]) - torch.log(1.0 / s)).abs()
+        total = total + lk / take.T
+        logs[f"k{k}"] = float(lk)
+    return total, logs
+
+
+@torch.no_grad()
+def run_keys(model, take, views, upto):
+    """Keys 0..upto through the frozen base with the state carried (what the runtime
+    feeds the motion blocks); no gradients."""
+    return [out for _, out in state_steps(model, take, views, upto)]
 
 
 def motion_targets(take, k, views, smp):
@@ -388,12 +383,7 @@ def interp_fused(model, km, kt, m1, m2, a, fuse=True):
     am = to_attrs(km["mu"] + a * m2, km)
     pa, pm = at[fz], am[it[fz]]
     n = pa.shape[0]
-    if fuse:
-        fused = fuse_pairs(model.fusion, pa, pm, torch.full((n,), a), Dt[fz])
-    else:
-        mean = 0.5 * (pa[:, :10] + pm[:, :10])
-        sg = torch.where((pa[:, 10:] * pm[:, 10:]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
-        fused = torch.cat([mean, pa[:, 10:] + sg * pm[:, 10:]], -1)
+    fused = fuse_pairs(model.fusion, pa, pm, torch.full((n,), a), Dt[fz]) if fuse else average_pairs(pa, pm)
     allv = torch.cat([at[~fz], fused, am[~dropm]])
     return from_attrs(allv), dict(fused=n, kept_t=int((~fz).sum()), kept_tm1=int((~dropm).sum()))
 
