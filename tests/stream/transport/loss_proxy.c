@@ -66,7 +66,12 @@ int loss_proxy_run(const struct loss_proxy_cfg *c, int fa, atomic_int *stop, str
     int big = 4 << 20;
     setsockopt(fa, SOL_SOCKET, SO_RCVBUF, &big, sizeof big);
     setsockopt(fb, SOL_SOCKET, SO_RCVBUF, &big, sizeof big);
-    uint64_t rng = c->seed ? c->seed : 0x9E3779B97F4A7C15ULL;
+    /* one generator per direction: which datagrams are dropped then depends
+     * only on the seed and each direction's own count, not on how the two
+     * directions interleave (with one shared generator a run could drop
+     * nothing on the way back; the tests expect losses both ways) */
+    uint64_t seed = c->seed ? c->seed : 0x9E3779B97F4A7C15ULL;
+    uint64_t rng[2] = { seed, seed ^ 0xD1B54A32D192ED03ULL };
     double t_first = -1;
     memset(st, 0, sizeof *st);
     unsigned char buf[2048];
@@ -93,7 +98,7 @@ int loss_proxy_run(const struct loss_proxy_cfg *c, int fa, atomic_int *stop, str
             double since = t - t_first;
             int out = c->blackout_at_ms >= 0 && since >= c->blackout_at_ms &&
                       since < c->blackout_at_ms + c->blackout_ms;
-            if (out || uniform(&rng) < c->loss) {
+            if (out || uniform(&rng[k]) < c->loss) {
                 if (k == 0)
                     st->dropped_fwd++;
                 else

@@ -3,8 +3,8 @@
  * fails with "Specified qdisc kind is unknown") and Debian's libsrt is built
  * without its fake-loss hooks, so the loss is made in user space between the
  * two SRT ends. Each datagram, in either direction, is dropped with
- * probability `loss` (xorshift64* seeded by `seed`: the same seed drops the
- * same datagram numbers), and every datagram during a blackout window is
+ * probability `loss` (xorshift64* per direction seeded from `seed`: the same
+ * seed drops the same datagram numbers of each direction), and every datagram during a blackout window is
  * dropped (a link outage longer than the latency window: what ARQ cannot
  * repair). One client (the first address that writes to the proxy). */
 #ifndef F4D_LOSS_PROXY_H
