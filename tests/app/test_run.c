@@ -287,33 +287,38 @@ static void srt(void **state)
     if (!streamtool[0] || access(streamtool, X_OK) != 0)
         f4d_skip("built without the SRT transport (no f4d-stream)");
     char out[4096], path[512];
-    int port = 21000 + (int)(getpid() % 20000);
-    /* the receiver listens; the daemon calls it */
+    /* a free port of this test's own range (tests/common/f4d_ports.sh) */
+    int port = f4d_test_udp_ports(28000, 2000, 1);
+    assert_true(port > 0);
+    /* the receiver listens; the daemon calls it once it does */
     int rc = sh(NULL, 0, "%s recv 'srt://:%d?mode=listener' -o %s/srt_rx.f4ds --timeout 300000 --quiet "
                 "> %s/srt_rx.json 2> %s/srt_rx.log & echo $! > %s/srt_rx.pid",
                 streamtool, port, tmp, tmp, tmp, tmp);
     assert_int_equal(rc, 0);
-    sleep_ms(500);
+    char pidbuf[32];
+    sh(pidbuf, sizeof pidbuf, "cat %s/srt_rx.pid", tmp);
+    pid_t rx = (pid_t)atoi(pidbuf);
+    if (!f4d_test_wait_udp(port, (int)rx, 60)) {
+        kill(rx, SIGTERM);
+        fail_msg("f4d-stream recv did not listen on port %d; see %s/srt_rx.log", port, tmp);
+    }
     rc = sh(out, sizeof out,
             "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --keys 3 "
             "--stream 'srt://127.0.0.1:%d?timeout=10000' --stats-json %s/srt.json 2>&1",
             forge4d, F4D_BOARD_DIR, weights, port, tmp);
-    char pidbuf[32];
-    sh(pidbuf, sizeof pidbuf, "cat %s/srt_rx.pid", tmp);
-    pid_t rx = (pid_t)atoi(pidbuf);
     if (rc != 0) {
         kill(rx, SIGTERM);
         fail_msg("forge4d run --stream srt://: exit %d: %s", rc, out);
     }
     /* the receiver ends at the end-of-stream packet */
     bool gone = false;
-    for (int i = 0; i < 300 && !gone; i++) {
+    for (int i = 0; i < 600 && !gone; i++) {
         gone = kill(rx, 0) != 0;
         sleep_ms(100);
     }
     if (!gone) {
         kill(rx, SIGTERM);
-        fail_msg("f4d-stream recv did not end after the stream's end packet");
+        fail_msg("f4d-stream recv did not end within 60 s of the stream's end packet");
     }
     snprintf(path, sizeof path, "%s/srt.json", tmp);
     cJSON *st = check_stats(path);

@@ -2,11 +2,16 @@
 #define _XOPEN_SOURCE 700 /* nftw */
 #include "f4d_test.h"
 
+#include <arpa/inet.h>
 #include <fnmatch.h>
 #include <ftw.h>
+#include <netinet/in.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
+#include <time.h>
 #include <unistd.h>
 
 #define SEL_MAX 32
@@ -145,4 +150,87 @@ int f4d_test_rmtree(const char *dir)
     if (!dir || !*dir)
         return 0;
     return nftw(dir, rm_one, 16, FTW_DEPTH | FTW_PHYS);
+}
+
+/* ---- loopback ports ---- */
+static bool udp_port_free(int port)
+{
+    int fd = socket(AF_INET, SOCK_DGRAM, 0);
+    if (fd < 0)
+        return false;
+    struct sockaddr_in a;
+    memset(&a, 0, sizeof a);
+    a.sin_family = AF_INET;
+    a.sin_port = htons((uint16_t)port);
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    bool ok = bind(fd, (struct sockaddr *)&a, sizeof a) == 0;
+    close(fd);
+    return ok;
+}
+
+int f4d_test_udp_ports(int first, int count, int n)
+{
+    if (n < 1 || count < n || first < 1 || first + count > 65536)
+        return -1;
+    int slots = count / n;
+    int start = (int)(getpid() % slots);
+    for (int i = 0; i < slots; i++) {
+        int base = first + ((start + i) % slots) * n;
+        bool all = true;
+        for (int k = 0; k < n && all; k++)
+            all = udp_port_free(base + k);
+        if (all)
+            return base;
+    }
+    return -1;
+}
+
+/* Is `port` among the local ports in /proc/net/udp (or udp6)? */
+static bool udp_port_listed(const char *table, int port)
+{
+    FILE *f = fopen(table, "r");
+    if (!f)
+        return false;
+    char line[512];
+    bool found = false;
+    if (!fgets(line, sizeof line, f)) { /* the header */
+        fclose(f);
+        return false;
+    }
+    while (!found && fgets(line, sizeof line, f)) {
+        const char *colon = strchr(line, ':');        /* after "sl" */
+        colon = colon ? strchr(colon + 1, ':') : NULL; /* in local_address */
+        found = colon && (int)strtol(colon + 1, NULL, 16) == port;
+    }
+    fclose(f);
+    return found;
+}
+
+static bool process_alive(int pid)
+{
+    if (kill(pid, 0) != 0)
+        return false;
+    char path[64], buf[256];
+    snprintf(path, sizeof path, "/proc/%d/stat", pid);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        return false;
+    size_t len = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    buf[len] = 0;
+    const char *rp = strrchr(buf, ')'); /* the state follows the command name */
+    return !(rp && rp[1] == ' ' && rp[2] == 'Z');
+}
+
+bool f4d_test_wait_udp(int port, int pid, int seconds)
+{
+    for (long ms = 0; ms <= (long)seconds * 1000; ms += 20) {
+        if (udp_port_listed("/proc/net/udp", port) || udp_port_listed("/proc/net/udp6", port))
+            return true;
+        if (pid > 0 && !process_alive(pid))
+            return false;
+        struct timespec d = {0, 20000000L};
+        nanosleep(&d, NULL);
+    }
+    return false;
 }

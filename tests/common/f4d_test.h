@@ -62,4 +62,18 @@ int f4d_test_run(int argc, char **argv, const char *group, const struct CMUnitTe
 int f4d_test_mkdtemp(char *out, size_t n, const char *tag);
 int f4d_test_rmtree(const char *dir);
 
+/* Loopback UDP ports for tests that ctest runs side by side (-j): each test
+ * owns a range [first, first + count) of its own below the kernel's ephemeral
+ * ports (32768 and up, where SRT callers bind), disjoint from every other
+ * test's (tests/common/f4d_ports.sh lists them). Returns a base b such that
+ * b .. b + n - 1 are all free on 127.0.0.1 now (probed by binding), starting
+ * the search at an offset from the pid so that two runs of one test start
+ * apart; -1 when the whole range is taken. */
+int f4d_test_udp_ports(int first, int count, int n);
+/* Waits until something listens on UDP `port` (/proc/net/udp and udp6): true
+ * once it does; false when `pid` (if > 0) exited first or after `seconds`. An
+ * event to wait on instead of a sleep before calling a listener that another
+ * process opens. */
+bool f4d_test_wait_udp(int port, int pid, int seconds);
+
 #endif

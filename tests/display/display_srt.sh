@@ -4,16 +4,17 @@
 # f4d-stream sends in real time: every key decoded, nothing lost or dropped,
 # frames shown.
 set -euo pipefail
+source "$(dirname "$0")/../common/f4d_ports.sh"
 disp=$1 stream=$2 scenebin=$3 codec=$4 dir=$5
 rm -rf "$dir" && mkdir -p "$dir"
 "$scenebin" --preset walk --frames 6 --views 1 --size 96x96 --gaussians 4000 -o "$dir/scene" >/dev/null
 "$codec" encode "$dir"/scene/t*/gaussians.ply -o "$dir/s.f4ds" --key-rate 10 --intra-every 3 >/dev/null
-port=$((33000 + ($$ % 1000) * 4))
+port=$(f4d_free_ports 26000 2000 1) # this test's own range: see f4d_ports.sh
 url="srt://127.0.0.1:$port?mode=listener&latency=200&passphrase=display-test-secret"
 "$disp" --headless --no-status --size 128x96 --fps 30 "$url" > "$dir/disp.json" 2> "$dir/disp.err" &
 dpid=$!
 trap 'kill $dpid 2>/dev/null || true' EXIT
-sleep 0.5
+f4d_wait_udp $port $dpid
 "$stream" send "$dir/s.f4ds" "srt://127.0.0.1:$port?latency=200&passphrase=display-test-secret" --speed 1 --quiet \
   > "$dir/send.json"
 wait $dpid || { echo "f4d-display failed"; cat "$dir/disp.err"; exit 1; }
