@@ -8,6 +8,7 @@
 # development VM's kernel has none: "Specified qdisc kind is unknown"), so it
 # is labelled machine-dependent; not exercised here.
 set -euo pipefail
+source "$(dirname "$0")/../../common/f4d_ports.sh" # f4d_wait_udp
 stream=$1 codec=$2 scenebin=$3 dir=$4
 if [ -z "${F4D_IN_NETNS:-}" ]; then
   for u in "unshare -n" "unshare -rn"; do
@@ -25,9 +26,9 @@ rm -rf "$dir" && mkdir -p "$dir"
 "$scenebin" --preset walk --frames 20 --views 1 --size 64x64 --gaussians 3000 -o "$dir/scene" >/dev/null
 "$codec" encode "$dir"/scene/t*/gaussians.ply -o "$dir/s.f4ds" --key-rate 10 --intra-every 5 >/dev/null
 P="passphrase=netem-test-secret&latency=1000&timeout=5000"
-"$stream" recv "srt://127.0.0.1:7200?mode=listener&$P" -o "$dir/r.f4ds" --decode --timeout 8000 --quiet \
+"$stream" recv "srt://127.0.0.1:7200?mode=listener&$P" -o "$dir/r.f4ds" --decode --timeout 60000 --quiet \
   > "$dir/r.json" & r=$!
-sleep 0.3
+f4d_wait_udp 7200 $r
 "$stream" send "$dir/s.f4ds" "srt://127.0.0.1:7200?$P" --quiet > "$dir/send.json"
 wait $r
 cat "$dir/send.json" "$dir/r.json"

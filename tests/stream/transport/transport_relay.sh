@@ -10,14 +10,15 @@
 #       --UDP multicast 239.255.42.1 on lo-->  relay1 --SRT--> receiver 1
 #                                              relay2 --SRT--> receiver 2
 # relay1 / relay2 are listeners with passphrase B that the receivers call;
-# relay3 serves a third receiver that joins 1 s into the 2 s stream: it must
-# hand on a suffix of the stream (complete packets only) and decode from the
-# next intra key on.
+# relay3 serves a third receiver that joins once receiver 1 has the stream's
+# start (the 2 s stream sent over 8 s): it must hand on a suffix of the
+# stream (complete packets only) and decode from the next intra key on.
 # One SRT message stays one UDP datagram across the chain (our chunks are
 # <= 1316 bytes, srt-live-transmit moves up to 1456 per read).
 # Needs a network namespace (root, or an unprivileged user namespace) for the
 # multicast route on lo: exit 77 (skipped) without one.
 set -euo pipefail
+source "$(dirname "$0")/../../common/f4d_ports.sh" # f4d_wait_udp
 stream=$1 codec=$2 scenebin=$3 dir=$4
 if ! command -v srt-live-transmit >/dev/null; then
   echo "[  SKIP    ] transport_relay: srt-live-transmit is absent (Debian package srt-tools)"; exit 77
@@ -42,20 +43,40 @@ pids=()
 cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; }
 trap cleanup EXIT
 A="passphrase=relay-in-secret&latency=200" B="passphrase=relay-out-secret&latency=200"
+# Events, not sleeps (a loaded machine outlasts any sleep): each step waits
+# for what the next one needs. The output relays log each caller they accept
+# ("Accepted SRT target connection": not -q).
 srt-live-transmit -q "srt://:7000?mode=listener&$A" "udp://239.255.42.1:7100" 2>"$dir/relay0.log" & pids+=($!)
-srt-live-transmit -q "udp://@239.255.42.1:7100" "srt://:7001?mode=listener&$B" 2>"$dir/relay1.log" & pids+=($!)
-srt-live-transmit -q "udp://@239.255.42.1:7100" "srt://:7002?mode=listener&$B" 2>"$dir/relay2.log" & pids+=($!)
-srt-live-transmit -q "udp://@239.255.42.1:7100" "srt://:7003?mode=listener&$B" 2>"$dir/relay3.log" & pids+=($!)
-sleep 0.5
-"$stream" recv "srt://127.0.0.1:7001?$B&timeout=5000" -o "$dir/r1.f4ds" --decode --timeout 8000 --quiet \
+for k in 1 2 3; do
+  srt-live-transmit "udp://@239.255.42.1:7100" "srt://:700$k?mode=listener&$B" 2>"$dir/relay$k.log" & pids+=($!)
+done
+for k in 0 1 2 3; do f4d_wait_udp 700$k "${pids[$k]}"; done
+# accepted(K PID): relay K logged the caller PID's connection
+accepted() {
+  local i
+  for ((i = 0; i < 1200; i++)); do
+    grep -q "Accepted SRT target connection" "$dir/relay$1.log" && return 0
+    kill -0 "$2" 2>/dev/null || break
+    sleep 0.05
+  done
+  echo "relay $1 accepted no receiver"; cat "$dir/relay$1.log"; return 1
+}
+"$stream" recv "srt://127.0.0.1:7001?$B&timeout=30000" -o "$dir/r1.f4ds" --decode --timeout 60000 --quiet \
   > "$dir/r1.json" 2>"$dir/r1.err" & r1=$!
-"$stream" recv "srt://127.0.0.1:7002?$B&timeout=5000" -o "$dir/r2.f4ds" --decode --timeout 8000 --quiet \
+"$stream" recv "srt://127.0.0.1:7002?$B&timeout=30000" -o "$dir/r2.f4ds" --decode --timeout 60000 --quiet \
   > "$dir/r2.json" 2>"$dir/r2.err" & r2=$!
-sleep 0.5
-"$stream" send "$dir/s.f4ds" "srt://127.0.0.1:7000?$A&timeout=5000" --speed 1 --quiet > "$dir/send.json" &
+accepted 1 $r1
+accepted 2 $r2
+# 2 s of stream sent over 8 s (--speed 0.25): the late receiver joins once r1
+# has the stream's start, and has seconds to connect before its end
+"$stream" send "$dir/s.f4ds" "srt://127.0.0.1:7000?$A&timeout=30000" --speed 0.25 --quiet > "$dir/send.json" &
 s=$!
-sleep 1
-"$stream" recv "srt://127.0.0.1:7003?$B&timeout=5000" -o "$dir/r3.f4ds" --decode --timeout 8000 --quiet \
+for ((i = 0; i < 1200; i++)); do
+  [ -s "$dir/r1.f4ds" ] && break
+  kill -0 $s 2>/dev/null || break
+  sleep 0.05
+done
+"$stream" recv "srt://127.0.0.1:7003?$B&timeout=30000" -o "$dir/r3.f4ds" --decode --timeout 60000 --quiet \
   > "$dir/r3.json" 2>"$dir/r3.err" & r3=$!
 rc=0
 wait $s || rc=1
