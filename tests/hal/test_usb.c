@@ -170,8 +170,13 @@ static gboolean on_ioctl(UMockdevIoctlBase *h, UMockdevIoctlClient *client, gpoi
         vb->bytesused = (uint32_t)n;
         vb->sequence = f->sequence++;
         vb->flags = V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | V4L2_BUF_FLAG_DONE;
-        vb->timestamp.tv_sec = (time_t)(now / 1000000000u);
-        vb->timestamp.tv_usec = (suseconds_t)(now % 1000000000u / 1000u);
+        /* stamped when the "sensor" captured it (its slot on the frame
+         * grid), as a driver does, not when the caller got round to DQBUF:
+         * a caller delayed on a loaded machine must not move the frame out
+         * of its tick's window */
+        uint64_t shot = f->next_frame_ns;
+        vb->timestamp.tv_sec = (time_t)(shot / 1000000000u);
+        vb->timestamp.tv_usec = (suseconds_t)(shot % 1000000000u / 1000u);
         f->next_frame_ns += f->frame_period_ns ? f->frame_period_ns : 33333333u;
         break;
     }
