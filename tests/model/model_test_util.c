@@ -125,3 +125,31 @@ double mt_rel(const struct mt_ck *c)
         return NAN;
     return c->max_ref > 0 ? c->max_diff / c->max_ref : c->max_diff;
 }
+
+double mt_check(const struct mt_ck *c, const char *tag, double budget, int quiet)
+{
+    double e = mt_rel(c);
+    int bad = !c->seen || !(e <= budget);
+    if (bad || !quiet)
+        printf("  %s %-22s rel_err %.3e (budget %.1e)%s\n", tag, c->name, e, budget,
+               !c->seen ? "  NOT SEEN" : bad ? "  OVER BUDGET" : "");
+    assert_true(c->seen);
+    assert_true(e <= budget); /* NaN fails */
+    return e;
+}
+
+void mt_compare_outs(struct mt_run *r, const struct mt_out *outs, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        struct mt_ck *c = mt_ck_find(r, outs[i].name);
+        if (!c)
+            continue;
+        if (!outs[i].p) {
+            print_error("%s: output missing\n", outs[i].name);
+            c->max_diff = NAN;
+            c->seen = 1;
+            continue;
+        }
+        mt_compare(c, -1, outs[i].p, outs[i].count);
+    }
+}

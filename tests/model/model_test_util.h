@@ -1,6 +1,7 @@
 /* model_test_util.h - the checkpoint comparison shared by the model tests
- * (test_model_parity, test_forge4d, test_preprocess): fixture arrays loaded
- * from .npy, compared NaN-aware with what the C model produces.
+ * (test_model_parity, test_model_masked, test_forge4d, test_forge4d_seq,
+ * test_preprocess): fixture arrays loaded from .npy, compared NaN-aware with
+ * what the C model produces, and the verdict on each checkpoint.
  *
  * NaN-aware: a NaN or an Inf anywhere (data or fixture) makes the error NaN,
  * so every `e <= budget` check on it fails; fmax() would silently drop it. */
@@ -60,5 +61,23 @@ void mt_compare(struct mt_ck *c, int frame, const float *data, size_t count);
 
 /* max |c - ref| / max |ref|; NaN-aware as above. */
 double mt_rel(const struct mt_ck *c);
+
+/* The verdict on one checkpoint, the comparison every parity test makes:
+ * prints "  TAG NAME rel_err E (budget B)" (with quiet, only when it fails)
+ * with "  NOT SEEN" / "  OVER BUDGET" where it does, asserts the checkpoint
+ * was compared and its error within budget (NaN fails), returns the error. */
+double mt_check(const struct mt_ck *c, const char *tag, double budget, int quiet);
+
+/* One model output to compare with the checkpoint of the same name. */
+struct mt_out {
+    const char  *name;
+    const float *p;
+    size_t       count;
+};
+
+/* Compares every output with its checkpoint in r (an output r has no
+ * checkpoint for is passed over); an output the model did not produce (p
+ * NULL) is reported and makes its checkpoint's error NaN. */
+void mt_compare_outs(struct mt_run *r, const struct mt_out *outs, size_t n);
 
 #endif

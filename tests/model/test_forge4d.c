@@ -58,7 +58,7 @@ static void on_tap(void *user, const char *name, int frame, const float *data, s
 static void compare_outputs(struct mt_run *r, const struct model_outputs *o)
 {
     const size_t n = (size_t)o->S * o->H * o->W;
-    struct { const char *name; const float *p; size_t count; } outs[] = {
+    const struct mt_out outs[] = {
         { "gaussian_raw", o->gaussian_raw, n * MODEL_GAUSS_CH },
         { "gauge", &o->gauge, 1 },
         { "gaussians_pos", o->gaussians.pos, 3 * n },
@@ -69,33 +69,17 @@ static void compare_outputs(struct mt_run *r, const struct model_outputs *o)
         { "extrinsic", o->extrinsic, (size_t)o->S * 12 },
         { "extrinsic_metric", o->extrinsic_metric, (size_t)o->S * 12 },
     };
-    for (size_t i = 0; i < sizeof outs / sizeof outs[0]; i++) {
-        struct mt_ck *c = mt_ck_find(r, outs[i].name);
-        if (!c)
-            continue;
-        if (!outs[i].p) {
-            print_error("%s: output missing\n", outs[i].name);
-            c->max_diff = NAN;
-            c->seen = 1;
-            continue;
-        }
-        mt_compare(c, -1, outs[i].p, outs[i].count);
-    }
+    mt_compare_outs(r, outs, sizeof outs / sizeof outs[0]);
 }
 
 /* Prints every checkpoint, asserts each within budget; returns the worst. */
 static double report(struct mt_run *r, const char *tag, double budget)
 {
     double worst = 0;
-    for (int i = 0; i < r->n; i++) {
-        struct mt_ck *c = &r->ck[i];
-        double e = mt_rel(c), b = ck_budget(c->name, budget);
-        printf("  %-16s %-22s rel_err %.3e (budget %.1e)%s\n", tag, c->name, e, b,
-               !c->seen ? "  NOT SEEN" : !(e <= b) ? "  OVER BUDGET" : "");
-        assert_true(c->seen);
-        assert_true(e <= b); /* NaN fails */
-        worst = mt_max_nan(worst, e);
-    }
+    char t[32];
+    snprintf(t, sizeof t, "%-16s", tag);
+    for (int i = 0; i < r->n; i++)
+        worst = mt_max_nan(worst, mt_check(&r->ck[i], t, ck_budget(r->ck[i].name, budget), 0));
     printf("  %-16s worst %.3e\n", tag, worst);
     return worst;
 }

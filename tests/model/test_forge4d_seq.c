@@ -104,25 +104,14 @@ static void on_tap(void *user, const char *name, int frame, const float *data, s
 static void compare_outputs(struct mt_run *r, const struct model_outputs *o)
 {
     const size_t n = (size_t)o->S * o->H * o->W;
-    struct { const char *name; const float *p; size_t count; } outs[] = {
+    const struct mt_out outs[] = {
         { "gauge", &o->gauge, 1 },
         { "gaussians_pos", o->gaussians.pos, 3 * n },
         { "gaussians_scale", o->gaussians.scale, 3 * n },
         { "motion_bwd", o->motion_bwd, 3 * n },
         { "motion_fwd_prev", o->motion_fwd_prev, 3 * n },
     };
-    for (size_t i = 0; i < sizeof outs / sizeof outs[0]; i++) {
-        struct mt_ck *c = mt_ck_find(r, outs[i].name);
-        if (!c)
-            continue;
-        if (!outs[i].p) {
-            print_error("%s: output missing\n", outs[i].name);
-            c->max_diff = NAN;
-            c->seen = 1;
-            continue;
-        }
-        mt_compare(c, -1, outs[i].p, outs[i].count);
-    }
+    mt_compare_outs(r, outs, sizeof outs / sizeof outs[0]);
 }
 
 /* The checkpoints of step t (in tiny_f4d_seq/<sub>t<t>); motion from step 1. */
@@ -168,14 +157,11 @@ static double report(struct mt_run *r, const char *tag, int t, double budget)
 {
     double worst = 0, worst_sc = 0;
     const char *wn = "-";
+    char tt[48];
+    snprintf(tt, sizeof tt, "%-12s t%d", tag, t);
     for (int i = 0; i < r->n; i++) {
         struct mt_ck *c = &r->ck[i];
-        double e = mt_rel(c), b = ck_budget(c->name, budget);
-        if (!c->seen || !(e <= b))
-            printf("  %-12s t%d %-18s rel_err %.3e (budget %.1e)%s\n", tag, t, c->name, e,
-                   b, !c->seen ? "  NOT SEEN" : "  OVER BUDGET");
-        assert_true(c->seen);
-        assert_true(e <= b); /* NaN fails */
+        double e = mt_check(c, tt, ck_budget(c->name, budget), 1);
         if (!strcmp(c->name, "gaussians_scale")) {
             worst_sc = mt_max_nan(worst_sc, e);
             continue;
