@@ -265,12 +265,48 @@ static void sigterm(void **state)
     cJSON_Delete(st);
 }
 
+/* board/NAME with its cameras at side x side pixels (intrinsics scaled with
+ * them), written to `path`. */
+static void board_at(const char *name, const char *path, int side)
+{
+    char src[300];
+    snprintf(src, sizeof src, "%s/%s", F4D_BOARD_DIR, name);
+    cJSON *b = read_json(src);
+    cJSON *cams = cJSON_GetObjectItemCaseSensitive(b, "cameras"), *c;
+    assert_true(cJSON_IsArray(cams) && cJSON_GetArraySize(cams) > 0);
+    cJSON_ArrayForEach(c, cams) {
+        double scale = side / num(c, "width");
+        assert_true(num(c, "height") == num(c, "width")); /* square: one scale */
+        cJSON_SetNumberValue(cJSON_GetObjectItemCaseSensitive(c, "width"), side);
+        cJSON_SetNumberValue(cJSON_GetObjectItemCaseSensitive(c, "height"), side);
+        cJSON *in = cJSON_GetObjectItemCaseSensitive(c, "intrinsics"), *k;
+        assert_true(cJSON_IsObject(in));
+        cJSON_ArrayForEach(k, in) {
+            assert_true(cJSON_IsNumber(k));
+            cJSON_SetNumberValue(k, k->valuedouble * scale);
+        }
+    }
+    char *text = cJSON_Print(b);
+    FILE *f = fopen(path, "w");
+    assert_non_null(f);
+    assert_true(text && fputs(text, f) >= 0);
+    assert_int_equal(fclose(f), 0);
+    cJSON_free(text);
+    cJSON_Delete(b);
+}
+
 static void replay(void **state)
 {
     (void)state;
     char out[4096], path[512];
-    int rc = sh(NULL, 0, "rm -rf %s/take_rp && %s record --board %s/sim-4cam.json --frames 20 --fast --quiet -o %s/take_rp",
-                tmp, forge4d, F4D_BOARD_DIR, tmp);
+    /* recorded at 160 x 160: the replay runs in real time, and 4 x 518^2
+     * frames at 30 Hz are more than a loaded 2-core machine reads and
+     * synchronizes in time (late frames leave sets incomplete, dropped) */
+    char board[300];
+    snprintf(board, sizeof board, "%s/replay-board.json", tmp);
+    board_at("sim-4cam.json", board, 160);
+    int rc = sh(NULL, 0, "rm -rf %s/take_rp && %s record --board %s --frames 20 --fast --quiet -o %s/take_rp",
+                tmp, forge4d, board, tmp);
     assert_int_equal(rc, 0);
     rc = sh(out, sizeof out,
             "%s run --no-config --quiet --replay %s/take_rp --weights %s --stream file:%s/rp.f4ds "
@@ -434,36 +470,6 @@ static double summary_field(const char *log, const char *before)
     return atof(p + strlen(before));
 }
 
-/* board/sim-4cam-faulty.json with its cameras at side x side pixels
- * (intrinsics scaled with them), written to `path`. */
-static void faulty_board_at(const char *path, int side)
-{
-    char src[300];
-    snprintf(src, sizeof src, "%s/sim-4cam-faulty.json", F4D_BOARD_DIR);
-    cJSON *b = read_json(src);
-    cJSON *cams = cJSON_GetObjectItemCaseSensitive(b, "cameras"), *c;
-    assert_true(cJSON_IsArray(cams) && cJSON_GetArraySize(cams) > 0);
-    cJSON_ArrayForEach(c, cams) {
-        double scale = side / num(c, "width");
-        assert_true(num(c, "height") == num(c, "width")); /* square: one scale */
-        cJSON_SetNumberValue(cJSON_GetObjectItemCaseSensitive(c, "width"), side);
-        cJSON_SetNumberValue(cJSON_GetObjectItemCaseSensitive(c, "height"), side);
-        cJSON *in = cJSON_GetObjectItemCaseSensitive(c, "intrinsics"), *k;
-        assert_true(cJSON_IsObject(in));
-        cJSON_ArrayForEach(k, in) {
-            assert_true(cJSON_IsNumber(k));
-            cJSON_SetNumberValue(k, k->valuedouble * scale);
-        }
-    }
-    char *text = cJSON_Print(b);
-    FILE *f = fopen(path, "w");
-    assert_non_null(f);
-    assert_true(text && fputs(text, f) >= 0);
-    assert_int_equal(fclose(f), 0);
-    cJSON_free(text);
-    cJSON_Delete(b);
-}
-
 static void load_faults(void **state)
 {
     (void)state;
@@ -484,7 +490,7 @@ static void load_faults(void **state)
      * load 12 gives it: it fell seconds behind real time, its frames came
      * late, 1 set of 571 was complete and inference never ran (keys 0). */
     snprintf(board, sizeof board, "%s/load-board.json", tmp);
-    faulty_board_at(board, 160);
+    board_at("sim-4cam-faulty.json", board, 160);
     setenv("F4D_RUN_TEST_INFER_DELAY_MS", "250", 1);
     char *argv[] = {(char *)forge4d, "run", "--no-config", "--board", board, "--weights", (char *)weights,
                     "--record", take, "--stream", stream, "--stats-json", stats, "--seconds", secs, NULL};
