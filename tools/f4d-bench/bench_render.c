@@ -12,8 +12,6 @@
  * shader with the same alpha rule (min(0.99, o exp(power)), discard below
  * 1/255), premultiplied blending, then glReadPixels. Its llvmpipe runs with
  * LP_NUM_THREADS equal to the row's thread count. */
-#include <EGL/egl.h>
-#include <EGL/eglext.h>
 #include <GLES3/gl3.h>
 #include <math.h>
 #include <stdio.h>
@@ -22,12 +20,16 @@
 
 #include "bench.h"
 #include "scene.h"
+#if F4D_BENCH_DISPLAY
+#include "f4d_display.h" /* the display's headless EGL set-up */
+#endif
 
 /* ---- llvmpipe peer ------------------------------------------------------------ */
 
 struct gl_peer {
-    EGLDisplay dpy;
-    EGLContext ctx;
+#if F4D_BENCH_DISPLAY
+    display_glctx *gc;
+#endif
     GLuint     fbo, rb, prog, vao, vbo;
     int        W, H;
     size_t     cap;
@@ -107,63 +109,41 @@ static GLuint compile(GLenum type, const char *src)
 
 static void gl_peer_close(struct gl_peer *g)
 {
-    if (g->dpy != EGL_NO_DISPLAY) {
-        if (g->ctx != EGL_NO_CONTEXT) {
-            glDeleteBuffers(1, &g->vbo);
-            glDeleteVertexArrays(1, &g->vao);
-            glDeleteProgram(g->prog);
-            glDeleteRenderbuffers(1, &g->rb);
-            glDeleteFramebuffers(1, &g->fbo);
-            eglMakeCurrent(g->dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
-            eglDestroyContext(g->dpy, g->ctx);
-        }
-        eglTerminate(g->dpy);
+#if F4D_BENCH_DISPLAY
+    if (g->gc) {
+        glDeleteBuffers(1, &g->vbo);
+        glDeleteVertexArrays(1, &g->vao);
+        glDeleteProgram(g->prog);
+        glDeleteRenderbuffers(1, &g->rb);
+        glDeleteFramebuffers(1, &g->fbo);
+        /* terminated: the next open loads llvmpipe again with its LP_NUM_THREADS */
+        display_glctx_free(g->gc, 1);
     }
+#endif
     free(g->inst); free(g->key); free(g->key_tmp); free(g->idx); free(g->idx_tmp); free(g->pixels);
     memset(g, 0, sizeof *g);
-    g->dpy = EGL_NO_DISPLAY;
-    g->ctx = EGL_NO_CONTEXT;
 }
 
 /* Opens a surfaceless llvmpipe context with `threads` raster threads. */
 static int gl_peer_open(struct gl_peer *g, int threads)
 {
     memset(g, 0, sizeof *g);
-    g->dpy = EGL_NO_DISPLAY;
-    g->ctx = EGL_NO_CONTEXT;
+#if F4D_BENCH_DISPLAY
     char nt[16];
     snprintf(nt, sizeof nt, "%d", threads);
     setenv("LP_NUM_THREADS", nt, 1); /* read when the llvmpipe screen is created */
     setenv("GALLIUM_DRIVER", "llvmpipe", 0);
-    PFNEGLGETPLATFORMDISPLAYEXTPROC get_dpy =
-        (PFNEGLGETPLATFORMDISPLAYEXTPROC)eglGetProcAddress("eglGetPlatformDisplayEXT");
-    if (!get_dpy) {
-        fprintf(stderr, "f4d-bench render: eglGetPlatformDisplayEXT is missing\n");
+    struct f4d_err err = { 0 };
+    if (display_glctx_headless(&g->gc, &err) < 0) {
+        fprintf(stderr, "f4d-bench render: %s\n", err.msg);
+        g->gc = NULL;
         return -1;
     }
-    g->dpy = get_dpy(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, NULL);
-    EGLint maj, min;
-    if (g->dpy == EGL_NO_DISPLAY || !eglInitialize(g->dpy, &maj, &min)) {
-        fprintf(stderr, "f4d-bench render: no surfaceless EGL display (Mesa missing?)\n");
-        g->dpy = EGL_NO_DISPLAY;
-        return -1;
-    }
-    eglBindAPI(EGL_OPENGL_ES_API);
-    const EGLint cattr[] = { EGL_SURFACE_TYPE, EGL_PBUFFER_BIT, EGL_RENDERABLE_TYPE, EGL_OPENGL_ES3_BIT, EGL_NONE };
-    EGLConfig cfg;
-    EGLint ncfg = 0;
-    if (!eglChooseConfig(g->dpy, cattr, &cfg, 1, &ncfg) || ncfg < 1) {
-        fprintf(stderr, "f4d-bench render: no GLES3 EGL config\n");
-        gl_peer_close(g);
-        return -1;
-    }
-    const EGLint xattr[] = { EGL_CONTEXT_MAJOR_VERSION, 3, EGL_NONE };
-    g->ctx = eglCreateContext(g->dpy, cfg, EGL_NO_CONTEXT, xattr);
-    if (g->ctx == EGL_NO_CONTEXT || !eglMakeCurrent(g->dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, g->ctx)) {
-        fprintf(stderr, "f4d-bench render: cannot make a surfaceless GLES3 context current\n");
-        gl_peer_close(g);
-        return -1;
-    }
+#else
+    (void)threads;
+    fprintf(stderr, "f4d-bench render: built without the display (F4D_WITH_DISPLAY): no llvmpipe peer\n");
+    return -1;
+#endif
     GLuint vs = compile(GL_VERTEX_SHADER, vs_src), fs = compile(GL_FRAGMENT_SHADER, fs_src);
     if (!vs || !fs) {
         gl_peer_close(g);

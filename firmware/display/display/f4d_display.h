@@ -196,6 +196,22 @@ const uint8_t *display_read_back(display *d, int *width, int *height);
 /* The camera in use (after the first key for the orbit camera). */
 const struct splat_camera *display_camera(const display *d);
 
+/* ---- a headless GLES 3 context --------------------------------------------------
+ * The EGL set-up of DISPLAY_HEADLESS for other GL code in the process (f4d-bench's
+ * llvmpipe peer): Mesa's surfaceless platform, a GLES 3 context with 8-bit RGB,
+ * current on the calling thread, no surface (draw into a framebuffer object).
+ *
+ *     display_glctx *gc;
+ *     if (display_glctx_headless(&gc, &err) == 0) { ...glDraw...; display_glctx_free(gc, 0); }
+ *
+ * display_glctx_free(gc, terminate) releases the context; with terminate it also
+ * ends the process's one surfaceless EGL display (Mesa's driver is loaded
+ * again, and rereads e.g. LP_NUM_THREADS, at the next open): only when no other
+ * GL user (a headless display) is left. F4D_ENODEV / F4D_ENOTSUP without EGL. */
+typedef struct display_glctx display_glctx;
+int  display_glctx_headless(display_glctx **out, struct f4d_err *err);
+void display_glctx_free(display_glctx *gc, int terminate);
+
 #ifdef __cplusplus
 }
 #endif

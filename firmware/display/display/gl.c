@@ -578,6 +578,47 @@ void display__gl_close(display_gl *g)
     free(g);
 }
 
+/* ---- a headless context for other GL code (f4d_display.h) ---------------------- */
+
+struct display_glctx {
+    display_gl g; /* only its EGL part is used: egl_setup is the one set-up */
+};
+
+int display_glctx_headless(display_glctx **out, struct f4d_err *err)
+{
+    display_glctx *gc = calloc(1, sizeof *gc);
+    if (!gc)
+        return f4d_fail(err, F4D_ENOMEM, "display: out of memory");
+    gc->g.out = DISPLAY_HEADLESS;
+    gc->g.dpy = EGL_NO_DISPLAY;
+    gc->g.ctx = EGL_NO_CONTEXT;
+    gc->g.surf = EGL_NO_SURFACE;
+#ifdef F4D_DISPLAY_KMS
+    gc->g.drm_fd = -1;
+#endif
+    int rc = egl_setup(&gc->g, EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, EGL_PBUFFER_BIT, 0, err);
+    if (rc < 0) {
+        display_glctx_free(gc, 0);
+        return rc;
+    }
+    *out = gc;
+    return F4D_OK;
+}
+
+void display_glctx_free(display_glctx *gc, int terminate)
+{
+    if (!gc)
+        return;
+    if (gc->g.dpy != EGL_NO_DISPLAY) {
+        eglMakeCurrent(gc->g.dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+        if (gc->g.ctx != EGL_NO_CONTEXT)
+            eglDestroyContext(gc->g.dpy, gc->g.ctx);
+        if (terminate) /* see display__gl_close: the caller says no other user is left */
+            eglTerminate(gc->g.dpy);
+    }
+    free(gc);
+}
+
 void display__gl_size(const display_gl *g, int *width, int *height)
 {
     *width = g->W;
