@@ -401,6 +401,8 @@ int display_step(display *d, display_source *src)
     d->st.player = *display_player_get_stats(d->player); /* interp time of this frame */
     double span_s = (double)(tn - d->t0_us) * 1e-6;
     d->st.bitrate_mbps = span_s > 0 ? (double)d->st.source.bytes * 8e-6 / span_s : 0.0;
+    d->st.shown_us = t_us;
+    d->st.key_us = tn;
     d->st.latency_ms = (tn > t_us ? (double)(tn - t_us) * 1e-3 : 0.0) +
                        (d->st.source.latency_ms > 0 ? d->st.source.latency_ms : 0.0);
     if (d->cfg.status_line)

@@ -174,6 +174,8 @@ struct display_stats {
     double   raster_ms;             /* of render_ms: splat_render (CPU path)       */
     double   bitrate_mbps;          /* received bits over the stream time seen    */
     double   latency_ms;            /* newest key time minus displayed time (+ source) */
+    uint64_t shown_us, key_us;      /* last refresh: its stream time, the newest key held
+                                       (it shows key k in full once both are >= k's time) */
     enum display_renderer renderer; /* the one in use (AUTO resolved)             */
     double   auto_cpu_ms, auto_gles_ms; /* AUTO's measurement (0 when not run)    */
     char     gl_renderer[128];      /* GL_RENDERER                                */
