@@ -734,11 +734,6 @@ static int write_stats(struct run *r, const char *path, const struct display_fig
     NUM_OR_NULL("displayed_fps", disp ? disp->fps : NAN);
     NUM_OR_NULL("latency_ms_p50", shown ? disp->p50 : *p50);
     NUM_OR_NULL("latency_ms_p95", shown ? disp->p95 : *p95);
-    cJSON_AddStringToObject(o, "latency_to", shown ? "display" : "sink");
-    NUM_OR_NULL("latency_sink_ms_p50", *p50);
-    NUM_OR_NULL("latency_sink_ms_p95", *p95);
-    if (disp)
-        NUM_OR_NULL("keys_displayed", disp->presented);
     cJSON_AddNumberToObject(o, "bitrate_mbps", wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0);
     NUM_OR_NULL("rss_mb_start", r->rss_start);
     NUM_OR_NULL("rss_mb_end", r->rss_end);
@@ -748,6 +743,12 @@ static int write_stats(struct run *r, const char *path, const struct display_fig
     static const char *const stage_names[4] = { "preprocess", "model", "budget", "encode" };
     for (int i = 0; sm && i < 4; i++)
         cJSON_AddNumberToObject(sm, stage_names[i], r->stage_ms[i] / (double)keys);
+    /* which latency the fields give, and the sink's in any case */
+    cJSON_AddStringToObject(o, "latency_to", shown ? "display" : "sink");
+    NUM_OR_NULL("latency_sink_ms_p50", *p50);
+    NUM_OR_NULL("latency_sink_ms_p95", *p95);
+    if (disp)
+        NUM_OR_NULL("keys_displayed", disp->presented);
 #undef NUM_OR_NULL
     char *s = cJSON_Print(o);
     cJSON_Delete(o);
@@ -954,6 +955,11 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         fprintf(stderr, "forge4d run: --stream needs --weights (a stream carries the model's Gaussians)\n");
         return 2;
     }
+    if (cfg.display[0] && !(cfg.stream[0] && stream_file(cfg.stream))) {
+        fprintf(stderr, "forge4d run: --display follows a stream file (--stream file:PATH); for srt:// run "
+                "f4d-display as the receiver\n");
+        return 2;
+    }
 
     struct hal_board board;
     if (cfg.replay[0])
@@ -1026,11 +1032,6 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         /* key times for a display: --key-times, or beside the stream file
          * when a display is attached */
         const char *sf = cfg.stream[0] ? stream_file(cfg.stream) : NULL;
-        if (cfg.display[0] && !sf) {
-            f4d_fail(&err, F4D_EINVAL, "--display follows a stream file (--stream file:PATH); for srt:// run "
-                     "f4d-display as the receiver");
-            goto out;
-        }
         if (cfg.key_times[0] || cfg.display[0]) {
             const char *base = cfg.key_times[0] ? cfg.key_times : sf, *ext = cfg.key_times[0] ? "" : ".keys";
             if (strlen(base) + strlen(ext) >= sizeof r->kt_path) {

@@ -244,20 +244,22 @@ static void summary(FILE *f, const struct display_stats *st, const struct displa
     double fps = st->seconds > 0 && st->frames > 1 ? (double)(st->frames - 1) / st->seconds : 0.0;
     double fr = st->frames ? (double)st->frames : 1.0, keys = p->keys ? (double)p->keys : 1.0;
     fprintf(f,
-            "{\"frames\": %llu, \"fps\": %.2f, \"refresh_fps\": %.2f, \"width\": %d, \"height\": %d,\n"
+            "{\"frames\": %llu, \"frames_drawn\": %llu, \"fps\": %.2f, \"refresh_fps\": %.2f, \"width\": %d, \"height\": %d,\n"
             " \"renderer\": \"%s\", \"gl_renderer\": \"%s\", \"auto_cpu_ms\": %.2f, \"auto_gles_ms\": %.2f,\n"
             " \"keys\": %llu, \"dropped_packets\": %llu, \"lost_packets\": %llu, \"skipped_keys\": %llu,\n"
             " \"refused_packets\": %llu, \"waited_packets\": %llu, \"too_large\": %llu, \"skipped_bytes\": %llu,\n"
             " \"bytes\": %llu, \"bitrate_mbps\": %.3f, \"latency_ms\": %.1f,\n"
             " \"decode_ms_per_key\": %.3f, \"lookup_ms_per_key\": %.3f, \"interp_ms_per_frame\": %.3f,\n"
-            " \"render_ms_per_frame\": %.3f, \"present_ms_per_frame\": %.3f,\n",
-            (unsigned long long)st->frames, fps, cfg->fps, W, H, st->renderer == DISPLAY_RENDER_CPU ? "cpu" : "gles",
+            " \"render_ms_per_frame\": %.3f, \"present_ms_per_frame\": %.3f, \"raster_ms_per_frame\": %.3f,\n"
+            " \"gaussians_per_frame\": %.0f, \"visible_per_frame\": %.0f, \"tile_pairs_per_frame\": %.0f,\n",
+            (unsigned long long)st->frames, (unsigned long long)(st->frames - st->redraws_skipped), fps, cfg->fps, W, H, st->renderer == DISPLAY_RENDER_CPU ? "cpu" : "gles",
             st->gl_renderer, st->auto_cpu_ms, st->auto_gles_ms, (unsigned long long)p->keys,
             (unsigned long long)st->source.dropped, (unsigned long long)p->lost, (unsigned long long)p->skipped,
             (unsigned long long)p->refused, (unsigned long long)p->waited, (unsigned long long)p->too_large,
             (unsigned long long)st->source.skipped_bytes, (unsigned long long)st->source.bytes, st->bitrate_mbps,
             st->latency_ms, p->decode_ms / keys, p->lookup_ms / keys, p->interp_ms / fr, st->render_ms / fr,
-            st->present_ms / fr);
+            st->present_ms / fr, st->raster_ms / fr, (double)st->drawn / fr, (double)st->visible / fr,
+            (double)st->pairs / fr);
     if (kt && isfinite(p50))
         fprintf(f, " \"keys_timed\": %llu, \"latency_trigger_ms_p50\": %.1f, \"latency_trigger_ms_p95\": %.1f}\n",
                 (unsigned long long)kt->timed, p50, p95);
