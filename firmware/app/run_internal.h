@@ -74,6 +74,7 @@ struct run_key {
     double infer_ms;           /* preprocessing + model + budget */
     double prep_ms, model_ms, budget_ms; /* its parts (wall): preprocessing, the sequence push
                                             (model + key build), the budget with the codec match */
+    double prep_cpu_ms, budget_cpu_ms;   /* the inference thread's CPU time in those two */
 };
 
 /* ---- stage: synchronized set -> metric Gaussians (one key) ----

@@ -99,7 +99,8 @@ static double num(const cJSON *o, const char *key)
 }
 
 /* Exactly the issue's keys, in its order, then key_stage_ms (where a key's
- * time went: four means, present once a key was streamed), then what the
+ * time went: four means, present once a key was streamed, and three on the
+ * stage threads' CPU clocks), then what the
  * latency runs to (sink, or display when one is attached), the sink's
  * latency and, with a display, the keys it showed; displayed figures null
  * unless a display is attached. */
@@ -108,14 +109,15 @@ static cJSON *check_stats_display(const char *path, bool display)
     cJSON *st = read_json(path);
     static const char *const keys[] = {"sets_captured", "sets_skipped_by_inference", "key_frames", "key_hz",
                                        "displayed_fps", "latency_ms_p50", "latency_ms_p95", "bitrate_mbps",
-                                       "rss_mb_start", "rss_mb_end", "key_stage_ms", "latency_to",
-                                       "latency_sink_ms_p50", "latency_sink_ms_p95", "keys_displayed"};
+                                       "rss_mb_start", "rss_mb_end", "key_stage_ms", "key_stage_cpu_ms",
+                                       "latency_to", "latency_sink_ms_p50", "latency_sink_ms_p95",
+                                       "keys_displayed"};
     const cJSON *kf = cJSON_GetObjectItemCaseSensitive(st, "key_frames");
     bool any = cJSON_IsNumber(kf) && kf->valuedouble > 0;
-    int k = 0, n = 15 - !display;
+    int k = 0, n = 16 - !display;
     for (const cJSON *it = st->child; it; it = it->next, k++) {
         if (k == 10 && !any)
-            k++; /* no key_stage_ms without a key */
+            k += 2; /* no key_stage_ms nor key_stage_cpu_ms without a key */
         if (k >= n)
             fail_msg("stats: extra key \"%s\"", it->string);
         assert_string_equal(it->string, keys[k]);
