@@ -16,6 +16,10 @@
  *   |-- infer_box (mailbox of ONE complete set): inference thread. A newer set
  *   |     replaces an unread one: inference skips to the newest complete set
  *   |     and counts each skipped set (sets_skipped_by_inference).
+ *   |     Lockstep (a sim rig whose clock waits for its renderer; lockstep =
+ *   |     off disables it): capture waits until inference is idle before it
+ *   |     hands a set over, so the sim renders only the sets inference takes;
+ *   |     its clock stands still meanwhile, so no frame is late or lost.
  *   inference (preprocess -> model with the Gaussian head, metric -> scene
  *   |          budget) -> one of 3 key buffers
  *   |-- key_q (FIFO of 3 keys): stream thread. When all key buffers are taken,
@@ -38,8 +42,11 @@
  * not allocate.
  *
  * Latency: trigger time to the key's packet handed to the sink, i.e. (rig
- * clock at on_set - trigger time) + wall time from on_set to the sink. With
- * no display attached the displayed figures are null.
+ * clock at on_set - trigger time) + wall time from on_set to the sink; with
+ * a display attached (--display: f4d-display spawned on the stream file,
+ * following it), trigger time to the display presenting the key, from the
+ * key-times file (key_time_line) and the display's clock, both
+ * CLOCK_MONOTONIC. With no display attached the displayed figures are null.
  *
  * Test knob: F4D_RUN_TEST_INFER_DELAY_MS=N adds N ms to every key (a slow
  * inference stage, for the load test).
