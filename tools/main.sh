@@ -87,7 +87,11 @@ num() { local v; v=$(field "$1" "$2"); case "$v" in ''|null) echo "${v:-null}" ;
   echo "latency p50 / p95: $(num latency_ms_p50 "$out/run.json") / $(num latency_ms_p95 "$out/run.json") ms from the trigger to the $(sed -n 's/.*"latency_to":[[:space:]]*"\([a-z]*\)".*/\1/p' "$out/run.json" | head -1) (to the stream sink: $(num latency_sink_ms_p50 "$out/run.json") / $(num latency_sink_ms_p95 "$out/run.json") ms)"
   echo "key stages (ms):   preprocess $(num preprocess "$out/run.json"), model $(num model "$out/run.json"), budget $(num budget "$out/run.json"), encode $(num encode "$out/run.json") (mean wall time a key)"
   echo "bitrate:           $(num bitrate_mbps "$out/run.json") Mbit/s"
-  echo "displayed fps:     $(num displayed_fps "$out/run.json") (live, $size, paced at 30; $(field keys_displayed "$out/run.json") keys shown)"
+  if [ -x "$display" ]; then
+    echo "displayed fps:     $(num displayed_fps "$out/run.json") (live, $size, paced at 30; $(field keys_displayed "$out/run.json") keys shown)"
+  else
+    echo "displayed fps:     null (f4d-display is not in this tree)"
+  fi
   echo "novel-view PSNR:   $(field psnr_db_mean "$out/novel.json") dB (mean over keys, vs ground truth)"
   echo "files:             $out/take $out/stream.f4ds $out/novel.gif $out/run.json $out/display.json $out/display/"
   echo "machine:           $(nproc) cores, load average $load0 at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end (other jobs slow every figure above)"
