@@ -3,18 +3,25 @@
 # runs the appliance (`forge4d run`) on the simulated 4-camera rig
 # (board/sim-4cam.json, the synthetic 'walk' scene): capture -> take on disk,
 # key-frame inference through the Forge4D sequence (state, motion) -> scene
-# budget -> stream file; then shows the stream from a camera the rig does not
-# have beside the ground-truth render of the same view and time.
+# budget -> stream file, with f4d-display attached live (headless, following
+# the stream file as it is written, paced at 30 fps, timing every key from its
+# trigger to the refresh that shows it); then shows the stream from a camera
+# the rig does not have beside the ground-truth render of the same view and
+# time.
 # Outputs land in out/ (override with OUT=DIR):
 #   take/          the recorded take (verified)
 #   stream.f4ds    the 4D Gaussian stream
 #   novel.gif      left: the stream from the novel camera, right: ground truth
 #   novel.png      the last pair; novel.json per-key PSNR
-#   run.json       forge4d run's stats; summary.txt the run in a few lines
+#   run.json       forge4d run's stats (with the live display's fps and
+#                  trigger-to-display latency); summary.txt the run in a few lines
+#   display.json   the live display's summary; stream.keys the keys' trigger times
+#   display/       the stream's first 30 frames as PNG (a second, offline play)
 #   model-cameras.json  the model's cameras at the last key (aligns the novel view)
 # Weights: WEIGHTS=FILE, else the shipped default, else a random-weight model
 # (labelled UNTRAINED everywhere it shows). SECONDS_RUN (default 20) sets the
-# length; extra arguments go to `forge4d run`.
+# length, DISPLAY_SIZE (default 640x360) the live display's; extra arguments
+# go to `forge4d run`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 tools/setup-debian.sh
@@ -23,7 +30,7 @@ cmake --build build/release -j "$(nproc)"
 bin=build/release
 
 out=${OUT:-out}
-rm -rf "$out/take" "$out/stream.f4ds"
+rm -rf "$out/take" "$out/stream.f4ds" "$out/display.json" "$out/stream.keys"
 mkdir -p "$out"
 weights=${WEIGHTS:-}
 label=trained
@@ -39,29 +46,30 @@ if [ -z "$weights" ]; then
 fi
 
 load0=$(cut -d' ' -f1-3 /proc/loadavg)
-echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label)"
+display=$bin/tools/f4d-display/f4d-display
+size=${DISPLAY_SIZE:-640x360}
+attach=()
+if [ -x "$display" ]; then
+  # live: the daemon spawns the display on the stream file it writes; the CPU
+  # rasterizer (llvmpipe's GLES is 5-12x slower here, and auto's probe of both
+  # costs seconds before the first key)
+  attach=(--display "$display" --display-json "$out/display.json" --key-times "$out/stream.keys"
+          --display-args "--renderer cpu --size $size")
+  echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label), f4d-display live at $size"
+else
+  echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label); f4d-display is not in this tree: nothing displayed"
+fi
 "$bin/firmware/app/forge4d" run --no-config --board board/sim-4cam.json --weights "$weights" \
   --seconds "${SECONDS_RUN:-20}" --record "$out/take" --stream "file:$out/stream.f4ds" \
-  --stats-json "$out/run.json" --rig-json "$out/model-cameras.json" "$@"
+  --stats-json "$out/run.json" --rig-json "$out/model-cameras.json" "${attach[@]}" "$@"
 "$bin/firmware/app/forge4d" verify "$out/take"
 
-displayed=null
-if [ -x "$bin/tools/f4d-display/f4d-display" ]; then
-  echo "main: f4d-display (headless) on the stream"
+if [ -x "$display" ]; then
+  # the first second again, every frame archived as PNG (out/display/): encoding a PNG
+  # costs more than drawing the frame, so it stays out of the live, measured run
   rm -rf "$out/display"
-  # the whole stream presented as a display does (the fps figure), then its first second
-  # again with every frame archived as PNG (out/display/): encoding a PNG costs more than
-  # drawing the frame, so it is kept out of the measured run
-  if "$bin/tools/f4d-display/f4d-display" --headless --json "$out/display.json" \
-       --no-status "$out/stream.f4ds" >/dev/null &&
-     "$bin/tools/f4d-display/f4d-display" --headless --png-dir "$out/display" --frames 30 \
-       --no-status "$out/stream.f4ds" >/dev/null; then
-    displayed=$(sed -n 's/.*"fps":[[:space:]]*\([0-9.]*\).*/\1/p' "$out/display.json" | head -1)
-  else
-    echo "main: f4d-display failed (see above)"
-  fi
-else
-  echo "main: f4d-display is not in this tree: displayed fps not measured"
+  "$display" --headless --renderer cpu --png-dir "$out/display" --frames 30 --no-status "$out/stream.f4ds" >/dev/null ||
+    echo "main: f4d-display (PNG archive) failed (see above)"
 fi
 
 echo "main: the stream from a camera the rig lacks, beside ground truth"
@@ -76,11 +84,15 @@ num() { local v; v=$(field "$1" "$2"); case "$v" in ''|null) echo "${v:-null}" ;
   echo "weights:           $weights ($label)"
   echo "key frames:        $(field key_frames "$out/run.json") at $(num key_hz "$out/run.json") Hz"
   echo "sets captured:     $(field sets_captured "$out/run.json") (skipped by inference: $(field sets_skipped_by_inference "$out/run.json"))"
-  echo "latency p50 / p95: $(num latency_ms_p50 "$out/run.json") / $(num latency_ms_p95 "$out/run.json") ms"
+  echo "latency p50 / p95: $(num latency_ms_p50 "$out/run.json") / $(num latency_ms_p95 "$out/run.json") ms from the trigger to the $(sed -n 's/.*"latency_to":[[:space:]]*"\([a-z]*\)".*/\1/p' "$out/run.json" | head -1) (to the stream sink: $(num latency_sink_ms_p50 "$out/run.json") / $(num latency_sink_ms_p95 "$out/run.json") ms)"
   echo "key stages (ms):   preprocess $(num preprocess "$out/run.json"), model $(num model "$out/run.json"), budget $(num budget "$out/run.json"), encode $(num encode "$out/run.json") (mean wall time a key)"
   echo "bitrate:           $(num bitrate_mbps "$out/run.json") Mbit/s"
-  echo "displayed fps:     ${displayed:-null}"
+  if [ -x "$display" ]; then
+    echo "displayed fps:     $(num displayed_fps "$out/run.json") (live, $size, paced at 30; $(field keys_displayed "$out/run.json") keys shown)"
+  else
+    echo "displayed fps:     null (f4d-display is not in this tree)"
+  fi
   echo "novel-view PSNR:   $(field psnr_db_mean "$out/novel.json") dB (mean over keys, vs ground truth)"
-  echo "files:             $out/take $out/stream.f4ds $out/novel.gif $out/run.json $out/display/"
+  echo "files:             $out/take $out/stream.f4ds $out/novel.gif $out/run.json $out/display.json $out/display/"
   echo "machine:           $(nproc) cores, load average $load0 at the start, $(cut -d' ' -f1-3 /proc/loadavg) at the end (other jobs slow every figure above)"
 } | tee "$out/summary.txt"

@@ -16,6 +16,10 @@
  *   |-- infer_box (mailbox of ONE complete set): inference thread. A newer set
  *   |     replaces an unread one: inference skips to the newest complete set
  *   |     and counts each skipped set (sets_skipped_by_inference).
+ *   |     Lockstep (a sim rig whose clock waits for its renderer; lockstep =
+ *   |     off disables it): capture waits until inference is idle before it
+ *   |     hands a set over, so the sim renders only the sets inference takes;
+ *   |     its clock stands still meanwhile, so no frame is late or lost.
  *   inference (preprocess -> model with the Gaussian head, metric -> scene
  *   |          budget) -> one of 3 key buffers
  *   |-- key_q (FIFO of 3 keys): stream thread. When all key buffers are taken,
@@ -38,8 +42,11 @@
  * not allocate.
  *
  * Latency: trigger time to the key's packet handed to the sink, i.e. (rig
- * clock at on_set - trigger time) + wall time from on_set to the sink. With
- * no display attached the displayed figures are null.
+ * clock at on_set - trigger time) + wall time from on_set to the sink; with
+ * a display attached (--display: f4d-display spawned on the stream file,
+ * following it), trigger time to the display presenting the key, from the
+ * key-times file (key_time_line) and the display's clock, both
+ * CLOCK_MONOTONIC. With no display attached the displayed figures are null.
  *
  * Test knob: F4D_RUN_TEST_INFER_DELAY_MS=N adds N ms to every key (a slow
  * inference stage, for the load test).
@@ -52,7 +59,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <signal.h>
+#include <spawn.h>
 #include <sys/resource.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -131,11 +141,26 @@ struct run {
     /* per-stage wall time of the keys streamed (stream thread only), for the
      * stats: preprocessing, model, budget, encoder */
     double stage_ms[4];
+    double stage_cpu_ms[3]; /* thread CPU time: preprocessing, budget, encoder */
     /* capture statistics, copied by the progress callback */
     pthread_mutex_t st_mu;
     struct f4d_capture_stats cap_st;
     struct stage_hb hb_capture, hb_record, hb_infer, hb_stream;
+    /* key times for a display (--key-times): line-buffered into kt_buf,
+     * allocated before the first key, so a key's line costs no allocation */
+    FILE *kt;
+    char *kt_buf;
+    /* the attached display (--display), its JSON summary */
+    pid_t display_pid;
+    char kt_path[1024], display_json[1024];
     _Atomic int done, capturing;
+    /* lockstep (a simulated rig whose clock waits for its renderer): capture
+     * hands inference a set only once it is idle, so the sim renders the
+     * sets inference consumes and no frame waits in the mailbox */
+    bool lockstep;
+    _Atomic int infer_idle;
+    pthread_mutex_t idle_mu;
+    pthread_cond_t idle_cv;
     uint64_t t0, t_end;
     double rss_start, rss_end;
     bool rss_warm;
@@ -146,6 +171,13 @@ static uint64_t mono_ns(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static double thread_cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
 /* Resident set in MB from /proc/self/statm (no stdio: no allocation). */
@@ -264,6 +296,26 @@ static int on_set(void *user, const struct hal_set *set)
         atomic_fetch_add(&r->rec_overflow, want_rec);
         atomic_fetch_add(&r->sets_skipped, want_inf);
         return 0;
+    }
+    if (want_inf && r->lockstep) {
+        /* the world's clock stands still meanwhile (it waits for us), so the
+         * set ages nothing in rig time: its trigger maps to wall time at the
+         * handover below, delivery_ns (rig time since the trigger) before it */
+        pthread_mutex_lock(&r->idle_mu);
+        while (!atomic_load(&r->infer_idle) && !*r->stop) {
+            struct timespec ts;
+            clock_gettime(CLOCK_REALTIME, &ts);
+            ts.tv_nsec += 50000000;
+            if (ts.tv_nsec >= 1000000000) {
+                ts.tv_sec++;
+                ts.tv_nsec -= 1000000000;
+            }
+            pthread_cond_timedwait(&r->idle_cv, &r->idle_mu, &ts);
+            atomic_store(&r->hb_capture.busy_since, mono_ns()); /* waiting by design, not stalled */
+        }
+        atomic_store(&r->infer_idle, 0);
+        pthread_mutex_unlock(&r->idle_mu);
+        now = mono_ns();
     }
     slot_fill(r, s, set, now);
     bool rec = want_rec && run_fifo_depth(&r->rec_q) < r->rec_cap; /* only this thread pushes */
@@ -388,6 +440,17 @@ static struct run_key *key_buffer(struct run *r)
     }
 }
 
+/* Lockstep: inference is ready for the next set. */
+static void infer_ready(struct run *r)
+{
+    if (!r->lockstep)
+        return;
+    pthread_mutex_lock(&r->idle_mu);
+    atomic_store(&r->infer_idle, 1);
+    pthread_cond_signal(&r->idle_cv);
+    pthread_mutex_unlock(&r->idle_mu);
+}
+
 static void *infer_main(void *arg)
 {
     struct run *r = arg;
@@ -410,14 +473,17 @@ static void *infer_main(void *arg)
                 say(r, "key from set %llu failed (%llu so far): %s", (unsigned long long)seq,
                     (unsigned long long)n + 1, err.msg);
             run_fifo_try_push(&r->free_keys, k);
+            infer_ready(r);
             continue;
         }
         if (rc == 0) { /* the stage holds this set's key until the next set (its forward motion) */
             run_fifo_try_push(&r->free_keys, k);
+            infer_ready(r);
             continue;
         }
         atomic_store(&r->key_us_last, (uint64_t)(k->infer_ms * 1000.0));
         run_fifo_try_push(&r->key_q, k); /* RUN_KEYS buffers, RUN_KEYS places: always fits */
+        infer_ready(r);
     }
     if (r->infer.flush) { /* the key the stage still holds (no forward motion) */
         struct run_key *k = key_buffer(r);
@@ -447,6 +513,27 @@ static int stream_out(struct run *r, const uint8_t *pkt, size_t len)
     return rc;
 }
 
+/* The key's line for a display measuring capture-to-display latency: the
+ * trigger on CLOCK_MONOTONIC is on_set's monotonic time less the rig clock's
+ * time from trigger to on_set. Exact when the rig clock is CLOCK_MONOTONIC
+ * (a hardware trigger's edge times) or runs at its rate (the realtime sim);
+ * on a simulated clock that waits for its renderer it places the trigger
+ * that many rig nanoseconds before the set arrived, i.e. as if the cameras
+ * had delivered on their modelled delays (the renderer's time excluded).
+ * Written before the packet, so a reader that has the packet has the line. */
+static void key_time_line(struct run *r, const struct run_key *k)
+{
+    if (!r->kt)
+        return;
+    uint64_t trig = k->arrive_wall_ns > k->delivery_ns ? k->arrive_wall_ns - k->delivery_ns : 0;
+    if (fprintf(r->kt, "%llu %llu %llu %llu\n", (unsigned long long)k->t_us, (unsigned long long)trig,
+                (unsigned long long)mono_ns(), (unsigned long long)k->seq) < 0 || fflush(r->kt) != 0) {
+        say(r, "key times %s: write failed (%s): no more key times", r->kt_path, strerror(errno));
+        fclose(r->kt);
+        r->kt = NULL;
+    }
+}
+
 static void *stream_main(void *arg)
 {
     struct run *r = arg;
@@ -470,12 +557,14 @@ static void *stream_main(void *arg)
         bool intra = resync || n % r->cfg->intra_every == 0;
         len = r->enc.packet_cap;
         uint64_t e0 = mono_ns();
+        double ec0 = thread_cpu_ms();
         int rc = r->enc.key(r->enc.self, k, intra, r->pkt, &len, &err);
+        double enc_cpu = thread_cpu_ms() - ec0;
         if (rc < 0) {
             uint64_t e = atomic_fetch_add(&r->stream_errors, 1);
             if (e < 3 || e % 100 == 0)
                 say(r, "%s", err.msg);
-        } else if (stream_out(r, r->pkt, len) < 0) {
+        } else if (key_time_line(r, k), stream_out(r, r->pkt, len) < 0) {
             resync = true; /* a receiver lost a packet: rejoin on an intra key */
         } else {
             resync = false;
@@ -486,6 +575,9 @@ static void *stream_main(void *arg)
             r->stage_ms[1] += k->model_ms;
             r->stage_ms[2] += k->budget_ms;
             r->stage_ms[3] += (double)(now - e0) * 1e-6;
+            r->stage_cpu_ms[0] += k->prep_cpu_ms;
+            r->stage_cpu_ms[1] += k->budget_cpu_ms;
+            r->stage_cpu_ms[2] += enc_cpu;
             double ms = (double)(k->delivery_ns + (now - k->arrive_wall_ns)) * 1e-6;
             uint64_t i = atomic_fetch_add(&r->lat_n, 1);
             r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
@@ -603,7 +695,39 @@ static int cmp_float(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-static int write_stats(struct run *r, const char *path, double *p50, double *p95)
+/* The attached display's figures from its JSON summary (NAN when absent). */
+struct display_figures {
+    double fps, p50, p95, presented;
+};
+
+static double json_num(const cJSON *o, const char *name)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, name);
+    return cJSON_IsNumber(v) ? v->valuedouble : NAN;
+}
+
+static void display_figures_read(const char *path, struct display_figures *d)
+{
+    d->fps = d->p50 = d->p95 = d->presented = NAN;
+    FILE *f = path[0] ? fopen(path, "rb") : NULL;
+    if (!f)
+        return;
+    char buf[8192];
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    buf[n] = 0;
+    cJSON *o = cJSON_Parse(buf);
+    if (!o)
+        return;
+    d->fps = json_num(o, "fps");
+    d->p50 = json_num(o, "latency_trigger_ms_p50");
+    d->p95 = json_num(o, "latency_trigger_ms_p95");
+    d->presented = json_num(o, "keys_timed");
+    cJSON_Delete(o);
+}
+
+static int write_stats(struct run *r, const char *path, const struct display_figures *disp, double *p50,
+                       double *p95)
 {
     double wall = (double)(r->t_end - r->t0) * 1e-9;
     uint64_t keys = atomic_load(&r->keys), nl = atomic_load(&r->lat_n);
@@ -623,10 +747,13 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
     cJSON_AddNumberToObject(o, "sets_skipped_by_inference", (double)atomic_load(&r->sets_skipped));
     cJSON_AddNumberToObject(o, "key_frames", (double)keys);
     cJSON_AddNumberToObject(o, "key_hz", wall > 0 ? (double)keys / wall : 0.0);
-    cJSON_AddNullToObject(o, "displayed_fps"); /* no display attached */
 #define NUM_OR_NULL(name, v) ((isfinite(v)) ? (void)cJSON_AddNumberToObject(o, name, v) : (void)cJSON_AddNullToObject(o, name))
-    NUM_OR_NULL("latency_ms_p50", *p50);
-    NUM_OR_NULL("latency_ms_p95", *p95);
+    /* with a display attached, latency runs from the trigger to the display
+     * presenting the key; without, to the key's packet handed to the sink */
+    bool shown = disp && isfinite(disp->p50);
+    NUM_OR_NULL("displayed_fps", disp ? disp->fps : NAN);
+    NUM_OR_NULL("latency_ms_p50", shown ? disp->p50 : *p50);
+    NUM_OR_NULL("latency_ms_p95", shown ? disp->p95 : *p95);
     cJSON_AddNumberToObject(o, "bitrate_mbps", wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0);
     NUM_OR_NULL("rss_mb_start", r->rss_start);
     NUM_OR_NULL("rss_mb_end", r->rss_end);
@@ -636,6 +763,18 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
     static const char *const stage_names[4] = { "preprocess", "model", "budget", "encode" };
     for (int i = 0; sm && i < 4; i++)
         cJSON_AddNumberToObject(sm, stage_names[i], r->stage_ms[i] / (double)keys);
+    /* the same on the stage thread's CPU clock (not the model: its kernel
+     * pool's threads run beside other work); what a loaded box cannot blur */
+    cJSON *sc = keys ? cJSON_AddObjectToObject(o, "key_stage_cpu_ms") : NULL;
+    static const char *const cpu_names[3] = { "preprocess", "budget", "encode" };
+    for (int i = 0; sc && i < 3; i++)
+        cJSON_AddNumberToObject(sc, cpu_names[i], r->stage_cpu_ms[i] / (double)keys);
+    /* which latency the fields give, and the sink's in any case */
+    cJSON_AddStringToObject(o, "latency_to", shown ? "display" : "sink");
+    NUM_OR_NULL("latency_sink_ms_p50", *p50);
+    NUM_OR_NULL("latency_sink_ms_p95", *p95);
+    if (disp)
+        NUM_OR_NULL("keys_displayed", disp->presented);
 #undef NUM_OR_NULL
     char *s = cJSON_Print(o);
     cJSON_Delete(o);
@@ -649,6 +788,77 @@ static int write_stats(struct run *r, const char *path, double *p50, double *p95
     return rc;
 }
 
+/* ---- the attached display (--display) ---- */
+
+/* The stream's file path ("file:PATH" or a plain path), or NULL for srt://. */
+static const char *stream_file(const char *url)
+{
+    if (!strncmp(url, "file:", 5))
+        return url + 5;
+    return strstr(url, "://") ? NULL : url;
+}
+
+/* Spawns the display on the stream file being written, headless and paced,
+ * timing each key against the key-times file. Its stdout (the summary, also
+ * in its --json) is discarded. */
+static int display_spawn(struct run *r, const char *stream_path, struct f4d_err *err)
+{
+    char extra[sizeof r->cfg->display_args];
+    snprintf(extra, sizeof extra, "%s", r->cfg->display_args);
+    char *argv[48];
+    int n = 0;
+    argv[n++] = (char *)r->cfg->display;
+    argv[n++] = "--headless";
+    argv[n++] = "--no-status";
+    argv[n++] = "--realtime";
+    argv[n++] = "--follow";
+    argv[n++] = "--key-times";
+    argv[n++] = r->kt_path;
+    argv[n++] = "--json";
+    argv[n++] = r->display_json;
+    char *save = NULL;
+    for (char *t = strtok_r(extra, " \t", &save); t; t = strtok_r(NULL, " \t", &save)) {
+        if (n >= 46)
+            return f4d_fail(err, F4D_EINVAL, "display_args: more than 36 arguments");
+        argv[n++] = t;
+    }
+    argv[n++] = (char *)stream_path;
+    argv[n] = NULL;
+    posix_spawn_file_actions_t fa;
+    posix_spawn_file_actions_init(&fa);
+    posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
+    extern char **environ;
+    int rc = posix_spawn(&r->display_pid, r->cfg->display, &fa, NULL, argv, environ);
+    posix_spawn_file_actions_destroy(&fa);
+    if (rc != 0) {
+        r->display_pid = 0;
+        return f4d_fail(err, F4D_EIO, "display %s: cannot start: %s", r->cfg->display, strerror(rc));
+    }
+    return 0;
+}
+
+/* Waits for the display to show the stream's end (it exits there), at most
+ * limit_s; then stops it. Returns its exit status, -1 when it was stopped. */
+static int display_wait(struct run *r, double limit_s)
+{
+    if (r->display_pid <= 0)
+        return -1;
+    int st = 0;
+    uint64_t t0 = mono_ns();
+    pid_t got;
+    while ((got = waitpid(r->display_pid, &st, WNOHANG)) == 0 &&
+           (double)(mono_ns() - t0) * 1e-9 < limit_s)
+        nanosleep(&(struct timespec){0, 20000000}, NULL);
+    if (got == 0) {
+        kill(r->display_pid, SIGTERM);
+        waitpid(r->display_pid, &st, 0);
+        r->display_pid = 0;
+        return -1;
+    }
+    r->display_pid = 0;
+    return got > 0 && WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
 /* ---- the command ---- */
 static int usage(void)
 {
@@ -656,6 +866,8 @@ static int usage(void)
                     "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE] [--rig-json FILE]\n"
                     "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
                     "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
+                    "                   [--key-times FILE] [--display F4D_DISPLAY [--display-args ARGS]\n"
+                    "                    [--display-json FILE]]\n"
                     "  settings absent from the command line come from the config file (default "
                     F4D_RUN_CONFIG_DEFAULT ", key = value; the same names without --, '-' as '_')\n");
     return 2;
@@ -769,6 +981,11 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         fprintf(stderr, "forge4d run: --stream needs --weights (a stream carries the model's Gaussians)\n");
         return 2;
     }
+    if (cfg.display[0] && !(cfg.stream[0] && stream_file(cfg.stream))) {
+        fprintf(stderr, "forge4d run: --display follows a stream file (--stream file:PATH); for srt:// run "
+                "f4d-display as the receiver\n");
+        return 2;
+    }
 
     struct hal_board board;
     if (cfg.replay[0])
@@ -815,6 +1032,9 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
     r->hb_stream.name = "stream";
     r->all_mask = board.n_cams >= 32 ? 0xffffffffu : (1u << board.n_cams) - 1;
     pthread_mutex_init(&r->st_mu, NULL);
+    pthread_mutex_init(&r->idle_mu, NULL);
+    pthread_cond_init(&r->idle_cv, NULL);
+    atomic_store(&r->infer_idle, 1);
     int status = 1;
     struct hal_rig rig;
     bool rig_open = false;
@@ -829,10 +1049,44 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, &err) < 0)
             goto out;
         r->have_infer = true;
+        r->lockstep = infer_nice_for(&board) == 0 && !cfg.no_lockstep;
         if (cfg.stream[0]) {
             if (run_sink_open(&r->sink, cfg.stream, r->enc.packet_cap, &err) < 0)
                 goto out;
             r->have_sink = true;
+        }
+        /* key times for a display: --key-times, or beside the stream file
+         * when a display is attached */
+        const char *sf = cfg.stream[0] ? stream_file(cfg.stream) : NULL;
+        if (cfg.key_times[0] || cfg.display[0]) {
+            const char *base = cfg.key_times[0] ? cfg.key_times : sf, *ext = cfg.key_times[0] ? "" : ".keys";
+            if (strlen(base) + strlen(ext) >= sizeof r->kt_path) {
+                f4d_fail(&err, F4D_EINVAL, "key times path too long");
+                goto out;
+            }
+            memcpy(r->kt_path, base, strlen(base));
+            memcpy(r->kt_path + strlen(base), ext, strlen(ext) + 1);
+        }
+        if (r->kt_path[0]) {
+            r->kt_buf = malloc(4096);
+            if (!r->kt_buf || !(r->kt = fopen(r->kt_path, "w"))) {
+                f4d_fail(&err, F4D_EIO, "key times %s: %s", r->kt_path, r->kt_buf ? strerror(errno) : "out of memory");
+                goto out;
+            }
+            setvbuf(r->kt, r->kt_buf, _IOFBF, 4096);
+        }
+        if (cfg.display[0]) {
+            const char *base = cfg.display_json[0] ? cfg.display_json : sf,
+                       *ext = cfg.display_json[0] ? "" : ".display.json";
+            if (strlen(base) + strlen(ext) >= sizeof r->display_json) {
+                f4d_fail(&err, F4D_EINVAL, "display JSON path too long");
+                goto out;
+            }
+            memcpy(r->display_json, base, strlen(base));
+            memcpy(r->display_json + strlen(base), ext, strlen(ext) + 1);
+            remove(r->display_json); /* a summary left from an earlier run must not be read as this one's */
+            if (display_spawn(r, sf, &err) < 0)
+                goto out;
         }
         r->pkt = malloc(r->enc.packet_cap);
         r->lat_ms = calloc(RUN_LAT_MAX, sizeof *r->lat_ms);
@@ -919,8 +1173,24 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             status = 1;
         }
     }
+    if (r->kt) {
+        fclose(r->kt);
+        r->kt = NULL;
+    }
+    /* the display exits once it has shown the end packet the sink just wrote */
+    struct display_figures disp;
+    bool have_disp = r->display_pid > 0;
+    if (have_disp) {
+        int drc = display_wait(r, 120.0);
+        if (drc != 0) {
+            fprintf(stderr, "forge4d run: display %s %s\n", cfg.display,
+                    drc < 0 ? "did not finish in 120 s: stopped" : "failed (see above)");
+            status = 1;
+        }
+        display_figures_read(r->display_json, &disp);
+    }
     double p50, p95;
-    if (write_stats(r, cfg.stats_json[0] ? cfg.stats_json : NULL, &p50, &p95) < 0) {
+    if (write_stats(r, cfg.stats_json[0] ? cfg.stats_json : NULL, have_disp ? &disp : NULL, &p50, &p95) < 0) {
         fprintf(stderr, "forge4d run: cannot write %s\n", cfg.stats_json);
         status = 1;
     }
@@ -939,10 +1209,20 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             (unsigned long long)atomic_load(&r->keys_dropped), (unsigned long long)atomic_load(&r->infer_errors), p50,
             p95, wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0,
             (unsigned long long)atomic_load(&r->stream_errors), r->rss_start, r->rss_end);
+    if (have_disp)
+        fprintf(stderr, "[forge4d run] display: %.1f fps, capture to display latency p50 %.0f ms p95 %.0f ms "
+                "(%.0f keys timed)\n", disp.fps, disp.p50, disp.p95, disp.presented);
     goto cleanup;
 out:
     fprintf(stderr, "forge4d run: %s\n", err.msg[0] ? err.msg : "setup failed");
 cleanup:
+    if (r->display_pid > 0) { /* setup failed after the display started */
+        kill(r->display_pid, SIGTERM);
+        waitpid(r->display_pid, NULL, 0);
+    }
+    if (r->kt)
+        fclose(r->kt);
+    free(r->kt_buf);
     if (r->take) {
         struct f4d_err e = {0};
         f4d_take_close(r->take, &e);
@@ -968,6 +1248,8 @@ cleanup:
     run_fifo_destroy(&r->free_keys);
     run_fifo_destroy(&r->key_q);
     pthread_mutex_destroy(&r->st_mu);
+    pthread_mutex_destroy(&r->idle_mu);
+    pthread_cond_destroy(&r->idle_cv);
     free(r->slots);
     free(r->slot_mem);
     free(r->pkt);

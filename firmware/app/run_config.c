@@ -47,6 +47,10 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
     STR(record);
     STR(stats_json);
     STR(rig_json);
+    STR(key_times);
+    STR(display);
+    STR(display_args);
+    STR(display_json);
 #undef STR
     if (!strcmp(key, "precision")) {
         if (strcmp(v, "f32") && strcmp(v, "f16") && strcmp(v, "int8"))
@@ -71,6 +75,12 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
         int rc = set_uint(&t, key, v, 0, 256, err);
         c->threads = (int)t;
         return rc;
+    }
+    if (!strcmp(key, "lockstep")) {
+        if (strcmp(v, "auto") && strcmp(v, "off"))
+            return f4d_fail(err, F4D_EINVAL, "lockstep must be auto or off, got \"%s\"", v);
+        c->no_lockstep = !strcmp(v, "off");
+        return 0;
     }
     if (!strcmp(key, "keys"))
         return set_uint(&c->keys, key, v, 0, 1000000000, err);

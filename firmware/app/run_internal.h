@@ -74,6 +74,7 @@ struct run_key {
     double infer_ms;           /* preprocessing + model + budget */
     double prep_ms, model_ms, budget_ms; /* its parts (wall): preprocessing, the sequence push
                                             (model + key build), the budget with the codec match */
+    double prep_cpu_ms, budget_cpu_ms;   /* the inference thread's CPU time in those two */
 };
 
 /* ---- stage: synchronized set -> metric Gaussians (one key) ----
@@ -133,6 +134,11 @@ int run_sink_open(struct run_sink *st, const char *url, size_t max_packet, struc
 struct run_config {
     char board[512], replay[512], weights[512], stream[512], record[512], stats_json[512];
     char rig_json[512];        /* at exit: the last key's metric cameras (splat rig JSON) */
+    char key_times[512];       /* one line per streamed key: t_us (stream time), trigger and sent
+                                  times on CLOCK_MONOTONIC (ns), seq; written before the key's packet */
+    char display[512];         /* f4d-display to attach to a file stream (spawned, live) */
+    char display_args[512];    /* extra arguments for it, separated by spaces */
+    char display_json[512];    /* its JSON summary (default: the stream file + ".display.json") */
     char precision[16], quality[16];
     double seconds;            /* 0: until SIGINT / SIGTERM */
     uint32_t keys;             /* stop after this many keys were streamed (0: no limit) */
@@ -140,6 +146,7 @@ struct run_config {
     uint32_t stall_ms;         /* watchdog: a stage busy this long on one item is reported */
     uint32_t intra_every;      /* keys between forced intra keys */
     bool quiet;
+    bool no_lockstep;          /* lockstep = off: a waiting-clock sim rig hands sets over as a real one */
 };
 void run_config_defaults(struct run_config *c);
 /* key=value lines, '#' comments; unknown keys and bad values are errors

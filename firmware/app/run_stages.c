@@ -25,6 +25,15 @@ static uint64_t mono_ns(void)
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
+/* The calling thread's CPU time (ms): what a stage cost, without the time
+ * other jobs held the core. */
+static double thread_cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
 /* ---- inference: preprocess -> Forge4D sequence (state, motions, metric
  * cameras) -> scene budget ----
  * With motion weights a key leaves one push late: key t-1 gets its forward
@@ -49,7 +58,7 @@ struct infer_seq {
     size_t n;                  /* views * H * W */
     bool motion, held;         /* held: the newest key waits for its forward motion */
     uint64_t held_seq, held_t_us, held_arrive, held_delivery;
-    double held_ms, held_prep_ms, held_model_ms;
+    double held_ms, held_prep_ms, held_model_ms, held_prep_cpu_ms;
     uint32_t delay_ms;
     struct splat_rig rig;      /* cameras of the last key out */
     bool have_rig;
@@ -115,6 +124,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
 {
     struct infer_seq *im = self;
     uint64_t t0 = mono_ns();
+    double c0 = thread_cpu_ms();
     struct prep_image ims[MODEL_VIEWS_MAX];
     for (int i = 0; i < im->S; i++) {
         const struct hal_buffer *b = set->frames[i];
@@ -130,6 +140,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     if (rc < 0)
         return rc;
     uint64_t t1 = mono_ns();
+    double prep_cpu_ms = thread_cpu_ms() - c0;
     if (H != im->H || W != im->W)
         return f4d_fail(err, F4D_EINVAL, "inference: frames preprocess to %dx%d, the sequence runs at %dx%d", W, H,
                         im->W, im->H);
@@ -145,8 +156,11 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
              delivery = k->delivery_ns;
     if (!im->motion) {
         uint64_t b0 = mono_ns();
+        double bc0 = thread_cpu_ms();
         if ((rc = infer_emit(im, 0, seq, k, err)) < 0)
             return rc;
+        k->budget_cpu_ms = thread_cpu_ms() - bc0;
+        k->prep_cpu_ms = prep_cpu_ms;
         k->t_us = t_us;
         k->prep_ms = prep_ms;
         k->model_ms = model_ms;
@@ -157,10 +171,13 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     bool out = im->held && f4d_sequence_steps(im->sq) >= 2;
     if (out) { /* key t-1, now with both motions, under its own set's times */
         uint64_t b0 = mono_ns();
+        double bc0 = thread_cpu_ms();
         if ((rc = infer_emit(im, 1, im->held_seq, k, err)) < 0) {
             im->held = false;
             return rc;
         }
+        k->budget_cpu_ms = thread_cpu_ms() - bc0;
+        k->prep_cpu_ms = im->held_prep_cpu_ms;
         k->t_us = im->held_t_us;
         k->arrive_wall_ns = im->held_arrive;
         k->delivery_ns = im->held_delivery;
@@ -176,6 +193,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     im->held_delivery = delivery;
     im->held_ms = ms;
     im->held_prep_ms = prep_ms;
+    im->held_prep_cpu_ms = prep_cpu_ms;
     im->held_model_ms = model_ms;
     return out ? 1 : 0;
 }
@@ -187,9 +205,12 @@ static int infer_flush(void *self, struct run_key *k, struct f4d_err *err)
         return 0;
     im->held = false;
     uint64_t b0 = mono_ns();
+    double bc0 = thread_cpu_ms();
     int rc = infer_emit(im, 0, im->held_seq, k, err); /* the newest key: no forward motion (zero) */
     if (rc < 0)
         return rc;
+    k->budget_cpu_ms = thread_cpu_ms() - bc0;
+    k->prep_cpu_ms = im->held_prep_cpu_ms;
     k->t_us = im->held_t_us;
     k->arrive_wall_ns = im->held_arrive;
     k->delivery_ns = im->held_delivery;

@@ -1,6 +1,6 @@
 /* test_run.c: `forge4d run`, the appliance daemon, end to end.
  *
- *   test_run FORGE4D F4D_CODEC WEIGHTS.gguf F4D_STREAM|"" [--case NAME]...
+ *   test_run FORGE4D F4D_CODEC WEIGHTS.gguf F4D_STREAM|"" [F4D_DISPLAY|""] [--case NAME]...
  *
  * sim_short:   the sim board (walk scene) for 3 keys (--keys) with a tiny
  *              random-weight Forge4D model: the stats JSON has exactly the
@@ -11,6 +11,10 @@
  * replay:      the daemon fed from a recorded take.
  * srt:         the stream over SRT on loopback to `f4d-stream recv`, which
  *              gets every key (skipped when built without the transport).
+ * display:     f4d-display attached (--display: spawned on the stream file,
+ *              following it live): it shows every key streamed, the stats
+ *              carry its fps and the trigger-to-display latency, the key
+ *              times file has a line per key (skipped without f4d-display).
  * alloc:       (not in sanitized builds: LD_PRELOAD) the process allocates
  *              as often for 3 keys as for 9: nothing per set or key.
  * config:      settings from a config file; bad keys, bad values, --stream
@@ -39,7 +43,7 @@
 
 extern char **environ;
 
-static const char *forge4d, *codec, *weights, *streamtool;
+static const char *forge4d, *codec, *weights, *streamtool, *displaytool = "";
 static char tmp[256];
 
 /* Runs a shell command; returns its exit status, stdout in out (if given). */
@@ -96,22 +100,34 @@ static double num(const cJSON *o, const char *key)
 }
 
 /* Exactly the issue's keys, in its order, then key_stage_ms (where a key's
- * time went: four means, present once a key was streamed); displayed
- * figures null (no display). */
-static cJSON *check_stats(const char *path)
+ * time went: four means, present once a key was streamed, and three on the
+ * stage threads' CPU clocks), then what the
+ * latency runs to (sink, or display when one is attached), the sink's
+ * latency and, with a display, the keys it showed; displayed figures null
+ * unless a display is attached. */
+static cJSON *check_stats_display(const char *path, bool display)
 {
     cJSON *st = read_json(path);
     static const char *const keys[] = {"sets_captured", "sets_skipped_by_inference", "key_frames", "key_hz",
                                        "displayed_fps", "latency_ms_p50", "latency_ms_p95", "bitrate_mbps",
-                                       "rss_mb_start", "rss_mb_end", "key_stage_ms"};
-    int k = 0;
+                                       "rss_mb_start", "rss_mb_end", "key_stage_ms", "key_stage_cpu_ms",
+                                       "latency_to", "latency_sink_ms_p50", "latency_sink_ms_p95",
+                                       "keys_displayed"};
+    const cJSON *kf = cJSON_GetObjectItemCaseSensitive(st, "key_frames");
+    bool any = cJSON_IsNumber(kf) && kf->valuedouble > 0;
+    int k = 0, n = 16 - !display;
     for (const cJSON *it = st->child; it; it = it->next, k++) {
-        if (k >= 11)
+        if (k == 10 && !any)
+            k += 2; /* no key_stage_ms nor key_stage_cpu_ms without a key */
+        if (k >= n)
             fail_msg("stats: extra key \"%s\"", it->string);
         assert_string_equal(it->string, keys[k]);
     }
-    const cJSON *kf = cJSON_GetObjectItemCaseSensitive(st, "key_frames");
-    assert_int_equal(k, cJSON_IsNumber(kf) && kf->valuedouble > 0 ? 11 : 10);
+    assert_int_equal(k, n);
+    const cJSON *lt = cJSON_GetObjectItemCaseSensitive(st, "latency_to");
+    assert_true(cJSON_IsString(lt));
+    if (!display || !any)
+        assert_string_equal(lt->valuestring, "sink");
     const cJSON *sm = cJSON_GetObjectItemCaseSensitive(st, "key_stage_ms");
     static const char *const stages[] = {"preprocess", "model", "budget", "encode"};
     for (int i = 0; sm && i < 4; i++) {
@@ -119,9 +135,12 @@ static cJSON *check_stats(const char *path)
         if (!cJSON_IsNumber(v) || !(v->valuedouble >= 0))
             fail_msg("stats: key_stage_ms.%s missing or negative", stages[i]);
     }
-    assert_true(cJSON_IsNull(cJSON_GetObjectItemCaseSensitive(st, "displayed_fps")));
+    if (!display)
+        assert_true(cJSON_IsNull(cJSON_GetObjectItemCaseSensitive(st, "displayed_fps")));
     return st;
 }
+
+static cJSON *check_stats(const char *path) { return check_stats_display(path, false); }
 
 /* verify --json: returns the set count; the take must be clean and closed. */
 static double verify_take(const char *dir)
@@ -371,6 +390,44 @@ static void srt(void **state)
     cJSON_Delete(st);
 }
 
+static void display(void **state)
+{
+    (void)state;
+    if (!displaytool[0] || access(displaytool, X_OK) != 0)
+        f4d_skip("built without the display (no f4d-display)");
+    char out[4096], path[512];
+    int rc = sh(out, sizeof out,
+                "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --keys 3 "
+                "--stream file:%s/d.f4ds --stats-json %s/d.json --key-times %s/d.keys --display %s "
+                "--display-json %s/dd.json --display-args '--renderer cpu --size 160x90' 2>&1",
+                forge4d, F4D_BOARD_DIR, weights, tmp, tmp, tmp, displaytool, tmp);
+    if (rc != 0)
+        fail_msg("forge4d run --display: exit %d: %s", rc, out);
+    snprintf(path, sizeof path, "%s/d.json", tmp);
+    cJSON *st = check_stats_display(path, true);
+    double keys = num(st, "key_frames");
+    assert_string_equal(cJSON_GetObjectItemCaseSensitive(st, "latency_to")->valuestring, "display");
+    assert_true(num(st, "displayed_fps") > 0);
+    assert_true(num(st, "keys_displayed") == keys); /* the display follows to the end packet */
+    assert_true(num(st, "latency_ms_p50") > 0 && num(st, "latency_ms_p95") >= num(st, "latency_ms_p50"));
+    assert_true(num(st, "latency_sink_ms_p50") > 0);
+    rc = sh(out, sizeof out, "wc -l < %s/d.keys", tmp);
+    assert_int_equal(atoi(out), (int)keys);
+    snprintf(path, sizeof path, "%s/dd.json", tmp);
+    cJSON *dj = read_json(path);
+    assert_true(num(dj, "keys") == keys && num(dj, "keys_timed") == keys);
+    cJSON_Delete(dj);
+    snprintf(path, sizeof path, "%s/d.f4ds", tmp);
+    assert_int_equal(decode_stream(path, "dec_d"), (int)keys);
+    /* the display follows a stream file; srt:// is refused naming that */
+    rc = sh(out, sizeof out, "%s run --no-config --board %s/sim-4cam.json --weights %s --keys 1 "
+            "--stream 'srt://127.0.0.1:9?timeout=100' --display %s 2>&1", forge4d, F4D_BOARD_DIR, weights,
+            displaytool);
+    assert_int_not_equal(rc, 0);
+    assert_non_null(strstr(out, "--display follows a stream file"));
+    cJSON_Delete(st);
+}
+
 /* No allocation per set or key: the process's allocation count (an
  * LD_PRELOAD counter, F4D_RUN_ALLOC_LIB) is the same for 3 keys and for 9,
  * with the recorder and the stream on. */
@@ -585,19 +642,22 @@ static int teardown(void **state)
 int main(int argc, char **argv)
 {
     argc = f4d_test_parse(argc, argv);
-    if (argc != 5) {
-        fprintf(stderr, "usage: test_run FORGE4D F4D_CODEC WEIGHTS.gguf F4D_STREAM|\"\" [--case NAME]...\n");
+    if (argc != 5 && argc != 6) {
+        fprintf(stderr, "usage: test_run FORGE4D F4D_CODEC WEIGHTS.gguf F4D_STREAM|\"\" [F4D_DISPLAY|\"\"] "
+                "[--case NAME]...\n");
         return 2;
     }
     forge4d = argv[1];
     codec = argv[2];
     weights = argv[3];
     streamtool = argv[4];
+    if (argc == 6)
+        displaytool = argv[5];
     signal(SIGPIPE, SIG_IGN);
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(sim_short), cmocka_unit_test(sigterm),     cmocka_unit_test(replay),
         cmocka_unit_test(srt),       cmocka_unit_test(config),      cmocka_unit_test(load_faults),
-        cmocka_unit_test(alloc),
+        cmocka_unit_test(alloc),     cmocka_unit_test(display),
     };
     return F4D_TEST_MAIN(argc, argv, "app/run", tests, setup, teardown);
 }

@@ -4,20 +4,32 @@
  *               [--rig FILE|--camera-json FILE] [--camera N|NAME] [--size WxH]
  *               [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]
  *               [--interp fused|both|nearest] [--offset BYTES] [--no-status]
- *               [--realtime|--no-realtime] [--threads N] [--json FILE] INPUT
+ *               [--realtime|--no-realtime] [--threads N] [--json FILE]
+ *               [--follow [--follow-idle S]] [--key-times FILE] INPUT
  *
  * INPUT is a stream file (.f4ds), or srt://HOST:PORT?... / file:PATH through
  * the stream transport (f4d_transport.h: caller or listener, latency,
  * passphrase; the display's source stats then carry SRT's drops and latency).
  * --offset starts reading a plain file at a byte in
- * the middle (a join: the display waits for the next intra key). Without a
+ * the middle (a join: the display waits for the next intra key). --follow
+ * reads INPUT, a stream file, while it is being written (live: it waits for
+ * the file and for more bytes, ends at the stream's end packet or after
+ * --follow-idle S, default 30, without new bytes). --key-times FILE (the
+ * daemon's `forge4d run --key-times`: per key its stream time and trigger on
+ * CLOCK_MONOTONIC, written before the key's packet) times each key from its
+ * trigger to the end of the first refresh that shows it in full (stream time
+ * and newest key both at or past the key's time), p50 / p95 in the summary:
+ * both processes read CLOCK_MONOTONIC, one clock on one machine. Without a
  * camera the first key places an orbit camera. Prints a JSON summary on stdout
  * (and into --json FILE). Exit 0, 1 on error, 2 on bad usage. */
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
+#include <unistd.h>
 
 #include "f4d_display.h"
 
@@ -27,7 +39,189 @@ static void usage(FILE *f)
                "                   [--rig FILE|--camera-json FILE] [--camera N|NAME] [--size WxH]\n"
                "                   [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]\n"
                "                   [--interp fused|both|nearest] [--offset BYTES] [--no-status]\n"
-               "                   [--realtime|--no-realtime] [--threads N] [--json FILE] INPUT\n");
+               "                   [--realtime|--no-realtime] [--threads N] [--json FILE]\n"
+               "                   [--follow [--follow-idle S]] [--key-times FILE] INPUT\n");
+}
+
+static uint64_t mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* ---- --follow: a stream file read while it is written ----
+ * Bytes are read into one buffer planned at start (FOLLOW_BUF: any key
+ * packet of the shipped model's streams is far smaller); a packet handed out
+ * points into it until the next call. Damaged bytes are skipped to the next
+ * packet and counted, as the other sources do. */
+#define FOLLOW_BUF ((size_t)64 << 20)
+struct follow {
+    const char *path;
+    int fd, ended;
+    uint8_t *buf;
+    size_t lo, hi;
+    double idle_s;
+    uint64_t last_ns;
+    struct display_source_stats st;
+};
+
+static int follow_next(void *impl, struct codec_packet *p, struct f4d_err *err)
+{
+    struct follow *f = impl;
+    if (f->ended)
+        return F4D_EEOF;
+    uint64_t now = mono_ns();
+    if (f->fd < 0 && (f->fd = open(f->path, O_RDONLY)) < 0) {
+        if ((double)(now - f->last_ns) * 1e-9 > f->idle_s)
+            return f4d_fail(err, F4D_EEOF, "'%s' did not appear in %.0f s", f->path, f->idle_s);
+        return 0;
+    }
+    for (;;) {
+        if (f->hi - f->lo >= CODEC_PACKET_HEADER) {
+            struct f4d_err e = { 0 };
+            int rc = codec_packet_parse(f->buf + f->lo, f->hi - f->lo, p, &e);
+            if (rc == 0) {
+                f->lo += p->size;
+                f->st.packets++;
+                f->st.bytes += p->size;
+                f->ended = p->type == CODEC_PKT_END;
+                return 1;
+            }
+            if (rc != F4D_EEOF) { /* damaged: on to the next packet start */
+                size_t skip = codec_packet_resync(f->buf + f->lo, f->hi - f->lo);
+                f->lo += skip;
+                f->st.dropped++;
+                f->st.skipped_bytes += skip;
+                continue;
+            }
+            if (f->hi - f->lo == FOLLOW_BUF)
+                return f4d_fail(err, F4D_ERANGE, "'%s': a packet larger than the follow buffer (%zu bytes)",
+                                f->path, FOLLOW_BUF);
+        }
+        if (f->lo > 0) {
+            memmove(f->buf, f->buf + f->lo, f->hi - f->lo);
+            f->hi -= f->lo;
+            f->lo = 0;
+        }
+        ssize_t n = read(f->fd, f->buf + f->hi, FOLLOW_BUF - f->hi);
+        if (n < 0 && errno != EINTR)
+            return f4d_fail(err, F4D_EIO, "'%s': %s", f->path, strerror(errno));
+        if (n > 0) {
+            f->hi += (size_t)n;
+            f->last_ns = now;
+            continue;
+        }
+        if ((double)(now - f->last_ns) * 1e-9 > f->idle_s)
+            return f4d_fail(err, F4D_EEOF, "'%s': no new bytes for %.0f s", f->path, f->idle_s);
+        return 0; /* nothing more yet */
+    }
+}
+
+static void follow_stats(const void *impl, struct display_source_stats *st)
+{
+    *st = ((const struct follow *)impl)->st;
+}
+
+static void follow_free(void *impl)
+{
+    struct follow *f = impl;
+    if (f->fd >= 0)
+        close(f->fd);
+    free(f->buf);
+    free(f);
+}
+
+static int follow_open(const char *path, double idle_s, display_source **out, struct f4d_err *err)
+{
+    static const struct display_source_ops ops = { follow_next, follow_stats, follow_free };
+    struct follow *f = calloc(1, sizeof *f);
+    if (!f || !(f->buf = malloc(FOLLOW_BUF))) {
+        free(f);
+        return f4d_fail(err, F4D_ENOMEM, "--follow: out of memory");
+    }
+    f->path = path;
+    f->fd = -1;
+    f->idle_s = idle_s;
+    f->last_ns = mono_ns();
+    f->st.latency_ms = -1.0;
+    int rc = display_source_new(&ops, f, out, err);
+    if (rc < 0)
+        follow_free(f);
+    return rc;
+}
+
+/* ---- --key-times: trigger -> presentation per key ----
+ * Lines "t_us trigger_ns ..." are read as they appear (the daemon writes a
+ * key's line before its packet, so a key on screen has its line on disk);
+ * a key waits in `pend` until a refresh shows it in full. */
+#define KT_PEND 4096
+#define KT_SAMPLES 65536
+struct keytimes {
+    int fd;
+    char line[512];
+    size_t len;
+    uint64_t pend_t[KT_PEND], pend_trig[KT_PEND];
+    size_t head, n;
+    float *ms;
+    uint64_t timed, overflow;
+};
+
+static void kt_read(struct keytimes *k)
+{
+    char buf[4096];
+    ssize_t n;
+    while ((n = read(k->fd, buf, sizeof buf)) > 0)
+        for (ssize_t i = 0; i < n; i++) {
+            if (buf[i] != '\n') {
+                if (k->len + 1 < sizeof k->line)
+                    k->line[k->len++] = buf[i];
+                continue;
+            }
+            k->line[k->len] = 0;
+            k->len = 0;
+            unsigned long long t, trig;
+            if (sscanf(k->line, "%llu %llu", &t, &trig) != 2)
+                continue;
+            if (k->n == KT_PEND) { /* never shown: the oldest gives way */
+                k->head = (k->head + 1) % KT_PEND;
+                k->n--;
+                k->overflow++;
+            }
+            size_t j = (k->head + k->n++) % KT_PEND;
+            k->pend_t[j] = t;
+            k->pend_trig[j] = trig;
+        }
+}
+
+/* After a presented refresh: keys now shown in full get their latency. */
+static void kt_presented(struct keytimes *k, const struct display_stats *st, uint64_t now)
+{
+    kt_read(k);
+    uint64_t shown = st->shown_us < st->key_us ? st->shown_us : st->key_us;
+    while (k->n && k->pend_t[k->head] <= shown) {
+        uint64_t trig = k->pend_trig[k->head];
+        k->ms[k->timed++ % KT_SAMPLES] = now > trig ? (float)((double)(now - trig) * 1e-6) : 0.0f;
+        k->head = (k->head + 1) % KT_PEND;
+        k->n--;
+    }
+}
+
+static int cmp_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+static void kt_percentiles(struct keytimes *k, double *p50, double *p95)
+{
+    size_t n = k->timed < KT_SAMPLES ? (size_t)k->timed : KT_SAMPLES;
+    *p50 = *p95 = NAN;
+    if (!n)
+        return;
+    qsort(k->ms, n, sizeof *k->ms, cmp_float);
+    *p50 = k->ms[(size_t)floor(0.50 * (double)(n - 1) + 0.5)];
+    *p95 = k->ms[(size_t)floor(0.95 * (double)(n - 1) + 0.5)];
 }
 
 static int num(const char *opt, const char *v, double lo, double hi, double *out)
@@ -43,34 +237,43 @@ static int num(const char *opt, const char *v, double lo, double hi, double *out
     return 0;
 }
 
-static void summary(FILE *f, const struct display_stats *st, const struct display_config *cfg, int W, int H)
+static void summary(FILE *f, const struct display_stats *st, const struct display_config *cfg, int W, int H,
+                    const struct keytimes *kt, double p50, double p95)
 {
     const struct display_player_stats *p = &st->player;
     double fps = st->seconds > 0 && st->frames > 1 ? (double)(st->frames - 1) / st->seconds : 0.0;
     double fr = st->frames ? (double)st->frames : 1.0, keys = p->keys ? (double)p->keys : 1.0;
     fprintf(f,
-            "{\"frames\": %llu, \"fps\": %.2f, \"refresh_fps\": %.2f, \"width\": %d, \"height\": %d,\n"
+            "{\"frames\": %llu, \"frames_drawn\": %llu, \"fps\": %.2f, \"refresh_fps\": %.2f, \"width\": %d, \"height\": %d,\n"
             " \"renderer\": \"%s\", \"gl_renderer\": \"%s\", \"auto_cpu_ms\": %.2f, \"auto_gles_ms\": %.2f,\n"
             " \"keys\": %llu, \"dropped_packets\": %llu, \"lost_packets\": %llu, \"skipped_keys\": %llu,\n"
             " \"refused_packets\": %llu, \"waited_packets\": %llu, \"too_large\": %llu, \"skipped_bytes\": %llu,\n"
             " \"bytes\": %llu, \"bitrate_mbps\": %.3f, \"latency_ms\": %.1f,\n"
             " \"decode_ms_per_key\": %.3f, \"lookup_ms_per_key\": %.3f, \"interp_ms_per_frame\": %.3f,\n"
-            " \"render_ms_per_frame\": %.3f, \"present_ms_per_frame\": %.3f}\n",
-            (unsigned long long)st->frames, fps, cfg->fps, W, H, st->renderer == DISPLAY_RENDER_CPU ? "cpu" : "gles",
+            " \"render_ms_per_frame\": %.3f, \"present_ms_per_frame\": %.3f, \"raster_ms_per_frame\": %.3f,\n"
+            " \"gaussians_per_frame\": %.0f, \"visible_per_frame\": %.0f, \"tile_pairs_per_frame\": %.0f,\n",
+            (unsigned long long)st->frames, (unsigned long long)(st->frames - st->redraws_skipped), fps, cfg->fps, W, H, st->renderer == DISPLAY_RENDER_CPU ? "cpu" : "gles",
             st->gl_renderer, st->auto_cpu_ms, st->auto_gles_ms, (unsigned long long)p->keys,
             (unsigned long long)st->source.dropped, (unsigned long long)p->lost, (unsigned long long)p->skipped,
             (unsigned long long)p->refused, (unsigned long long)p->waited, (unsigned long long)p->too_large,
             (unsigned long long)st->source.skipped_bytes, (unsigned long long)st->source.bytes, st->bitrate_mbps,
             st->latency_ms, p->decode_ms / keys, p->lookup_ms / keys, p->interp_ms / fr, st->render_ms / fr,
-            st->present_ms / fr);
+            st->present_ms / fr, st->raster_ms / fr, (double)st->drawn / fr, (double)st->visible / fr,
+            (double)st->pairs / fr);
+    if (kt && isfinite(p50))
+        fprintf(f, " \"keys_timed\": %llu, \"latency_trigger_ms_p50\": %.1f, \"latency_trigger_ms_p95\": %.1f}\n",
+                (unsigned long long)kt->timed, p50, p95);
+    else
+        fprintf(f, " \"keys_timed\": %llu, \"latency_trigger_ms_p50\": null, \"latency_trigger_ms_p95\": null}\n",
+                (unsigned long long)(kt ? kt->timed : 0));
 }
 
 int main(int argc, char **argv)
 {
     struct display_config cfg = display_config_default();
-    const char *input = NULL, *rig_path = NULL, *cam_sel = NULL, *json = NULL;
-    int size_given = 0, realtime = -1, threads = 0;
-    double seconds = 0, frames = 0, offset = 0;
+    const char *input = NULL, *rig_path = NULL, *cam_sel = NULL, *json = NULL, *kt_path = NULL;
+    int size_given = 0, realtime = -1, threads = 0, follow = 0;
+    double seconds = 0, frames = 0, offset = 0, follow_idle = 30;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -85,6 +288,8 @@ int main(int argc, char **argv)
             cfg.status_line = 0;
         } else if (!strcmp(a, "--realtime")) {
             realtime = 1;
+        } else if (!strcmp(a, "--follow")) {
+            follow = 1;
         } else if (!strcmp(a, "--no-realtime")) {
             realtime = 0;
         } else if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
@@ -106,6 +311,11 @@ int main(int argc, char **argv)
                 cam_sel = v;
             } else if (!strcmp(a, "--json")) {
                 json = v;
+            } else if (!strcmp(a, "--key-times")) {
+                kt_path = v;
+            } else if (!strcmp(a, "--follow-idle")) {
+                if (num(a, v, 0.1, 1e6, &follow_idle) < 0)
+                    return 2;
             } else if (!strcmp(a, "--size")) {
                 if (sscanf(v, "%dx%d", &cfg.width, &cfg.height) != 2) {
                     fprintf(stderr, "f4d-display: --size '%s' must be WxH\n", v);
@@ -206,17 +416,37 @@ int main(int argc, char **argv)
     display *d = NULL;
     int rc = 1;
     int net = !strncmp(input, "srt://", 6) || !strncmp(input, "file:", 5);
+    if (follow && (net || offset > 0)) {
+        fprintf(stderr, "f4d-display: --follow reads a plain stream file from its start, not '%s'%s\n", input,
+                offset > 0 ? " at an offset" : "");
+        fk_ctx_free(ctx);
+        return 2;
+    }
+    struct keytimes *kt = NULL;
+    if (kt_path) {
+        kt = calloc(1, sizeof *kt);
+        if (!kt || !(kt->ms = malloc(KT_SAMPLES * sizeof *kt->ms)) || (kt->fd = open(kt_path, O_RDONLY)) < 0) {
+            fprintf(stderr, "f4d-display: --key-times '%s': %s\n", kt_path, kt ? strerror(errno) : "out of memory");
+            if (kt)
+                free(kt->ms);
+            free(kt);
+            fk_ctx_free(ctx);
+            return 1;
+        }
+    }
     if (net && offset > 0) {
         fprintf(stderr, "f4d-display: --offset applies to a plain stream file, not to '%s'\n", input);
         fk_ctx_free(ctx);
         return 2;
     }
 #ifdef F4D_DISPLAY_TRANSPORT
-    int src_rc = net ? display_source_transport(input, 0, &src, &err)
-                     : display_source_file(input, (size_t)offset, &src, &err);
+    int src_rc = follow ? follow_open(input, follow_idle, &src, &err)
+                 : net  ? display_source_transport(input, 0, &src, &err)
+                        : display_source_file(input, (size_t)offset, &src, &err);
 #else
-    int src_rc = net ? f4d_fail(&err, F4D_ENOTSUP, "'%s': built without the stream transport", input)
-                     : display_source_file(input, (size_t)offset, &src, &err);
+    int src_rc = follow ? follow_open(input, follow_idle, &src, &err)
+                 : net  ? f4d_fail(&err, F4D_ENOTSUP, "'%s': built without the stream transport", input)
+                        : display_source_file(input, (size_t)offset, &src, &err);
 #endif
     if (src_rc < 0 || display_new(ctx, &cfg, &d, &err) < 0) {
         fprintf(stderr, "f4d-display: %s\n", err.msg);
@@ -228,6 +458,7 @@ int main(int argc, char **argv)
         const struct display_stats *st = display_get_stats(d);
         if (limit && st->frames >= limit)
             break;
+        uint64_t before = st->frames;
         int s = display_step(d, src);
         if (s < 0) {
             fprintf(stderr, "f4d-display: '%s': %s\n", input, display_error(d));
@@ -235,6 +466,13 @@ int main(int argc, char **argv)
         }
         if (s == 0)
             break;
+        if (kt && st->frames > before)
+            kt_presented(kt, st, mono_ns());
+    }
+    double p50 = NAN, p95 = NAN;
+    if (kt) {
+        kt_read(kt);
+        kt_percentiles(kt, &p50, &p95);
     }
     const struct display_stats *st = display_get_stats(d);
     int W = 0, H = 0;
@@ -243,14 +481,14 @@ int main(int argc, char **argv)
         W = used->width;
         H = used->height;
     }
-    summary(stdout, st, &cfg, W, H);
+    summary(stdout, st, &cfg, W, H, kt, p50, p95);
     if (json) {
         FILE *f = fopen(json, "w");
         if (!f) {
             fprintf(stderr, "f4d-display: cannot create '%s': %s\n", json, strerror(errno));
             goto done;
         }
-        summary(f, st, &cfg, W, H);
+        summary(f, st, &cfg, W, H, kt, p50, p95);
         fclose(f);
     }
     if (st->frames == 0) {
@@ -263,5 +501,10 @@ done:
     display_free(d);
     display_source_free(src);
     fk_ctx_free(ctx);
+    if (kt) {
+        close(kt->fd);
+        free(kt->ms);
+        free(kt);
+    }
     return rc;
 }

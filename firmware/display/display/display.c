@@ -38,6 +38,10 @@ struct display {
     size_t            png_path_cap;
     struct display_stats st;
     struct f4d_err    err;
+    /* the last picture drawn (CPU path): its key pair, stream time, camera */
+    int               drawn_valid, drawn_keys;
+    uint64_t          drawn_tp, drawn_tn, drawn_t;
+    struct splat_camera drawn_cam;
 };
 
 struct display_config display_config_default(void)
@@ -226,6 +230,9 @@ static int draw_cpu(display *d, const struct splat_frame *f)
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &ro) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));
     d->st.raster_ms += display__now_ms() - t0;
+    d->st.drawn += f->count;
+    d->st.visible += ro.visible;
+    d->st.pairs += ro.pairs;
     return display__gl_upload(d->gl, d->rgba, &d->err);
 }
 
@@ -389,18 +396,42 @@ int display_step(display *d, display_source *src)
     display_source_get_stats(src, &d->st.source);
     d->st.player = *display_player_get_stats(d->player);
     /* the stream ended and its last key was shown (half a refresh of slack:
-     * key times and refresh times are both rounded to microseconds) */
-    if (d->eof && d->refresh > 0 && (double)t_us > (double)tn + 0.5e6 / d->cfg.fps)
+     * key times and refresh times are both rounded to microseconds); a paced
+     * display whose clock ran past a live stream may get the last key with
+     * the end packet: it presents that key once before it stops */
+    uint64_t shown = d->st.shown_us < d->st.key_us ? d->st.shown_us : d->st.key_us;
+    if (d->eof && d->refresh > 0 && (double)t_us > (double)tn + 0.5e6 / d->cfg.fps &&
+        (!d->cfg.realtime || shown >= tn))
         return 0;
-    const struct splat_frame *f;
-    if ((rc = display_player_frame(d->player, t_us, &d->cam, &f)) < 0)
-        return f4d_fail(&d->err, rc, "%s", display_player_error(d->player));
+    /* A refresh past the newest key of the same pair, from the same camera,
+     * shows what was drawn last (interp clamps a to 1): the CPU path's
+     * texture still holds it, so only the compose and present run (a live
+     * stream behind the display's clock, a stalled sender). */
+    int keys = display_player_keys(d->player, &tp, &tn);
+    int same = d->renderer == DISPLAY_RENDER_CPU && d->drawn_valid && keys == d->drawn_keys && tp == d->drawn_tp &&
+               tn == d->drawn_tn && t_us >= tn && d->drawn_t >= tn && !memcmp(&d->cam, &d->drawn_cam, sizeof d->cam);
     double t_draw = display__now_ms();
-    if ((rc = draw(d, d->renderer, f)) < 0)
-        return rc;
+    if (same) {
+        d->st.redraws_skipped++;
+    } else {
+        const struct splat_frame *f;
+        if ((rc = display_player_frame(d->player, t_us, &d->cam, &f)) < 0)
+            return f4d_fail(&d->err, rc, "%s", display_player_error(d->player));
+        t_draw = display__now_ms();
+        if ((rc = draw(d, d->renderer, f)) < 0)
+            return rc;
+        d->drawn_valid = 1;
+        d->drawn_keys = keys;
+        d->drawn_tp = tp;
+        d->drawn_tn = tn;
+        d->drawn_t = t_us;
+        d->drawn_cam = d->cam;
+    }
     d->st.player = *display_player_get_stats(d->player); /* interp time of this frame */
     double span_s = (double)(tn - d->t0_us) * 1e-6;
     d->st.bitrate_mbps = span_s > 0 ? (double)d->st.source.bytes * 8e-6 / span_s : 0.0;
+    d->st.shown_us = t_us;
+    d->st.key_us = tn;
     d->st.latency_ms = (tn > t_us ? (double)(tn - t_us) * 1e-3 : 0.0) +
                        (d->st.source.latency_ms > 0 ? d->st.source.latency_ms : 0.0);
     if (d->cfg.status_line)

@@ -172,8 +172,14 @@ struct display_stats {
     double   seconds;               /* wall time of those refreshes               */
     double   render_ms, present_ms; /* totals: draw (+ upload), compose + present  */
     double   raster_ms;             /* of render_ms: splat_render (CPU path)       */
+    uint64_t drawn, visible, pairs; /* totals over CPU refreshes: Gaussians drawn, past culling,
+                                       Gaussian-tile overlaps (what the compositing costs) */
     double   bitrate_mbps;          /* received bits over the stream time seen    */
     double   latency_ms;            /* newest key time minus displayed time (+ source) */
+    uint64_t redraws_skipped;       /* refreshes that re-presented the last picture drawn (CPU path:
+                                       same key pair, stream time past the newest key, same camera) */
+    uint64_t shown_us, key_us;      /* last refresh: its stream time, the newest key held
+                                       (it shows key k in full once both are >= k's time) */
     enum display_renderer renderer; /* the one in use (AUTO resolved)             */
     double   auto_cpu_ms, auto_gles_ms; /* AUTO's measurement (0 when not run)    */
     char     gl_renderer[128];      /* GL_RENDERER                                */

@@ -16,7 +16,8 @@ struct f4d_simscene {
     double t_cached; /* the frame holds the scene at this time */
     bool have_t;
     uint32_t width, height;
-    float *rgb;
+    uint8_t *rgba; /* the render quantised by splat (floor(clamp(v) * 255 + 0.5)), as the
+                      float image was here: same bytes, no float image written or read */
 };
 
 int f4d_simscene_new(struct f4d_simscene **out, const char *preset, uint64_t seed, uint32_t views,
@@ -36,9 +37,9 @@ int f4d_simscene_new(struct f4d_simscene **out, const char *preset, uint64_t see
         return f4d_fail(err, F4D_ENOMEM, "sim scene: out of memory");
     ss->width = width;
     ss->height = height;
-    ss->rgb = malloc((size_t)width * height * 3 * sizeof *ss->rgb);
+    ss->rgba = malloc((size_t)width * height * 4);
     struct fk_ctx_config cfg = {.isa = FK_ISA_AUTO, .threads = 0};
-    if (!ss->rgb || fk_ctx_new(&cfg, &ss->ctx) != F4D_OK) {
+    if (!ss->rgba || fk_ctx_new(&cfg, &ss->ctx) != F4D_OK) {
         f4d_simscene_free(ss);
         return f4d_fail(err, F4D_ENOMEM, "sim scene: cannot create the compute context");
     }
@@ -68,19 +69,14 @@ int f4d_simscene_render(void *user, uint32_t cam, uint64_t t_ns, const struct ha
     }
     struct splat_render_out o;
     memset(&o, 0, sizeof o);
-    o.rgb = ss->rgb;
+    o.rgba8 = ss->rgba;
     if (splat_render(ss->r, &ss->rig.cams[cam], &ss->f, scene_background(), &o) < 0)
         return F4D_EIO;
     const uint32_t bpp = hal_pixfmt_bytes_per_pixel(f->pixfmt);
     for (uint32_t y = 0; y < f->height; y++) {
         uint8_t *row = dst + (size_t)y * f->stride;
-        const float *src = ss->rgb + (size_t)y * f->width * 3;
-        for (uint32_t x = 0; x < f->width; x++) {
-            uint8_t c[3];
-            for (int k = 0; k < 3; k++) {
-                float q = src[3 * x + k] * 255.0f + 0.5f;
-                c[k] = q <= 0.0f ? 0 : q >= 255.0f ? 255 : (uint8_t)q;
-            }
+        const uint8_t *c = ss->rgba + (size_t)y * f->width * 4;
+        for (uint32_t x = 0; x < f->width; x++, c += 4) {
             if (bpp == 3)
                 memcpy(row + 3 * x, c, 3);
             else
@@ -101,6 +97,6 @@ void f4d_simscene_free(struct f4d_simscene *ss)
         scene_free(ss->sc);
     if (ss->ctx)
         fk_ctx_free(ss->ctx);
-    free(ss->rgb);
+    free(ss->rgba);
     free(ss);
 }
