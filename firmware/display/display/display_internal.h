@@ -11,6 +11,8 @@
 #define DISPLAY_LOOKUP_PX     518 /* longest side of the default lookup view */
 
 double display__now_ms(void);
+/* Process CPU time (every thread), ms. */
+double display__cpu_ms(void);
 
 /* 7 rows of 5 bits of character c (bit 4 = leftmost column). */
 const unsigned char *display__glyph(char c);

@@ -626,11 +626,19 @@ static double now_ms(void)
     return 1e3 * (double)ts.tv_sec + 1e-6 * (double)ts.tv_nsec;
 }
 
+static double cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return 1e3 * (double)ts.tv_sec + 1e-6 * (double)ts.tv_nsec;
+}
+
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                        const float *features, const float *bg, float *rgb, float *alpha, float *depth,
-                       int32_t *top, uint8_t *rgba8, int normalize, size_t *visible_out, size_t *pairs_out, double *ms)
+                       int32_t *top, uint8_t *rgba8, int normalize, size_t *visible_out, size_t *pairs_out, double *ms,
+                       double *cms)
 {
-    double t0 = now_ms(), t1, t2, t3;
+    double t0 = now_ms(), t1, t2, t3, c0 = cms ? cpu_ms() : 0.0, c1 = 0.0, c2 = 0.0, c3 = 0.0;
     if (!r)
         return F4D_EINVAL;
     r->err.msg[0] = '\0';
@@ -680,12 +688,16 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     }
 
     t1 = now_ms();
+    if (cms)
+        c1 = cpu_ms();
     /* 2. depth order */
     radix_sort(r->ctx, r->sort_count, r->key, r->idx, r->key_tmp, r->idx_tmp, nv);
     struct order_job oj = { .r = r, .n = nv };
     fk_parallel_for(r->ctx, (int)((nv + PREP_CHUNK - 1) / PREP_CHUNK), 30.0 * (double)nv, gather_task, &oj);
 
     t2 = now_ms();
+    if (cms)
+        c2 = cpu_ms();
     /* 3. binning */
     int bchunks = (int)((nv + BIN_CHUNK - 1) / BIN_CHUNK);
     fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_count_task, &oj);
@@ -704,6 +716,8 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     fk_parallel_for(r->ctx, bchunks, 10.0 * (double)nv, bin_scatter_task, &oj);
 
     t3 = now_ms();
+    if (cms)
+        c3 = cpu_ms();
     /* 4. compositing */
     struct raster_job rj = { .rc = { .sorted = r->sorted, .pairs = r->pairs, .tile_start = r->tile_start,
                                      .width = r->width, .height = r->height, .tiles_x = r->tiles_x },
@@ -715,6 +729,12 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
         ms[1] = t2 - t1;
         ms[2] = t3 - t2;
         ms[3] = now_ms() - t3;
+    }
+    if (cms) {
+        cms[0] = c1 - c0;
+        cms[1] = c2 - c1;
+        cms[2] = c3 - c2;
+        cms[3] = cpu_ms() - c3;
     }
     if (visible_out)
         *visible_out = nv;
@@ -729,7 +749,7 @@ int splat_render(splat_renderer *r, const struct splat_camera *cam, const struct
     if (!out)
         return r ? fail(r, F4D_EINVAL, "render: out is NULL", NULL) : F4D_EINVAL;
     return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, out->rgba8, 0,
-                       &out->visible, &out->pairs, out->ms_stage);
+                       &out->visible, &out->pairs, out->ms_stage, out->cpu_ms_stage);
 }
 
 int splat_render_features(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
@@ -737,5 +757,5 @@ int splat_render_features(splat_renderer *r, const struct splat_camera *cam, con
 {
     if (!features || !out)
         return r ? fail(r, F4D_EINVAL, "render_features: features or out is NULL", NULL) : F4D_EINVAL;
-    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 1, NULL, NULL, NULL);
+    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 1, NULL, NULL, NULL, NULL);
 }

@@ -163,6 +163,8 @@ struct splat_render_out {
     size_t visible;   /* Gaussians that passed culling                        */
     size_t pairs;     /* Gaussian-tile overlaps                               */
     double ms_stage[4]; /* wall time of preprocess, sort, binning, compositing */
+    double cpu_ms_stage[4]; /* the same stages' process CPU time (all threads):
+                               what they cost on a machine shared with others */
 };
 
 /* A renderer for W x H images. ctx (borrowed, must outlive the renderer)
