@@ -273,7 +273,7 @@ static int prep_one(const struct prep_job *j, size_t i)
         P->col[k] = j->features ? col[k] : (col[k] > 0.0f ? col[k] : 0.0f);
     P->rect[0] = (int16_t)x0; P->rect[1] = (int16_t)y0; P->rect[2] = (int16_t)x1; P->rect[3] = (int16_t)y1;
     P->id = (int32_t)i;
-    return 1;
+    return splat__narrow_rect(P, r->tiles_x, r->tiles_y);
 }
 
 static void prep_task(void *arg, int task, int thread)

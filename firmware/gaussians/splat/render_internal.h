@@ -2,6 +2,7 @@
 #ifndef F4D_SPLAT_RENDER_INTERNAL_H
 #define F4D_SPLAT_RENDER_INTERNAL_H
 
+#include <math.h>
 #include <stdint.h>
 
 #include "splat.h"
@@ -20,6 +21,30 @@ struct projected {
     int16_t rect[4];      /* tiles x0, y0, x1, y1 (exclusive) */
 };
 _Static_assert(sizeof(struct projected) == 64, "one projected Gaussian per cache line");
+
+/* Narrows P->rect (the reference's 3-sigma tile rectangle) to the tiles the
+ * compositors can touch: both composite a Gaussian only on pixel columns
+ * ceil(mx - ex) .. floor(mx + ex) and rows ceil(my - ey) .. floor(my + ey)
+ * (where its alpha can reach 1/255), so a tile outside that box adds nothing
+ * and is left out of the lists: the same image from fewer Gaussian-tile pairs
+ * (a quarter of them in the walk scene at 1280x720). 0: no tile left. */
+static inline int splat__narrow_rect(struct projected *P, int tiles_x, int tiles_y)
+{
+    const float inv = 1.0f / (float)SPLAT_TILE; /* a power of 2: exact */
+    float bx0 = floorf(ceilf(P->mx - P->ex) * inv), bx1 = floorf(floorf(P->mx + P->ex) * inv) + 1.0f;
+    float by0 = floorf(ceilf(P->my - P->ey) * inv), by1 = floorf(floorf(P->my + P->ey) * inv) + 1.0f;
+    const float gx = (float)tiles_x, gy = (float)tiles_y;
+    bx0 = bx0 > 0.0f ? (bx0 < gx ? bx0 : gx) : 0.0f;
+    bx1 = bx1 > 0.0f ? (bx1 < gx ? bx1 : gx) : 0.0f;
+    by0 = by0 > 0.0f ? (by0 < gy ? by0 : gy) : 0.0f;
+    by1 = by1 > 0.0f ? (by1 < gy ? by1 : gy) : 0.0f;
+    int x0 = (int)bx0, x1 = (int)bx1, y0 = (int)by0, y1 = (int)by1;
+    if (x0 > P->rect[0]) P->rect[0] = (int16_t)x0;
+    if (y0 > P->rect[1]) P->rect[1] = (int16_t)y0;
+    if (x1 < P->rect[2]) P->rect[2] = (int16_t)x1;
+    if (y1 < P->rect[3]) P->rect[3] = (int16_t)y1;
+    return P->rect[0] < P->rect[2] && P->rect[1] < P->rect[3];
+}
 
 /* What preprocessing needs, for any Gaussian. */
 struct prep_view {
