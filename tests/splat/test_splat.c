@@ -462,7 +462,8 @@ static void test_simd_matches_scalar(void **state)
 
 /* rgba8 alone (a display's request: no depth, no top, so the compositor
  * skips their accumulators) is the full render's rgb quantised as PNG
- * writing does, byte for byte, on the scalar path and on the SIMD ones. */
+ * writing does, byte for byte, on the scalar path and on the SIMD ones;
+ * rgba8_bottom_up gives the same rows in GL's order. */
 static void test_rgba8_matches_rgb(void **state)
 {
     (void)state;
@@ -497,6 +498,15 @@ static void test_rgba8_matches_rgb(void **state)
             lit += a.alpha[i] > 0.5f;
         }
         assert_true(lit > 100 * 60 / 10); /* the frame covers part of the view */
+        /* bottom row first: the same rows in the opposite order */
+        uint8_t *u = malloc(4 * 100 * 60);
+        assert_non_null(u);
+        memset(u, 7, 4 * 100 * 60);
+        struct splat_render_out ou = { .rgba8 = u, .rgba8_bottom_up = 1 };
+        assert_int_equal(splat_render(r, &cam, &f, bg, &ou), 0);
+        for (int y = 0; y < 60; y++)
+            assert_memory_equal(u + 4 * 100 * (size_t)y, q + 4 * 100 * (size_t)(59 - y), 4 * 100);
+        free(u);
         splat_renderer_free(r);
         img_free(&a);
         fk_ctx_free(ctx);

@@ -221,7 +221,7 @@ static int draw_cpu(display *d, const struct splat_frame *f)
 {
     /* the renderer writes the 8-bit image the texture takes, quantised as
      * splat_png_write_rgb does: no float image, no second pass over it */
-    struct splat_render_out ro = { .rgba8 = d->rgba };
+    struct splat_render_out ro = { .rgba8 = d->rgba, .rgba8_bottom_up = 1 };
     double t0 = display__now_ms();
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &ro) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));

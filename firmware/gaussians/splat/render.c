@@ -494,12 +494,13 @@ void splat__tile_write(const struct raster_job *j, int tile, const float *T, con
             }
             if (j->rgba8) { /* as splat_png_write_rgb quantises (NaN -> 0) */
                 const float v[3] = { C0[p] + T[p] * bg0, C1[p] + T[p] * bg1, C2[p] + T[p] * bg2 };
+                const size_t o8 = j->rgba8_up ? (size_t)(H - 1 - ty0 - y) * (size_t)W + (size_t)(tx0 + x) : o;
                 for (int c = 0; c < 3; c++) {
                     float q = v[c] > 0.0f ? v[c] : 0.0f;
                     q = q < 1.0f ? q : 1.0f;
-                    j->rgba8[4 * o + (size_t)c] = (uint8_t)(q * 255.0f + 0.5f);
+                    j->rgba8[4 * o8 + (size_t)c] = (uint8_t)(q * 255.0f + 0.5f);
                 }
-                j->rgba8[4 * o + 3] = 255;
+                j->rgba8[4 * o8 + 3] = 255;
             }
             if (j->alpha)
                 j->alpha[o] = acc;
@@ -635,8 +636,8 @@ static double cpu_ms(void)
 
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                        const float *features, const float *bg, float *rgb, float *alpha, float *depth,
-                       int32_t *top, uint8_t *rgba8, int normalize, size_t *visible_out, size_t *pairs_out, double *ms,
-                       double *cms)
+                       int32_t *top, uint8_t *rgba8, int rgba8_up, int normalize, size_t *visible_out,
+                       size_t *pairs_out, double *ms, double *cms)
 {
     double t0 = now_ms(), t1, t2, t3, c0 = cms ? cpu_ms() : 0.0, c1 = 0.0, c2 = 0.0, c3 = 0.0;
     if (!r)
@@ -722,6 +723,7 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
     struct raster_job rj = { .rc = { .sorted = r->sorted, .pairs = r->pairs, .tile_start = r->tile_start,
                                      .width = r->width, .height = r->height, .tiles_x = r->tiles_x },
                              .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top, .rgba8 = rgba8,
+                             .rgba8_up = rgba8_up,
                              .normalize = normalize };
     fk_parallel_for(r->ctx, r->n_tiles, 1e9, pj.simd ? raster_task_simd : raster_task_ref, &rj);
     if (ms) {
@@ -748,7 +750,7 @@ int splat_render(splat_renderer *r, const struct splat_camera *cam, const struct
 {
     if (!out)
         return r ? fail(r, F4D_EINVAL, "render: out is NULL", NULL) : F4D_EINVAL;
-    return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, out->rgba8, 0,
+    return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, out->rgba8, out->rgba8_bottom_up, 0,
                        &out->visible, &out->pairs, out->ms_stage, out->cpu_ms_stage);
 }
 
@@ -757,5 +759,5 @@ int splat_render_features(splat_renderer *r, const struct splat_camera *cam, con
 {
     if (!features || !out)
         return r ? fail(r, F4D_EINVAL, "render_features: features or out is NULL", NULL) : F4D_EINVAL;
-    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 1, NULL, NULL, NULL, NULL);
+    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 0, 1, NULL, NULL, NULL, NULL);
 }

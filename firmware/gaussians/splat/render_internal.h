@@ -76,6 +76,7 @@ struct raster_job {
     float          *rgb, *alpha, *depth;
     int32_t        *top;
     uint8_t        *rgba8;     /* quantised colour over bg, alpha 255 */
+    int             rgba8_up;  /* rgba8 rows bottom first */
     int             normalize; /* features: divide by accumulated alpha */
 };
 

@@ -159,6 +159,8 @@ struct splat_render_out {
                          what a display uploads, without a float image; or
                          NULL. Without depth and top the compositing skips
                          their accumulators (the colour is bit-identical).   */
+    int rgba8_bottom_up; /* rgba8's rows bottom first (GL's texture order): a
+                         display copies it to its framebuffer without a flip */
     /* Statistics of the last render (written, never read). */
     size_t visible;   /* Gaussians that passed culling                        */
     size_t pairs;     /* Gaussian-tile overlaps                               */

@@ -58,7 +58,8 @@ static void write_rgba8(const struct raster_job *j, int tile, const float *T, co
                 __m256i q = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(v, s255), half));
                 px = _mm256_or_si256(px, _mm256_slli_epi32(q, 8 * c));
             }
-            uint8_t *o = j->rgba8 + 4 * ((size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x));
+            const int oy = j->rgba8_up ? r->height - 1 - ty0 - y : ty0 + y;
+            uint8_t *o = j->rgba8 + 4 * ((size_t)oy * (size_t)W + (size_t)(tx0 + x));
             if (tw - x >= 8) {
                 _mm256_storeu_si256((__m256i *)o, px);
             } else { /* the image's last columns */
