@@ -606,6 +606,14 @@ static void raster_task_ref(void *arg, int tile, int thread)
     splat__raster_tile_ref(arg, tile);
 }
 
+#if defined(F4D_SPLAT_HAVE_AVX512)
+static void raster_task_avx512(void *arg, int tile, int thread)
+{
+    (void)thread;
+    splat__raster_tile_avx512(arg, tile);
+}
+#endif
+
 static void raster_task_simd(void *arg, int tile, int thread)
 {
     (void)thread;
@@ -725,7 +733,12 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
                              .bg = bg, .rgb = rgb, .alpha = alpha, .depth = depth, .top = top, .rgba8 = rgba8,
                              .rgba8_up = rgba8_up,
                              .normalize = normalize };
-    fk_parallel_for(r->ctx, r->n_tiles, 1e9, pj.simd ? raster_task_simd : raster_task_ref, &rj);
+    fk_task_fn raster = pj.simd ? raster_task_simd : raster_task_ref;
+#if defined(F4D_SPLAT_HAVE_AVX512)
+    if (isa == FK_ISA_AVX512)
+        raster = raster_task_avx512;
+#endif
+    fk_parallel_for(r->ctx, r->n_tiles, 1e9, raster, &rj);
     if (ms) {
         ms[0] = t1 - t0;
         ms[1] = t2 - t1;

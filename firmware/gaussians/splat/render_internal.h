@@ -87,6 +87,9 @@ void splat__raster_tile_ref (const struct raster_job *j, int tile);
 void splat__tile_write      (const struct raster_job *j, int tile, const float *T, const float *C0,
                              const float *C1, const float *C2, const float *D, const int32_t *top);
 void splat__raster_tile_avx2(const struct raster_job *j, int tile);
+/* The same on 16 lanes (AVX-512 F/BW/VL), bit-identical to the AVX2 one:
+ * narrow boxes take 4 rows of 4 or 2 rows of 8 pixels per step. */
+void splat__raster_tile_avx512(const struct raster_job *j, int tile);
 /* The same with 4 pixels per step (AArch64 NEON, arm/raster_neon.c). */
 void splat__raster_tile_neon(const struct raster_job *j, int tile);
 

@@ -87,6 +87,9 @@ static inline __attribute__((always_inline)) void st(float *a, int p, __m256 v, 
     }
 }
 
+/* The accumulators a render asks for beside colour and T. */
+enum { AUX_DEPTH = 1, AUX_TOP = 2 };
+
 /* What one Gaussian applies to the tile; the same for every step. */
 struct gauss_step {
     __m256 vo, vcut, vz, cr, cg, cb;
@@ -143,8 +146,9 @@ static inline __attribute__((always_inline)) void step(const struct gauss_step *
     ACC(t->C0, g->cr);
     ACC(t->C1, g->cg);
     ACC(t->C2, g->cb);
-    if (aux) {
+    if (aux & AUX_DEPTH)
         ACC(t->D, g->vz);
+    if (aux & AUX_TOP) {
         const __m256 bp = ld(t->best, p, packed);
         const __m256 w = _mm256_mul_ps(alpha, Tp);
         const __m256 better = _mm256_and_ps(add, _mm256_cmp_ps(w, bp, _CMP_GT_OQ));
@@ -156,10 +160,11 @@ static inline __attribute__((always_inline)) void step(const struct gauss_step *
     st(t->T, p, _mm256_blendv_ps(Tp, test_T, add), packed);
 }
 
-/* aux: also accumulate expected depth and the dominant Gaussian. A display
- * asks for colour only, and the 3 accumulators it skips are about a quarter
- * of the inner loop's loads and stores; colour and T are computed by the same
- * operations either way, so the image is bit-identical. */
+/* aux: also accumulate expected depth (AUX_DEPTH) and the dominant Gaussian
+ * (AUX_TOP). A display asks for colour only, interp's pixel lookup for depth
+ * only, and each accumulator skipped saves loads, stores and blends of the
+ * inner loop; colour and T are computed by the same operations either way, so
+ * the image is bit-identical. */
 static inline __attribute__((always_inline)) void raster_tile(const struct raster_job *j, int tile, const int aux)
 {
     const struct raster_ctx *r = &j->rc;
@@ -260,8 +265,10 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
 
 void splat__raster_tile_avx2(const struct raster_job *j, int tile)
 {
-    if (j->depth || j->top)
-        raster_tile(j, tile, 1);
+    if (j->top)
+        raster_tile(j, tile, AUX_DEPTH | AUX_TOP);
+    else if (j->depth)
+        raster_tile(j, tile, AUX_DEPTH);
     else
         raster_tile(j, tile, 0);
 }
