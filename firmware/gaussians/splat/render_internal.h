@@ -64,7 +64,7 @@ unsigned splat__prep8_avx2(const struct prep_view *pv, size_t i0);
 
 /* What one compositing pass needs, for any tile. */
 struct raster_ctx {
-    const struct projected *sorted;
+    const struct projected *proj;        /* frame order; pairs index it */
     const int32_t          *pairs;
     const uint32_t         *tile_start;
     int                     width, height, tiles_x;

@@ -191,8 +191,8 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
     const uint32_t s = r->tile_start[tile], e = r->tile_start[tile + 1];
     for (uint32_t k = s; k < e && remaining > 0; k++) {
         if (k + 6 < e)
-            _mm_prefetch((const char *)(r->sorted + r->pairs[k + 6]), _MM_HINT_T0);
-        const struct projected *P = r->sorted + r->pairs[k];
+            _mm_prefetch((const char *)(r->proj + r->pairs[k + 6]), _MM_HINT_T0);
+        const struct projected *P = r->proj + r->pairs[k];
         const float mx = P->mx, my = P->my, A = P->A, B = P->B, Cc = P->C;
         const float k2 = P->k2;
         float fy0 = ceilf(my - P->ey), fy1 = floorf(my + P->ey);
