@@ -9,11 +9,14 @@
  * (as fast as it goes: the displayed rate is what this machine sustains), no
  * PNG, status line on, camera cam1 of the scene's default rig at the display
  * size, pixel lookup in the starting view at 518 px. Each row runs the whole
- * stream (--seconds of it); fps = (frames - 1) / wall time. Best of --runs.
+ * stream (--seconds of it); fps = (frames - 1) / wall time. Of --runs, the
+ * row with the least CPU time (its stages below it) and the best wall fps.
  * Beside it the process's CPU time per refresh (all threads) and the rate
  * that CPU time allows on all cores: on a shared, loaded machine the wall
  * time counts the neighbours' work, the CPU time does not (it assumes the
- * work spreads over the cores, which the fk pool and llvmpipe do). */
+ * work spreads over the cores, which the fk pool and llvmpipe do), and that
+ * CPU time by stage, per refresh: decode, pixel lookup + partners (per key),
+ * interpolation, the rasterizer's 4 stages, upload, compose + present. */
 #include <math.h>
 #include <stdio.h>
 #include <time.h>
@@ -30,6 +33,8 @@ struct drow {
     int    W, H;
     const char *renderer;
     double fps, fps_cpu, cpu_ms, decode_ms, lookup_ms, interp_ms, render_ms, raster_ms, present_ms, mbps;
+    double c_decode, c_lookup, c_interp, c_prep, c_sort, c_bin, c_comp, c_upload, c_present; /* CPU ms per refresh */
+    double load1;                                                                        /* loadavg at the end */
     unsigned long long frames, keys;
 };
 
@@ -147,6 +152,19 @@ static int run_row(fk_ctx *ctx, const uint8_t *buf, size_t len, int W, int H, en
     row->raster_ms = st->raster_ms / fr;
     row->present_ms = st->present_ms / fr;
     row->mbps = st->bitrate_mbps;
+    /* CPU time per refresh by stage, all refreshes (the first included: its
+     * key's decode and partners belong to the stream) */
+    row->c_decode = p->decode_cpu_ms / fr;
+    row->c_lookup = p->lookup_cpu_ms / fr;
+    row->c_interp = p->interp_cpu_ms / fr;
+    row->c_prep = st->raster_cpu_ms[0] / fr;
+    row->c_sort = st->raster_cpu_ms[1] / fr;
+    row->c_bin = st->raster_cpu_ms[2] / fr;
+    row->c_comp = st->raster_cpu_ms[3] / fr;
+    row->c_upload = st->upload_cpu_ms / fr;
+    row->c_present = st->present_cpu_ms / fr;
+    double la[1];
+    row->load1 = getloadavg(la, 1) == 1 ? la[0] : -1.0;
     display_free(d);
     display_source_free(src);
     return s < 0 ? -1 : 0;
@@ -158,6 +176,8 @@ int bench_display(int argc, char **argv)
     int runs = 2;
     double seconds = 2.0;
     int sizes[2][2] = { { 960, 540 }, { 1280, 720 } }, nsizes = 2, r0 = DISPLAY_RENDER_CPU, r1 = DISPLAY_RENDER_GLES;
+    size_t counts[2] = { 100000, 300000 };
+    int ncounts = 2;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
@@ -165,6 +185,8 @@ int bench_display(int argc, char **argv)
             runs = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--seconds") && i + 1 < argc)
             seconds = atof(argv[++i]);
+        else if (!strcmp(argv[i], "--gaussians") && i + 1 < argc && atol(argv[i + 1]) > 0)
+            counts[0] = (size_t)atol(argv[++i]), ncounts = 1;
         else if (!strcmp(argv[i], "--quick"))
             nsizes = 1;
         else if (!strcmp(argv[i], "--renderer") && i + 1 < argc && !strcmp(argv[i + 1], "cpu"))
@@ -176,8 +198,9 @@ int bench_display(int argc, char **argv)
             nsizes = 1, i++;
         else {
             fprintf(stderr, "usage: f4d-bench display [--runs N] [--seconds S] [--quick] [--size WxH]\n"
-                            "                         [--renderer cpu|gles] [--json FILE]\n"
-                            "  --quick: 960x540 only; --size: that size only; --renderer: that one only\n");
+                            "                         [--renderer cpu|gles] [--gaussians N] [--json FILE]\n"
+                            "  --quick: 960x540 only; --size: that size only; --renderer: that one only;\n"
+                            "  --gaussians: that count only (100000 and 300000 by default)\n");
             return 2;
         }
     }
@@ -189,10 +212,9 @@ int bench_display(int argc, char **argv)
     struct fk_ctx_config kc = { .isa = FK_ISA_AUTO, .threads = 0 };
     if (fk_ctx_new(&kc, &ctx) != F4D_OK)
         return 1;
-    const size_t counts[2] = { 100000, 300000 };
     struct drow rows[8];
     int nrows = 0;
-    for (int c = 0; c < 2; c++) {
+    for (int c = 0; c < ncounts; c++) {
         uint8_t *buf = NULL;
         size_t len = 0, n = 0;
         if (make_stream(counts[c], seconds, &buf, &len, &n) < 0)
@@ -200,13 +222,18 @@ int bench_display(int argc, char **argv)
         for (int z = 0; z < nsizes; z++)
             for (int r = r0; r <= r1; r++) {
                 struct drow best = { 0 };
+                double best_fps = 0.0;
                 for (int k = 0; k < runs; k++) {
                     struct drow row = { 0 };
                     if (run_row(ctx, buf, len, sizes[z][0], sizes[z][1], (enum display_renderer)r, &row) < 0)
                         return 1;
-                    if (row.fps > best.fps)
+                    /* best by CPU time: on a shared machine the wall rate
+                     * measures the neighbours */
+                    if (k == 0 || row.cpu_ms < best.cpu_ms)
                         best = row;
+                    best_fps = row.fps > best_fps ? row.fps : best_fps;
                 }
+                best.fps = best_fps;
                 best.n = n;
                 best.W = sizes[z][0];
                 best.H = sizes[z][1];
@@ -218,6 +245,10 @@ int bench_display(int argc, char **argv)
                        n, best.W, best.H, best.renderer, best.fps, best.frames, best.keys, best.mbps, best.cpu_ms,
                        best.fps_cpu, best.decode_ms,
                        best.lookup_ms, best.interp_ms, best.render_ms, best.raster_ms, best.present_ms);
+                printf("  CPU ms per refresh: decode %.1f  lookup+partners %.1f  interp %.1f  project %.1f  sort %.1f  "
+                       "bin %.1f  composite %.1f  upload %.1f  present %.1f  (load %.2f)\n",
+                       best.c_decode, best.c_lookup, best.c_interp, best.c_prep, best.c_sort, best.c_bin, best.c_comp,
+                       best.c_upload, best.c_present, best.load1);
                 fflush(stdout);
             }
         free(buf);
@@ -234,9 +265,13 @@ int bench_display(int argc, char **argv)
             fprintf(fp,
                     "%s\n  {\"gaussians\": %zu, \"width\": %d, \"height\": %d, \"renderer\": \"%s\", \"fps\": %.2f, \"fps_cpu_time\": %.2f, "
                     "\"decode_ms_per_key\": %.2f, \"lookup_ms_per_key\": %.2f, \"interp_ms\": %.2f, \"draw_ms\": "
-                    "%.2f, \"present_ms\": %.2f}",
+                    "%.2f, \"present_ms\": %.2f, \"cpu_ms_per_frame\": %.2f, \"cpu_ms\": {\"decode\": %.2f, "
+                    "\"lookup\": %.2f, \"interp\": %.2f, \"project\": %.2f, \"sort\": %.2f, \"bin\": %.2f, "
+                    "\"composite\": %.2f, \"upload\": %.2f, \"present\": %.2f}, \"load\": %.2f}",
                     i ? "," : "", rows[i].n, rows[i].W, rows[i].H, rows[i].renderer, rows[i].fps, rows[i].fps_cpu, rows[i].decode_ms,
-                    rows[i].lookup_ms, rows[i].interp_ms, rows[i].render_ms, rows[i].present_ms);
+                    rows[i].lookup_ms, rows[i].interp_ms, rows[i].render_ms, rows[i].present_ms, rows[i].cpu_ms,
+                    rows[i].c_decode, rows[i].c_lookup, rows[i].c_interp, rows[i].c_prep, rows[i].c_sort, rows[i].c_bin,
+                    rows[i].c_comp, rows[i].c_upload, rows[i].c_present, rows[i].load1);
         fprintf(fp, "\n]}\n");
         fclose(fp);
     }

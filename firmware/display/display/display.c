@@ -225,7 +225,7 @@ static int draw_cpu(display *d, const struct splat_frame *f)
 {
     /* the renderer writes the 8-bit image the texture takes, quantised as
      * splat_png_write_rgb does: no float image, no second pass over it */
-    struct splat_render_out ro = { .rgba8 = d->rgba };
+    struct splat_render_out ro = { .rgba8 = d->rgba, .rgba8_bottom_up = 1 };
     double t0 = display__now_ms();
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &ro) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));
@@ -233,7 +233,12 @@ static int draw_cpu(display *d, const struct splat_frame *f)
     d->st.drawn += f->count;
     d->st.visible += ro.visible;
     d->st.pairs += ro.pairs;
-    return display__gl_upload(d->gl, d->rgba, &d->err);
+    for (int k = 0; k < 4; k++)
+        d->st.raster_cpu_ms[k] += ro.cpu_ms_stage[k];
+    double c0 = display__cpu_ms();
+    int rc = display__gl_upload(d->gl, d->rgba, &d->err);
+    d->st.upload_cpu_ms += display__cpu_ms() - c0;
+    return rc;
 }
 
 static int draw(display *d, enum display_renderer r, const struct splat_frame *f)
@@ -258,7 +263,8 @@ static int choose_renderer(display *d, const struct splat_frame *f)
             if (k > 0 && dt < best[r])
                 best[r] = dt;
         }
-    d->st.raster_ms = 0.0;
+    d->st.raster_ms = d->st.upload_cpu_ms = 0.0;
+    memset(d->st.raster_cpu_ms, 0, sizeof d->st.raster_cpu_ms);
     d->st.auto_cpu_ms = best[DISPLAY_RENDER_CPU];
     d->st.auto_gles_ms = best[DISPLAY_RENDER_GLES];
     d->renderer = best[DISPLAY_RENDER_CPU] <= best[DISPLAY_RENDER_GLES] ? DISPLAY_RENDER_CPU : DISPLAY_RENDER_GLES;
@@ -434,6 +440,7 @@ int display_step(display *d, display_source *src)
     d->st.key_us = tn;
     d->st.latency_ms = (tn > t_us ? (double)(tn - t_us) * 1e-3 : 0.0) +
                        (d->st.source.latency_ms > 0 ? d->st.source.latency_ms : 0.0);
+    double c_present = display__cpu_ms();
     if (d->cfg.status_line)
         draw_status(d);
     if ((rc = display__gl_compose(d->gl, d->renderer == DISPLAY_RENDER_CPU, d->cfg.status_line ? d->overlay : NULL,
@@ -460,6 +467,7 @@ int display_step(display *d, display_source *src)
     double t_end = display__now_ms();
     d->st.render_ms += t_present - t_draw;
     d->st.present_ms += t_end - t_present;
+    d->st.present_cpu_ms += display__cpu_ms() - c_present;
     if (d->st.frames > 0) {
         d->st.seconds += (t_end - d->last_ms) * 1e-3;
         double inst = 1e3 / fmax(1e-3, t_end - d->last_ms);

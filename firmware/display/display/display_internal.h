@@ -11,6 +11,8 @@
 #define DISPLAY_LOOKUP_PX     518 /* longest side of the default lookup view */
 
 double display__now_ms(void);
+/* Process CPU time (every thread), ms. */
+double display__cpu_ms(void);
 
 /* 7 rows of 5 bits of character c (bit 4 = leftmost column). */
 const unsigned char *display__glyph(char c);
@@ -37,7 +39,7 @@ int  display__gl_plan(display_gl *g, size_t n, struct f4d_err *err);
 /* GLES splats of f seen by cam into the scene target (back to front). */
 int  display__gl_draw_splats(display_gl *g, const struct splat_camera *cam, const struct splat_frame *f,
                              const float bg[3], struct f4d_err *err);
-/* RGBA8 image (top row first, width x height of the output) as the scene
+/* RGBA8 image (bottom row first, GL's order; width x height of the output) as the scene
  * (RGBA: the layout the driver keeps, so the upload is a copy). */
 int  display__gl_upload(display_gl *g, const uint8_t *rgba, struct f4d_err *err);
 /* Draws the scene (from the last draw_splats or upload) and the overlay

@@ -118,6 +118,8 @@ struct display_player_stats {
     uint64_t lost, skipped, refused, too_large;  /* decoder and size refusals */
     uint64_t waited;        /* packets passed over before the first key        */
     double   decode_ms, lookup_ms, interp_ms;    /* totals                     */
+    double   decode_cpu_ms, lookup_cpu_ms, interp_cpu_ms; /* the same as process
+                                CPU time (all threads), blind to neighbours    */
     int      interp_mode;   /* enum interp_mode of the last frame              */
 };
 /* ctx (borrowed) gives the threads; lookup_rig may be NULL (then the first
@@ -174,6 +176,10 @@ struct display_stats {
     double   raster_ms;             /* of render_ms: splat_render (CPU path)       */
     uint64_t drawn, visible, pairs; /* totals over CPU refreshes: Gaussians drawn, past culling,
                                        Gaussian-tile overlaps (what the compositing costs) */
+    double   raster_cpu_ms[4];      /* splat_render's preprocess, sort, binning,
+                                       compositing: process CPU time (all threads) */
+    double   upload_cpu_ms, present_cpu_ms; /* CPU image to the texture; compose +
+                                       present (llvmpipe's threads included)      */
     double   bitrate_mbps;          /* received bits over the stream time seen    */
     double   latency_ms;            /* newest key time minus displayed time (+ source) */
     uint64_t redraws_skipped;       /* refreshes that re-presented the last picture drawn (CPU path:

@@ -39,6 +39,13 @@ double display__now_ms(void)
     return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
+double display__cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
 int display_player_new(fk_ctx *ctx, const struct splat_rig *lookup_rig, enum interp_mode mode, size_t capacity,
                        display_player **out, struct f4d_err *err)
 {
@@ -138,9 +145,10 @@ int display_player_push(display_player *p, const struct codec_packet *pkt)
             return rc;
     }
     const struct codec_dec_stats *ds = codec_dec_stats(p->dec);
-    double t0 = display__now_ms();
+    double t0 = display__now_ms(), c0 = display__cpu_ms();
     int rc = codec_dec_packet(p->dec, pkt);
     p->st.decode_ms += display__now_ms() - t0;
+    p->st.decode_cpu_ms += display__cpu_ms() - c0;
     p->st.lost = ds->lost;
     p->st.skipped = ds->skipped;
     if (rc < 0) {
@@ -202,9 +210,10 @@ static int ensure_built(display_player *p, struct key_slot *ks, enum interp_mode
         ks->built = 1;
         return F4D_OK;
     }
-    double t0 = display__now_ms();
+    double t0 = display__now_ms(), c0 = display__cpu_ms();
     int rc = interp_key_build(p->ip, &ks->f, &ks->k, &p->err);
     p->st.lookup_ms += display__now_ms() - t0;
+    p->st.lookup_cpu_ms += display__cpu_ms() - c0;
     if (rc < 0)
         return rc;
     ks->built = 1;
@@ -316,19 +325,21 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
         /* once per key pair: the partners, then everything the refreshes do
          * not change (averaging fuses every attribute but the position
          * independently of a), so a refresh only moves positions */
-        double t0 = display__now_ms();
+        double t0 = display__now_ms(), c0 = display__cpu_ms();
         rc = interp_pair_build(p->ip, &prev->k, &next->k, &cfg, &p->pair, &p->err);
         if (rc == 0)
             rc = interp_pair_prepare(p->ip, &p->pair, &cfg, &p->out, &p->err);
         p->st.lookup_ms += display__now_ms() - t0;
+        p->st.lookup_cpu_ms += display__cpu_ms() - c0;
         if (rc < 0)
             return rc;
         p->pair_ok = 1;
     }
-    double t0 = display__now_ms();
+    double t0 = display__now_ms(), c0 = display__cpu_ms();
     rc = mode == INTERP_FUSED ? interp_pair_step(p->ip, &p->pair, (float)a, &p->out, &p->err)
                               : interp_at(p->ip, &prev->k, &next->k, (float)a, &cfg, &p->out, NULL, &p->err);
     p->st.interp_ms += display__now_ms() - t0;
+    p->st.interp_cpu_ms += display__cpu_ms() - c0;
     if (rc < 0)
         return rc;
     *out = &p->out;

@@ -107,6 +107,7 @@ void interp_key_free(struct interp_key *k)
         return;
     free(k->cell_start);
     free(k->cell_items);
+    free(k->cell_pos);
     free(k->origin);
     memset(k, 0, sizeof *k);
 }
@@ -178,6 +179,13 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
         grow_i32(&k->cell_items, &k->cap_items, (size_t)V * n + 1) < 0 ||
         grow_i32(&k->origin, &k->cap_origin, n + 1) < 0)
         return fail(err, F4D_ENOMEM, "interp_key_build: out of memory for the pixel lists");
+    if (3 * ((size_t)V * n + 1) > k->cap_pos) {
+        float *q = realloc(k->cell_pos, 3 * ((size_t)V * n + 1) * sizeof *q);
+        if (!q)
+            return fail(err, F4D_ENOMEM, "interp_key_build: out of memory for the pixel lists");
+        k->cell_pos = q;
+        k->cap_pos = 3 * ((size_t)V * n + 1);
+    }
     if (np > ip->cap_depth) {
         float *d = realloc(ip->depth, np * sizeof *d);
         if (!d)
@@ -355,6 +363,9 @@ static void copy_deformed(const struct splat_frame *f, size_t i, const float *mo
 /* Partner of Gaussian g of `self` in `other`, following `motion` (the full
  * key-to-key motion) through its origin view: among the Gaussians listed at
  * the pixel it lands on, the nearest to the moved point. D in metres. */
+typedef float   v4f __attribute__((vector_size(16)));
+typedef int32_t v4i __attribute__((vector_size(16)));
+
 static int32_t partner(const interp *ip, const struct interp_key *self, const struct interp_key *other,
                        const float *motion, size_t g, float *D)
 {
@@ -378,18 +389,97 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
         return (int32_t)((size_t)v * np + (size_t)p);
     }
     const int32_t *start = other->cell_start + (size_t)v * (np + 1), *items = other->cell_items + (size_t)v * n;
-    int32_t best = -1;
-    float bd = 0.0f;
-    for (int32_t k = start[p]; k < start[p + 1]; k++) {
-        const float *m = other->f->pos + 3 * (size_t)items[k];
-        float dx = X[0] - m[0], dy = X[1] - m[1], dz = X[2] - m[2], d2 = dx * dx + dy * dy + dz * dz;
-        if (best < 0 || d2 < bd) {
-            best = items[k];
+    /* refresh_list_pos's planes: x, y, z of view v's entries */
+    const size_t plane = (size_t)other->rig.count * n;
+    const float *px = other->cell_pos + (size_t)v * n, *py = px + plane, *pz = py + plane;
+    const int32_t lo = start[p], hi = start[p + 1];
+    if (lo == hi)
+        return -1;
+    /* the nearest candidate, the first in list order on a tie: the first
+     * entry, then any strictly nearer one */
+    int32_t kb = lo;
+    float bd;
+    {
+        float dx = X[0] - px[lo], dy = X[1] - py[lo], dz = X[2] - pz[lo];
+        bd = dx * dx + dy * dy + dz * dz;
+    }
+    int32_t k = lo + 1;
+    if (hi - k >= 8) {
+        /* 4 candidates per step (a dense frame lists tens per pixel), each
+         * lane keeping its own first strict minimum; the lanes then merge by
+         * distance, then by list position: the scalar loop's answer */
+        const v4f X0 = { X[0], X[0], X[0], X[0] }, X1 = { X[1], X[1], X[1], X[1] }, X2 = { X[2], X[2], X[2], X[2] };
+        v4f bdv = { bd, bd, bd, bd };
+        v4i kbv = { lo, lo, lo, lo }, kv = { k, k + 1, k + 2, k + 3 };
+        const v4i four = { 4, 4, 4, 4 };
+        for (; k + 4 <= hi; k += 4, kv += four) {
+            v4f mx, my, mz;
+            memcpy(&mx, px + k, sizeof mx);
+            memcpy(&my, py + k, sizeof my);
+            memcpy(&mz, pz + k, sizeof mz);
+            const v4f dx = X0 - mx, dy = X1 - my, dz = X2 - mz, d2 = dx * dx + dy * dy + dz * dz;
+            const v4i lt = d2 < bdv;
+            bdv = (v4f)(((v4i)d2 & lt) | ((v4i)bdv & ~lt));
+            kbv = (kv & lt) | (kbv & ~lt);
+        }
+        for (int l = 0; l < 4; l++)
+            if (bdv[l] < bd || (bdv[l] == bd && kbv[l] < kb)) {
+                bd = bdv[l];
+                kb = kbv[l];
+            }
+    }
+    for (; k < hi; k++) {
+        float dx = X[0] - px[k], dy = X[1] - py[k], dz = X[2] - pz[k], d2 = dx * dx + dy * dy + dz * dz;
+        if (d2 < bd) {
+            kb = k;
             bd = d2;
         }
     }
     *D = sqrtf(bd);
-    return best;
+    return items[kb];
+}
+
+/* Copies the positions of every list entry of k, in list order, into
+ * k->cell_pos's planes (split over the threads): the partner search then
+ * walks a pixel's candidates (tens per pixel of a dense frame) contiguously,
+ * 4 at a time, instead of one random read each. Done at each search, from the
+ * frame as it is then, so the partners are those of the live positions. */
+#define LIST_TASKS 16
+
+struct list_job {
+    const struct interp_key *k;
+    size_t                   first, total; /* view v's entries: v * count, start[np] of them */
+    size_t                   plane;        /* views * count: x, y and z planes */
+};
+
+static void list_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    const struct list_job *j = arg;
+    const struct interp_key *k = j->k;
+    size_t per = (j->total + LIST_TASKS - 1) / LIST_TASKS, lo = (size_t)t * per, hi = lo + per;
+    hi = hi < j->total ? hi : j->total;
+    const float *pos = k->f->pos;
+    float *x = k->cell_pos, *y = x + j->plane, *z = y + j->plane;
+    for (size_t i = j->first + lo; i < j->first + hi; i++) {
+        const size_t g = (size_t)k->cell_items[i];
+        x[i] = pos[3 * g];
+        y[i] = pos[3 * g + 1];
+        z[i] = pos[3 * g + 2];
+    }
+}
+
+static void refresh_list_pos(const interp *ip, const struct interp_key *k)
+{
+    if (k->aligned)
+        return; /* no lists: the partner is read straight from the frame */
+    const size_t np = (size_t)ip->W * (size_t)ip->H;
+    for (int v = 0; v < k->rig.count; v++) {
+        /* view v's lists fill the first start[np] of its count entries */
+        struct list_job j = { k, (size_t)v * k->f->count, (size_t)k->cell_start[(size_t)v * (np + 1) + np],
+                              (size_t)k->rig.count * k->f->count };
+        fk_parallel_for(ip->ctx, LIST_TASKS, 6.0 * (double)j.total, list_task, &j);
+    }
 }
 
 /* Runs the batched fusion on the nb rows collected and writes their slots. */
@@ -460,6 +550,8 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
     } else {
         float at[INTERP_ATTRS], am[INTERP_ATTRS], af[INTERP_ATTRS];
         int nb = 0; /* rows waiting for the batched fusion */
+        refresh_list_pos(ip, prev);
+        refresh_list_pos(ip, next);
         for (size_t g = 0; g < F1->count; g++) {
             float D;
             int32_t h = match(ip, next, prev, F1->motion_bwd, g, cfg->tau, &D, &st.no_origin_t, &st.kept_t,
@@ -581,6 +673,8 @@ int interp_pair_build(interp *ip, const struct interp_key *prev, const struct in
     }
     /* every Gaussian's partner is found alone: split over the threads, the
      * counts summed per task (same result with any thread count) */
+    refresh_list_pos(ip, prev);
+    refresh_list_pos(ip, next);
     struct pair_job j = { ip, prev, next, pr, cfg->tau, { { 0 } } };
     fk_parallel_for(ip->ctx, PAIR_TASKS, 60.0 * (double)(F0->count + F1->count), pair_task, &j);
     struct interp_stats st = { 0 };

@@ -115,8 +115,12 @@ struct interp_key {
     const struct splat_frame *f;
     int32_t *cell_start;   /* [views * (H * W + 1)] start of each pixel's list */
     int32_t *cell_items;   /* [views * count] Gaussian indices, by pixel        */
+    float   *cell_pos;     /* [3][views * count] their positions (x, y, z planes)
+                              in the same order, copied from f by interp_at and
+                              interp_pair_build before their partner search:
+                              a pixel's list is then read from one place     */
     int32_t *origin;       /* [count] view * H * W + pixel, -1 none            */
-    size_t   cap_cells, cap_items, cap_origin;
+    size_t   cap_cells, cap_items, cap_origin, cap_pos;
     struct splat_rig rig;  /* the cameras the key was built with              */
     int      aligned;      /* built by interp_key_build_aligned               */
 };

@@ -159,10 +159,14 @@ struct splat_render_out {
                          what a display uploads, without a float image; or
                          NULL. Without depth and top the compositing skips
                          their accumulators (the colour is bit-identical).   */
+    int rgba8_bottom_up; /* rgba8's rows bottom first (GL's texture order): a
+                         display copies it to its framebuffer without a flip */
     /* Statistics of the last render (written, never read). */
     size_t visible;   /* Gaussians that passed culling                        */
     size_t pairs;     /* Gaussian-tile overlaps                               */
     double ms_stage[4]; /* wall time of preprocess, sort, binning, compositing */
+    double cpu_ms_stage[4]; /* the same stages' process CPU time (all threads):
+                               what they cost on a machine shared with others */
 };
 
 /* A renderer for W x H images. ctx (borrowed, must outlive the renderer)

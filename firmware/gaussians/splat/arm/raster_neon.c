@@ -61,8 +61,8 @@ void splat__raster_tile_neon(const struct raster_job *j, int tile)
     const uint32_t s = r->tile_start[tile], e = r->tile_start[tile + 1];
     for (uint32_t k = s; k < e && remaining > 0; k++) {
         if (k + 6 < e)
-            __builtin_prefetch(r->sorted + r->pairs[k + 6]);
-        const struct projected *P = r->sorted + r->pairs[k];
+            __builtin_prefetch(r->proj + r->pairs[k + 6]);
+        const struct projected *P = r->proj + r->pairs[k];
         const float mx = P->mx, my = P->my, A = P->A, B = P->B, Cc = P->C;
         const float k2 = P->k2;
         float fy0 = ceilf(my - P->ey), fy1 = floorf(my + P->ey);

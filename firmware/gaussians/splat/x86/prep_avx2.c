@@ -135,17 +135,40 @@ unsigned splat__prep8_avx2(const struct prep_view *pv, size_t i0)
     if (!mask)
         return 0;
 
-    float A_[8], B_[8], C_[8], a_[8], c_[8], mx_[8], my_[8], z_[8], o_[8];
+    /* k2 with libm's logf per lane, as prep_one; then the alpha box and the
+     * rectangle narrowed to it, the operations of splat__narrow_rect */
+    float A_[8], B_[8], C_[8], mx_[8], my_[8], z_[8], o_[8], k2_[8], ex_[8], ey_[8];
     int32_t x0_[8], y0_[8], x1_[8], y1_[8];
+    _mm256_storeu_ps(o_, o);
+    for (int l = 0; l < 8; l++) {
+        float k2 = mask >> l & 1 ? 2.0f * logf(255.0f * o_[l]) : 0.0f;
+        k2_[l] = k2 > 0.0f ? k2 : 0.0f;
+    }
+    const __m256 vk2 = _mm256_loadu_ps(k2_), vis_a = _mm256_and_ps(a, vis), vis_c = _mm256_and_ps(c, vis);
+    const __m256 ey = ADD(MUL(_mm256_sqrt_ps(MUL(vk2, vis_c)), SET(1.0001f)), SET(0.001f));
+    const __m256 ex = ADD(MUL(_mm256_sqrt_ps(MUL(vk2, vis_a)), SET(1.0001f)), SET(0.001f));
+    _mm256_storeu_ps(ey_, ey);
+    _mm256_storeu_ps(ex_, ex);
+    const __m256 inv_tile = SET(1.0f / (float)SPLAT_TILE);
+    __m256 bx0 = _mm256_floor_ps(MUL(_mm256_ceil_ps(SUB(safe_mx, ex)), inv_tile));
+    __m256 bx1 = ADD(_mm256_floor_ps(MUL(_mm256_floor_ps(ADD(safe_mx, ex)), inv_tile)), one);
+    __m256 by0 = _mm256_floor_ps(MUL(_mm256_ceil_ps(SUB(safe_my, ey)), inv_tile));
+    __m256 by1 = ADD(_mm256_floor_ps(MUL(_mm256_floor_ps(ADD(safe_my, ey)), inv_tile)), one);
+    x0 = _mm256_max_epi32(x0, _mm256_cvttps_epi32(clamp(bx0, zero, gx)));
+    x1 = _mm256_min_epi32(x1, _mm256_cvttps_epi32(clamp(bx1, zero, gx)));
+    y0 = _mm256_max_epi32(y0, _mm256_cvttps_epi32(clamp(by0, zero, gy)));
+    y1 = _mm256_min_epi32(y1, _mm256_cvttps_epi32(clamp(by1, zero, gy)));
+    vis = _mm256_and_ps(vis, _mm256_castsi256_ps(_mm256_and_si256(_mm256_cmpgt_epi32(x1, x0),
+                                                                  _mm256_cmpgt_epi32(y1, y0))));
+    mask = (unsigned)_mm256_movemask_ps(vis);
+    if (!mask)
+        return 0;
     _mm256_storeu_ps(A_, MUL(c, det_inv));
     _mm256_storeu_ps(B_, MUL(neg(b), det_inv));
     _mm256_storeu_ps(C_, MUL(a, det_inv));
-    _mm256_storeu_ps(a_, a);
-    _mm256_storeu_ps(c_, c);
     _mm256_storeu_ps(mx_, mx);
     _mm256_storeu_ps(my_, my);
     _mm256_storeu_ps(z_, tz);
-    _mm256_storeu_ps(o_, o);
     _mm256_storeu_si256((__m256i *)x0_, x0);
     _mm256_storeu_si256((__m256i *)y0_, y0);
     _mm256_storeu_si256((__m256i *)x1_, x1);
@@ -161,11 +184,9 @@ unsigned splat__prep8_avx2(const struct prep_view *pv, size_t i0)
         P->B = B_[l];
         P->C = C_[l];
         P->o = o_[l];
-        float k2 = 2.0f * logf(255.0f * o_[l]);
-        k2 = k2 > 0.0f ? k2 : 0.0f;
-        P->k2 = k2;
-        P->ey = sqrtf(k2 * c_[l]) * 1.0001f + 0.001f;
-        P->ex = sqrtf(k2 * a_[l]) * 1.0001f + 0.001f;
+        P->k2 = k2_[l];
+        P->ey = ey_[l];
+        P->ex = ex_[l];
         P->z = z_[l];
         const float *col = pv->features ? pv->features + 3 * i : f->rgb + 3 * i;
         for (int k = 0; k < 3; k++)

@@ -58,7 +58,8 @@ static void write_rgba8(const struct raster_job *j, int tile, const float *T, co
                 __m256i q = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(v, s255), half));
                 px = _mm256_or_si256(px, _mm256_slli_epi32(q, 8 * c));
             }
-            uint8_t *o = j->rgba8 + 4 * ((size_t)(ty0 + y) * (size_t)W + (size_t)(tx0 + x));
+            const int oy = j->rgba8_up ? r->height - 1 - ty0 - y : ty0 + y;
+            uint8_t *o = j->rgba8 + 4 * ((size_t)oy * (size_t)W + (size_t)(tx0 + x));
             if (tw - x >= 8) {
                 _mm256_storeu_si256((__m256i *)o, px);
             } else { /* the image's last columns */
@@ -69,10 +70,101 @@ static void write_rgba8(const struct raster_job *j, int tile, const float *T, co
         }
 }
 
-/* aux: also accumulate expected depth and the dominant Gaussian. A display
- * asks for colour only, and the 3 accumulators it skips are about a quarter
- * of the inner loop's loads and stores; colour and T are computed by the same
- * operations either way, so the image is bit-identical. */
+/* A row's 8 pixels from p, or (packed) 4 pixels of two rows: p and the next
+ * row at p + SPLAT_TILE (a narrow Gaussian's box, lanes 4..7 its second row). */
+static inline __attribute__((always_inline)) __m256 ld(const float *a, int p, const int packed)
+{
+    return packed ? _mm256_set_m128(_mm_loadu_ps(a + p + SPLAT_TILE), _mm_loadu_ps(a + p)) : _mm256_loadu_ps(a + p);
+}
+
+static inline __attribute__((always_inline)) void st(float *a, int p, __m256 v, const int packed)
+{
+    if (packed) {
+        _mm_storeu_ps(a + p, _mm256_castps256_ps128(v));
+        _mm_storeu_ps(a + p + SPLAT_TILE, _mm256_extractf128_ps(v, 1));
+    } else {
+        _mm256_storeu_ps(a + p, v);
+    }
+}
+
+/* The accumulators a render asks for beside colour and T. */
+enum { AUX_DEPTH = 1, AUX_TOP = 2 };
+
+/* What one Gaussian applies to the tile; the same for every step. */
+struct gauss_step {
+    __m256 vo, vcut, vz, cr, cg, cb;
+    __m256i vid;
+};
+
+/* The tile's accumulators. */
+struct tile_acc {
+    float *T, *C0, *C1, *C2, *D, *best, *done;
+    int32_t *top;
+    int *row_left, *remaining;
+};
+
+/* One step: 8 pixels at p (lanes allowed by m0), power from the column terms
+ * adxdx, bdx and the row terms vdy, cdy. Per pixel the scalar reference's
+ * operations in its order; packed or not, a lane computes the same. */
+static inline __attribute__((always_inline)) void step(const struct gauss_step *g, const struct tile_acc *t, int p,
+                                                       int row, __m256 m0, __m256 adxdx, __m256 bdx, __m256 vdy,
+                                                       __m256 cdy, const int aux, const int packed)
+{
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    __m256 m = _mm256_andnot_ps(ld(t->done, p, packed), m0);
+    if (_mm256_testz_ps(m, m))
+        return;
+    /* -0.5f * (A*dx*dx + Cc*dy*dy) - B*dx*dy, in the scalar order */
+    __m256 power = _mm256_add_ps(adxdx, cdy);
+    power = _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(-0.5f), power), _mm256_mul_ps(bdx, vdy));
+    m = _mm256_and_ps(m, _mm256_cmp_ps(power, zero, _CMP_LE_OQ));
+    m = _mm256_and_ps(m, _mm256_cmp_ps(power, g->vcut, _CMP_GE_OQ));
+    if (_mm256_testz_ps(m, m))
+        return;
+    __m256 alpha = _mm256_min_ps(_mm256_mul_ps(g->vo, exp_ps(power)), _mm256_set1_ps(SPLAT_ALPHA_MAX));
+    m = _mm256_and_ps(m, _mm256_cmp_ps(alpha, _mm256_set1_ps(SPLAT_ALPHA_MIN), _CMP_GE_OQ));
+    const __m256 Tp = ld(t->T, p, packed);
+    const __m256 test_T = _mm256_mul_ps(Tp, _mm256_sub_ps(one, alpha));
+    const __m256 stop = _mm256_and_ps(m, _mm256_cmp_ps(test_T, _mm256_set1_ps(SPLAT_T_MIN), _CMP_LT_OQ));
+    const __m256 add = _mm256_andnot_ps(stop, m);
+    if (!_mm256_testz_ps(stop, stop)) {
+        st(t->done, p, _mm256_or_ps(ld(t->done, p, packed), stop), packed);
+        unsigned bits = (unsigned)_mm256_movemask_ps(stop);
+        if (packed) {
+            t->row_left[row] -= __builtin_popcount(bits & 15u);
+            t->row_left[row + 1] -= __builtin_popcount(bits >> 4);
+        } else {
+            t->row_left[row] -= __builtin_popcount(bits);
+        }
+        *t->remaining -= __builtin_popcount(bits);
+    }
+    if (_mm256_testz_ps(add, add))
+        return;
+    /* lanes not added keep their value exactly (blend, not + 0) */
+#define ACC(arr, c) st(arr, p, _mm256_blendv_ps(ld(arr, p, packed), \
+                    _mm256_add_ps(ld(arr, p, packed), _mm256_mul_ps(_mm256_mul_ps(c, alpha), Tp)), add), packed)
+    ACC(t->C0, g->cr);
+    ACC(t->C1, g->cg);
+    ACC(t->C2, g->cb);
+    if (aux & AUX_DEPTH)
+        ACC(t->D, g->vz);
+    if (aux & AUX_TOP) {
+        const __m256 bp = ld(t->best, p, packed);
+        const __m256 w = _mm256_mul_ps(alpha, Tp);
+        const __m256 better = _mm256_and_ps(add, _mm256_cmp_ps(w, bp, _CMP_GT_OQ));
+        st(t->best, p, _mm256_blendv_ps(bp, w, better), packed);
+        float *top = (float *)t->top; /* the ids travel as float bit patterns */
+        st(top, p, _mm256_blendv_ps(ld(top, p, packed), _mm256_castsi256_ps(g->vid), better), packed);
+    }
+#undef ACC
+    st(t->T, p, _mm256_blendv_ps(Tp, test_T, add), packed);
+}
+
+/* aux: also accumulate expected depth (AUX_DEPTH) and the dominant Gaussian
+ * (AUX_TOP). A display asks for colour only, interp's pixel lookup for depth
+ * only, and each accumulator skipped saves loads, stores and blends of the
+ * inner loop; colour and T are computed by the same operations either way, so
+ * the image is bit-identical. */
 static inline __attribute__((always_inline)) void raster_tile(const struct raster_job *j, int tile, const int aux)
 {
     const struct raster_ctx *r = &j->rc;
@@ -93,15 +185,14 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
     for (int y = 0; y < SPLAT_TILE; y++)
         row_left[y] = y < th ? tw : 0;
     int remaining = tw * th;
+    const struct tile_acc acc = { T, C0, C1, C2, D, best, done, top, row_left, &remaining };
     const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
-    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
-    const __m256 amax = _mm256_set1_ps(SPLAT_ALPHA_MAX), amin = _mm256_set1_ps(SPLAT_ALPHA_MIN);
-    const __m256 tmin = _mm256_set1_ps(SPLAT_T_MIN);
+    const __m128 lane4 = _mm_setr_ps(0, 1, 2, 3);
     const uint32_t s = r->tile_start[tile], e = r->tile_start[tile + 1];
     for (uint32_t k = s; k < e && remaining > 0; k++) {
         if (k + 6 < e)
-            _mm_prefetch((const char *)(r->sorted + r->pairs[k + 6]), _MM_HINT_T0);
-        const struct projected *P = r->sorted + r->pairs[k];
+            _mm_prefetch((const char *)(r->proj + r->pairs[k + 6]), _MM_HINT_T0);
+        const struct projected *P = r->proj + r->pairs[k];
         const float mx = P->mx, my = P->my, A = P->A, B = P->B, Cc = P->C;
         const float k2 = P->k2;
         float fy0 = ceilf(my - P->ey), fy1 = floorf(my + P->ey);
@@ -109,11 +200,6 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
         int y1 = fy1 < (float)(ty0 + th - 1) ? (int)fy1 : ty0 + th - 1;
         if (y0 > y1)
             continue;
-        const __m256 vA = _mm256_set1_ps(A), vB = _mm256_set1_ps(B), vC = _mm256_set1_ps(Cc);
-        const __m256 vo = _mm256_set1_ps(P->o), vcut = _mm256_set1_ps(-0.5f * k2 - 0.001f);
-        const __m256 vz = _mm256_set1_ps(P->z), vmx = _mm256_set1_ps(mx);
-        const __m256 cr = _mm256_set1_ps(P->col[0]), cg = _mm256_set1_ps(P->col[1]), cb = _mm256_set1_ps(P->col[2]);
-        const __m256i vid = _mm256_set1_epi32(P->id);
         /* columns of the ellipse's box; lanes outside the ellipse fail the
          * power >= cut test exactly as the scalar per-row span excludes them */
         const float fx0 = ceilf(mx - P->ex), fx1 = floorf(mx + P->ex);
@@ -121,71 +207,54 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
         const int x1 = fx1 < (float)(tx0 + tw - 1) ? (int)fx1 : tx0 + tw - 1;
         if (x0 > x1)
             continue;
+        const __m256 vA = _mm256_set1_ps(A), vB = _mm256_set1_ps(B), vC = _mm256_set1_ps(Cc);
+        const __m256 vmx = _mm256_set1_ps(mx), vx1 = _mm256_set1_ps((float)x1);
+        const struct gauss_step g = {
+            .vo = _mm256_set1_ps(P->o), .vcut = _mm256_set1_ps(-0.5f * k2 - 0.001f), .vz = _mm256_set1_ps(P->z),
+            .cr = _mm256_set1_ps(P->col[0]), .cg = _mm256_set1_ps(P->col[1]), .cb = _mm256_set1_ps(P->col[2]),
+            .vid = _mm256_set1_epi32(P->id)
+        };
         /* what depends on the column only, once per Gaussian: the box is at
          * most a tile wide, so two 8-lane columns (the same products the
-         * rows computed each time before: the image is unchanged) */
-        const int ncol = x1 - x0 >= 8 ? 2 : 1;
+         * rows computed each time before: the image is unchanged). A box of
+         * at most 4 columns (most Gaussians of a dense scene) takes two rows
+         * per step, its 4 columns repeated in both halves. */
+        const int ncol = x1 - x0 >= 8 ? 2 : 1, narrow = x1 - x0 < 4;
         __m256 cmask[2], adxdx[2], bdx[2];
         for (int v = 0; v < ncol; v++) {
-            const __m256 xs = _mm256_add_ps(_mm256_set1_ps((float)(x0 + 8 * v)), lane);
+            __m256 xs = _mm256_add_ps(_mm256_set1_ps((float)(x0 + 8 * v)), lane);
+            if (narrow) {
+                const __m128 x4 = _mm_add_ps(_mm_set1_ps((float)x0), lane4);
+                xs = _mm256_set_m128(x4, x4);
+            }
             const __m256 dx = _mm256_sub_ps(vmx, xs);
-            cmask[v] = _mm256_cmp_ps(xs, _mm256_set1_ps((float)x1), _CMP_LE_OQ);
+            cmask[v] = _mm256_cmp_ps(xs, vx1, _CMP_LE_OQ);
             adxdx[v] = _mm256_mul_ps(_mm256_mul_ps(vA, dx), dx); /* A * dx * dx */
             bdx[v] = _mm256_mul_ps(vB, dx);                      /* B * dx */
         }
-        for (int y = y0; y <= y1; y++) {
+        int y = y0;
+        if (narrow)
+            for (; y < y1; y += 2) {
+                if ((row_left[y - ty0] | row_left[y + 1 - ty0]) == 0)
+                    continue;
+                const __m256 vdy = _mm256_set_m128(_mm_set1_ps(my - (float)(y + 1)), _mm_set1_ps(my - (float)y));
+                const __m256 cdy = _mm256_mul_ps(_mm256_mul_ps(vC, vdy), vdy); /* Cc * dy * dy */
+                step(&g, &acc, (y - ty0) * SPLAT_TILE + x0 - tx0, y - ty0, cmask[0], adxdx[0], bdx[0], vdy, cdy,
+                     aux, 1);
+            }
+        for (; y <= y1; y++) { /* wider boxes, and a narrow box's last odd row */
             if (row_left[y - ty0] == 0)
                 continue;
-            const float dy = my - (float)y;
-            const __m256 vdy = _mm256_set1_ps(dy);
-            const __m256 cdy = _mm256_mul_ps(_mm256_mul_ps(vC, vdy), vdy); /* Cc * dy * dy */
+            const __m256 vdy = _mm256_set1_ps(my - (float)y);
+            const __m256 cdy = _mm256_mul_ps(_mm256_mul_ps(vC, vdy), vdy);
             const int row = (y - ty0) * SPLAT_TILE - tx0;
-            for (int v = 0; v < ncol; v++) {
-                const int p = row + x0 + 8 * v;
-                __m256 m = _mm256_andnot_ps(_mm256_loadu_ps(done + p), cmask[v]);
-                if (_mm256_testz_ps(m, m))
-                    continue;
-                /* -0.5f * (A*dx*dx + Cc*dy*dy) - B*dx*dy, in the scalar order */
-                __m256 power = _mm256_add_ps(adxdx[v], cdy);
-                power = _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(-0.5f), power), _mm256_mul_ps(bdx[v], vdy));
-                m = _mm256_and_ps(m, _mm256_cmp_ps(power, zero, _CMP_LE_OQ));
-                m = _mm256_and_ps(m, _mm256_cmp_ps(power, vcut, _CMP_GE_OQ));
-                if (_mm256_testz_ps(m, m))
-                    continue;
-                __m256 alpha = _mm256_min_ps(_mm256_mul_ps(vo, exp_ps(power)), amax);
-                m = _mm256_and_ps(m, _mm256_cmp_ps(alpha, amin, _CMP_GE_OQ));
-                const __m256 Tp = _mm256_loadu_ps(T + p);
-                const __m256 test_T = _mm256_mul_ps(Tp, _mm256_sub_ps(one, alpha));
-                const __m256 stop = _mm256_and_ps(m, _mm256_cmp_ps(test_T, tmin, _CMP_LT_OQ));
-                const __m256 add = _mm256_andnot_ps(stop, m);
-                if (!_mm256_testz_ps(stop, stop)) {
-                    _mm256_storeu_ps(done + p, _mm256_or_ps(_mm256_loadu_ps(done + p), stop));
-                    int c = __builtin_popcount((unsigned)_mm256_movemask_ps(stop));
-                    row_left[y - ty0] -= c;
-                    remaining -= c;
-                }
-                if (_mm256_testz_ps(add, add))
-                    continue;
-                /* lanes not added keep their value exactly (blend, not + 0) */
-#define ACC(arr, c) _mm256_storeu_ps(arr + p, _mm256_blendv_ps(_mm256_loadu_ps(arr + p), \
-                    _mm256_add_ps(_mm256_loadu_ps(arr + p), _mm256_mul_ps(_mm256_mul_ps(c, alpha), Tp)), add))
-                ACC(C0, cr);
-                ACC(C1, cg);
-                ACC(C2, cb);
-                if (aux) {
-                    ACC(D, vz);
-                    const __m256 bp = _mm256_loadu_ps(best + p);
-                    const __m256 w = _mm256_mul_ps(alpha, Tp);
-                    const __m256 better = _mm256_and_ps(add, _mm256_cmp_ps(w, bp, _CMP_GT_OQ));
-                    _mm256_storeu_ps(best + p, _mm256_blendv_ps(bp, w, better));
-                    const __m256i tp = _mm256_loadu_si256((const __m256i *)(top + p));
-                    _mm256_storeu_si256((__m256i *)(top + p),
-                                        _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(tp),
-                                                                             _mm256_castsi256_ps(vid), better)));
-                }
-#undef ACC
-                _mm256_storeu_ps(T + p, _mm256_blendv_ps(Tp, test_T, add));
-            }
+            /* narrow: lanes 4..7 repeat the columns; the low half alone */
+            const __m256 m0 = narrow ? _mm256_and_ps(cmask[0], _mm256_castsi256_ps(_mm256_setr_epi32(
+                                           -1, -1, -1, -1, 0, 0, 0, 0)))
+                                     : cmask[0];
+            step(&g, &acc, row + x0, y - ty0, m0, adxdx[0], bdx[0], vdy, cdy, aux, 0);
+            if (ncol == 2)
+                step(&g, &acc, row + x0 + 8, y - ty0, cmask[1], adxdx[1], bdx[1], vdy, cdy, aux, 0);
         }
     }
     if (!aux && j->rgba8 && !j->rgb && !j->alpha)
@@ -196,8 +265,10 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
 
 void splat__raster_tile_avx2(const struct raster_job *j, int tile)
 {
-    if (j->depth || j->top)
-        raster_tile(j, tile, 1);
+    if (j->top)
+        raster_tile(j, tile, AUX_DEPTH | AUX_TOP);
+    else if (j->depth)
+        raster_tile(j, tile, AUX_DEPTH);
     else
         raster_tile(j, tile, 0);
 }
