@@ -84,6 +84,9 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
                              int accumulate);
 void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const int8_t *b1,
                             int32_t *c, int accumulate);
+/* n fp16 weights (a multiple of 16, h 32-byte and d 64-byte aligned) widened
+ * to fp32 16 at a time: the AVX-512 driver's per-sliver conversion. */
+void fk__f16_to_f32_avx512(const uint16_t *h, float *d, int n);
 
 /* Job planning shared by the ISA drivers (gemm_plan.c, plain C). */
 /* The row block for `threads` > 1: mc (a multiple of FK_GEMM_MR) shrunk so

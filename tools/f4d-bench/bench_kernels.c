@@ -48,6 +48,7 @@ struct opts {
     const char *only;   /* "gemm", "attention" or NULL for both */
     int         openblas_native;
     int         cpu_clock; /* --clock cpu: time 1-thread rows on the thread's CPU clock */
+    int         shape[3];  /* --shape M,N,K: only this GEMM shape (0: every model shape) */
 };
 
 /* Seconds on the clock the rows are timed with. --clock cpu, one thread: the
@@ -443,7 +444,7 @@ static void print_cpu(void)
 
 static int parse(int argc, char **argv, struct opts *o)
 {
-    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0, 0 };
+    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0, 0, { 0, 0, 0 } };
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--quick")) {
@@ -461,6 +462,12 @@ static int parse(int argc, char **argv, struct opts *o)
                 fprintf(stderr, "f4d-bench kernels: --only takes gemm or attention, not '%s'\n", o->only);
                 return 2;
             }
+        } else if (!strcmp(a, "--shape") && i + 1 < argc) {
+            if (sscanf(argv[++i], "%d,%d,%d", &o->shape[0], &o->shape[1], &o->shape[2]) != 3 ||
+                o->shape[0] < 1 || o->shape[1] < 1 || o->shape[2] < 1) {
+                fprintf(stderr, "f4d-bench kernels: --shape takes M,N,K (tokens, outputs, inputs), not '%s'\n", argv[i]);
+                return 2;
+            }
         } else if (!strcmp(a, "--reps") && i + 1 < argc) {
             o->reps = atoi(argv[++i]);
         } else if (!strcmp(a, "--threads") && i + 1 < argc) {
@@ -476,7 +483,7 @@ static int parse(int argc, char **argv, struct opts *o)
             }
         } else {
             fprintf(stderr, "usage: f4d-bench kernels [--quick] [--reps N] [--threads N] "
-                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--clock wall|cpu] [--json FILE]\n"
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--only gemm|attention] [--openblas-native] [--clock wall|cpu] [--shape M,N,K] [--json FILE]\n"
                             "f4d-bench kernels: unexpected argument '%s'\n", a);
             return 2;
         }
@@ -547,11 +554,14 @@ int bench_kernels(int argc, char **argv)
     int n = 0;
     int tok_real[2] = { 1374, 5496 };
     int gemm = !o.only || !strcmp(o.only, "gemm"), attn = !o.only || !strcmp(o.only, "attention");
-    for (int t = 0; gemm && t < (o.quick ? 1 : 2); t++)
+    if (o.shape[0]) /* one GEMM shape, for a focused measurement */
+        n += bench_gemm_shape(&o, o.shape[0], o.shape[1], o.shape[2], rows + n, 256 - n);
+    for (int t = 0; gemm && !o.shape[0] && t < (o.quick ? 1 : 2); t++)
         for (int s = 0; s < 4; s++)
             n += bench_gemm_shape(&o, tok_real[t], real_nk[s][0], real_nk[s][1], rows + n, 256 - n);
-    for (int s = 0; gemm && s < 4; s++) /* tiny test model: 2 views of 5 + 12x9 patches */
+    for (int s = 0; gemm && !o.shape[0] && s < 4; s++) /* tiny test model: 2 views of 5 + 12x9 patches */
         n += bench_gemm_shape(&o, 226, tiny_nk[s][0], tiny_nk[s][1], rows + n, 256 - n);
+    attn = attn && !o.shape[0];
     for (int t = 0; attn && t < (o.quick ? 1 : 2); t++)
         n += bench_attention_shape(&o, tok_real[t], 16, 64, rows + n);
     if (attn)

@@ -82,3 +82,9 @@ void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const in
     ST(96, c01); ST(112, c11); ST(128, c21); ST(144, c31); ST(160, c41); ST(176, c51);
 #undef ST
 }
+
+void fk__f16_to_f32_avx512(const uint16_t *h, float *d, int n)
+{
+    for (int e = 0; e < n; e += 16)
+        _mm512_store_ps(d + e, _mm512_cvtph_ps(_mm256_load_si256((const __m256i *)(h + e))));
+}
