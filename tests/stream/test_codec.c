@@ -677,6 +677,8 @@ static void test_version1_decoded(void **state)
     make_key(s, 1, 0.0, &f); /* no motion: a static take */
     struct rig r;
     rig_open(&r, CODEC_Q_MEDIUM);
+    assert_int_equal(codec_enc_set_version(r.e, 2), 0); /* the planes version 1 had */
+    assert_int_equal(codec_enc_set_version(r.e, 1), F4D_EINVAL);
     codec_dec *d1;
     assert_int_equal(codec_dec_new(CAP, &d1, NULL), 0);
     uint8_t *v1 = malloc(r.cap);

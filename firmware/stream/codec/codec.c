@@ -298,6 +298,57 @@ static void shuffle(const uint32_t *v, size_t n, int w, uint8_t *o)
             o[(size_t)b * n + i] = (uint8_t)(v[i] >> (8 * b));
 }
 
+/* Version 3: a plane whose values all fit in 1, 2 or 4 bits is packed 8, 4
+ * or 2 to a byte (width codes 5, 6, 7), first value in the low bits. zstd's
+ * literals are Huffman-coded per byte, at least a bit each: a residual
+ * plane of mostly 0 and +-1 costs over a bit per Gaussian as bytes, about
+ * its entropy packed. */
+static int pack_bits_of(int wcode) { return wcode == 5 ? 1 : wcode == 6 ? 2 : 4; }
+static size_t packed_bytes(size_t n, int bits) { return (n * (size_t)bits + 7) / 8; }
+
+static void pack(const uint32_t *v, size_t n, int bits, uint8_t *o)
+{
+    const int per = 8 / bits;
+    size_t nb = packed_bytes(n, bits);
+    memset(o, 0, nb);
+    for (size_t i = 0; i < n; i++)
+        o[i / (size_t)per] |= (uint8_t)(v[i] << (bits * (int)(i % (size_t)per)));
+}
+
+/* Median of three: the version 3 predictor of a residual from the three
+ * before it in the plane's order. Neighbours in Morton order share their
+ * motion change; each also carries its own quantization noise (+-1), which
+ * a single neighbour's delta doubles and the median of three mostly drops. */
+static inline int32_t med3(int32_t a, int32_t b, int32_t c)
+{
+    int32_t lo = a < b ? a : b, hi = a < b ? b : a;
+    return c < lo ? lo : c > hi ? hi : c;
+}
+
+#define BLK      256
+#define NBP      12
+#define BPAR_MAX (1 << 22)
+#define BM_UNIT  4096.0f
+
+struct blocks {
+    uint32_t *id;   /* [cap] block of each matched Gaussian         */
+    uint32_t *par;  /* [NBP * nbmax] zigzagged parameters           */
+    float    *org;  /* [3 * nbmax] block origins                    */
+    size_t    nb, nbmax;
+};
+
+static int blocks_alloc(struct blocks *b, size_t c)
+{
+    b->nbmax = c / BLK + 1;
+    b->id = malloc(c * sizeof(uint32_t));
+    b->par = malloc(NBP * b->nbmax * sizeof(uint32_t));
+    b->org = malloc(3 * b->nbmax * sizeof(float));
+    b->nb = 0;
+    return b->id && b->par && b->org ? 0 : -1;
+}
+
+static void blocks_free(struct blocks *b) { free(b->id); free(b->par); free(b->org); }
+
 struct codec_enc {
     size_t cap;
     enum codec_quality q;
@@ -310,15 +361,49 @@ struct codec_enc {
     uint32_t *idx;     /* [cap] reference-index deltas             */
     uint32_t *flags;   /* [cap]                                    */
     struct morton mo;  /* order of the changed Gaussians' residuals */
+    struct blocks bk;  /* block motion (version 3)                  */
+    int32_t *rix;      /* [cap] reference index of each Gaussian     */
+    double *bacc;      /* [nbmax * 28] block fit sums                */
     int last_still;    /* mo.perm holds a still key's order           */
+    int ver;           /* codec version written (2 or 3)             */
     struct planebuf pb;
     void *zws;
     ZSTD_CCtx *z;
     struct codec_enc_stats st;
 };
 
-/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps the
- * smaller of raw and delta when delta is allowed. */
+/* Serializes v[0..n) (max mx) as bytes (shuffled) or, when it fits in 4
+ * bits, packed; compresses into the scratch buffer and keeps it at tag + 5
+ * when smaller than *best. */
+static void try_plane(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int t, uint8_t *tag, size_t room,
+                      size_t *best, int *best_tag)
+{
+    for (int form = 0; form < 2; form++) {
+        int wcode;
+        size_t nb;
+        if (form == 0) {
+            wcode = width_of(mx);
+            nb = n * (size_t)wcode;
+            shuffle(v, n, wcode, e->pb.shuf);
+        } else {
+            if (mx >= 16 || e->ver < 3)
+                break;
+            wcode = mx < 2 ? 5 : mx < 4 ? 6 : 7;
+            nb = packed_bytes(n, pack_bits_of(wcode));
+            pack(v, n, pack_bits_of(wcode), e->pb.shuf);
+        }
+        size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
+        if (!ZSTD_isError(z) && z < *best && z <= room) {
+            memcpy(tag + 5, e->pb.zalt, z);
+            *best = z;
+            *best_tag = t | wcode << 4;
+        }
+    }
+}
+
+/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps
+ * the smallest of raw, delta (allow_delta 1: of the values; 2: of the
+ * zigzagged signed values, and the median-of-three prediction). */
 static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta, uint8_t *out, size_t cap,
                      size_t *off)
 {
@@ -335,35 +420,36 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
     uint32_t mx = 0;
     for (size_t i = 0; i < n; i++)
         mx = v[i] > mx ? v[i] : mx;
-    int w = width_of(mx);
-    shuffle(v, n, w, e->pb.shuf);
-    size_t z1 = ZSTD_compressCCtx(e->z, tag + 5, room, e->pb.shuf, n * (size_t)w, ZLEVEL);
-    if (ZSTD_isError(z1))
-        return f4d_fail(&e->err, F4D_ERANGE, "encode: zstd: %s", ZSTD_getErrorName(z1));
-    int t = 0;
-    if (allow_delta) {
-        /* 1: delta of the values; 2: delta of zigzagged signed values
-         * (residuals), taken on the signed values */
+    size_t best = SIZE_MAX;
+    int best_tag = 0;
+    try_plane(e, v, n, mx, 0, tag, room, &best, &best_tag);
+    for (int t = 1; t <= 3 && allow_delta; t++) {
+        if ((t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3))
+            continue;
         uint32_t dm = 0, prev = 0;
+        int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
         for (size_t i = 0; i < n; i++) {
-            uint32_t d = allow_delta == 2 ? zig(unzig(v[i]) - unzig(prev)) : zig((int32_t)(v[i] - prev));
+            uint32_t d;
+            if (t == 1) {
+                d = zig((int32_t)(v[i] - prev));
+            } else {
+                int32_t x = unzig(v[i]);
+                d = zig((int32_t)((uint32_t)x - (uint32_t)(t == 2 ? a : med3(a, b, c))));
+                c = b;
+                b = a;
+                a = x;
+            }
             prev = v[i];
             e->pb.tmp[i] = d;
             dm = d > dm ? d : dm;
         }
-        int w2 = width_of(dm);
-        shuffle(e->pb.tmp, n, w2, e->pb.shuf);
-        size_t z2 = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, n * (size_t)w2, ZLEVEL);
-        if (!ZSTD_isError(z2) && z2 < z1 && z2 <= room) {
-            memcpy(tag + 5, e->pb.zalt, z2);
-            z1 = z2;
-            w = w2;
-            t = allow_delta;
-        }
+        try_plane(e, e->pb.tmp, n, dm, t, tag, room, &best, &best_tag);
     }
-    tag[0] = (uint8_t)(t | w << 4);
-    codec__put_u32(tag + 1, (uint32_t)z1);
-    *off += 5 + z1;
+    if (best == SIZE_MAX)
+        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
+    tag[0] = (uint8_t)best_tag;
+    codec__put_u32(tag + 1, (uint32_t)best);
+    *off += 5 + best;
     return F4D_OK;
 }
 
@@ -386,6 +472,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     size_t c = capacity ? capacity : 1;
     e->cap = capacity;
     e->q = q;
+    e->ver = CODEC_VERSION;
     e->rec = malloc(NCH * c * sizeof(uint32_t));
     e->res = malloc(NCH * c * sizeof(uint32_t));
     e->idx = malloc(c * sizeof(uint32_t));
@@ -397,7 +484,8 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
     int bad = !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
-              morton_alloc(&e->mo, c) ||
+              morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
+              !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 28 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
     if (!bad)
         e->z = ZSTD_initStaticCCtx(e->zws, zsz);
@@ -415,6 +503,8 @@ void codec_enc_free(codec_enc *e)
         return;
     free(e->rec); free(e->res); free(e->idx); free(e->flags);
     morton_free(&e->mo);
+    blocks_free(&e->bk);
+    free(e->rix); free(e->bacc);
     free(e->pb.shuf); free(e->pb.tmp); free(e->pb.zalt); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
@@ -429,16 +519,37 @@ const struct splat_frame *codec_enc_recon(const codec_enc *e)
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e) { return e ? &e->st : NULL; }
 const uint32_t *codec_enc_order(const codec_enc *e) { return e && e->last_still ? e->mo.perm : NULL; }
 
+int codec_enc_set_version(codec_enc *e, int version)
+{
+    if (!e)
+        return F4D_EINVAL;
+    if (version < 2 || version > CODEC_VERSION)
+        return f4d_fail(&e->err, F4D_EINVAL, "codec_enc_set_version: %d is not 2..%d", version, CODEC_VERSION);
+    e->ver = version;
+    return F4D_OK;
+}
+
+/* An older version's packet: its number in the header, the CRC again. */
+static void stamp_version(const codec_enc *e, uint8_t *out, size_t len)
+{
+    if (e->ver == CODEC_VERSION)
+        return;
+    out[4] = (uint8_t)e->ver;
+    codec__put_u32(out + 28, codec__packet_crc(out, out + CODEC_PACKET_HEADER, len - CODEC_PACKET_HEADER));
+}
+
 int codec_enc_stream_header(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t *len)
 {
     uint8_t pl[12];
-    codec__put_u32(pl, CODEC_VERSION);
+    codec__put_u32(pl, (uint32_t)e->ver);
     codec__put_u32(pl + 4, (uint32_t)e->q);
     codec__put_u32(pl + 8, (uint32_t)e->cap);
     uint32_t s = e->seq;
     int rc = codec_packet_write(out, cap, CODEC_PKT_STREAM, s, s, t_us, pl, sizeof pl, len, &e->err);
-    if (rc == 0)
+    if (rc == 0) {
+        stamp_version(e, out, *len);
         e->seq++;
+    }
     return rc;
 }
 
@@ -446,8 +557,10 @@ int codec_enc_end(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t 
 {
     uint32_t s = e->seq;
     int rc = codec_packet_write(out, cap, CODEC_PKT_END, s, s, t_us, NULL, 0, len, &e->err);
-    if (rc == 0)
+    if (rc == 0) {
+        stamp_version(e, out, *len);
         e->seq++;
+    }
     return rc;
 }
 
@@ -549,6 +662,137 @@ static void predict_mb(struct pred *p, const float *cf, const float *pos)
     if (cf[6] != 0.0f)
         for (int c = 0; c < 3; c++)
             p->mb[c] += cf[6] * (p->rpos[c] - pos[c]);
+}
+
+/* ---- Block motion (version 3) ----
+ * With keyed motions, mf says where the Gaussian lands on the next key, and
+ * coding it per Gaussian re-codes each one's own position noise (+-half a
+ * step) on every key. Neighbours share their motion instead: the matched
+ * Gaussians, in the Morton order of their predicted positions (both sides
+ * know them before any residual), are cut into blocks of BLK, and each
+ * block sends an affine motion, mf ~ t + M (P - o) (o: the predicted
+ * position of the block's first Gaussian, P: the decoded position), fitted
+ * by the encoder on the true positions and motions. The decoded position
+ * then moves with its part, its noise carried along rather than re-coded,
+ * and the per-Gaussian mf residual is 0 wherever a block moves rigidly or
+ * affinely. Parameters: t in 1/8 motion steps, M in 1/4096, 12 planes of
+ * zigzagged integers (t x y z, M row-major), |value| <= BPAR_MAX. */
+/* Blocks of the Gaussians with rix[i] >= 0 (their reference index); uses
+ * the Morton buffers (tmp holds the Gaussian of each sorted slot). */
+static void blocks_assign(struct blocks *b, struct morton *mo, const struct keystate *ref, const float *cf,
+                          const struct qz *z, const int32_t *rix, size_t n)
+{
+    size_t m = 0;
+    struct pred p;
+    for (size_t i = 0; i < n; i++) {
+        if (rix[i] < 0)
+            continue;
+        predict(ref, (size_t)rix[i], cf, &p);
+        mo->key[m] = morton_key(z, p.pos);
+        mo->tmp[m++] = (uint32_t)i;
+    }
+    morton_sort(mo, m);
+    b->nb = (m + BLK - 1) / BLK;
+    for (size_t k = 0; k < m; k++) {
+        uint32_t i = mo->tmp[mo->perm[k]];
+        b->id[i] = (uint32_t)(k / BLK);
+        if (k % BLK == 0) {
+            predict(ref, (size_t)rix[i], cf, &p);
+            memcpy(b->org + 3 * (k / BLK), p.pos, sizeof p.pos);
+        }
+    }
+}
+
+/* The block's forward motion at decoded position P (same code on both sides). */
+static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], const struct qz *z, float mf[3])
+{
+    const uint32_t *q = b->par;
+    const size_t s = b->nbmax;
+    float d[3];
+    for (int c = 0; c < 3; c++)
+        d[c] = P[c] - b->org[3 * blk + c];
+    for (int c = 0; c < 3; c++) {
+        float v = (float)unzig(q[(size_t)c * s + blk]) * (z[QZ_MF + c].step * 0.125f);
+        for (int k = 0; k < 3; k++)
+            v += (float)unzig(q[(size_t)(3 + 3 * c + k) * s + blk]) * (1.0f / BM_UNIT) * d[k];
+        mf[c] = v;
+    }
+}
+
+/* Encoder: least squares t + M x ~ mf over each block (x: true position
+ * minus the origin; a small ridge keeps flat or tiny blocks stable), then
+ * quantized. acc: [nb * 19] doubles of scratch. */
+static void blocks_fit(struct blocks *b, const struct splat_frame *f, const int32_t *rix, const struct qz *z,
+                       double *acc)
+{
+    memset(acc, 0, b->nb * 28 * sizeof(double));
+    for (size_t i = 0; i < f->count; i++) {
+        if (rix[i] < 0)
+            continue;
+        uint32_t k = b->id[i];
+        double x[4] = { 1, (double)f->pos[3 * i] - b->org[3 * k], (double)f->pos[3 * i + 1] - b->org[3 * k + 1],
+                        (double)f->pos[3 * i + 2] - b->org[3 * k + 2] };
+        double *a = acc + 28 * (size_t)k;
+        for (int u = 0; u < 4; u++) {
+            for (int v = 0; v < 4; v++)
+                a[4 * u + v] += x[u] * x[v];
+            for (int c = 0; c < 3; c++)
+                a[16 + 4 * c + u] += x[u] * f->motion_fwd[3 * i + c];
+        }
+    }
+    const size_t s = b->nbmax;
+    for (size_t k = 0; k < b->nb; k++) {
+        double *a = acc + 28 * k, g[4][4], y[4][3], sol[4][3] = { { 0 } };
+        double ridge = a[0] * 1e-6;
+        for (int u = 0; u < 4; u++) {
+            for (int v = 0; v < 4; v++)
+                g[u][v] = a[4 * u + v] + (u == v && u > 0 ? ridge : 0.0);
+            for (int c = 0; c < 3; c++)
+                y[u][c] = a[16 + 4 * c + u];
+        }
+        /* Gaussian elimination with partial pivoting, 3 right-hand sides */
+        int ok = a[0] > 0;
+        for (int c = 0; c < 4 && ok; c++) {
+            int pv = c;
+            for (int r = c + 1; r < 4; r++)
+                if (fabs(g[r][c]) > fabs(g[pv][c]))
+                    pv = r;
+            if (!(fabs(g[pv][c]) > 1e-300)) {
+                ok = 0;
+                break;
+            }
+            for (int j = 0; j < 4; j++) {
+                double t = g[c][j]; g[c][j] = g[pv][j]; g[pv][j] = t;
+            }
+            for (int j = 0; j < 3; j++) {
+                double t = y[c][j]; y[c][j] = y[pv][j]; y[pv][j] = t;
+            }
+            for (int r = c + 1; r < 4; r++) {
+                double m = g[r][c] / g[c][c];
+                for (int j = c; j < 4; j++)
+                    g[r][j] -= m * g[c][j];
+                for (int j = 0; j < 3; j++)
+                    y[r][j] -= m * y[c][j];
+            }
+        }
+        for (int c = 3; c >= 0 && ok; c--)
+            for (int j = 0; j < 3; j++) {
+                double v = y[c][j];
+                for (int u = c + 1; u < 4; u++)
+                    v -= g[c][u] * sol[u][j];
+                sol[c][j] = v / g[c][c];
+            }
+        for (int c = 0; c < 3; c++) {
+            double t = ok && isfinite(sol[0][c]) ? sol[0][c] / ((double)z[QZ_MF + c].step * 0.125) : 0.0;
+            t = t > BPAR_MAX ? BPAR_MAX : t < -BPAR_MAX ? -BPAR_MAX : t;
+            b->par[(size_t)c * s + k] = zig((int32_t)llround(t));
+            for (int u = 0; u < 3; u++) {
+                double mv = ok && isfinite(sol[1 + u][c]) ? sol[1 + u][c] * BM_UNIT : 0.0;
+                mv = mv > BPAR_MAX ? BPAR_MAX : mv < -BPAR_MAX ? -BPAR_MAX : mv;
+                b->par[(size_t)(3 + 3 * c + u) * s + k] = zig((int32_t)llround(mv));
+            }
+        }
+    }
 }
 
 /* Applies residual record (all zero = copy) to the prediction into slot j. */
@@ -847,7 +1091,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         return f4d_fail(&e->err, F4D_ERANGE, "codec_enc_key: output buffer of %zu bytes too small", cap);
     size_t pcap = cap - CODEC_PACKET_HEADER;
     size_t n_changed = 0, n_new = 0, n_same = 0, matched = 0;
-    int explicit_match = 0;
+    int explicit_match = 0, block_motion = 0;
     float cf[NCOEF];
     memcpy(cf, coef_v1, sizeof cf);
     dst->count = n;
@@ -903,8 +1147,17 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             cf[6] = 1.0f;
         }
         const float mb_tol = 2.0f * fmaxf(pos_tol[0], fmaxf(pos_tol[1], pos_tol[2])) + 0.5f * qi->motion_step;
-        if (keyed && motion && n > 1)
+        /* block motion replaces the per-Gaussian mf prediction (keyed) */
+        block_motion = keyed && motion && n > 0 && e->ver >= 3;
+        if (block_motion) {
+            cf[2] = cf[3] = 0.0f;
+            for (size_t i = 0; i < n; i++)
+                e->rix[i] = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
+            blocks_assign(&e->bk, &e->mo, ref, cf, z, e->rix, n);
+            blocks_fit(&e->bk, f, e->rix, z, e->bacc);
+        } else if (keyed && motion && n > 1) {
             choose_mf_predictor(e, ref, f, match, z, pos_tol, cf);
+        }
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -934,6 +1187,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                     res[CH_POS + c] = 0;
                 rpos[c] = dres(p.pos[c], z[c], res[CH_POS + c]);
             }
+            if (block_motion)
+                block_mf(&e->bk, e->bk.id[i], rpos, z, p.mf);
             struct pred pb = p;
             predict_mb(&pb, cf, rpos);
             for (int c = 0; c < 3; c++) {
@@ -1011,6 +1266,13 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         if ((rc = put_plane(e, e->flags, n, 0, pl, pcap, &off)) < 0)
             return rc;
         e->st.bytes_index = off - o0;
+        for (int k = 0; k < NBP && block_motion; k++) {
+            size_t o2 = off;
+            if ((rc = put_plane(e, e->bk.par + (size_t)k * e->bk.nbmax, e->bk.nb, 2, pl, pcap, &off)) < 0)
+                return rc;
+            e->st.bytes_motion += off - o2;
+            e->st.bytes_blocks += off - o2;
+        }
         e->st.bytes_flags = e->st.bytes_index - e->st.bytes_match;
         size_t *g[3] = { &e->st.bytes_pos, &e->st.bytes_attr, &e->st.bytes_motion };
         /* residual planes may be delta-coded too: neighbours in index order
@@ -1050,7 +1312,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
 
     pl[0] = intra ? 1 : 2;
     pl[1] = (uint8_t)e->q;
-    pl[2] = (uint8_t)(motion | explicit_match << 1);
+    pl[2] = (uint8_t)(motion | explicit_match << 1 | block_motion << 2);
     pl[3] = (uint8_t)qi->rot_bits;
     codec__put_u32(pl + 4, (uint32_t)n);
     codec__put_u32(pl + 8, intra ? 0u : (uint32_t)ref->count);
@@ -1065,6 +1327,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                             pl, off, len, &e->err);
     if (rc < 0)
         return rc;
+    stamp_version(e, out, *len);
     e->st.intra = intra;
     e->st.count = n;
     e->st.unchanged = n_same;
@@ -1090,10 +1353,13 @@ struct codec_dec {
     struct f4d_err err;
     struct keystate key[2];
     int cur, have_ref, have_seq, quality;
+    int ver;           /* codec version of the packet being decoded */
     uint32_t last_seq, key_seq;
     uint64_t t_us;
     uint32_t *rec, *res, *idx, *flags;
     struct morton mo;
+    struct blocks bk;
+    int32_t *rix;
     uint8_t *shuf;
     void *zws;
     ZSTD_DCtx *z;
@@ -1121,7 +1387,9 @@ int codec_dec_new(size_t capacity, codec_dec **out, struct f4d_err *err)
     d->shuf = malloc(4 * c);
     size_t zsz = ZSTD_estimateDCtxSize();
     d->zws = malloc(zsz);
-    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || morton_alloc(&d->mo, c) ||
+    d->rix = malloc(c * sizeof(int32_t));
+    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || !d->rix ||
+              morton_alloc(&d->mo, c) || blocks_alloc(&d->bk, c) ||
               key_alloc(&d->key[0], capacity) ||
               key_alloc(&d->key[1], capacity);
     if (!bad)
@@ -1140,6 +1408,8 @@ void codec_dec_free(codec_dec *d)
         return;
     free(d->rec); free(d->res); free(d->idx); free(d->flags); free(d->shuf); free(d->zws);
     morton_free(&d->mo);
+    blocks_free(&d->bk);
+    free(d->rix);
     key_free(&d->key[0]);
     key_free(&d->key[1]);
     free(d);
@@ -1155,7 +1425,8 @@ const struct codec_dec_stats *codec_dec_stats(const codec_dec *d) { return d ? &
 int codec_dec_quality(const codec_dec *d) { return d ? d->quality : -1; }
 
 /* morton: NULL where a plane may not be in Morton order, else set to
- * whether it is (tag bit 2). */
+ * whether it is (tag bit 2). Version 3 adds the median-of-three transform
+ * (3) and the packed widths (5-7). */
 static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, size_t n, uint32_t *v,
                      const char *what, int *morton)
 {
@@ -1168,7 +1439,8 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
     }
     uint32_t zl = codec__u32(in + *off + 1);
     *off += 5;
-    if (t > 2 || w < 1 || w > 4)
+    const int v3 = d->ver >= 3;
+    if (t > (v3 && morton ? 3 : 2) || w < 1 || w > (v3 ? 7 : 4))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: bad tag 0x%02x", what, in[*off - 5]);
     if (zl > len - *off)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: %u compressed bytes, %zu left", what, zl,
@@ -1178,17 +1450,25 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: data for 0 Gaussians", what);
         return F4D_OK;
     }
-    size_t want = n * (size_t)w;
+    const int bits = w > 4 ? pack_bits_of(w) : 0;
+    size_t want = bits ? packed_bytes(n, bits) : n * (size_t)w;
     size_t got = ZSTD_decompressDCtx(d->z, d->shuf, want, in + *off, zl);
     if (ZSTD_isError(got) || got != want)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: zstd gave %s, %zu bytes expected", what,
                         ZSTD_isError(got) ? ZSTD_getErrorName(got) : "a different size", want);
     *off += zl;
-    for (size_t i = 0; i < n; i++) {
-        uint32_t x = 0;
-        for (int b = 0; b < w; b++)
-            x |= (uint32_t)d->shuf[(size_t)b * n + i] << (8 * b);
-        v[i] = x;
+    if (bits) {
+        const int per = 8 / bits;
+        const uint32_t m = (1u << bits) - 1;
+        for (size_t i = 0; i < n; i++)
+            v[i] = (uint32_t)d->shuf[i / (size_t)per] >> (bits * (int)(i % (size_t)per)) & m;
+    } else {
+        for (size_t i = 0; i < n; i++) {
+            uint32_t x = 0;
+            for (int b = 0; b < w; b++)
+                x |= (uint32_t)d->shuf[(size_t)b * n + i] << (8 * b);
+            v[i] = x;
+        }
     }
     if (t == 1)
         for (size_t i = 0, prev = 0; i < n; i++) {
@@ -1201,6 +1481,16 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
             int32_t x = (int32_t)((uint32_t)(i ? unzig(v[i - 1]) : 0) + (uint32_t)unzig(v[i]));
             v[i] = zig(x);
         }
+    else if (t == 3) {
+        int32_t a = 0, b = 0, c = 0;
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = (int32_t)((uint32_t)med3(a, b, c) + (uint32_t)unzig(v[i]));
+            v[i] = zig(x);
+            c = b;
+            b = a;
+            a = x;
+        }
+    }
     return F4D_OK;
 }
 
@@ -1221,13 +1511,16 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
 {
     const uint8_t *in = p->payload;
     const size_t fhdr = p->version >= 2 ? FHDR : FHDR1;
+    d->ver = p->version;
     size_t len = p->payload_len, off = fhdr + 8 * NQZ;
     if (len < off)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu bytes, the header needs %zu", len, off);
     if (in[0] != (intra ? 1 : 2))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: kind %u does not match packet type %d", in[0], p->type);
-    int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, rot_bits = in[3];
-    if (in[1] >= CODEC_QUALITY_COUNT || (in[2] & ~3) || rot_bits < 4 || rot_bits > 15)
+    int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, block_motion = in[2] >> 2 & 1, rot_bits = in[3];
+    const int flag_mask = p->version >= 3 ? 7 : 3;
+    if (in[1] >= CODEC_QUALITY_COUNT || (in[2] & ~flag_mask) || rot_bits < 4 || rot_bits > 15 ||
+        (block_motion && (intra || !motion)))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: bad quality %u, flags 0x%02x or rotation bits %d", in[1],
                         in[2], rot_bits);
     size_t n = codec__u32(in + 4), nref = codec__u32(in + 8), n_new = codec__u32(in + 12),
@@ -1278,6 +1571,38 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
             return rc;
         if ((rc = get_plane(d, in, len, &off, n, d->flags, "flags", NULL)) < 0)
             return rc;
+        if (block_motion) {
+            /* the blocks: every matched Gaussian's reference, validated */
+            int64_t prev = -1;
+            for (size_t i = 0; i < n; i++) {
+                uint32_t fl = d->flags[i];
+                if (fl > 2)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
+                d->rix[i] = -1;
+                if (fl == 2)
+                    continue;
+                int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
+                if (r < 0 || r >= (int64_t)nref)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
+                                    (long long)r, nref);
+                prev = r;
+                d->rix[i] = (int32_t)r;
+            }
+            blocks_assign(&d->bk, &d->mo, ref, cf, z, d->rix, n);
+            for (int k = 0; k < NBP; k++) {
+                uint32_t *v = d->bk.par + (size_t)k * d->bk.nbmax;
+                int mo = 0;
+                snprintf(what, sizeof what, "b%d", k);
+                if ((rc = get_plane(d, in, len, &off, d->bk.nb, v, what, &mo)) < 0)
+                    return rc;
+                if (mo)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: Morton flag on block parameters", what);
+                for (size_t j = 0; j < d->bk.nb; j++)
+                    if (unzig(v[j]) > BPAR_MAX || unzig(v[j]) < -BPAR_MAX)
+                        return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: parameter %d = %d out of range", j,
+                                        k, unzig(v[j]));
+            }
+        }
         for (int c = 0; c < nch; c++) {
             snprintf(what, sizeof what, "r%d", c);
             if ((rc = get_plane(d, in, len, &off, n_changed, d->res + (size_t)c * stride, what,
@@ -1357,6 +1682,12 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                 for (int c = 0; c < nch; c++)
                     res[c] = unzig(d->res[(size_t)c * stride + kc]);
                 kc++;
+            }
+            if (block_motion) {
+                float P[3];
+                for (int c = 0; c < 3; c++)
+                    P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
+                block_mf(&d->bk, d->bk.id[i], P, z, pr.mf);
             }
             resid_recon(res, &pr, cf, z, rot_bits, motion, dst, i);
         }

@@ -120,7 +120,7 @@
 extern "C" {
 #endif
 
-#define CODEC_VERSION        2   /* written; 1 and 2 are read */
+#define CODEC_VERSION        3   /* written; 1, 2 and 3 are read */
 #define CODEC_PACKET_MAGIC   0x50443446u /* "F4DP" little-endian */
 #define CODEC_PACKET_HEADER  32
 #define CODEC_PAYLOAD_MAX    (1u << 30)
@@ -202,6 +202,7 @@ struct codec_enc_stats {
     size_t count, unchanged, changed, fresh, dropped;
     size_t bytes_total, bytes_header, bytes_index, bytes_pos, bytes_attr, bytes_motion;
     size_t bytes_flags, bytes_match;         /* parts of bytes_index */
+    size_t bytes_blocks;                     /* block motion (part of bytes_motion) */
     size_t bytes_channel[CODEC_CHANNELS];
     float  predictor[7];                     /* see "Predictor" above */
 };
@@ -211,6 +212,9 @@ const char *codec_channel_name(int ch);
 int  codec_enc_new  (size_t capacity, enum codec_quality q, codec_enc **out, struct f4d_err *err);
 void codec_enc_free (codec_enc *e);
 const char *codec_enc_error(const codec_enc *e);
+/* Writes an older codec version (2: no packed planes, median prediction or
+ * block motion) for decoders that read only that; default CODEC_VERSION. */
+int  codec_enc_set_version(codec_enc *e, int version);
 /* The stream header packet (type 1), first in a file. */
 int  codec_enc_stream_header(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t *len);
 /* Encodes key frame f (motion optional) as one packet. match: NULL (identity:
