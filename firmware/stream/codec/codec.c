@@ -326,7 +326,8 @@ static inline int32_t med3(int32_t a, int32_t b, int32_t c)
 }
 
 #define BLK      256
-#define NBP      12
+#define NBP      15
+#define BQ_UNIT  8192.0f
 #define BPAR_MAX (1 << 22)
 #define BM_UNIT  4096.0f
 
@@ -363,7 +364,7 @@ struct codec_enc {
     struct morton mo;  /* order of the changed Gaussians' residuals */
     struct blocks bk;  /* block motion (version 3)                  */
     int32_t *rix;      /* [cap] reference index of each Gaussian     */
-    double *bacc;      /* [nbmax * 28] block fit sums                */
+    double *bacc;      /* [nbmax * 32] block fit sums                */
     int last_still;    /* mo.perm holds a still key's order           */
     int ver;           /* codec version written (2 or 3)             */
     struct planebuf pb;
@@ -485,7 +486,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->zws = malloc(zsz);
     int bad = !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
-              !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 28 * sizeof(double))) ||
+              !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
     if (!bad)
         e->z = ZSTD_initStaticCCtx(e->zws, zsz);
@@ -675,8 +676,13 @@ static void predict_mb(struct pred *p, const float *cf, const float *pos)
  * by the encoder on the true positions and motions. The decoded position
  * then moves with its part, its noise carried along rather than re-coded,
  * and the per-Gaussian mf residual is 0 wherever a block moves rigidly or
- * affinely. Parameters: t in 1/8 motion steps, M in 1/4096, 12 planes of
- * zigzagged integers (t x y z, M row-major), |value| <= BPAR_MAX. */
+ * affinely. Rotations likewise: each block sends the rotation dq that
+ * takes its reference rotations to this key's (left-multiplied, x y z with
+ * w >= 0), and a Gaussian's rotation is predicted as dq * its reference
+ * rotation, so a rigid part's turn costs no rotation residual.
+ * Parameters: t in 1/8 motion steps, M in 1/4096, dq in 1/8192, 15 planes
+ * of zigzagged integers (t x y z, M row-major, dq x y z), |value| <=
+ * BPAR_MAX, |dq| <= 1. */
 /* Blocks of the Gaussians with rix[i] >= 0 (their reference index); uses
  * the Morton buffers (tmp holds the Gaussian of each sorted slot). */
 static void blocks_assign(struct blocks *b, struct morton *mo, const struct keystate *ref, const float *cf,
@@ -719,20 +725,64 @@ static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], con
     }
 }
 
+static void qmul(const float a[4], const float b[4], float o[4])
+{
+    float r[4] = { a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                   a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                   a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                   a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0] };
+    memcpy(o, r, sizeof r);
+}
+
+/* The block's rotation applied to a predicted rotation (same code on both sides). */
+static void block_rot(const struct blocks *b, uint32_t blk, float rot[4])
+{
+    const size_t s = b->nbmax;
+    float dq[4], ss = 0;
+    for (int c = 0; c < 3; c++) {
+        dq[1 + c] = (float)unzig(b->par[(size_t)(12 + c) * s + blk]) * (1.0f / BQ_UNIT);
+        ss += dq[1 + c] * dq[1 + c];
+    }
+    if (ss == 0.0f)
+        return;
+    dq[0] = sqrtf(ss < 1.0f ? 1.0f - ss : 0.0f);
+    float q[4], n = 0;
+    qmul(dq, rot, q);
+    for (int c = 0; c < 4; c++)
+        n += q[c] * q[c];
+    n = n > 1e-30f ? 1.0f / sqrtf(n) : 0.0f;
+    if (n != 0.0f)
+        for (int c = 0; c < 4; c++)
+            rot[c] = q[c] * n;
+}
+
 /* Encoder: least squares t + M x ~ mf over each block (x: true position
  * minus the origin; a small ridge keeps flat or tiny blocks stable), then
- * quantized. acc: [nb * 19] doubles of scratch. */
-static void blocks_fit(struct blocks *b, const struct splat_frame *f, const int32_t *rix, const struct qz *z,
-                       double *acc)
+ * quantized. acc: [nb * 32] doubles of scratch. */
+static void blocks_fit(struct blocks *b, const struct splat_frame *f, const struct keystate *ref, const int32_t *rix,
+                       const struct qz *z, double *acc)
 {
-    memset(acc, 0, b->nb * 28 * sizeof(double));
+    memset(acc, 0, b->nb * 32 * sizeof(double));
     for (size_t i = 0; i < f->count; i++) {
         if (rix[i] < 0)
             continue;
         uint32_t k = b->id[i];
         double x[4] = { 1, (double)f->pos[3 * i] - b->org[3 * k], (double)f->pos[3 * i + 1] - b->org[3 * k + 1],
                         (double)f->pos[3 * i + 2] - b->org[3 * k + 2] };
-        double *a = acc + 28 * (size_t)k;
+        double *a = acc + 32 * (size_t)k;
+        /* this Gaussian's turn since the reference, w >= 0 */
+        float qi[4], qr[4], dq[4], nn = 0;
+        for (int c = 0; c < 4; c++) {
+            qi[c] = f->rot[4 * i + c];
+            nn += qi[c] * qi[c];
+            qr[c] = c ? -ref->rot[4 * (size_t)rix[i] + c] : ref->rot[4 * (size_t)rix[i]];
+        }
+        if (nn > 1e-30f) {
+            qmul(qi, qr, dq);
+            double sg = dq[0] < 0 ? -1.0 : 1.0, w = 1.0 / sqrt((double)nn);
+            for (int c = 0; c < 4; c++)
+                a[28 + c] += sg * w * dq[c];
+        }
         for (int u = 0; u < 4; u++) {
             for (int v = 0; v < 4; v++)
                 a[4 * u + v] += x[u] * x[v];
@@ -742,7 +792,12 @@ static void blocks_fit(struct blocks *b, const struct splat_frame *f, const int3
     }
     const size_t s = b->nbmax;
     for (size_t k = 0; k < b->nb; k++) {
-        double *a = acc + 28 * k, g[4][4], y[4][3], sol[4][3] = { { 0 } };
+        double *a = acc + 32 * k, g[4][4], y[4][3], sol[4][3] = { { 0 } };
+        double qn = sqrt(a[28] * a[28] + a[29] * a[29] + a[30] * a[30] + a[31] * a[31]);
+        for (int c = 0; c < 3; c++) {
+            double v = qn > 0 ? a[29 + c] / qn * (a[28] < 0 ? -1.0 : 1.0) * BQ_UNIT : 0.0;
+            b->par[(size_t)(12 + c) * s + k] = zig((int32_t)llround(v));
+        }
         double ridge = a[0] * 1e-6;
         for (int u = 0; u < 4; u++) {
             for (int v = 0; v < 4; v++)
@@ -1154,7 +1209,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             for (size_t i = 0; i < n; i++)
                 e->rix[i] = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
             blocks_assign(&e->bk, &e->mo, ref, cf, z, e->rix, n);
-            blocks_fit(&e->bk, f, e->rix, z, e->bacc);
+            blocks_fit(&e->bk, f, ref, e->rix, z, e->bacc);
         } else if (keyed && motion && n > 1) {
             choose_mf_predictor(e, ref, f, match, z, pos_tol, cf);
         }
@@ -1174,6 +1229,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             prev = r;
             struct pred p;
             predict(ref, (size_t)r, cf, &p);
+            if (block_motion)
+                block_rot(&e->bk, e->bk.id[i], p.rot);
             int32_t res[NCH] = { 0 };
             float ls[3], rpos[3];
             log_scale(f->scale + 3 * i, ls);
@@ -1598,7 +1655,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                 if (mo)
                     return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: Morton flag on block parameters", what);
                 for (size_t j = 0; j < d->bk.nb; j++)
-                    if (unzig(v[j]) > BPAR_MAX || unzig(v[j]) < -BPAR_MAX)
+                    if (unzig(v[j]) > (k >= 12 ? (int32_t)BQ_UNIT : BPAR_MAX) ||
+                        unzig(v[j]) < -(k >= 12 ? (int32_t)BQ_UNIT : BPAR_MAX))
                         return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: parameter %d = %d out of range", j,
                                         k, unzig(v[j]));
             }
@@ -1688,6 +1746,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                 for (int c = 0; c < 3; c++)
                     P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
                 block_mf(&d->bk, d->bk.id[i], P, z, pr.mf);
+                block_rot(&d->bk, d->bk.id[i], pr.rot);
             }
             resid_recon(res, &pr, cf, z, rot_bits, motion, dst, i);
         }
