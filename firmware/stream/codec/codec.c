@@ -1034,9 +1034,11 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
  * alone: Morton order of the predicted positions, cost sum log2(1 + |delta|)
  * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Uses the residual
  * planes and the Morton buffers as scratch. */
-static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
-                                const int32_t *match, const struct qz *z, const float *pos_tol, float *cf)
+static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
+                               const int32_t *match, const struct qz *z, const float *pos_tol, float *cf,
+                               const struct blocks *bk)
 {
+    const int nk = bk ? 3 : 2;
     const size_t stride = e->cap ? e->cap : 1;
     size_t m = 0;
     for (size_t i = 0; i < f->count; i++) {
@@ -1044,6 +1046,7 @@ static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const 
         if (r < 0)
             continue;
         struct pred p;
+        float rp3[3];
         predict(ref, (size_t)r, cf, &p);
         for (int c = 0; c < 3; c++) {
             int32_t rp = resid(z[c], f->pos[3 * i + c], p.pos[c]);
@@ -1052,14 +1055,21 @@ static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const 
             float rpos = dres(p.pos[c], z[c], rp);
             e->res[(size_t)c * stride + m] = zig(mf_resid(f, i, c, rpos, p.mf[c], z[QZ_MF + c], pos_tol[c]));
             e->res[(size_t)(3 + c) * stride + m] = zig(mf_resid(f, i, c, rpos, 0.0f, z[QZ_MF + c], pos_tol[c]));
+            rp3[c] = rpos;
+        }
+        if (bk) {
+            float bmf[3];
+            block_mf(bk, bk->id[i], rp3, z, bmf);
+            for (int c = 0; c < 3; c++)
+                e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], z[QZ_MF + c], pos_tol[c]));
         }
         e->mo.key[m++] = morton_key(z, p.pos);
     }
     if (m < 2)
-        return;
+        return 0;
     morton_sort(&e->mo, m);
-    double cost[2] = { 0, 0 };
-    for (int k = 0; k < 2; k++)
+    double cost[3] = { 0, 0, 0 };
+    for (int k = 0; k < nk; k++)
         for (int c = 0; c < 3; c++) {
             const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
             int32_t prev = 0;
@@ -1069,8 +1079,13 @@ static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const 
                 prev = x;
             }
         }
+    if (bk && cost[2] < cost[0] && cost[2] < cost[1]) {
+        cf[2] = cf[3] = 0.0f;
+        return 1;
+    }
     if (cost[1] < cost[0])
         cf[2] = cf[3] = 0.0f;
+    return 0;
 }
 
 static void put_qz(uint8_t *p, const struct qz *z)
@@ -1146,7 +1161,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         return f4d_fail(&e->err, F4D_ERANGE, "codec_enc_key: output buffer of %zu bytes too small", cap);
     size_t pcap = cap - CODEC_PACKET_HEADER;
     size_t n_changed = 0, n_new = 0, n_same = 0, matched = 0;
-    int explicit_match = 0, block_motion = 0;
+    int explicit_match = 0, block_motion = 0, block_mf_used = 0;
     float cf[NCOEF];
     memcpy(cf, coef_v1, sizeof cf);
     dst->count = n;
@@ -1205,14 +1220,13 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         /* block motion replaces the per-Gaussian mf prediction (keyed) */
         block_motion = keyed && motion && n > 0 && e->ver >= 3;
         if (block_motion) {
-            cf[2] = cf[3] = 0.0f;
             for (size_t i = 0; i < n; i++)
                 e->rix[i] = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
             blocks_assign(&e->bk, &e->mo, ref, cf, z, e->rix, n);
             blocks_fit(&e->bk, f, ref, e->rix, z, e->bacc);
-        } else if (keyed && motion && n > 1) {
-            choose_mf_predictor(e, ref, f, match, z, pos_tol, cf);
         }
+        if (keyed && motion && n > 1)
+            block_mf_used = choose_mf_predictor(e, ref, f, match, z, pos_tol, cf, block_motion ? &e->bk : NULL);
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -1244,7 +1258,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                     res[CH_POS + c] = 0;
                 rpos[c] = dres(p.pos[c], z[c], res[CH_POS + c]);
             }
-            if (block_motion)
+            if (block_mf_used)
                 block_mf(&e->bk, e->bk.id[i], rpos, z, p.mf);
             struct pred pb = p;
             predict_mb(&pb, cf, rpos);
@@ -1369,7 +1383,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
 
     pl[0] = intra ? 1 : 2;
     pl[1] = (uint8_t)e->q;
-    pl[2] = (uint8_t)(motion | explicit_match << 1 | block_motion << 2);
+    pl[2] = (uint8_t)(motion | explicit_match << 1 | block_motion << 2 | block_mf_used << 3);
     pl[3] = (uint8_t)qi->rot_bits;
     codec__put_u32(pl + 4, (uint32_t)n);
     codec__put_u32(pl + 8, intra ? 0u : (uint32_t)ref->count);
@@ -1574,10 +1588,11 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu bytes, the header needs %zu", len, off);
     if (in[0] != (intra ? 1 : 2))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: kind %u does not match packet type %d", in[0], p->type);
-    int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, block_motion = in[2] >> 2 & 1, rot_bits = in[3];
-    const int flag_mask = p->version >= 3 ? 7 : 3;
+    int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, block_motion = in[2] >> 2 & 1,
+        block_mf_used = in[2] >> 3 & 1, rot_bits = in[3];
+    const int flag_mask = p->version >= 3 ? 15 : 3;
     if (in[1] >= CODEC_QUALITY_COUNT || (in[2] & ~flag_mask) || rot_bits < 4 || rot_bits > 15 ||
-        (block_motion && (intra || !motion)))
+        (block_motion && (intra || !motion)) || (block_mf_used && !block_motion))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: bad quality %u, flags 0x%02x or rotation bits %d", in[1],
                         in[2], rot_bits);
     size_t n = codec__u32(in + 4), nref = codec__u32(in + 8), n_new = codec__u32(in + 12),
@@ -1745,7 +1760,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                 float P[3];
                 for (int c = 0; c < 3; c++)
                     P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
-                block_mf(&d->bk, d->bk.id[i], P, z, pr.mf);
+                if (block_mf_used)
+                    block_mf(&d->bk, d->bk.id[i], P, z, pr.mf);
                 block_rot(&d->bk, d->bk.id[i], pr.rot);
             }
             resid_recon(res, &pr, cf, z, rot_bits, motion, dst, i);
