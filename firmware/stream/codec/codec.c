@@ -325,17 +325,17 @@ static inline int32_t med3(int32_t a, int32_t b, int32_t c)
     return c < lo ? lo : c > hi ? hi : c;
 }
 
-#define BLK      256
+#define BLK      64
 #define NBP      15
-#define BQ_UNIT  8192.0f
 #define BPAR_MAX (1 << 22)
-#define BM_UNIT  4096.0f
 
 struct blocks {
     uint32_t *id;   /* [cap] block of each matched Gaussian         */
     uint32_t *par;  /* [NBP * nbmax] zigzagged parameters           */
     float    *org;  /* [3 * nbmax] block origins                    */
+    uint32_t *wire; /* [3 * nbmax] t as sent (encoder)              */
     size_t    nb, nbmax;
+    float     ut[3], um[3], uq; /* units of t, M (rows), dq       */
 };
 
 static int blocks_alloc(struct blocks *b, size_t c)
@@ -344,11 +344,12 @@ static int blocks_alloc(struct blocks *b, size_t c)
     b->id = malloc(c * sizeof(uint32_t));
     b->par = malloc(NBP * b->nbmax * sizeof(uint32_t));
     b->org = malloc(3 * b->nbmax * sizeof(float));
+    b->wire = malloc(3 * b->nbmax * sizeof(uint32_t));
     b->nb = 0;
-    return b->id && b->par && b->org ? 0 : -1;
+    return b->id && b->par && b->org && b->wire ? 0 : -1;
 }
 
-static void blocks_free(struct blocks *b) { free(b->id); free(b->par); free(b->org); }
+static void blocks_free(struct blocks *b) { free(b->id); free(b->par); free(b->org); free(b->wire); }
 
 struct codec_enc {
     size_t cap;
@@ -683,6 +684,35 @@ static void predict_mb(struct pred *p, const float *cf, const float *pos)
  * Parameters: t in 1/8 motion steps, M in 1/4096, dq in 1/8192, 15 planes
  * of zigzagged integers (t x y z, M row-major, dq x y z), |value| <=
  * BPAR_MAX, |dq| <= 1. */
+/* Units of the parameters, from the frame's quantizers and the level's
+ * rotation bits (both sides): t in 1/8 motion steps, M such that one unit
+ * across 10 cm is 1/8 motion step, dq in 1/16 rotation steps; each is well
+ * under the level's bounds and coarse enough not to code fit noise. */
+static void blocks_units(struct blocks *b, const struct qz *z, int rot_bits)
+{
+    for (int c = 0; c < 3; c++) {
+        b->ut[c] = z[QZ_MF + c].step * 0.125f;
+        b->um[c] = b->ut[c] * 10.0f;
+    }
+    b->uq = rot_step(rot_bits) * (1.0f / 16);
+}
+
+/* t of block k predicted from block k-1 (absolute parameters): its motion
+ * at this block's origin, in units of t; blocks of one rigid part then send
+ * only M's rounding. */
+static int32_t block_t_pred(const struct blocks *b, size_t k, int c)
+{
+    if (k == 0)
+        return 0;
+    const size_t s = b->nbmax, j = k - 1;
+    float v = (float)unzig(b->par[(size_t)c * s + j]) * b->ut[c];
+    for (int u = 0; u < 3; u++)
+        v += (float)unzig(b->par[(size_t)(3 + 3 * c + u) * s + j]) * b->um[c] * (b->org[3 * k + u] - b->org[3 * j + u]);
+    float q = v / b->ut[c];
+    q = q > (float)BPAR_MAX ? (float)BPAR_MAX : q < -(float)BPAR_MAX ? -(float)BPAR_MAX : q;
+    return (int32_t)lrintf(q);
+}
+
 /* Blocks of the Gaussians with rix[i] >= 0 (their reference index); uses
  * the Morton buffers (tmp holds the Gaussian of each sorted slot). */
 static void blocks_assign(struct blocks *b, struct morton *mo, const struct keystate *ref, const float *cf,
@@ -710,7 +740,7 @@ static void blocks_assign(struct blocks *b, struct morton *mo, const struct keys
 }
 
 /* The block's forward motion at decoded position P (same code on both sides). */
-static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], const struct qz *z, float mf[3])
+static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], float mf[3])
 {
     const uint32_t *q = b->par;
     const size_t s = b->nbmax;
@@ -718,9 +748,9 @@ static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], con
     for (int c = 0; c < 3; c++)
         d[c] = P[c] - b->org[3 * blk + c];
     for (int c = 0; c < 3; c++) {
-        float v = (float)unzig(q[(size_t)c * s + blk]) * (z[QZ_MF + c].step * 0.125f);
+        float v = (float)unzig(q[(size_t)c * s + blk]) * b->ut[c];
         for (int k = 0; k < 3; k++)
-            v += (float)unzig(q[(size_t)(3 + 3 * c + k) * s + blk]) * (1.0f / BM_UNIT) * d[k];
+            v += (float)unzig(q[(size_t)(3 + 3 * c + k) * s + blk]) * b->um[c] * d[k];
         mf[c] = v;
     }
 }
@@ -740,7 +770,7 @@ static void block_rot(const struct blocks *b, uint32_t blk, float rot[4])
     const size_t s = b->nbmax;
     float dq[4], ss = 0;
     for (int c = 0; c < 3; c++) {
-        dq[1 + c] = (float)unzig(b->par[(size_t)(12 + c) * s + blk]) * (1.0f / BQ_UNIT);
+        dq[1 + c] = (float)unzig(b->par[(size_t)(12 + c) * s + blk]) * b->uq;
         ss += dq[1 + c] * dq[1 + c];
     }
     if (ss == 0.0f)
@@ -760,7 +790,7 @@ static void block_rot(const struct blocks *b, uint32_t blk, float rot[4])
  * minus the origin; a small ridge keeps flat or tiny blocks stable), then
  * quantized. acc: [nb * 32] doubles of scratch. */
 static void blocks_fit(struct blocks *b, const struct splat_frame *f, const struct keystate *ref, const int32_t *rix,
-                       const struct qz *z, double *acc)
+                       double *acc)
 {
     memset(acc, 0, b->nb * 32 * sizeof(double));
     for (size_t i = 0; i < f->count; i++) {
@@ -795,10 +825,10 @@ static void blocks_fit(struct blocks *b, const struct splat_frame *f, const stru
         double *a = acc + 32 * k, g[4][4], y[4][3], sol[4][3] = { { 0 } };
         double qn = sqrt(a[28] * a[28] + a[29] * a[29] + a[30] * a[30] + a[31] * a[31]);
         for (int c = 0; c < 3; c++) {
-            double v = qn > 0 ? a[29 + c] / qn * (a[28] < 0 ? -1.0 : 1.0) * BQ_UNIT : 0.0;
+            double v = qn > 0 ? a[29 + c] / qn * (a[28] < 0 ? -1.0 : 1.0) / b->uq : 0.0;
             b->par[(size_t)(12 + c) * s + k] = zig((int32_t)llround(v));
         }
-        double ridge = a[0] * 1e-6;
+        double ridge = a[0] * 1e-10; /* (10 um)^2 a Gaussian */
         for (int u = 0; u < 4; u++) {
             for (int v = 0; v < 4; v++)
                 g[u][v] = a[4 * u + v] + (u == v && u > 0 ? ridge : 0.0);
@@ -838,16 +868,31 @@ static void blocks_fit(struct blocks *b, const struct splat_frame *f, const stru
                 sol[c][j] = v / g[c][c];
             }
         for (int c = 0; c < 3; c++) {
-            double t = ok && isfinite(sol[0][c]) ? sol[0][c] / ((double)z[QZ_MF + c].step * 0.125) : 0.0;
+            double t = ok && isfinite(sol[0][c]) ? sol[0][c] / b->ut[c] : 0.0;
             t = t > BPAR_MAX ? BPAR_MAX : t < -BPAR_MAX ? -BPAR_MAX : t;
             b->par[(size_t)c * s + k] = zig((int32_t)llround(t));
             for (int u = 0; u < 3; u++) {
-                double mv = ok && isfinite(sol[1 + u][c]) ? sol[1 + u][c] * BM_UNIT : 0.0;
+                double mv = ok && isfinite(sol[1 + u][c]) ? sol[1 + u][c] / b->um[c] : 0.0;
                 mv = mv > BPAR_MAX ? BPAR_MAX : mv < -BPAR_MAX ? -BPAR_MAX : mv;
                 b->par[(size_t)(3 + 3 * c + u) * s + k] = zig((int32_t)llround(mv));
             }
         }
     }
+    for (size_t k = 0; k < b->nb; k++)
+        for (int c = 0; c < 3; c++)
+            b->wire[(size_t)c * s + k] = zig(unzig(b->par[(size_t)c * s + k]) - block_t_pred(b, k, c));
+}
+
+/* The quantizers of residuals: with block mf, an mf residual is in half
+ * motion steps. What is left after the block motion is a Gaussian whose
+ * carried position noise left the bound: half a step puts it back near the
+ * middle (a whole step would throw it to the other edge, to leave again). */
+static void residual_qz(const struct qz *z, int block_mf_used, struct qz *zr)
+{
+    memcpy(zr, z, NQZ * sizeof *z);
+    if (block_mf_used)
+        for (int c = 0; c < 3; c++)
+            zr[QZ_MF + c].step *= 0.5f;
 }
 
 /* Applies residual record (all zero = copy) to the prediction into slot j. */
@@ -1059,7 +1104,7 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
         }
         if (bk) {
             float bmf[3];
-            block_mf(bk, bk->id[i], rp3, z, bmf);
+            block_mf(bk, bk->id[i], rp3, bmf);
             for (int c = 0; c < 3; c++)
                 e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], z[QZ_MF + c], pos_tol[c]));
         }
@@ -1223,10 +1268,13 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             for (size_t i = 0; i < n; i++)
                 e->rix[i] = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
             blocks_assign(&e->bk, &e->mo, ref, cf, z, e->rix, n);
-            blocks_fit(&e->bk, f, ref, e->rix, z, e->bacc);
+            blocks_units(&e->bk, z, qi->rot_bits);
+            blocks_fit(&e->bk, f, ref, e->rix, e->bacc);
         }
         if (keyed && motion && n > 1)
             block_mf_used = choose_mf_predictor(e, ref, f, match, z, pos_tol, cf, block_motion ? &e->bk : NULL);
+        struct qz zr[NQZ];
+        residual_qz(z, block_mf_used, zr);
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -1259,7 +1307,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 rpos[c] = dres(p.pos[c], z[c], res[CH_POS + c]);
             }
             if (block_mf_used)
-                block_mf(&e->bk, e->bk.id[i], rpos, z, p.mf);
+                block_mf(&e->bk, e->bk.id[i], rpos, p.mf);
             struct pred pb = p;
             predict_mb(&pb, cf, rpos);
             for (int c = 0; c < 3; c++) {
@@ -1275,7 +1323,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                      * up from key to key, and the decoded positions' own
                      * quantization noise is not re-coded in every mf. */
                     if (keyed) {
-                        res[CH_MF + c] = mf_resid(f, i, c, rpos[c], p.mf[c], z[QZ_MF + c], pos_tol[c]);
+                        res[CH_MF + c] = mf_resid(f, i, c, rpos[c], p.mf[c], zr[QZ_MF + c], pos_tol[c]);
                     } else {
                         res[CH_MF + c] = resid(z[QZ_MF + c], f->motion_fwd[3 * i + c], p.mf[c]);
                     }
@@ -1318,7 +1366,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             int any = 0;
             for (int c = 0; c < nch; c++)
                 any |= res[c];
-            resid_recon(res, &p, cf, z, qi->rot_bits, motion, dst, i);
+            resid_recon(res, &p, cf, zr, qi->rot_bits, motion, dst, i);
             if (!any) {
                 e->flags[i] = 0;
                 n_same++;
@@ -1339,7 +1387,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         e->st.bytes_index = off - o0;
         for (int k = 0; k < NBP && block_motion; k++) {
             size_t o2 = off;
-            if ((rc = put_plane(e, e->bk.par + (size_t)k * e->bk.nbmax, e->bk.nb, 2, pl, pcap, &off)) < 0)
+            const uint32_t *bv = (k < 3 ? e->bk.wire : e->bk.par) + (size_t)k * e->bk.nbmax;
+            if ((rc = put_plane(e, bv, e->bk.nb, 2, pl, pcap, &off)) < 0)
                 return rc;
             e->st.bytes_motion += off - o2;
             e->st.bytes_blocks += off - o2;
@@ -1670,11 +1719,21 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                 if (mo)
                     return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: Morton flag on block parameters", what);
                 for (size_t j = 0; j < d->bk.nb; j++)
-                    if (unzig(v[j]) > (k >= 12 ? (int32_t)BQ_UNIT : BPAR_MAX) ||
-                        unzig(v[j]) < -(k >= 12 ? (int32_t)BQ_UNIT : BPAR_MAX))
+                    if (unzig(v[j]) > BPAR_MAX || unzig(v[j]) < -BPAR_MAX)
                         return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: parameter %d = %d out of range", j,
                                         k, unzig(v[j]));
             }
+            /* t was sent against its prediction from the block before */
+            blocks_units(&d->bk, z, rot_bits);
+            for (size_t j = 0; j < d->bk.nb; j++)
+                for (int c = 0; c < 3; c++) {
+                    uint32_t *t = d->bk.par + (size_t)c * d->bk.nbmax + j;
+                    int64_t a = (int64_t)unzig(*t) + block_t_pred(&d->bk, j, c);
+                    if (a > BPAR_MAX || a < -BPAR_MAX)
+                        return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: t%d = %lld out of range", j, c,
+                                        (long long)a);
+                    *t = zig((int32_t)a);
+                }
         }
         for (int c = 0; c < nch; c++) {
             snprintf(what, sizeof what, "r%d", c);
@@ -1730,6 +1789,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
         }
         size_t kc = 0, kn = 0;
         int64_t prev = -1;
+        struct qz zr[NQZ];
+        residual_qz(z, block_mf_used, zr);
         for (size_t i = 0; i < n; i++) {
             uint32_t fl = d->flags[i];
             if (fl > 2)
@@ -1761,10 +1822,10 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                 for (int c = 0; c < 3; c++)
                     P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
                 if (block_mf_used)
-                    block_mf(&d->bk, d->bk.id[i], P, z, pr.mf);
+                    block_mf(&d->bk, d->bk.id[i], P, pr.mf);
                 block_rot(&d->bk, d->bk.id[i], pr.rot);
             }
-            resid_recon(res, &pr, cf, z, rot_bits, motion, dst, i);
+            resid_recon(res, &pr, cf, zr, rot_bits, motion, dst, i);
         }
         if (kc != n_changed || kn != n_new)
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed / %zu new, header %zu / %zu", kc,
