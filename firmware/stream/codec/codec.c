@@ -366,6 +366,8 @@ struct codec_enc {
     struct blocks bk;  /* block motion (version 3)                  */
     int32_t *rix;      /* [cap] reference index of each Gaussian     */
     double *bacc;      /* [nbmax * 32] block fit sums                */
+    uint8_t *est;      /* [est_cap] planes coded to measure a choice  */
+    size_t est_cap;
     int last_still;    /* mo.perm holds a still key's order           */
     int ver;           /* codec version written (2 or 3)             */
     struct planebuf pb;
@@ -483,9 +485,11 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->pb.tmp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
+    e->est_cap = e->pb.zbound + 5;
+    e->est = malloc(e->est_cap);
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
-    int bad = !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -506,7 +510,7 @@ void codec_enc_free(codec_enc *e)
     free(e->rec); free(e->res); free(e->idx); free(e->flags);
     morton_free(&e->mo);
     blocks_free(&e->bk);
-    free(e->rix); free(e->bacc);
+    free(e->rix); free(e->bacc); free(e->est);
     free(e->pb.shuf); free(e->pb.tmp); free(e->pb.zalt); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
@@ -1124,6 +1128,8 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
                 prev = x;
             }
         }
+    if (bk)
+        cost[2] += 3.0 * 12 * (double)bk->nb; /* its parameters, about 3 bits each */
     if (bk && cost[2] < cost[0] && cost[2] < cost[1]) {
         cf[2] = cf[3] = 0.0f;
         return 1;
@@ -1131,6 +1137,92 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
     if (cost[1] < cost[0])
         cf[2] = cf[3] = 0.0f;
     return 0;
+}
+
+/* Rotation residual of Gaussian i against the predicted rotation prot, in
+ * steps rs; 0 where the change is within a step or hardly shows (see
+ * codec_enc_key). Returns whether any component is non-zero. */
+static int rot_resid(const struct splat_frame *f, size_t i, const float prot[4], float rs, float rot_tol, int32_t r[4])
+{
+    /* rotation: the input normalised and on the prediction's side */
+    const float *qin = f->rot + 4 * i;
+    float qn = 0, dot = 0;
+    for (int c = 0; c < 4; c++) {
+        qn += qin[c] * qin[c];
+        dot += qin[c] * prot[c];
+    }
+    qn = qn > 1e-30f ? (dot < 0 ? -1.0f : 1.0f) / sqrtf(qn) : 0.0f;
+    int rot_near = 1;
+    for (int c = 0; c < 4; c++) {
+        float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
+        double t = ((double)qc - (double)prot[c]) / rs;
+        r[c] = (int32_t)llround(t);
+        rot_near &= fabs(t) <= 1.0;
+    }
+    /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
+     * by at most 2 a (s_max - s_min): within the position bound it
+     * is kept (a near-isotropic Gaussian's rotation hardly shows). */
+    if (!rot_near && qn != 0.0f) {
+        const float *sc = f->scale + 3 * i;
+        float smax = fmaxf(sc[0], fmaxf(sc[1], sc[2])), smin = fminf(sc[0], fminf(sc[1], sc[2]));
+        float cd = fminf(1.0f, fabsf(dot) * fabsf(qn));
+        float ang = 2.0f * acosf(cd);
+        rot_near = 2.0f * ang * (smax - smin) <= rot_tol;
+    }
+    if (rot_near)
+        r[0] = r[1] = r[2] = r[3] = 0;
+    return (r[0] | r[1] | r[2] | r[3]) != 0;
+}
+
+/* Block rotations pay where the rotation residuals they leave cost less
+ * than those without them plus their parameters (about 3 bits each,
+ * measured on the 300k walk). Both are measured: the four residual planes
+ * of every matched Gaussian, in index order and in the Morton order of the
+ * predicted positions, coded as put_plane codes them (zstd; the smaller
+ * order counts, as in the key); a changed Gaussian adds two bits. Without block rotations a rigid part's residuals follow
+ * the reference rotations, smooth along a surface; with them only the
+ * reference's own quantization noise is left, which is smaller where the
+ * blocks fit and does not delta-code, so neither wins everywhere (sparse
+ * takes whose blocks straddle parts, fine levels). Uses the residual planes
+ * and the Morton buffers as scratch. */
+static int choose_block_rot(codec_enc *e, const struct keystate *ref, const struct splat_frame *f, const float *cf,
+                            const struct qz *z, float rs, float rot_tol)
+{
+    const size_t stride = e->cap ? e->cap : 1;
+    double cost[2] = { 0, 3.0 * 3 * (double)e->bk.nb };
+    size_t m = 0;
+    for (size_t i = 0; i < f->count; i++) {
+        if (e->rix[i] < 0)
+            continue;
+        struct pred p;
+        predict(ref, (size_t)e->rix[i], cf, &p);
+        e->mo.key[m] = morton_key(z, p.pos);
+        for (int k = 0; k < 2; k++) {
+            int32_t r[4];
+            if (k)
+                block_rot(&e->bk, e->bk.id[i], p.rot);
+            if (rot_resid(f, i, p.rot, rs, rot_tol, r))
+                cost[k] += 2.0;
+            for (int c = 0; c < 4; c++)
+                e->res[(size_t)(4 * k + c) * stride + m] = zig(r[c]);
+        }
+        m++;
+    }
+    if (m < 2)
+        return 0;
+    morton_sort(&e->mo, m);
+    for (int k = 0; k < 2; k++)
+        for (int c = 0; c < 4; c++) {
+            const uint32_t *v = e->res + (size_t)(4 * k + c) * stride;
+            for (size_t j = 0; j < m; j++)
+                e->mo.tmp[j] = v[e->mo.perm[j]];
+            size_t o1 = 0, o2 = 0;
+            if (put_plane(e, e->mo.tmp, m, 2, e->est, e->est_cap, &o1) < 0 ||
+                put_plane(e, v, m, 2, e->est, e->est_cap, &o2) < 0)
+                return 0;
+            cost[k] += 8.0 * (double)(o1 < o2 ? o1 : o2);
+        }
+    return cost[1] < cost[0];
 }
 
 static void put_qz(uint8_t *p, const struct qz *z)
@@ -1206,7 +1298,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         return f4d_fail(&e->err, F4D_ERANGE, "codec_enc_key: output buffer of %zu bytes too small", cap);
     size_t pcap = cap - CODEC_PACKET_HEADER;
     size_t n_changed = 0, n_new = 0, n_same = 0, matched = 0;
-    int explicit_match = 0, block_motion = 0, block_mf_used = 0;
+    int explicit_match = 0, block_motion = 0, block_mf_used = 0, block_rot_used = 0;
     float cf[NCOEF];
     memcpy(cf, coef_v1, sizeof cf);
     dst->count = n;
@@ -1273,6 +1365,15 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         }
         if (keyed && motion && n > 1)
             block_mf_used = choose_mf_predictor(e, ref, f, match, z, pos_tol, cf, block_motion ? &e->bk : NULL);
+        if (block_motion) {
+            block_rot_used = choose_block_rot(e, ref, f, cf, z, rot_step(qi->rot_bits), rot_tol);
+            /* a part not used is sent as zeros (nearly free) */
+            for (int k = block_mf_used ? 12 : 0; k < (block_rot_used ? 12 : NBP); k++)
+                memset(e->bk.par + (size_t)k * e->bk.nbmax, 0, e->bk.nb * sizeof(uint32_t));
+            if (!block_mf_used)
+                memset(e->bk.wire, 0, 3 * e->bk.nbmax * sizeof(uint32_t));
+            block_motion = block_mf_used || block_rot_used;
+        }
         struct qz zr[NQZ];
         residual_qz(z, block_mf_used, zr);
         int32_t prev = -1;
@@ -1291,7 +1392,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             prev = r;
             struct pred p;
             predict(ref, (size_t)r, cf, &p);
-            if (block_motion)
+            if (block_rot_used)
                 block_rot(&e->bk, e->bk.id[i], p.rot);
             int32_t res[NCH] = { 0 };
             float ls[3], rpos[3];
@@ -1336,33 +1437,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 }
             }
             res[CH_OP] = resid(z[6], f->opacity[i], p.op);
-            /* rotation: the input normalised and on the prediction's side */
-            const float *qin = f->rot + 4 * i;
-            float qn = 0, dot = 0;
-            for (int c = 0; c < 4; c++) {
-                qn += qin[c] * qin[c];
-                dot += qin[c] * p.rot[c];
-            }
-            qn = qn > 1e-30f ? (dot < 0 ? -1.0f : 1.0f) / sqrtf(qn) : 0.0f;
-            int rot_near = 1;
-            for (int c = 0; c < 4; c++) {
-                float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
-                double t = ((double)qc - (double)p.rot[c]) / rs;
-                res[CH_ROT + c] = (int32_t)llround(t);
-                rot_near &= fabs(t) <= 1.0;
-            }
-            /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
-             * by at most 2 a (s_max - s_min): within the position bound it
-             * is kept (a near-isotropic Gaussian's rotation hardly shows). */
-            if (!rot_near && qn != 0.0f) {
-                const float *sc = f->scale + 3 * i;
-                float smax = fmaxf(sc[0], fmaxf(sc[1], sc[2])), smin = fminf(sc[0], fminf(sc[1], sc[2]));
-                float cd = fminf(1.0f, fabsf(dot) * fabsf(qn));
-                float ang = 2.0f * acosf(cd);
-                rot_near = 2.0f * ang * (smax - smin) <= rot_tol;
-            }
-            if (rot_near)
-                res[CH_ROT] = res[CH_ROT + 1] = res[CH_ROT + 2] = res[CH_ROT + 3] = 0;
+            rot_resid(f, i, p.rot, rs, rot_tol, res + CH_ROT);
             int any = 0;
             for (int c = 0; c < nch; c++)
                 any |= res[c];
@@ -1432,7 +1507,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
 
     pl[0] = intra ? 1 : 2;
     pl[1] = (uint8_t)e->q;
-    pl[2] = (uint8_t)(motion | explicit_match << 1 | block_motion << 2 | block_mf_used << 3);
+    pl[2] = (uint8_t)(motion | explicit_match << 1 | block_motion << 2 | block_mf_used << 3 | block_rot_used << 4);
     pl[3] = (uint8_t)qi->rot_bits;
     codec__put_u32(pl + 4, (uint32_t)n);
     codec__put_u32(pl + 8, intra ? 0u : (uint32_t)ref->count);
@@ -1638,10 +1713,10 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     if (in[0] != (intra ? 1 : 2))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: kind %u does not match packet type %d", in[0], p->type);
     int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, block_motion = in[2] >> 2 & 1,
-        block_mf_used = in[2] >> 3 & 1, rot_bits = in[3];
-    const int flag_mask = p->version >= 3 ? 15 : 3;
+        block_mf_used = in[2] >> 3 & 1, block_rot_used = in[2] >> 4 & 1, rot_bits = in[3];
+    const int flag_mask = p->version >= 3 ? 31 : 3;
     if (in[1] >= CODEC_QUALITY_COUNT || (in[2] & ~flag_mask) || rot_bits < 4 || rot_bits > 15 ||
-        (block_motion && (intra || !motion)) || (block_mf_used && !block_motion))
+        (block_motion && (intra || !motion)) || block_motion != (block_mf_used | block_rot_used))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: bad quality %u, flags 0x%02x or rotation bits %d", in[1],
                         in[2], rot_bits);
     size_t n = codec__u32(in + 4), nref = codec__u32(in + 8), n_new = codec__u32(in + 12),
@@ -1823,7 +1898,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                     P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
                 if (block_mf_used)
                     block_mf(&d->bk, d->bk.id[i], P, pr.mf);
-                block_rot(&d->bk, d->bk.id[i], pr.rot);
+                if (block_rot_used)
+                    block_rot(&d->bk, d->bk.id[i], pr.rot);
             }
             resid_recon(res, &pr, cf, zr, rot_bits, motion, dst, i);
         }
