@@ -1073,6 +1073,34 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
     return fabs(dt) <= 0.9 * tol ? 0 : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
 }
 
+/* Bits plane v[0..m) (index order) takes as put_plane codes it, in the
+ * cheaper of index order and the Morton order in e->mo.perm (as a key's
+ * residual planes are); the Morton copy goes through mo.tmp. */
+static double plane_cost(codec_enc *e, const uint32_t *v, size_t m)
+{
+    for (size_t j = 0; j < m; j++)
+        e->mo.tmp[j] = v[e->mo.perm[j]];
+    size_t o1 = 0, o2 = 0;
+    if (put_plane(e, e->mo.tmp, m, 2, e->est, e->est_cap, &o1) < 0 ||
+        put_plane(e, v, m, 2, e->est, e->est_cap, &o2) < 0)
+        return INFINITY;
+    return 8.0 * (double)(o1 < o2 ? o1 : o2);
+}
+
+/* Bits of block parameter planes [from, to) as the key sends them. */
+static double block_param_cost(codec_enc *e, const struct blocks *bk, int from, int to)
+{
+    double bits = 0;
+    for (int k = from; k < to; k++) {
+        size_t o = 0;
+        const uint32_t *bv = (k < 3 ? bk->wire : bk->par) + (size_t)k * bk->nbmax;
+        if (put_plane(e, bv, bk->nb, 2, e->est, e->est_cap, &o) < 0)
+            return INFINITY;
+        bits += 8.0 * (double)o;
+    }
+    return bits;
+}
+
 /* With keyed motions, the temporal mf prediction carries each Gaussian's own
  * reconstruction error (its decoded position and motions, up to about two
  * position bounds, amplified by the fitted coefficients), which no order
@@ -1089,6 +1117,9 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
 {
     const int nk = bk ? 3 : 2;
     const size_t stride = e->cap ? e->cap : 1;
+    struct qz zh[3]; /* block mf residuals are in half steps (residual_qz) */
+    for (int c = 0; c < 3; c++)
+        zh[c] = (struct qz){ z[QZ_MF + c].lo, z[QZ_MF + c].step * 0.5f };
     size_t m = 0;
     for (size_t i = 0; i < f->count; i++) {
         int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -1110,7 +1141,7 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
             float bmf[3];
             block_mf(bk, bk->id[i], rp3, bmf);
             for (int c = 0; c < 3; c++)
-                e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], z[QZ_MF + c], pos_tol[c]));
+                e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], zh[c], pos_tol[c]));
         }
         e->mo.key[m++] = morton_key(z, p.pos);
     }
@@ -1118,18 +1149,28 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
         return 0;
     morton_sort(&e->mo, m);
     double cost[3] = { 0, 0, 0 };
-    for (int k = 0; k < nk; k++)
-        for (int c = 0; c < 3; c++) {
-            const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
-            int32_t prev = 0;
-            for (size_t j = 0; j < m; j++) {
-                int32_t x = unzig(v[e->mo.perm[j]]);
-                cost[k] += log2(1.0 + fabs((double)x - (double)prev));
-                prev = x;
-            }
+    if (bk) {
+        /* version 3: measured as the key codes them (see choose_block_rot) */
+        for (int k = 0; k < nk; k++) {
+            for (int c = 0; c < 3; c++)
+                cost[k] += plane_cost(e, e->res + (size_t)(3 * k + c) * stride, m);
+            for (size_t j = 0; j < m; j++)
+                cost[k] += (e->res[(size_t)(3 * k) * stride + j] | e->res[(size_t)(3 * k + 1) * stride + j] |
+                            e->res[(size_t)(3 * k + 2) * stride + j]) ? 2.0 : 0.0;
         }
-    if (bk)
-        cost[2] += 3.0 * 12 * (double)bk->nb; /* its parameters, about 3 bits each */
+        cost[2] += block_param_cost(e, bk, 0, 12);
+    } else {
+        for (int k = 0; k < nk; k++)
+            for (int c = 0; c < 3; c++) {
+                const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
+                int32_t prev = 0;
+                for (size_t j = 0; j < m; j++) {
+                    int32_t x = unzig(v[e->mo.perm[j]]);
+                    cost[k] += log2(1.0 + fabs((double)x - (double)prev));
+                    prev = x;
+                }
+            }
+    }
     if (bk && cost[2] < cost[0] && cost[2] < cost[1]) {
         cf[2] = cf[3] = 0.0f;
         return 1;
@@ -1175,8 +1216,7 @@ static int rot_resid(const struct splat_frame *f, size_t i, const float prot[4],
 }
 
 /* Block rotations pay where the rotation residuals they leave cost less
- * than those without them plus their parameters (about 3 bits each,
- * measured on the 300k walk). Both are measured: the four residual planes
+ * than those without them plus their parameters. All are measured: the four residual planes
  * of every matched Gaussian, in index order and in the Morton order of the
  * predicted positions, coded as put_plane codes them (zstd; the smaller
  * order counts, as in the key); a changed Gaussian adds two bits. Without block rotations a rigid part's residuals follow
@@ -1189,7 +1229,7 @@ static int choose_block_rot(codec_enc *e, const struct keystate *ref, const stru
                             const struct qz *z, float rs, float rot_tol)
 {
     const size_t stride = e->cap ? e->cap : 1;
-    double cost[2] = { 0, 3.0 * 3 * (double)e->bk.nb };
+    double cost[2] = { 0, block_param_cost(e, &e->bk, 12, NBP) };
     size_t m = 0;
     for (size_t i = 0; i < f->count; i++) {
         if (e->rix[i] < 0)
@@ -1213,14 +1253,7 @@ static int choose_block_rot(codec_enc *e, const struct keystate *ref, const stru
     morton_sort(&e->mo, m);
     for (int k = 0; k < 2; k++)
         for (int c = 0; c < 4; c++) {
-            const uint32_t *v = e->res + (size_t)(4 * k + c) * stride;
-            for (size_t j = 0; j < m; j++)
-                e->mo.tmp[j] = v[e->mo.perm[j]];
-            size_t o1 = 0, o2 = 0;
-            if (put_plane(e, e->mo.tmp, m, 2, e->est, e->est_cap, &o1) < 0 ||
-                put_plane(e, v, m, 2, e->est, e->est_cap, &o2) < 0)
-                return 0;
-            cost[k] += 8.0 * (double)(o1 < o2 ? o1 : o2);
+            cost[k] += plane_cost(e, e->res + (size_t)(4 * k + c) * stride, m);
         }
     return cost[1] < cost[0];
 }
