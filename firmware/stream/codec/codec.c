@@ -1109,8 +1109,11 @@ static double block_param_cost(codec_enc *e, const struct blocks *bk, int from, 
  * rigidly. Which wins depends on the take (smooth slow motion: temporal;
  * fast articulated motion: spatial), so both are tried on the mf residuals
  * alone: Morton order of the predicted positions, cost sum log2(1 + |delta|)
- * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Uses the residual
- * planes and the Morton buffers as scratch. */
+ * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Version 3 (bk:
+ * the blocks, fitted) adds block motion as a third candidate and measures
+ * all three as the key codes them (plane_cost, two bits a changed Gaussian,
+ * the block parameters' planes); returns 1 when block mf wins. Uses the
+ * residual planes and the Morton buffers as scratch. */
 static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
                                const int32_t *match, const struct qz *z, const float *pos_tol, float *cf,
                                const struct blocks *bk)
