@@ -712,6 +712,38 @@ static void test_version1_decoded(void **state)
     scene_free(s);
 }
 
+/* An SPZ v3 (gzip) header claiming 60M points in a 100-byte file is refused
+ * before the reader allocates for them (fuzz_frame found the 1.5 GB malloc). */
+static void test_spz_gzip_claim_refused(void **state)
+{
+    (void)state;
+    uint8_t hdr[16] = { 0x4e, 0x47, 0x53, 0x50, 3, 0, 0, 0 };
+    uint32_t n = 60000000u;
+    memcpy(hdr + 8, &n, 4);
+    hdr[12] = 3; /* shDegree */
+    hdr[13] = 12;
+    uint8_t gz[256];
+    z_stream zs;
+    memset(&zs, 0, sizeof zs);
+    assert_int_equal(deflateInit2(&zs, 9, Z_DEFLATED, 31, 8, Z_DEFAULT_STRATEGY), Z_OK);
+    zs.next_in = hdr;
+    zs.avail_in = sizeof hdr;
+    zs.next_out = gz;
+    zs.avail_out = sizeof gz;
+    assert_int_equal(deflate(&zs, Z_FINISH), Z_STREAM_END);
+    size_t len = sizeof gz - zs.avail_out;
+    deflateEnd(&zs);
+    struct splat_frame f = { 0 };
+    struct f4d_err err = { 0 };
+    g_allocs = 0;
+    g_count_allocs = 1;
+    assert_int_equal(codec_spz_decode(gz, len, &f, &err), F4D_EFORMAT);
+    g_count_allocs = 0;
+    assert_int_equal(g_allocs, 0);
+    assert_non_null(strstr(err.msg, "cannot hold"));
+    splat_frame_free(&f);
+}
+
 /* Rewrites a packet's CRC after its bytes were changed on purpose. */
 static void recrc(uint8_t *pkt, size_t n)
 {
@@ -866,6 +898,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_no_allocation_per_frame),
         cmocka_unit_test(test_block_motion),
         cmocka_unit_test(test_block_flags_refused),
+        cmocka_unit_test(test_spz_gzip_claim_refused),
         cmocka_unit_test(test_spz_round_trip),
         cmocka_unit_test(test_predictor_fit),
         cmocka_unit_test(test_version1_decoded),
