@@ -25,6 +25,11 @@ void *__wrap_malloc(size_t n) { if (g_count_allocs) g_allocs++; return __real_ma
 void *__wrap_calloc(size_t a, size_t b) { if (g_count_allocs) g_allocs++; return __real_calloc(a, b); }
 void *__wrap_realloc(void *p, size_t n) { if (g_count_allocs) g_allocs++; return __real_realloc(p, n); }
 
+static uint32_t codec__test_u32(const uint8_t *p)
+{
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
 #define N_G 4000
 #define CAP 8192
 
@@ -677,6 +682,8 @@ static void test_version1_decoded(void **state)
     make_key(s, 1, 0.0, &f); /* no motion: a static take */
     struct rig r;
     rig_open(&r, CODEC_Q_MEDIUM);
+    assert_int_equal(codec_enc_set_version(r.e, 2), 0); /* the planes version 1 had */
+    assert_int_equal(codec_enc_set_version(r.e, 1), F4D_EINVAL);
     codec_dec *d1;
     assert_int_equal(codec_dec_new(CAP, &d1, NULL), 0);
     uint8_t *v1 = malloc(r.cap);
@@ -705,6 +712,177 @@ static void test_version1_decoded(void **state)
     scene_free(s);
 }
 
+/* An SPZ v3 (gzip) header claiming 60M points in a 100-byte file is refused
+ * before the reader allocates for them (fuzz_frame found the 1.5 GB malloc). */
+static void test_spz_gzip_claim_refused(void **state)
+{
+    (void)state;
+    uint8_t hdr[16] = { 0x4e, 0x47, 0x53, 0x50, 3, 0, 0, 0 };
+    uint32_t n = 60000000u;
+    memcpy(hdr + 8, &n, 4);
+    hdr[12] = 3; /* shDegree */
+    hdr[13] = 12;
+    uint8_t gz[256];
+    z_stream zs;
+    memset(&zs, 0, sizeof zs);
+    assert_int_equal(deflateInit2(&zs, 9, Z_DEFLATED, 31, 8, Z_DEFAULT_STRATEGY), Z_OK);
+    zs.next_in = hdr;
+    zs.avail_in = sizeof hdr;
+    zs.next_out = gz;
+    zs.avail_out = sizeof gz;
+    assert_int_equal(deflate(&zs, Z_FINISH), Z_STREAM_END);
+    size_t len = sizeof gz - zs.avail_out;
+    deflateEnd(&zs);
+    struct splat_frame f = { 0 };
+    struct f4d_err err = { 0 };
+    g_allocs = 0;
+    g_count_allocs = 1;
+    assert_int_equal(codec_spz_decode(gz, len, &f, &err), F4D_EFORMAT);
+    g_count_allocs = 0;
+    assert_int_equal(g_allocs, 0);
+    assert_non_null(strstr(err.msg, "cannot hold"));
+    splat_frame_free(&f);
+}
+
+/* Rewrites a packet's CRC after its bytes were changed on purpose. */
+static void recrc(uint8_t *pkt, size_t n)
+{
+    uLong c = crc32(0L, Z_NULL, 0);
+    c = crc32(c, pkt, 28);
+    c = crc32(c, pkt + CODEC_PACKET_HEADER, (uInt)(n - CODEC_PACKET_HEADER));
+    for (int k = 0; k < 4; k++)
+        pkt[28 + k] = (uint8_t)(c >> (8 * k));
+}
+
+/* Version 3's coding tools on keyed motion (the walk, motions over the key
+ * interval): block motion is sent and used, the decoder reproduces the
+ * encoder's reconstruction bit for bit (packed planes and the median
+ * transform are lossless), every value stays within the level's bounds,
+ * no allocation per key, and the predicted keys cost less than version 2's
+ * of the same frames. */
+static void test_block_motion(void **state)
+{
+    (void)state;
+    scene *s = walk();
+    struct splat_frame f[6] = { { 0 } };
+    for (int k = 0; k < 6; k++)
+        make_key(s, k, 0.1, &f[k]);
+    static const enum codec_quality lv[2] = { CODEC_Q_COMPACT, CODEC_Q_MEDIUM };
+    for (int li = 0; li < 2; li++) {
+        size_t bytes[2] = { 0, 0 };
+        for (int ver = 2; ver <= 3; ver++) {
+            struct rig r;
+            rig_open(&r, lv[li]);
+            assert_int_equal(codec_enc_set_version(r.e, ver), 0);
+            g_allocs = 0;
+            for (int k = 0; k < 6; k++) {
+                g_count_allocs = k > 0;
+                size_t n = pass(&r, &f[k], CODEC_KEY_AUTO, NULL);
+                g_count_allocs = 0;
+                const struct codec_enc_stats *st = codec_enc_last(r.e);
+                assert_int_equal(r.buf[4], ver);
+                check_bounds_k(&f[k], codec_dec_frame(r.d), lv[li], k > 0);
+                if (k == 0)
+                    continue;
+                bytes[ver - 2] += n;
+                uint8_t fl = r.buf[CODEC_PACKET_HEADER + 2];
+                if (ver == 3) {
+                    /* sent where it pays (the encoder measures): on this
+                     * sparse take at the compact level; either way the
+                     * flag and the bytes agree */
+                    if (lv[li] == CODEC_Q_COMPACT)
+                        assert_true(st->bytes_blocks > 0);
+                    assert_int_equal(!!(fl & 4), st->bytes_blocks > 0);
+                } else {
+                    assert_int_equal(st->bytes_blocks, 0);
+                    assert_int_equal(fl & ~3, 0);
+                }
+            }
+            assert_int_equal(g_allocs, 0);
+            rig_close(&r);
+        }
+        fprintf(stderr, "%s: predicted keys version 2 %zu bytes, version 3 %zu\n",
+                codec_quality_get(lv[li])->name, bytes[0], bytes[1]);
+        assert_true(bytes[1] < bytes[0]);
+    }
+    for (int k = 0; k < 6; k++)
+        splat_frame_free(&f[k]);
+    scene_free(s);
+}
+
+/* The frame flags of version 3 are refused where they cannot apply: block
+ * motion in a version-2 packet, block mf without the block parameters,
+ * block motion on an intra key; a payload whose block planes are cut short
+ * is refused, and the decoder then waits for the next intra key. */
+static void test_block_flags_refused(void **state)
+{
+    (void)state;
+    scene *s = walk();
+    struct splat_frame f0 = { 0 }, f1 = { 0 };
+    make_key(s, 0, 0.1, &f0);
+    make_key(s, 1, 0.1, &f1);
+    struct rig r;
+    rig_open(&r, CODEC_Q_COMPACT);
+    size_t n0, n1;
+    uint8_t *k0 = malloc(r.cap), *k1 = malloc(r.cap);
+    assert_int_equal(codec_enc_key(r.e, &f0, 0, CODEC_KEY_AUTO, NULL, k0, r.cap, &n0), 0);
+    assert_int_equal(codec_enc_key(r.e, &f1, 1, CODEC_KEY_AUTO, NULL, k1, r.cap, &n1), 0);
+    const size_t FL = CODEC_PACKET_HEADER + 2;
+    assert_true(k1[FL] & 4);
+    struct { int version; uint8_t flags; int cut; } bad[4] = {
+        { 2, 0, 0 },      /* block motion in a version-2 packet            */
+        { 3, 0x08, 0 },   /* block mf without block parameters (bit 2 off) */
+        { 3, 0xff, 0 },   /* unknown flag bits                             */
+        { 3, 0, 1 },      /* the payload cut inside the block planes        */
+    };
+    for (int b = 0; b < 4; b++) {
+        uint8_t *pk = malloc(n1);
+        memcpy(pk, k1, n1);
+        size_t n = n1;
+        pk[4] = (uint8_t)bad[b].version;
+        if (bad[b].flags == 0x08)
+            pk[FL] = (uint8_t)((pk[FL] & ~4) | 8);
+        else if (bad[b].flags)
+            pk[FL] = bad[b].flags;
+        if (bad[b].cut) {
+            /* header, quantizers, flags plane, then a few block bytes */
+            size_t pl = 20 + 28 + 16 * 8 + 5 + codec__test_u32(pk + CODEC_PACKET_HEADER + 20 + 28 + 16 * 8 + 1) + 3;
+            n = CODEC_PACKET_HEADER + pl;
+            pk[24] = (uint8_t)pl; pk[25] = (uint8_t)(pl >> 8); pk[26] = (uint8_t)(pl >> 16); pk[27] = 0;
+        }
+        recrc(pk, n);
+        struct codec_packet p;
+        codec_dec *d;
+        assert_int_equal(codec_dec_new(CAP, &d, NULL), 0);
+        assert_int_equal(codec_packet_parse(k0, n0, &p, NULL), 0);
+        assert_int_equal(codec_dec_packet(d, &p), 1);
+        assert_int_equal(codec_packet_parse(pk, n, &p, NULL), 0);
+        assert_int_equal(codec_dec_packet(d, &p), F4D_EFORMAT);
+        assert_int_equal(codec_dec_stats(d)->refused, 1);
+        assert_null(codec_dec_frame(d));
+        codec_dec_free(d);
+        free(pk);
+    }
+    /* an intra key claiming block motion */
+    uint8_t *pk = malloc(n0);
+    memcpy(pk, k0, n0);
+    pk[FL] |= 4;
+    recrc(pk, n0);
+    struct codec_packet p;
+    codec_dec *d;
+    assert_int_equal(codec_dec_new(CAP, &d, NULL), 0);
+    assert_int_equal(codec_packet_parse(pk, n0, &p, NULL), 0);
+    assert_int_equal(codec_dec_packet(d, &p), F4D_EFORMAT);
+    codec_dec_free(d);
+    free(pk);
+    free(k0);
+    free(k1);
+    rig_close(&r);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    scene_free(s);
+}
+
 int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
@@ -718,6 +896,9 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_empty_frames),
         cmocka_unit_test(test_huge_counts_refused),
         cmocka_unit_test(test_no_allocation_per_frame),
+        cmocka_unit_test(test_block_motion),
+        cmocka_unit_test(test_block_flags_refused),
+        cmocka_unit_test(test_spz_gzip_claim_refused),
         cmocka_unit_test(test_spz_round_trip),
         cmocka_unit_test(test_predictor_fit),
         cmocka_unit_test(test_version1_decoded),

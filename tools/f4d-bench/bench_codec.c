@@ -35,6 +35,7 @@ struct crow {
     int key_rate, quality, keys;
     double intra_bpg, pred_bpg, motion_bpg, unchanged, mbps, psnr_key, psnr_key_min, psnr_mid;
     double enc_intra_ms, enc_pred_ms, dec_intra_ms, dec_pred_ms;
+    double chan_bpg[CODEC_CHANNELS], index_bpg; /* predicted keys, by channel */
 };
 struct srow {
     char preset[24];
@@ -122,6 +123,9 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
         } else {
             pred_bytes += (double)n / g;
             unch += (double)st->unchanged / g;
+            for (int ch = 0; ch < CODEC_CHANNELS; ch++)
+                row->chan_bpg[ch] += (double)st->bytes_channel[ch] / g;
+            row->index_bpg += (double)st->bytes_index / g;
             te_p += 1e3 * (t1 - t0);
             td_p += 1e3 * (t2 - t1);
         }
@@ -142,6 +146,9 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
     row->motion_bpg = mot_bytes / nk;
     row->unchanged = nk > 1 ? unch / np : 0;
     row->mbps = total / nk * row->key_rate * 8 / 1e6;
+    for (int ch = 0; ch < CODEC_CHANNELS; ch++)
+        row->chan_bpg[ch] /= np;
+    row->index_bpg /= np;
     row->enc_pred_ms = nk > 1 ? te_p / np : 0;
     row->dec_pred_ms = nk > 1 ? td_p / np : 0;
     row->psnr_key = do_psnr ? ps / nk : NAN;
@@ -192,6 +199,17 @@ static void print_row(const struct crow *r)
     fflush(stdout);
 }
 
+/* Bytes per Gaussian of the predicted keys by channel (--channels). */
+static void print_channels(const struct crow *r)
+{
+    printf("       predicted B/G by channel: index %.3f", r->index_bpg);
+    for (int ch = 0; ch < CODEC_CHANNELS; ch++)
+        if (r->chan_bpg[ch] >= 0.0005)
+            printf("  %s %.3f", codec_channel_name(ch), r->chan_bpg[ch]);
+    printf("\n");
+    fflush(stdout);
+}
+
 static void print_spz(const struct srow *s)
 {
     printf("%-6s %7zu G  SPZ v4 (ours)  %5.2f B/G  PSNR %6.2f dB  enc %6.1f dec %5.1f ms\n", s->preset, s->gaussians,
@@ -210,7 +228,7 @@ static void json_num(FILE *fp, const char *k, double v, const char *sep)
 int bench_codec(int argc, char **argv)
 {
     const char *json = NULL, *donut = "../shared/data/splats/donut.ply";
-    int only = -1;
+    int only = -1, only_q = -1, channels = 0, big_all_rates = 0;
     size_t big = 300000;
     double seconds = 1.0;
     for (int i = 1; i < argc; i++) {
@@ -228,9 +246,19 @@ int bench_codec(int argc, char **argv)
             big = (size_t)atol(argv[++i]);
         else if (!strcmp(argv[i], "--donut") && i + 1 < argc)
             donut = argv[++i];
+        else if (!strcmp(argv[i], "--quality") && i + 1 < argc) {
+            struct f4d_err e;
+            if ((only_q = codec_quality_from_name(argv[++i], &e)) < 0) {
+                fprintf(stderr, "f4d-bench codec: %s\n", e.msg);
+                return 2;
+            }
+        } else if (!strcmp(argv[i], "--channels"))
+            channels = 1;
+        else if (!strcmp(argv[i], "--big-all-rates"))
+            big_all_rates = 1;
         else {
             fprintf(stderr, "usage: f4d-bench codec [--preset NAME] [--seconds S] [--big N (0 = skip)] "
-                            "[--donut PLY] [--json FILE]\n");
+                            "[--donut PLY] [--quality NAME] [--channels] [--big-all-rates] [--json FILE]\n");
             return 2;
         }
     }
@@ -271,7 +299,7 @@ int bench_codec(int argc, char **argv)
             c.bg = scene_background();
             for (int ri = 0; ri < 3; ri++) {
                 int rate = rates[ri];
-                if (pass == 1 && rate != 10)
+                if (pass == 1 && rate != 10 && !big_all_rates)
                     continue;
                 int nk = (int)(seconds * rate + 0.5) + 1;
                 struct splat_frame *keys = calloc((size_t)nk, sizeof *keys);
@@ -281,6 +309,8 @@ int bench_codec(int argc, char **argv)
                         return 1;
                     }
                 for (int q = 0; q < CODEC_QUALITY_COUNT && nr < 256; q++) {
+                    if (only_q >= 0 && q != only_q)
+                        continue;
                     struct crow *r = &rows[nr++];
                     memset(r, 0, sizeof *r);
                     snprintf(r->preset, sizeof r->preset, "%s", scene_preset_name(p));
@@ -289,6 +319,8 @@ int bench_codec(int argc, char **argv)
                     if (run_level(&c, &rig, keys, nk, q, rate == 10, 0, r) < 0)
                         return 1;
                     print_row(r);
+                    if (channels)
+                        print_channels(r);
                 }
                 if (rate == 10 && ns < 32) {
                     struct srow *sr = &srows[ns++];
@@ -335,6 +367,8 @@ int bench_codec(int argc, char **argv)
         static const float black[3] = { 0, 0, 0 };
         c.bg = black;
         for (int q = 0; q < CODEC_QUALITY_COUNT; q++) {
+            if (only_q >= 0 && q != only_q)
+                continue;
             struct crow *r = &rows[nr++];
             memset(r, 0, sizeof *r);
             snprintf(r->preset, sizeof r->preset, "donut");
@@ -381,6 +415,19 @@ int bench_codec(int argc, char **argv)
             json_num(fp, "mbit_per_s_at_30fps_display", r->mbps, ", ");
             json_num(fp, "mbit_per_s_predicted_keys_only", r->pred_bpg * (double)r->gaussians * r->key_rate * 8 / 1e6,
                      ", ");
+            /* one intra key every T seconds, the rest predicted at the
+             * measured sizes (an extrapolation of this run's keys) */
+            static const int periods[4] = { 1, 2, 5, 10 };
+            fprintf(fp, "\"mbit_per_s_intra_every_s\": {");
+            for (int t = 0; t < 4; t++) {
+                double keys_t = (double)r->key_rate * periods[t];
+                double bits = (r->intra_bpg + (keys_t - 1) * r->pred_bpg) * (double)r->gaussians * 8;
+                fprintf(fp, "%s\"%d\": %.4f", t ? ", " : "", periods[t], bits / periods[t] / 1e6);
+            }
+            fprintf(fp, "}, \"pred_bytes_per_gaussian_by_channel\": {\"index\": %.4f", r->index_bpg);
+            for (int ch = 0; ch < CODEC_CHANNELS; ch++)
+                fprintf(fp, ", \"%s\": %.4f", codec_channel_name(ch), r->chan_bpg[ch]);
+            fprintf(fp, "}, ");
             json_num(fp, "psnr_key_db", r->psnr_key, ", ");
             json_num(fp, "psnr_key_min_db", r->psnr_key_min, ", ");
             json_num(fp, "psnr_mid_db", r->psnr_mid, ", ");

@@ -258,7 +258,8 @@ static int do_encode(const char **in, int nin, const char *out, int quality, dou
                st->intra ? "intra" : "predicted", st->count, n, st->count ? (double)n / (double)st->count : 0.0,
                st->unchanged, st->fresh, st->dropped);
         /* where the bytes went: flags / match list, then every channel */
-        printf("  bytes: header %zu, flags %zu, match %zu", st->bytes_header, st->bytes_flags, st->bytes_match);
+        printf("  bytes: header %zu, flags %zu, match %zu, blocks %zu", st->bytes_header, st->bytes_flags,
+               st->bytes_match, st->bytes_blocks);
         for (int c = 0; c < CODEC_CHANNELS; c++)
             if (st->bytes_channel[c])
                 printf(", %s %zu", codec_channel_name(c), st->bytes_channel[c]);

@@ -298,6 +298,59 @@ static void shuffle(const uint32_t *v, size_t n, int w, uint8_t *o)
             o[(size_t)b * n + i] = (uint8_t)(v[i] >> (8 * b));
 }
 
+/* Version 3: a plane whose values all fit in 1, 2 or 4 bits is packed 8, 4
+ * or 2 to a byte (width codes 5, 6, 7), first value in the low bits. zstd's
+ * literals are Huffman-coded per byte, at least a bit each: a residual
+ * plane of mostly 0 and +-1 costs over a bit per Gaussian as bytes, about
+ * its entropy packed. */
+static int pack_bits_of(int wcode) { return wcode == 5 ? 1 : wcode == 6 ? 2 : 4; }
+static size_t packed_bytes(size_t n, int bits) { return (n * (size_t)bits + 7) / 8; }
+
+static void pack(const uint32_t *v, size_t n, int bits, uint8_t *o)
+{
+    const int per = 8 / bits;
+    size_t nb = packed_bytes(n, bits);
+    memset(o, 0, nb);
+    for (size_t i = 0; i < n; i++)
+        o[i / (size_t)per] |= (uint8_t)(v[i] << (bits * (int)(i % (size_t)per)));
+}
+
+/* Median of three: the version 3 predictor of a residual from the three
+ * before it in the plane's order. Neighbours in Morton order share their
+ * motion change; each also carries its own quantization noise (+-1), which
+ * a single neighbour's delta doubles and the median of three mostly drops. */
+static inline int32_t med3(int32_t a, int32_t b, int32_t c)
+{
+    int32_t lo = a < b ? a : b, hi = a < b ? b : a;
+    return c < lo ? lo : c > hi ? hi : c;
+}
+
+#define BLK      64
+#define NBP      15
+#define BPAR_MAX (1 << 22)
+
+struct blocks {
+    uint32_t *id;   /* [cap] block of each matched Gaussian         */
+    uint32_t *par;  /* [NBP * nbmax] zigzagged parameters           */
+    float    *org;  /* [3 * nbmax] block origins                    */
+    uint32_t *wire; /* [3 * nbmax] t as sent (encoder)              */
+    size_t    nb, nbmax;
+    float     ut[3], um[3], uq; /* units of t, M (rows), dq       */
+};
+
+static int blocks_alloc(struct blocks *b, size_t c)
+{
+    b->nbmax = c / BLK + 1;
+    b->id = malloc(c * sizeof(uint32_t));
+    b->par = malloc(NBP * b->nbmax * sizeof(uint32_t));
+    b->org = malloc(3 * b->nbmax * sizeof(float));
+    b->wire = malloc(3 * b->nbmax * sizeof(uint32_t));
+    b->nb = 0;
+    return b->id && b->par && b->org && b->wire ? 0 : -1;
+}
+
+static void blocks_free(struct blocks *b) { free(b->id); free(b->par); free(b->org); free(b->wire); }
+
 struct codec_enc {
     size_t cap;
     enum codec_quality q;
@@ -310,15 +363,51 @@ struct codec_enc {
     uint32_t *idx;     /* [cap] reference-index deltas             */
     uint32_t *flags;   /* [cap]                                    */
     struct morton mo;  /* order of the changed Gaussians' residuals */
+    struct blocks bk;  /* block motion (version 3)                  */
+    int32_t *rix;      /* [cap] reference index of each Gaussian     */
+    double *bacc;      /* [nbmax * 32] block fit sums                */
+    uint8_t *est;      /* [est_cap] planes coded to measure a choice  */
+    size_t est_cap;
     int last_still;    /* mo.perm holds a still key's order           */
+    int ver;           /* codec version written (2 or 3)             */
     struct planebuf pb;
     void *zws;
     ZSTD_CCtx *z;
     struct codec_enc_stats st;
 };
 
-/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps the
- * smaller of raw and delta when delta is allowed. */
+/* Serializes v[0..n) (max mx) as bytes (shuffled) or, when it fits in 4
+ * bits, packed; compresses into the scratch buffer and keeps it at tag + 5
+ * when smaller than *best. */
+static void try_plane(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int t, uint8_t *tag, size_t room,
+                      size_t *best, int *best_tag)
+{
+    for (int form = 0; form < 2; form++) {
+        int wcode;
+        size_t nb;
+        if (form == 0) {
+            wcode = width_of(mx);
+            nb = n * (size_t)wcode;
+            shuffle(v, n, wcode, e->pb.shuf);
+        } else {
+            if (mx >= 16 || e->ver < 3)
+                break;
+            wcode = mx < 2 ? 5 : mx < 4 ? 6 : 7;
+            nb = packed_bytes(n, pack_bits_of(wcode));
+            pack(v, n, pack_bits_of(wcode), e->pb.shuf);
+        }
+        size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
+        if (!ZSTD_isError(z) && z < *best && z <= room) {
+            memcpy(tag + 5, e->pb.zalt, z);
+            *best = z;
+            *best_tag = t | wcode << 4;
+        }
+    }
+}
+
+/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps
+ * the smallest of raw, delta (allow_delta 1: of the values; 2: of the
+ * zigzagged signed values, and the median-of-three prediction). */
 static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta, uint8_t *out, size_t cap,
                      size_t *off)
 {
@@ -335,35 +424,36 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
     uint32_t mx = 0;
     for (size_t i = 0; i < n; i++)
         mx = v[i] > mx ? v[i] : mx;
-    int w = width_of(mx);
-    shuffle(v, n, w, e->pb.shuf);
-    size_t z1 = ZSTD_compressCCtx(e->z, tag + 5, room, e->pb.shuf, n * (size_t)w, ZLEVEL);
-    if (ZSTD_isError(z1))
-        return f4d_fail(&e->err, F4D_ERANGE, "encode: zstd: %s", ZSTD_getErrorName(z1));
-    int t = 0;
-    if (allow_delta) {
-        /* 1: delta of the values; 2: delta of zigzagged signed values
-         * (residuals), taken on the signed values */
+    size_t best = SIZE_MAX;
+    int best_tag = 0;
+    try_plane(e, v, n, mx, 0, tag, room, &best, &best_tag);
+    for (int t = 1; t <= 3 && allow_delta; t++) {
+        if ((t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3))
+            continue;
         uint32_t dm = 0, prev = 0;
+        int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
         for (size_t i = 0; i < n; i++) {
-            uint32_t d = allow_delta == 2 ? zig(unzig(v[i]) - unzig(prev)) : zig((int32_t)(v[i] - prev));
+            uint32_t d;
+            if (t == 1) {
+                d = zig((int32_t)(v[i] - prev));
+            } else {
+                int32_t x = unzig(v[i]);
+                d = zig((int32_t)((uint32_t)x - (uint32_t)(t == 2 ? a : med3(a, b, c))));
+                c = b;
+                b = a;
+                a = x;
+            }
             prev = v[i];
             e->pb.tmp[i] = d;
             dm = d > dm ? d : dm;
         }
-        int w2 = width_of(dm);
-        shuffle(e->pb.tmp, n, w2, e->pb.shuf);
-        size_t z2 = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, n * (size_t)w2, ZLEVEL);
-        if (!ZSTD_isError(z2) && z2 < z1 && z2 <= room) {
-            memcpy(tag + 5, e->pb.zalt, z2);
-            z1 = z2;
-            w = w2;
-            t = allow_delta;
-        }
+        try_plane(e, e->pb.tmp, n, dm, t, tag, room, &best, &best_tag);
     }
-    tag[0] = (uint8_t)(t | w << 4);
-    codec__put_u32(tag + 1, (uint32_t)z1);
-    *off += 5 + z1;
+    if (best == SIZE_MAX)
+        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
+    tag[0] = (uint8_t)best_tag;
+    codec__put_u32(tag + 1, (uint32_t)best);
+    *off += 5 + best;
     return F4D_OK;
 }
 
@@ -386,6 +476,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     size_t c = capacity ? capacity : 1;
     e->cap = capacity;
     e->q = q;
+    e->ver = CODEC_VERSION;
     e->rec = malloc(NCH * c * sizeof(uint32_t));
     e->res = malloc(NCH * c * sizeof(uint32_t));
     e->idx = malloc(c * sizeof(uint32_t));
@@ -394,10 +485,13 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->pb.tmp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
+    e->est_cap = e->pb.zbound + 5;
+    e->est = malloc(e->est_cap);
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
-    int bad = !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
-              morton_alloc(&e->mo, c) ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
+              morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
+              !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
     if (!bad)
         e->z = ZSTD_initStaticCCtx(e->zws, zsz);
@@ -415,6 +509,8 @@ void codec_enc_free(codec_enc *e)
         return;
     free(e->rec); free(e->res); free(e->idx); free(e->flags);
     morton_free(&e->mo);
+    blocks_free(&e->bk);
+    free(e->rix); free(e->bacc); free(e->est);
     free(e->pb.shuf); free(e->pb.tmp); free(e->pb.zalt); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
@@ -429,16 +525,37 @@ const struct splat_frame *codec_enc_recon(const codec_enc *e)
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e) { return e ? &e->st : NULL; }
 const uint32_t *codec_enc_order(const codec_enc *e) { return e && e->last_still ? e->mo.perm : NULL; }
 
+int codec_enc_set_version(codec_enc *e, int version)
+{
+    if (!e)
+        return F4D_EINVAL;
+    if (version < 2 || version > CODEC_VERSION)
+        return f4d_fail(&e->err, F4D_EINVAL, "codec_enc_set_version: %d is not 2..%d", version, CODEC_VERSION);
+    e->ver = version;
+    return F4D_OK;
+}
+
+/* An older version's packet: its number in the header, the CRC again. */
+static void stamp_version(const codec_enc *e, uint8_t *out, size_t len)
+{
+    if (e->ver == CODEC_VERSION)
+        return;
+    out[4] = (uint8_t)e->ver;
+    codec__put_u32(out + 28, codec__packet_crc(out, out + CODEC_PACKET_HEADER, len - CODEC_PACKET_HEADER));
+}
+
 int codec_enc_stream_header(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t *len)
 {
     uint8_t pl[12];
-    codec__put_u32(pl, CODEC_VERSION);
+    codec__put_u32(pl, (uint32_t)e->ver);
     codec__put_u32(pl + 4, (uint32_t)e->q);
     codec__put_u32(pl + 8, (uint32_t)e->cap);
     uint32_t s = e->seq;
     int rc = codec_packet_write(out, cap, CODEC_PKT_STREAM, s, s, t_us, pl, sizeof pl, len, &e->err);
-    if (rc == 0)
+    if (rc == 0) {
+        stamp_version(e, out, *len);
         e->seq++;
+    }
     return rc;
 }
 
@@ -446,8 +563,10 @@ int codec_enc_end(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t 
 {
     uint32_t s = e->seq;
     int rc = codec_packet_write(out, cap, CODEC_PKT_END, s, s, t_us, NULL, 0, len, &e->err);
-    if (rc == 0)
+    if (rc == 0) {
+        stamp_version(e, out, *len);
         e->seq++;
+    }
     return rc;
 }
 
@@ -549,6 +668,235 @@ static void predict_mb(struct pred *p, const float *cf, const float *pos)
     if (cf[6] != 0.0f)
         for (int c = 0; c < 3; c++)
             p->mb[c] += cf[6] * (p->rpos[c] - pos[c]);
+}
+
+/* ---- Block motion (version 3) ----
+ * With keyed motions, mf says where the Gaussian lands on the next key, and
+ * coding it per Gaussian re-codes each one's own position noise (+-half a
+ * step) on every key. Neighbours share their motion instead: the matched
+ * Gaussians, in the Morton order of their predicted positions (both sides
+ * know them before any residual), are cut into blocks of BLK, and each
+ * block sends an affine motion, mf ~ t + M (P - o) (o: the predicted
+ * position of the block's first Gaussian, P: the decoded position), fitted
+ * by the encoder on the true positions and motions. The decoded position
+ * then moves with its part, its noise carried along rather than re-coded,
+ * and the per-Gaussian mf residual is 0 wherever a block moves rigidly or
+ * affinely. Rotations likewise: each block sends the rotation dq that
+ * takes its reference rotations to this key's (left-multiplied, x y z with
+ * w >= 0), and a Gaussian's rotation is predicted as dq * its reference
+ * rotation, so a rigid part's turn costs no rotation residual.
+ * Parameters: t in 1/8 motion steps, M in 1/4096, dq in 1/8192, 15 planes
+ * of zigzagged integers (t x y z, M row-major, dq x y z), |value| <=
+ * BPAR_MAX, |dq| <= 1. */
+/* Units of the parameters, from the frame's quantizers and the level's
+ * rotation bits (both sides): t in 1/8 motion steps, M such that one unit
+ * across 10 cm is 1/8 motion step, dq in 1/16 rotation steps; each is well
+ * under the level's bounds and coarse enough not to code fit noise. */
+static void blocks_units(struct blocks *b, const struct qz *z, int rot_bits)
+{
+    for (int c = 0; c < 3; c++) {
+        b->ut[c] = z[QZ_MF + c].step * 0.125f;
+        b->um[c] = b->ut[c] * 10.0f;
+    }
+    b->uq = rot_step(rot_bits) * (1.0f / 16);
+}
+
+/* t of block k predicted from block k-1 (absolute parameters): its motion
+ * at this block's origin, in units of t; blocks of one rigid part then send
+ * only M's rounding. */
+static int32_t block_t_pred(const struct blocks *b, size_t k, int c)
+{
+    if (k == 0)
+        return 0;
+    const size_t s = b->nbmax, j = k - 1;
+    float v = (float)unzig(b->par[(size_t)c * s + j]) * b->ut[c];
+    for (int u = 0; u < 3; u++)
+        v += (float)unzig(b->par[(size_t)(3 + 3 * c + u) * s + j]) * b->um[c] * (b->org[3 * k + u] - b->org[3 * j + u]);
+    float q = v / b->ut[c];
+    q = q > (float)BPAR_MAX ? (float)BPAR_MAX : q < -(float)BPAR_MAX ? -(float)BPAR_MAX : q;
+    return (int32_t)lrintf(q);
+}
+
+/* Blocks of the Gaussians with rix[i] >= 0 (their reference index); uses
+ * the Morton buffers (tmp holds the Gaussian of each sorted slot). */
+static void blocks_assign(struct blocks *b, struct morton *mo, const struct keystate *ref, const float *cf,
+                          const struct qz *z, const int32_t *rix, size_t n)
+{
+    size_t m = 0;
+    struct pred p;
+    for (size_t i = 0; i < n; i++) {
+        if (rix[i] < 0)
+            continue;
+        predict(ref, (size_t)rix[i], cf, &p);
+        mo->key[m] = morton_key(z, p.pos);
+        mo->tmp[m++] = (uint32_t)i;
+    }
+    morton_sort(mo, m);
+    b->nb = (m + BLK - 1) / BLK;
+    for (size_t k = 0; k < m; k++) {
+        uint32_t i = mo->tmp[mo->perm[k]];
+        b->id[i] = (uint32_t)(k / BLK);
+        if (k % BLK == 0) {
+            predict(ref, (size_t)rix[i], cf, &p);
+            memcpy(b->org + 3 * (k / BLK), p.pos, sizeof p.pos);
+        }
+    }
+}
+
+/* The block's forward motion at decoded position P (same code on both sides). */
+static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], float mf[3])
+{
+    const uint32_t *q = b->par;
+    const size_t s = b->nbmax;
+    float d[3];
+    for (int c = 0; c < 3; c++)
+        d[c] = P[c] - b->org[3 * blk + c];
+    for (int c = 0; c < 3; c++) {
+        float v = (float)unzig(q[(size_t)c * s + blk]) * b->ut[c];
+        for (int k = 0; k < 3; k++)
+            v += (float)unzig(q[(size_t)(3 + 3 * c + k) * s + blk]) * b->um[c] * d[k];
+        mf[c] = v;
+    }
+}
+
+static void qmul(const float a[4], const float b[4], float o[4])
+{
+    float r[4] = { a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+                   a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+                   a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+                   a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0] };
+    memcpy(o, r, sizeof r);
+}
+
+/* The block's rotation applied to a predicted rotation (same code on both sides). */
+static void block_rot(const struct blocks *b, uint32_t blk, float rot[4])
+{
+    const size_t s = b->nbmax;
+    float dq[4], ss = 0;
+    for (int c = 0; c < 3; c++) {
+        dq[1 + c] = (float)unzig(b->par[(size_t)(12 + c) * s + blk]) * b->uq;
+        ss += dq[1 + c] * dq[1 + c];
+    }
+    if (ss == 0.0f)
+        return;
+    dq[0] = sqrtf(ss < 1.0f ? 1.0f - ss : 0.0f);
+    float q[4], n = 0;
+    qmul(dq, rot, q);
+    for (int c = 0; c < 4; c++)
+        n += q[c] * q[c];
+    n = n > 1e-30f ? 1.0f / sqrtf(n) : 0.0f;
+    if (n != 0.0f)
+        for (int c = 0; c < 4; c++)
+            rot[c] = q[c] * n;
+}
+
+/* Encoder: least squares t + M x ~ mf over each block (x: true position
+ * minus the origin; a small ridge keeps flat or tiny blocks stable), then
+ * quantized. acc: [nb * 32] doubles of scratch. */
+static void blocks_fit(struct blocks *b, const struct splat_frame *f, const struct keystate *ref, const int32_t *rix,
+                       double *acc)
+{
+    memset(acc, 0, b->nb * 32 * sizeof(double));
+    for (size_t i = 0; i < f->count; i++) {
+        if (rix[i] < 0)
+            continue;
+        uint32_t k = b->id[i];
+        double x[4] = { 1, (double)f->pos[3 * i] - b->org[3 * k], (double)f->pos[3 * i + 1] - b->org[3 * k + 1],
+                        (double)f->pos[3 * i + 2] - b->org[3 * k + 2] };
+        double *a = acc + 32 * (size_t)k;
+        /* this Gaussian's turn since the reference, w >= 0 */
+        float qi[4], qr[4], dq[4], nn = 0;
+        for (int c = 0; c < 4; c++) {
+            qi[c] = f->rot[4 * i + c];
+            nn += qi[c] * qi[c];
+            qr[c] = c ? -ref->rot[4 * (size_t)rix[i] + c] : ref->rot[4 * (size_t)rix[i]];
+        }
+        if (nn > 1e-30f) {
+            qmul(qi, qr, dq);
+            double sg = dq[0] < 0 ? -1.0 : 1.0, w = 1.0 / sqrt((double)nn);
+            for (int c = 0; c < 4; c++)
+                a[28 + c] += sg * w * dq[c];
+        }
+        for (int u = 0; u < 4; u++) {
+            for (int v = 0; v < 4; v++)
+                a[4 * u + v] += x[u] * x[v];
+            for (int c = 0; c < 3; c++)
+                a[16 + 4 * c + u] += x[u] * f->motion_fwd[3 * i + c];
+        }
+    }
+    const size_t s = b->nbmax;
+    for (size_t k = 0; k < b->nb; k++) {
+        double *a = acc + 32 * k, g[4][4], y[4][3], sol[4][3] = { { 0 } };
+        double qn = sqrt(a[28] * a[28] + a[29] * a[29] + a[30] * a[30] + a[31] * a[31]);
+        for (int c = 0; c < 3; c++) {
+            double v = qn > 0 ? a[29 + c] / qn * (a[28] < 0 ? -1.0 : 1.0) / b->uq : 0.0;
+            b->par[(size_t)(12 + c) * s + k] = zig((int32_t)llround(v));
+        }
+        double ridge = a[0] * 1e-10; /* (10 um)^2 a Gaussian */
+        for (int u = 0; u < 4; u++) {
+            for (int v = 0; v < 4; v++)
+                g[u][v] = a[4 * u + v] + (u == v && u > 0 ? ridge : 0.0);
+            for (int c = 0; c < 3; c++)
+                y[u][c] = a[16 + 4 * c + u];
+        }
+        /* Gaussian elimination with partial pivoting, 3 right-hand sides */
+        int ok = a[0] > 0;
+        for (int c = 0; c < 4 && ok; c++) {
+            int pv = c;
+            for (int r = c + 1; r < 4; r++)
+                if (fabs(g[r][c]) > fabs(g[pv][c]))
+                    pv = r;
+            if (!(fabs(g[pv][c]) > 1e-300)) {
+                ok = 0;
+                break;
+            }
+            for (int j = 0; j < 4; j++) {
+                double t = g[c][j]; g[c][j] = g[pv][j]; g[pv][j] = t;
+            }
+            for (int j = 0; j < 3; j++) {
+                double t = y[c][j]; y[c][j] = y[pv][j]; y[pv][j] = t;
+            }
+            for (int r = c + 1; r < 4; r++) {
+                double m = g[r][c] / g[c][c];
+                for (int j = c; j < 4; j++)
+                    g[r][j] -= m * g[c][j];
+                for (int j = 0; j < 3; j++)
+                    y[r][j] -= m * y[c][j];
+            }
+        }
+        for (int c = 3; c >= 0 && ok; c--)
+            for (int j = 0; j < 3; j++) {
+                double v = y[c][j];
+                for (int u = c + 1; u < 4; u++)
+                    v -= g[c][u] * sol[u][j];
+                sol[c][j] = v / g[c][c];
+            }
+        for (int c = 0; c < 3; c++) {
+            double t = ok && isfinite(sol[0][c]) ? sol[0][c] / b->ut[c] : 0.0;
+            t = t > BPAR_MAX ? BPAR_MAX : t < -BPAR_MAX ? -BPAR_MAX : t;
+            b->par[(size_t)c * s + k] = zig((int32_t)llround(t));
+            for (int u = 0; u < 3; u++) {
+                double mv = ok && isfinite(sol[1 + u][c]) ? sol[1 + u][c] / b->um[c] : 0.0;
+                mv = mv > BPAR_MAX ? BPAR_MAX : mv < -BPAR_MAX ? -BPAR_MAX : mv;
+                b->par[(size_t)(3 + 3 * c + u) * s + k] = zig((int32_t)llround(mv));
+            }
+        }
+    }
+    for (size_t k = 0; k < b->nb; k++)
+        for (int c = 0; c < 3; c++)
+            b->wire[(size_t)c * s + k] = zig(unzig(b->par[(size_t)c * s + k]) - block_t_pred(b, k, c));
+}
+
+/* The quantizers of residuals: with block mf, an mf residual is in half
+ * motion steps. What is left after the block motion is a Gaussian whose
+ * carried position noise left the bound: half a step puts it back near the
+ * middle (a whole step would throw it to the other edge, to leave again). */
+static void residual_qz(const struct qz *z, int block_mf_used, struct qz *zr)
+{
+    memcpy(zr, z, NQZ * sizeof *z);
+    if (block_mf_used)
+        for (int c = 0; c < 3; c++)
+            zr[QZ_MF + c].step *= 0.5f;
 }
 
 /* Applies residual record (all zero = copy) to the prediction into slot j. */
@@ -725,6 +1073,34 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
     return fabs(dt) <= 0.9 * tol ? 0 : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
 }
 
+/* Bits plane v[0..m) (index order) takes as put_plane codes it, in the
+ * cheaper of index order and the Morton order in e->mo.perm (as a key's
+ * residual planes are); the Morton copy goes through mo.tmp. */
+static double plane_cost(codec_enc *e, const uint32_t *v, size_t m)
+{
+    for (size_t j = 0; j < m; j++)
+        e->mo.tmp[j] = v[e->mo.perm[j]];
+    size_t o1 = 0, o2 = 0;
+    if (put_plane(e, e->mo.tmp, m, 2, e->est, e->est_cap, &o1) < 0 ||
+        put_plane(e, v, m, 2, e->est, e->est_cap, &o2) < 0)
+        return INFINITY;
+    return 8.0 * (double)(o1 < o2 ? o1 : o2);
+}
+
+/* Bits of block parameter planes [from, to) as the key sends them. */
+static double block_param_cost(codec_enc *e, const struct blocks *bk, int from, int to)
+{
+    double bits = 0;
+    for (int k = from; k < to; k++) {
+        size_t o = 0;
+        const uint32_t *bv = (k < 3 ? bk->wire : bk->par) + (size_t)k * bk->nbmax;
+        if (put_plane(e, bv, bk->nb, 2, e->est, e->est_cap, &o) < 0)
+            return INFINITY;
+        bits += 8.0 * (double)o;
+    }
+    return bits;
+}
+
 /* With keyed motions, the temporal mf prediction carries each Gaussian's own
  * reconstruction error (its decoded position and motions, up to about two
  * position bounds, amplified by the fitted coefficients), which no order
@@ -733,18 +1109,27 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
  * rigidly. Which wins depends on the take (smooth slow motion: temporal;
  * fast articulated motion: spatial), so both are tried on the mf residuals
  * alone: Morton order of the predicted positions, cost sum log2(1 + |delta|)
- * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Uses the residual
- * planes and the Morton buffers as scratch. */
-static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
-                                const int32_t *match, const struct qz *z, const float *pos_tol, float *cf)
+ * (what zstd sees), and c2 = c3 = 0 is kept when cheaper. Version 3 (bk:
+ * the blocks, fitted) adds block motion as a third candidate and measures
+ * all three as the key codes them (plane_cost, two bits a changed Gaussian,
+ * the block parameters' planes); returns 1 when block mf wins. Uses the
+ * residual planes and the Morton buffers as scratch. */
+static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const struct splat_frame *f,
+                               const int32_t *match, const struct qz *z, const float *pos_tol, float *cf,
+                               const struct blocks *bk)
 {
+    const int nk = bk ? 3 : 2;
     const size_t stride = e->cap ? e->cap : 1;
+    struct qz zh[3]; /* block mf residuals are in half steps (residual_qz) */
+    for (int c = 0; c < 3; c++)
+        zh[c] = (struct qz){ z[QZ_MF + c].lo, z[QZ_MF + c].step * 0.5f };
     size_t m = 0;
     for (size_t i = 0; i < f->count; i++) {
         int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
         if (r < 0)
             continue;
         struct pred p;
+        float rp3[3];
         predict(ref, (size_t)r, cf, &p);
         for (int c = 0; c < 3; c++) {
             int32_t rp = resid(z[c], f->pos[3 * i + c], p.pos[c]);
@@ -753,25 +1138,127 @@ static void choose_mf_predictor(codec_enc *e, const struct keystate *ref, const 
             float rpos = dres(p.pos[c], z[c], rp);
             e->res[(size_t)c * stride + m] = zig(mf_resid(f, i, c, rpos, p.mf[c], z[QZ_MF + c], pos_tol[c]));
             e->res[(size_t)(3 + c) * stride + m] = zig(mf_resid(f, i, c, rpos, 0.0f, z[QZ_MF + c], pos_tol[c]));
+            rp3[c] = rpos;
+        }
+        if (bk) {
+            float bmf[3];
+            block_mf(bk, bk->id[i], rp3, bmf);
+            for (int c = 0; c < 3; c++)
+                e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], zh[c], pos_tol[c]));
         }
         e->mo.key[m++] = morton_key(z, p.pos);
     }
     if (m < 2)
-        return;
+        return 0;
     morton_sort(&e->mo, m);
-    double cost[2] = { 0, 0 };
-    for (int k = 0; k < 2; k++)
-        for (int c = 0; c < 3; c++) {
-            const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
-            int32_t prev = 0;
-            for (size_t j = 0; j < m; j++) {
-                int32_t x = unzig(v[e->mo.perm[j]]);
-                cost[k] += log2(1.0 + fabs((double)x - (double)prev));
-                prev = x;
-            }
+    double cost[3] = { 0, 0, 0 };
+    if (bk) {
+        /* version 3: measured as the key codes them (see choose_block_rot) */
+        for (int k = 0; k < nk; k++) {
+            for (int c = 0; c < 3; c++)
+                cost[k] += plane_cost(e, e->res + (size_t)(3 * k + c) * stride, m);
+            for (size_t j = 0; j < m; j++)
+                cost[k] += (e->res[(size_t)(3 * k) * stride + j] | e->res[(size_t)(3 * k + 1) * stride + j] |
+                            e->res[(size_t)(3 * k + 2) * stride + j]) ? 2.0 : 0.0;
         }
+        cost[2] += block_param_cost(e, bk, 0, 12);
+    } else {
+        for (int k = 0; k < nk; k++)
+            for (int c = 0; c < 3; c++) {
+                const uint32_t *v = e->res + (size_t)(3 * k + c) * stride;
+                int32_t prev = 0;
+                for (size_t j = 0; j < m; j++) {
+                    int32_t x = unzig(v[e->mo.perm[j]]);
+                    cost[k] += log2(1.0 + fabs((double)x - (double)prev));
+                    prev = x;
+                }
+            }
+    }
+    if (bk && cost[2] < cost[0] && cost[2] < cost[1]) {
+        cf[2] = cf[3] = 0.0f;
+        return 1;
+    }
     if (cost[1] < cost[0])
         cf[2] = cf[3] = 0.0f;
+    return 0;
+}
+
+/* Rotation residual of Gaussian i against the predicted rotation prot, in
+ * steps rs; 0 where the change is within a step or hardly shows (see
+ * codec_enc_key). Returns whether any component is non-zero. */
+static int rot_resid(const struct splat_frame *f, size_t i, const float prot[4], float rs, float rot_tol, int32_t r[4])
+{
+    /* rotation: the input normalised and on the prediction's side */
+    const float *qin = f->rot + 4 * i;
+    float qn = 0, dot = 0;
+    for (int c = 0; c < 4; c++) {
+        qn += qin[c] * qin[c];
+        dot += qin[c] * prot[c];
+    }
+    qn = qn > 1e-30f ? (dot < 0 ? -1.0f : 1.0f) / sqrtf(qn) : 0.0f;
+    int rot_near = 1;
+    for (int c = 0; c < 4; c++) {
+        float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
+        double t = ((double)qc - (double)prot[c]) / rs;
+        r[c] = (int32_t)llround(t);
+        rot_near &= fabs(t) <= 1.0;
+    }
+    /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
+     * by at most 2 a (s_max - s_min): within the position bound it
+     * is kept (a near-isotropic Gaussian's rotation hardly shows). */
+    if (!rot_near && qn != 0.0f) {
+        const float *sc = f->scale + 3 * i;
+        float smax = fmaxf(sc[0], fmaxf(sc[1], sc[2])), smin = fminf(sc[0], fminf(sc[1], sc[2]));
+        float cd = fminf(1.0f, fabsf(dot) * fabsf(qn));
+        float ang = 2.0f * acosf(cd);
+        rot_near = 2.0f * ang * (smax - smin) <= rot_tol;
+    }
+    if (rot_near)
+        r[0] = r[1] = r[2] = r[3] = 0;
+    return (r[0] | r[1] | r[2] | r[3]) != 0;
+}
+
+/* Block rotations pay where the rotation residuals they leave cost less
+ * than those without them plus their parameters. All are measured: the four residual planes
+ * of every matched Gaussian, in index order and in the Morton order of the
+ * predicted positions, coded as put_plane codes them (zstd; the smaller
+ * order counts, as in the key); a changed Gaussian adds two bits. Without block rotations a rigid part's residuals follow
+ * the reference rotations, smooth along a surface; with them only the
+ * reference's own quantization noise is left, which is smaller where the
+ * blocks fit and does not delta-code, so neither wins everywhere (sparse
+ * takes whose blocks straddle parts, fine levels). Uses the residual planes
+ * and the Morton buffers as scratch. */
+static int choose_block_rot(codec_enc *e, const struct keystate *ref, const struct splat_frame *f, const float *cf,
+                            const struct qz *z, float rs, float rot_tol)
+{
+    const size_t stride = e->cap ? e->cap : 1;
+    double cost[2] = { 0, block_param_cost(e, &e->bk, 12, NBP) };
+    size_t m = 0;
+    for (size_t i = 0; i < f->count; i++) {
+        if (e->rix[i] < 0)
+            continue;
+        struct pred p;
+        predict(ref, (size_t)e->rix[i], cf, &p);
+        e->mo.key[m] = morton_key(z, p.pos);
+        for (int k = 0; k < 2; k++) {
+            int32_t r[4];
+            if (k)
+                block_rot(&e->bk, e->bk.id[i], p.rot);
+            if (rot_resid(f, i, p.rot, rs, rot_tol, r))
+                cost[k] += 2.0;
+            for (int c = 0; c < 4; c++)
+                e->res[(size_t)(4 * k + c) * stride + m] = zig(r[c]);
+        }
+        m++;
+    }
+    if (m < 2)
+        return 0;
+    morton_sort(&e->mo, m);
+    for (int k = 0; k < 2; k++)
+        for (int c = 0; c < 4; c++) {
+            cost[k] += plane_cost(e, e->res + (size_t)(4 * k + c) * stride, m);
+        }
+    return cost[1] < cost[0];
 }
 
 static void put_qz(uint8_t *p, const struct qz *z)
@@ -847,7 +1334,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         return f4d_fail(&e->err, F4D_ERANGE, "codec_enc_key: output buffer of %zu bytes too small", cap);
     size_t pcap = cap - CODEC_PACKET_HEADER;
     size_t n_changed = 0, n_new = 0, n_same = 0, matched = 0;
-    int explicit_match = 0;
+    int explicit_match = 0, block_motion = 0, block_mf_used = 0, block_rot_used = 0;
     float cf[NCOEF];
     memcpy(cf, coef_v1, sizeof cf);
     dst->count = n;
@@ -903,8 +1390,28 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             cf[6] = 1.0f;
         }
         const float mb_tol = 2.0f * fmaxf(pos_tol[0], fmaxf(pos_tol[1], pos_tol[2])) + 0.5f * qi->motion_step;
+        /* block motion replaces the per-Gaussian mf prediction (keyed) */
+        block_motion = keyed && motion && n > 0 && e->ver >= 3;
+        if (block_motion) {
+            for (size_t i = 0; i < n; i++)
+                e->rix[i] = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
+            blocks_assign(&e->bk, &e->mo, ref, cf, z, e->rix, n);
+            blocks_units(&e->bk, z, qi->rot_bits);
+            blocks_fit(&e->bk, f, ref, e->rix, e->bacc);
+        }
         if (keyed && motion && n > 1)
-            choose_mf_predictor(e, ref, f, match, z, pos_tol, cf);
+            block_mf_used = choose_mf_predictor(e, ref, f, match, z, pos_tol, cf, block_motion ? &e->bk : NULL);
+        if (block_motion) {
+            block_rot_used = choose_block_rot(e, ref, f, cf, z, rot_step(qi->rot_bits), rot_tol);
+            /* a part not used is sent as zeros (nearly free) */
+            for (int k = block_mf_used ? 12 : 0; k < (block_rot_used ? 12 : NBP); k++)
+                memset(e->bk.par + (size_t)k * e->bk.nbmax, 0, e->bk.nb * sizeof(uint32_t));
+            if (!block_mf_used)
+                memset(e->bk.wire, 0, 3 * e->bk.nbmax * sizeof(uint32_t));
+            block_motion = block_mf_used || block_rot_used;
+        }
+        struct qz zr[NQZ];
+        residual_qz(z, block_mf_used, zr);
         int32_t prev = -1;
         for (size_t i = 0; i < n; i++) {
             int32_t r = match ? match[i] : (i < ref->count ? (int32_t)i : -1);
@@ -921,6 +1428,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             prev = r;
             struct pred p;
             predict(ref, (size_t)r, cf, &p);
+            if (block_rot_used)
+                block_rot(&e->bk, e->bk.id[i], p.rot);
             int32_t res[NCH] = { 0 };
             float ls[3], rpos[3];
             log_scale(f->scale + 3 * i, ls);
@@ -934,6 +1443,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                     res[CH_POS + c] = 0;
                 rpos[c] = dres(p.pos[c], z[c], res[CH_POS + c]);
             }
+            if (block_mf_used)
+                block_mf(&e->bk, e->bk.id[i], rpos, p.mf);
             struct pred pb = p;
             predict_mb(&pb, cf, rpos);
             for (int c = 0; c < 3; c++) {
@@ -949,7 +1460,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                      * up from key to key, and the decoded positions' own
                      * quantization noise is not re-coded in every mf. */
                     if (keyed) {
-                        res[CH_MF + c] = mf_resid(f, i, c, rpos[c], p.mf[c], z[QZ_MF + c], pos_tol[c]);
+                        res[CH_MF + c] = mf_resid(f, i, c, rpos[c], p.mf[c], zr[QZ_MF + c], pos_tol[c]);
                     } else {
                         res[CH_MF + c] = resid(z[QZ_MF + c], f->motion_fwd[3 * i + c], p.mf[c]);
                     }
@@ -962,37 +1473,11 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 }
             }
             res[CH_OP] = resid(z[6], f->opacity[i], p.op);
-            /* rotation: the input normalised and on the prediction's side */
-            const float *qin = f->rot + 4 * i;
-            float qn = 0, dot = 0;
-            for (int c = 0; c < 4; c++) {
-                qn += qin[c] * qin[c];
-                dot += qin[c] * p.rot[c];
-            }
-            qn = qn > 1e-30f ? (dot < 0 ? -1.0f : 1.0f) / sqrtf(qn) : 0.0f;
-            int rot_near = 1;
-            for (int c = 0; c < 4; c++) {
-                float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
-                double t = ((double)qc - (double)p.rot[c]) / rs;
-                res[CH_ROT + c] = (int32_t)llround(t);
-                rot_near &= fabs(t) <= 1.0;
-            }
-            /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
-             * by at most 2 a (s_max - s_min): within the position bound it
-             * is kept (a near-isotropic Gaussian's rotation hardly shows). */
-            if (!rot_near && qn != 0.0f) {
-                const float *sc = f->scale + 3 * i;
-                float smax = fmaxf(sc[0], fmaxf(sc[1], sc[2])), smin = fminf(sc[0], fminf(sc[1], sc[2]));
-                float cd = fminf(1.0f, fabsf(dot) * fabsf(qn));
-                float ang = 2.0f * acosf(cd);
-                rot_near = 2.0f * ang * (smax - smin) <= rot_tol;
-            }
-            if (rot_near)
-                res[CH_ROT] = res[CH_ROT + 1] = res[CH_ROT + 2] = res[CH_ROT + 3] = 0;
+            rot_resid(f, i, p.rot, rs, rot_tol, res + CH_ROT);
             int any = 0;
             for (int c = 0; c < nch; c++)
                 any |= res[c];
-            resid_recon(res, &p, cf, z, qi->rot_bits, motion, dst, i);
+            resid_recon(res, &p, cf, zr, qi->rot_bits, motion, dst, i);
             if (!any) {
                 e->flags[i] = 0;
                 n_same++;
@@ -1011,6 +1496,14 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         if ((rc = put_plane(e, e->flags, n, 0, pl, pcap, &off)) < 0)
             return rc;
         e->st.bytes_index = off - o0;
+        for (int k = 0; k < NBP && block_motion; k++) {
+            size_t o2 = off;
+            const uint32_t *bv = (k < 3 ? e->bk.wire : e->bk.par) + (size_t)k * e->bk.nbmax;
+            if ((rc = put_plane(e, bv, e->bk.nb, 2, pl, pcap, &off)) < 0)
+                return rc;
+            e->st.bytes_motion += off - o2;
+            e->st.bytes_blocks += off - o2;
+        }
         e->st.bytes_flags = e->st.bytes_index - e->st.bytes_match;
         size_t *g[3] = { &e->st.bytes_pos, &e->st.bytes_attr, &e->st.bytes_motion };
         /* residual planes may be delta-coded too: neighbours in index order
@@ -1050,7 +1543,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
 
     pl[0] = intra ? 1 : 2;
     pl[1] = (uint8_t)e->q;
-    pl[2] = (uint8_t)(motion | explicit_match << 1);
+    pl[2] = (uint8_t)(motion | explicit_match << 1 | block_motion << 2 | block_mf_used << 3 | block_rot_used << 4);
     pl[3] = (uint8_t)qi->rot_bits;
     codec__put_u32(pl + 4, (uint32_t)n);
     codec__put_u32(pl + 8, intra ? 0u : (uint32_t)ref->count);
@@ -1065,6 +1558,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                             pl, off, len, &e->err);
     if (rc < 0)
         return rc;
+    stamp_version(e, out, *len);
     e->st.intra = intra;
     e->st.count = n;
     e->st.unchanged = n_same;
@@ -1090,10 +1584,13 @@ struct codec_dec {
     struct f4d_err err;
     struct keystate key[2];
     int cur, have_ref, have_seq, quality;
+    int ver;           /* codec version of the packet being decoded */
     uint32_t last_seq, key_seq;
     uint64_t t_us;
     uint32_t *rec, *res, *idx, *flags;
     struct morton mo;
+    struct blocks bk;
+    int32_t *rix;
     uint8_t *shuf;
     void *zws;
     ZSTD_DCtx *z;
@@ -1121,7 +1618,9 @@ int codec_dec_new(size_t capacity, codec_dec **out, struct f4d_err *err)
     d->shuf = malloc(4 * c);
     size_t zsz = ZSTD_estimateDCtxSize();
     d->zws = malloc(zsz);
-    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || morton_alloc(&d->mo, c) ||
+    d->rix = malloc(c * sizeof(int32_t));
+    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || !d->rix ||
+              morton_alloc(&d->mo, c) || blocks_alloc(&d->bk, c) ||
               key_alloc(&d->key[0], capacity) ||
               key_alloc(&d->key[1], capacity);
     if (!bad)
@@ -1140,6 +1639,8 @@ void codec_dec_free(codec_dec *d)
         return;
     free(d->rec); free(d->res); free(d->idx); free(d->flags); free(d->shuf); free(d->zws);
     morton_free(&d->mo);
+    blocks_free(&d->bk);
+    free(d->rix);
     key_free(&d->key[0]);
     key_free(&d->key[1]);
     free(d);
@@ -1155,7 +1656,8 @@ const struct codec_dec_stats *codec_dec_stats(const codec_dec *d) { return d ? &
 int codec_dec_quality(const codec_dec *d) { return d ? d->quality : -1; }
 
 /* morton: NULL where a plane may not be in Morton order, else set to
- * whether it is (tag bit 2). */
+ * whether it is (tag bit 2). Version 3 adds the median-of-three transform
+ * (3) and the packed widths (5-7). */
 static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, size_t n, uint32_t *v,
                      const char *what, int *morton)
 {
@@ -1168,7 +1670,8 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
     }
     uint32_t zl = codec__u32(in + *off + 1);
     *off += 5;
-    if (t > 2 || w < 1 || w > 4)
+    const int v3 = d->ver >= 3;
+    if (t > (v3 && morton ? 3 : 2) || w < 1 || w > (v3 ? 7 : 4))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: bad tag 0x%02x", what, in[*off - 5]);
     if (zl > len - *off)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: %u compressed bytes, %zu left", what, zl,
@@ -1178,17 +1681,25 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: data for 0 Gaussians", what);
         return F4D_OK;
     }
-    size_t want = n * (size_t)w;
+    const int bits = w > 4 ? pack_bits_of(w) : 0;
+    size_t want = bits ? packed_bytes(n, bits) : n * (size_t)w;
     size_t got = ZSTD_decompressDCtx(d->z, d->shuf, want, in + *off, zl);
     if (ZSTD_isError(got) || got != want)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: zstd gave %s, %zu bytes expected", what,
                         ZSTD_isError(got) ? ZSTD_getErrorName(got) : "a different size", want);
     *off += zl;
-    for (size_t i = 0; i < n; i++) {
-        uint32_t x = 0;
-        for (int b = 0; b < w; b++)
-            x |= (uint32_t)d->shuf[(size_t)b * n + i] << (8 * b);
-        v[i] = x;
+    if (bits) {
+        const int per = 8 / bits;
+        const uint32_t m = (1u << bits) - 1;
+        for (size_t i = 0; i < n; i++)
+            v[i] = (uint32_t)d->shuf[i / (size_t)per] >> (bits * (int)(i % (size_t)per)) & m;
+    } else {
+        for (size_t i = 0; i < n; i++) {
+            uint32_t x = 0;
+            for (int b = 0; b < w; b++)
+                x |= (uint32_t)d->shuf[(size_t)b * n + i] << (8 * b);
+            v[i] = x;
+        }
     }
     if (t == 1)
         for (size_t i = 0, prev = 0; i < n; i++) {
@@ -1201,6 +1712,16 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
             int32_t x = (int32_t)((uint32_t)(i ? unzig(v[i - 1]) : 0) + (uint32_t)unzig(v[i]));
             v[i] = zig(x);
         }
+    else if (t == 3) {
+        int32_t a = 0, b = 0, c = 0;
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = (int32_t)((uint32_t)med3(a, b, c) + (uint32_t)unzig(v[i]));
+            v[i] = zig(x);
+            c = b;
+            b = a;
+            a = x;
+        }
+    }
     return F4D_OK;
 }
 
@@ -1221,13 +1742,17 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
 {
     const uint8_t *in = p->payload;
     const size_t fhdr = p->version >= 2 ? FHDR : FHDR1;
+    d->ver = p->version;
     size_t len = p->payload_len, off = fhdr + 8 * NQZ;
     if (len < off)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu bytes, the header needs %zu", len, off);
     if (in[0] != (intra ? 1 : 2))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: kind %u does not match packet type %d", in[0], p->type);
-    int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, rot_bits = in[3];
-    if (in[1] >= CODEC_QUALITY_COUNT || (in[2] & ~3) || rot_bits < 4 || rot_bits > 15)
+    int motion = in[2] & 1, explicit_match = in[2] >> 1 & 1, block_motion = in[2] >> 2 & 1,
+        block_mf_used = in[2] >> 3 & 1, block_rot_used = in[2] >> 4 & 1, rot_bits = in[3];
+    const int flag_mask = p->version >= 3 ? 31 : 3;
+    if (in[1] >= CODEC_QUALITY_COUNT || (in[2] & ~flag_mask) || rot_bits < 4 || rot_bits > 15 ||
+        (block_motion && (intra || !motion)) || block_motion != (block_mf_used | block_rot_used))
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: bad quality %u, flags 0x%02x or rotation bits %d", in[1],
                         in[2], rot_bits);
     size_t n = codec__u32(in + 4), nref = codec__u32(in + 8), n_new = codec__u32(in + 12),
@@ -1278,6 +1803,49 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
             return rc;
         if ((rc = get_plane(d, in, len, &off, n, d->flags, "flags", NULL)) < 0)
             return rc;
+        if (block_motion) {
+            /* the blocks: every matched Gaussian's reference, validated */
+            int64_t prev = -1;
+            for (size_t i = 0; i < n; i++) {
+                uint32_t fl = d->flags[i];
+                if (fl > 2)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
+                d->rix[i] = -1;
+                if (fl == 2)
+                    continue;
+                int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
+                if (r < 0 || r >= (int64_t)nref)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
+                                    (long long)r, nref);
+                prev = r;
+                d->rix[i] = (int32_t)r;
+            }
+            blocks_assign(&d->bk, &d->mo, ref, cf, z, d->rix, n);
+            for (int k = 0; k < NBP; k++) {
+                uint32_t *v = d->bk.par + (size_t)k * d->bk.nbmax;
+                int mo = 0;
+                snprintf(what, sizeof what, "b%d", k);
+                if ((rc = get_plane(d, in, len, &off, d->bk.nb, v, what, &mo)) < 0)
+                    return rc;
+                if (mo)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: Morton flag on block parameters", what);
+                for (size_t j = 0; j < d->bk.nb; j++)
+                    if (unzig(v[j]) > BPAR_MAX || unzig(v[j]) < -BPAR_MAX)
+                        return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: parameter %d = %d out of range", j,
+                                        k, unzig(v[j]));
+            }
+            /* t was sent against its prediction from the block before */
+            blocks_units(&d->bk, z, rot_bits);
+            for (size_t j = 0; j < d->bk.nb; j++)
+                for (int c = 0; c < 3; c++) {
+                    uint32_t *t = d->bk.par + (size_t)c * d->bk.nbmax + j;
+                    int64_t a = (int64_t)unzig(*t) + block_t_pred(&d->bk, j, c);
+                    if (a > BPAR_MAX || a < -BPAR_MAX)
+                        return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: t%d = %lld out of range", j, c,
+                                        (long long)a);
+                    *t = zig((int32_t)a);
+                }
+        }
         for (int c = 0; c < nch; c++) {
             snprintf(what, sizeof what, "r%d", c);
             if ((rc = get_plane(d, in, len, &off, n_changed, d->res + (size_t)c * stride, what,
@@ -1332,6 +1900,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
         }
         size_t kc = 0, kn = 0;
         int64_t prev = -1;
+        struct qz zr[NQZ];
+        residual_qz(z, block_mf_used, zr);
         for (size_t i = 0; i < n; i++) {
             uint32_t fl = d->flags[i];
             if (fl > 2)
@@ -1358,7 +1928,16 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
                     res[c] = unzig(d->res[(size_t)c * stride + kc]);
                 kc++;
             }
-            resid_recon(res, &pr, cf, z, rot_bits, motion, dst, i);
+            if (block_motion) {
+                float P[3];
+                for (int c = 0; c < 3; c++)
+                    P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
+                if (block_mf_used)
+                    block_mf(&d->bk, d->bk.id[i], P, pr.mf);
+                if (block_rot_used)
+                    block_rot(&d->bk, d->bk.id[i], pr.rot);
+            }
+            resid_recon(res, &pr, cf, zr, rot_bits, motion, dst, i);
         }
         if (kc != n_changed || kn != n_new)
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed / %zu new, header %zu / %zu", kc,

@@ -21,7 +21,7 @@
  * framing beside the codec means one reader to validate and fuzz.
  *
  * ---- Packet (all little-endian, 32-byte header) ----
- *   0  u32 magic 0x50443446 ("F4DP")     4  u8 version (2; 1 read) 5 u8 type
+ *   0  u32 magic 0x50443446 ("F4DP")     4  u8 version (3; 1, 2 read) 5 u8 type
  *   6  u16 flags (0)                     8  u32 seq (per packet, +1 each)
  *   12 u32 ref_seq (predicted: seq of the key it is coded against; else seq)
  *   16 u64 timestamp in microseconds     24 u32 payload length (<= 1 GiB)
@@ -41,6 +41,28 @@
  * as unsigned integers (residuals zigzagged), optionally delta-coded along the
  * index, byte-shuffled (all low bytes, then the next ...) and zstd-compressed:
  * [u8 transform | width << 4][u32 compressed length][zstd frame].
+ * Transforms: 0 none, 1 delta, 2 delta of signed values, version 3: 3 the
+ * signed value minus the median of the three before it (a neighbour's noise
+ * is not doubled); bit 2 (residual planes): in Morton order. Widths 1-4
+ * bytes; version 3: 5 / 6 / 7 = values of 1 / 2 / 4 bits packed 8 / 4 / 2 a
+ * byte, low bits first (zstd's literals cost a bit or more a byte, so a
+ * plane of 0 and +-1 costs about its entropy packed). The encoder keeps the
+ * smallest. Frame header byte 2: bit 0 motion, bit 1 explicit match,
+ * version 3: bit 2 block parameters present, bit 3 block mf, bit 4 block
+ * rotation (bit 2 set exactly when 3 or 4 is; predicted keys with motion).
+ *   block motion (version 3, predicted keys whose motions span the key
+ *     interval): the matched Gaussians in the Morton order of their
+ *     predicted positions are cut into blocks of 64; after the flags plane
+ *     come 15 planes of one zigzagged integer per block (|v| <= 2^22):
+ *     t x y z (in 1/8 mf steps, sent minus the previous block's motion at
+ *     this block's origin), M (3x3 row-major, one unit = 1/8 mf step across
+ *     10 cm), dq x y z (w >= 0, in 1/16 rotation steps). Block mf: mf is
+ *     predicted as t + M (P - o) (P the decoded position, o the predicted
+ *     position of the block's first Gaussian) and its residual is in half
+ *     mf steps; block rotation: a rotation is predicted as dq * reference
+ *     rotation. A rigid part's Gaussians then cost nothing but their noise
+ *     leaving the bound. The encoder sends each only where the planes it
+ *     would write measure smaller (sparse takes and fine levels may not).
  *   intra: position (q = round((p - lo) / step), bits chosen per frame from the
  *     bounds: the quality's minimum bits, more when the extent demands, so the
  *     error is <= step / 2 <= the quality's metric cap), log-scale (fixed step,
@@ -90,13 +112,14 @@
  * bounds of the true next position (so mf is within 2 position bounds), and
  * mb, predicted as the way back to the decoded reference, is kept within 2
  * position bounds + half a motion step.
- * Measured, version 2 (f4d-bench codec; walk preset, 37.6k Gaussians with
+ * Measured, version 3 (f4d-bench codec; walk preset, 37.6k Gaussians with
  * motion over the key interval, 10 Hz keys, render PSNR vs uncompressed, 4
- * rig cameras 518x518, float renders; version 1 in brackets):
- *   COMPACT intra 3.87 B/G, predicted 1.34 B/G, 48.4 dB (min 47.4)
- *   LOW     intra 4.54 B/G, predicted 1.59 B/G [1.81], 51.1 dB (min 50.2)
- *   MEDIUM  intra 6.85 B/G, predicted 2.52 B/G [3.33], 60.6 dB (min 59.3)
- *   HIGH    intra 8.46 B/G, predicted 3.36 B/G [4.36], 71.9 dB (min 69.6)
+ * rig cameras 518x518, float renders; version 2 in brackets):
+ *   COMPACT intra 3.84 B/G, predicted 0.73 B/G [1.34], 49.7 dB (min 49.2)
+ *   LOW     intra 4.51 B/G, predicted 1.10 B/G [1.59], 51.7 dB (min 50.9)
+ *   MEDIUM  intra 6.81 B/G, predicted 2.11 B/G [2.52], 60.4 dB (min 59.1)
+ *   HIGH    intra 8.43 B/G, predicted 2.84 B/G [3.36], 72.1 dB (min 69.8)
+ *   the walk at 292.7k Gaussians, COMPACT: intra 3.47, predicted 0.28 [0.85]
  *   (SPZ v4 by codec_spz_encode, same key: 5.98 B/G, 56.5 dB, no motion.)
  *
  * Non-finite input: the encoder refuses a frame with a NaN or Inf anywhere
@@ -120,7 +143,7 @@
 extern "C" {
 #endif
 
-#define CODEC_VERSION        2   /* written; 1 and 2 are read */
+#define CODEC_VERSION        3   /* written; 1, 2 and 3 are read */
 #define CODEC_PACKET_MAGIC   0x50443446u /* "F4DP" little-endian */
 #define CODEC_PACKET_HEADER  32
 #define CODEC_PAYLOAD_MAX    (1u << 30)
@@ -202,6 +225,7 @@ struct codec_enc_stats {
     size_t count, unchanged, changed, fresh, dropped;
     size_t bytes_total, bytes_header, bytes_index, bytes_pos, bytes_attr, bytes_motion;
     size_t bytes_flags, bytes_match;         /* parts of bytes_index */
+    size_t bytes_blocks;                     /* block motion (part of bytes_motion) */
     size_t bytes_channel[CODEC_CHANNELS];
     float  predictor[7];                     /* see "Predictor" above */
 };
@@ -211,6 +235,9 @@ const char *codec_channel_name(int ch);
 int  codec_enc_new  (size_t capacity, enum codec_quality q, codec_enc **out, struct f4d_err *err);
 void codec_enc_free (codec_enc *e);
 const char *codec_enc_error(const codec_enc *e);
+/* Writes an older codec version (2: no packed planes, median prediction or
+ * block motion) for decoders that read only that; default CODEC_VERSION. */
+int  codec_enc_set_version(codec_enc *e, int version);
 /* The stream header packet (type 1), first in a file. */
 int  codec_enc_stream_header(codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size_t *len);
 /* Encodes key frame f (motion optional) as one packet. match: NULL (identity:

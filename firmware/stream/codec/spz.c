@@ -381,6 +381,11 @@ int codec_spz_decode(const uint8_t *buf, size_t len, struct splat_frame *f, stru
         return f4d_fail(err, F4D_EFORMAT, "spz: fractionalBits %d (0..23)", fb);
     size_t rb = ver >= 3 ? 4 : 3, per = 9 + 1 + 3 + 3 + rb + 3 * (size_t)sh_coeffs(shd);
     size_t total = SPZ_HDR + n * per;
+    /* deflate expands at most 1032:1: a header claiming more than the
+     * file can inflate to is refused before the allocation */
+    if (total / 1032 > len)
+        return f4d_fail(err, F4D_EFORMAT, "spz: %zu points need %zu bytes, %zu gzip bytes cannot hold them", n,
+                        total, len);
     uint8_t *raw = malloc(total ? total : 1);
     if (!raw)
         return f4d_fail(err, F4D_ENOMEM, "spz: out of memory for %zu points", n);

@@ -27,8 +27,10 @@ static inline int fuzz_frame(int k, struct splat_frame *f)
             f->motion_fwd[3 * i + c] = c == 0 ? 0.01f : 0.0f;
             f->motion_bwd[3 * i + c] = c == 0 ? -0.01f : 0.0f;
         }
-        f->rot[4 * i] = cosf(a * 0.5f);
-        f->rot[4 * i + 1] = sinf(a * 0.5f);
+        /* key 1 turns every Gaussian by 0.2 rad more: a common rotation,
+         * which version 3 sends as block rotations (seeds with them) */
+        f->rot[4 * i] = cosf(a * 0.5f + 0.1f * (float)k);
+        f->rot[4 * i + 1] = sinf(a * 0.5f + 0.1f * (float)k);
         f->rot[4 * i + 2] = f->rot[4 * i + 3] = 0.0f;
         f->opacity[i] = 0.5f + 0.4f * sinf(a);
     }

@@ -1,5 +1,6 @@
 /* gen_seeds.c - writes the fuzz seed corpora: OUT/packets/ (small streams:
- * header, intra, predicted, end) and OUT/frame/ (selector byte + payload:
+ * header, intra, predicted with block motion, end, per level; one written
+ * as version 2) and OUT/frame/ (selector byte + payload:
  * intra, predicted against fuzz_frame(0), SPZ). */
 #include <stdio.h>
 #include <stdlib.h>
@@ -28,9 +29,12 @@ int main(int argc, char **argv)
     struct splat_frame f0 = { 0 }, f1 = { 0 };
     if (fuzz_frame(0, &f0) || fuzz_frame(1, &f1))
         return 1;
-    for (int q = 0; q < CODEC_QUALITY_COUNT; q++) {
+    /* every level at the current version, and compact written as version 2 */
+    for (int q = 0; q <= CODEC_QUALITY_COUNT; q++) {
         codec_enc *e;
-        if (codec_enc_new(FUZZ_N + 8, (enum codec_quality)q, &e, NULL) < 0)
+        int v2 = q == CODEC_QUALITY_COUNT;
+        if (codec_enc_new(FUZZ_N + 8, v2 ? CODEC_Q_COMPACT : (enum codec_quality)q, &e, NULL) < 0 ||
+            (v2 && codec_enc_set_version(e, 2) < 0))
             return 1;
         size_t cap = codec_packet_bound(FUZZ_N + 8), len = 0, n;
         uint8_t *s = malloc(4 * cap);
@@ -49,7 +53,11 @@ int main(int argc, char **argv)
         if (rc)
             return 1;
         char name[64];
-        snprintf(name, sizeof name, "stream_q%d", q);
+        snprintf(name, sizeof name, v2 ? "stream_v2" : "stream_q%d", q);
+        if (!v2 && (s[k1 + CODEC_PACKET_HEADER + 2] & 4) == 0) {
+            fprintf(stderr, "gen_seeds: level %d: the predicted key sends no block motion to seed\n", q);
+            return 1;
+        }
         if (put(argv[1], name, 0, 0, s, len))
             return 1;
         if (q == CODEC_Q_MEDIUM) { /* the harness's primed key is medium */
