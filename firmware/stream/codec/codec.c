@@ -1579,6 +1579,9 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
 /* ------------------------------------------------------------------------ */
 /* Decoder. */
 
+/* A block's parameters as the floats block_mf / block_rot form from them. */
+struct dblk { float t[3], m[9], dq[4]; int rot; };
+
 struct codec_dec {
     size_t cap;
     struct f4d_err err;
@@ -1591,6 +1594,9 @@ struct codec_dec {
     struct morton mo;
     struct blocks bk;
     int32_t *rix;
+    uint32_t *ord, *spos;   /* changed ordinal of a Gaussian; slot of an ordinal */
+    float *ppos;            /* [3 * cap] predicted positions */
+    struct dblk *bf;        /* [nbmax] blocks as floats */
     uint8_t *shuf;
     void *zws;
     ZSTD_DCtx *z;
@@ -1619,7 +1625,12 @@ int codec_dec_new(size_t capacity, codec_dec **out, struct f4d_err *err)
     size_t zsz = ZSTD_estimateDCtxSize();
     d->zws = malloc(zsz);
     d->rix = malloc(c * sizeof(int32_t));
-    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || !d->rix ||
+    d->ord = malloc(c * sizeof(uint32_t));
+    d->spos = malloc(c * sizeof(uint32_t));
+    d->ppos = malloc(3 * c * sizeof(float));
+    d->bf = malloc((c / BLK + 1) * sizeof *d->bf);
+    int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || !d->rix || !d->ord || !d->spos ||
+              !d->ppos || !d->bf ||
               morton_alloc(&d->mo, c) || blocks_alloc(&d->bk, c) ||
               key_alloc(&d->key[0], capacity) ||
               key_alloc(&d->key[1], capacity);
@@ -1640,7 +1651,7 @@ void codec_dec_free(codec_dec *d)
     free(d->rec); free(d->res); free(d->idx); free(d->flags); free(d->shuf); free(d->zws);
     morton_free(&d->mo);
     blocks_free(&d->bk);
-    free(d->rix);
+    free(d->rix); free(d->ord); free(d->spos); free(d->ppos); free(d->bf);
     key_free(&d->key[0]);
     key_free(&d->key[1]);
     free(d);
@@ -1654,6 +1665,53 @@ const struct splat_frame *codec_dec_frame(const codec_dec *d)
 uint64_t codec_dec_time(const codec_dec *d) { return d ? d->t_us : 0; }
 const struct codec_dec_stats *codec_dec_stats(const codec_dec *d) { return d ? &d->st : NULL; }
 int codec_dec_quality(const codec_dec *d) { return d ? d->quality : -1; }
+
+/* Decoder: the values of a packed plane (pack's inverse), a byte at a time
+ * with the shifts known to the compiler. */
+static void unpack_bits(const uint8_t *restrict s, size_t n, int bits, uint32_t *restrict v)
+{
+    const size_t per = (size_t)(8 / bits), full = n / per;
+    const uint32_t m = (1u << bits) - 1;
+    size_t i = 0;
+    if (bits == 1)
+        for (size_t j = 0; j < full; j++, i += 8)
+            for (int k = 0; k < 8; k++)
+                v[i + (size_t)k] = (uint32_t)s[j] >> k & 1u;
+    else if (bits == 2)
+        for (size_t j = 0; j < full; j++, i += 4)
+            for (int k = 0; k < 4; k++)
+                v[i + (size_t)k] = (uint32_t)s[j] >> (2 * k) & 3u;
+    else
+        for (size_t j = 0; j < full; j++, i += 2)
+            for (int k = 0; k < 2; k++)
+                v[i + (size_t)k] = (uint32_t)s[j] >> (4 * k) & 15u;
+    for (; i < n; i++)
+        v[i] = (uint32_t)s[i / per] >> (bits * (int)(i % per)) & m;
+}
+
+/* Decoder: shuffle's inverse, one loop per width. */
+static void unshuffle(const uint8_t *restrict s, size_t n, int w, uint32_t *restrict v)
+{
+    const uint8_t *s1 = s + n, *s2 = s + 2 * n, *s3 = s + 3 * n;
+    switch (w) {
+    case 1:
+        for (size_t i = 0; i < n; i++)
+            v[i] = s[i];
+        break;
+    case 2:
+        for (size_t i = 0; i < n; i++)
+            v[i] = (uint32_t)s[i] | (uint32_t)s1[i] << 8;
+        break;
+    case 3:
+        for (size_t i = 0; i < n; i++)
+            v[i] = (uint32_t)s[i] | (uint32_t)s1[i] << 8 | (uint32_t)s2[i] << 16;
+        break;
+    default:
+        for (size_t i = 0; i < n; i++)
+            v[i] = (uint32_t)s[i] | (uint32_t)s1[i] << 8 | (uint32_t)s2[i] << 16 | (uint32_t)s3[i] << 24;
+        break;
+    }
+}
 
 /* morton: NULL where a plane may not be in Morton order, else set to
  * whether it is (tag bit 2). Version 3 adds the median-of-three transform
@@ -1688,31 +1746,23 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: zstd gave %s, %zu bytes expected", what,
                         ZSTD_isError(got) ? ZSTD_getErrorName(got) : "a different size", want);
     *off += zl;
-    if (bits) {
-        const int per = 8 / bits;
-        const uint32_t m = (1u << bits) - 1;
-        for (size_t i = 0; i < n; i++)
-            v[i] = (uint32_t)d->shuf[i / (size_t)per] >> (bits * (int)(i % (size_t)per)) & m;
-    } else {
+    if (bits)
+        unpack_bits(d->shuf, n, bits, v);
+    else
+        unshuffle(d->shuf, n, w, v);
+    if (t == 1) {
+        uint32_t prev = 0;
         for (size_t i = 0; i < n; i++) {
-            uint32_t x = 0;
-            for (int b = 0; b < w; b++)
-                x |= (uint32_t)d->shuf[(size_t)b * n + i] << (8 * b);
-            v[i] = x;
+            prev += (uint32_t)unzig(v[i]);
+            v[i] = prev;
         }
-    }
-    if (t == 1)
-        for (size_t i = 0, prev = 0; i < n; i++) {
-            uint32_t x = (uint32_t)prev + (uint32_t)unzig(v[i]);
-            v[i] = x;
-            prev = x;
-        }
-    else if (t == 2)
+    } else if (t == 2) {
+        uint32_t acc = 0; /* the running sum of the signed values, zigzagged back */
         for (size_t i = 0; i < n; i++) {
-            int32_t x = (int32_t)((uint32_t)(i ? unzig(v[i - 1]) : 0) + (uint32_t)unzig(v[i]));
-            v[i] = zig(x);
+            acc += (uint32_t)unzig(v[i]);
+            v[i] = zig((int32_t)acc);
         }
-    else if (t == 3) {
+    } else if (t == 3) {
         int32_t a = 0, b = 0, c = 0;
         for (size_t i = 0; i < n; i++) {
             int32_t x = (int32_t)((uint32_t)med3(a, b, c) + (uint32_t)unzig(v[i]));
@@ -1734,6 +1784,277 @@ static int key_finite(codec_dec *d, const struct keystate *k)
                   isfinite(k->rgb[3 * i + c]) && isfinite(k->mb[3 * i + c]) && isfinite(k->mf[3 * i + c]);
         if (!ok)
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu decodes to a non-finite value", i);
+    }
+    return F4D_OK;
+}
+
+/* Predicted position of reference slot r: predict()'s pos, alone (the same
+ * operations, so the same bits). */
+static inline void predict_pos(const struct keystate *ref, size_t r, const float *cf, float pos[3])
+{
+    for (int c = 0; c < 3; c++) {
+        float f = ref->motion ? ref->mf[3 * r + c] : 0.0f, b = ref->motion ? ref->mb[3 * r + c] : 0.0f;
+        pos[c] = ref->pos[3 * r + c] + (cf[0] * f + cf[1] * b);
+    }
+}
+
+/* Predicted key. One pass validates flags and references (rix: the
+ * reference of each Gaussian, -1 new; ord: a changed one's ordinal), the
+ * planes are read, then every matched Gaussian's predicted position is
+ * computed once and sorted once: the residual planes' Morton order is the
+ * blocks' order restricted to the changed Gaussians (same keys, a stable
+ * sort). Blocks are turned into floats once (dblk: the products block_mf
+ * and block_rot form per Gaussian, the same operations), and the
+ * reconstruction is one loop doing predict + block_mf + block_rot +
+ * resid_recon's arithmetic in the same order, so the bits are the
+ * encoder's. A scale whose log-scale is its reference's is the reference's
+ * scale (expf of the same bits). */
+static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off, size_t n, size_t nref,
+                       size_t n_new, size_t n_changed, int explicit_match, int block_motion, int block_mf_used,
+                       int block_rot_used, int rot_bits, int motion, const float *cf, const struct qz *z,
+                       const struct keystate *ref, struct keystate *dst)
+{
+    const size_t stride = d->cap ? d->cap : 1;
+    const int nch = motion ? NCH : CH_MB;
+    int rc, mort[NCH] = { 0 };
+    char what[16];
+    if (explicit_match && (rc = get_plane(d, in, len, off, n, d->idx, "index", NULL)) < 0)
+        return rc;
+    if ((rc = get_plane(d, in, len, off, n, d->flags, "flags", NULL)) < 0)
+        return rc;
+    size_t kc = 0, kn = 0;
+    int64_t prev = -1;
+    for (size_t i = 0; i < n; i++) {
+        uint32_t fl = d->flags[i];
+        if (fl > 2)
+            return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
+        if (fl == 2) {
+            d->rix[i] = -1;
+            kn++;
+            continue;
+        }
+        int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
+        if (r < 0 || r >= (int64_t)nref)
+            return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
+                            (long long)r, nref);
+        prev = r;
+        d->rix[i] = (int32_t)r;
+        d->ord[i] = (uint32_t)kc;
+        kc += fl;
+    }
+    if (kc != n_changed || kn != n_new)
+        return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed / %zu new, header %zu / %zu", kc, kn,
+                        n_changed, n_new);
+    const size_t m = n - n_new; /* matched */
+    struct blocks *bk = &d->bk;
+    if (block_motion) {
+        bk->nb = (m + BLK - 1) / BLK;
+        for (int k = 0; k < NBP; k++) {
+            uint32_t *v = bk->par + (size_t)k * bk->nbmax;
+            int mo = 0;
+            snprintf(what, sizeof what, "b%d", k);
+            if ((rc = get_plane(d, in, len, off, bk->nb, v, what, &mo)) < 0)
+                return rc;
+            if (mo)
+                return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: Morton flag on block parameters", what);
+            for (size_t j = 0; j < bk->nb; j++)
+                if (unzig(v[j]) > BPAR_MAX || unzig(v[j]) < -BPAR_MAX)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: parameter %d = %d out of range", j, k,
+                                    unzig(v[j]));
+        }
+    }
+    for (int c = 0; c < nch; c++) {
+        snprintf(what, sizeof what, "r%d", c);
+        if ((rc = get_plane(d, in, len, off, n_changed, d->res + (size_t)c * stride, what,
+                            d->ver >= 2 ? &mort[c] : NULL)) < 0)
+            return rc;
+    }
+    for (int c = 0; c < nch; c++) {
+        snprintf(what, sizeof what, "n%d", c);
+        if ((rc = get_plane(d, in, len, off, n_new, d->rec + (size_t)c * stride, what, NULL)) < 0)
+            return rc;
+    }
+    int any_mort = 0;
+    for (int c = 0; c < nch; c++)
+        any_mort |= mort[c];
+    any_mort = any_mort && n_changed;
+    float *pp = d->ppos;
+    for (size_t i = 0; i < n; i++)
+        if (d->rix[i] >= 0)
+            predict_pos(ref, (size_t)d->rix[i], cf, pp + 3 * i);
+    struct morton *mo = &d->mo;
+    uint32_t *spos = d->spos; /* changed ordinal -> slot in the residual planes */
+    if (block_motion) {
+        size_t k = 0;
+        for (size_t i = 0; i < n; i++)
+            if (d->rix[i] >= 0) {
+                mo->key[k] = morton_key(z, pp + 3 * i);
+                mo->tmp[k++] = (uint32_t)i;
+            }
+        morton_sort(mo, m);
+        size_t kk = 0;
+        for (k = 0; k < m; k++) {
+            uint32_t i = mo->tmp[mo->perm[k]];
+            bk->id[i] = (uint32_t)(k / BLK);
+            if (k % BLK == 0)
+                memcpy(bk->org + 3 * (k / BLK), pp + 3 * (size_t)i, 3 * sizeof(float));
+            if (d->flags[i] == 1)
+                spos[d->ord[i]] = (uint32_t)kk++;
+        }
+        /* t was sent against its prediction from the block before */
+        blocks_units(bk, z, rot_bits);
+        for (size_t j = 0; j < bk->nb; j++)
+            for (int c = 0; c < 3; c++) {
+                uint32_t *t = bk->par + (size_t)c * bk->nbmax + j;
+                int64_t a = (int64_t)unzig(*t) + block_t_pred(bk, j, c);
+                if (a > BPAR_MAX || a < -BPAR_MAX)
+                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: t%d = %lld out of range", j, c,
+                                    (long long)a);
+                *t = zig((int32_t)a);
+            }
+        const size_t s = bk->nbmax;
+        for (size_t j = 0; j < bk->nb; j++) {
+            struct dblk *b = &d->bf[j];
+            for (int c = 0; c < 3; c++) {
+                b->t[c] = (float)unzig(bk->par[(size_t)c * s + j]) * bk->ut[c];
+                for (int k2 = 0; k2 < 3; k2++)
+                    b->m[3 * c + k2] = (float)unzig(bk->par[(size_t)(3 + 3 * c + k2) * s + j]) * bk->um[c];
+            }
+            float ss = 0;
+            for (int c = 0; c < 3; c++) {
+                b->dq[1 + c] = (float)unzig(bk->par[(size_t)(12 + c) * s + j]) * bk->uq;
+                ss += b->dq[1 + c] * b->dq[1 + c];
+            }
+            b->rot = ss != 0.0f;
+            b->dq[0] = sqrtf(ss < 1.0f ? 1.0f - ss : 0.0f);
+        }
+    } else if (any_mort) {
+        size_t k = 0;
+        for (size_t i = 0; i < n; i++)
+            if (d->flags[i] == 1)
+                mo->key[k++] = morton_key(z, pp + 3 * i);
+        morton_sort(mo, n_changed);
+        for (k = 0; k < n_changed; k++)
+            spos[mo->perm[k]] = (uint32_t)k;
+    }
+    /* the Morton planes back in index order: one plane at a time, its
+     * random reads stay within one plane (cache-resident at display sizes) */
+    if (any_mort)
+        for (int c = 0; c < nch; c++) {
+            if (!mort[c])
+                continue;
+            uint32_t *v = d->res + (size_t)c * stride, *tmp = mo->tmp;
+            memcpy(tmp, v, n_changed * sizeof(uint32_t));
+            for (size_t k = 0; k < n_changed; k++)
+                v[k] = tmp[spos[k]];
+        }
+    struct qz zr[NQZ];
+    residual_qz(z, block_mf_used, zr);
+    float st[NCH]; /* each residual channel's step */
+    for (int c = 0; c < 3; c++) {
+        st[CH_POS + c] = zr[c].step;
+        st[CH_LS + c] = zr[3 + c].step;
+        st[CH_RGB + c] = zr[7 + c].step;
+        st[CH_MB + c] = zr[QZ_MB + c].step;
+        st[CH_MF + c] = zr[QZ_MF + c].step;
+    }
+    st[CH_OP] = zr[6].step;
+    const float rs = rot_step(rot_bits);
+    const int rmot = ref->motion, bmf = block_motion && block_mf_used, brot = block_motion && block_rot_used;
+    const uint32_t *rp[NCH];
+    for (int c = 0; c < NCH; c++)
+        rp[c] = d->res + (size_t)c * stride;
+    /* locals: the stores below cannot then alias the structs' pointers */
+    const float *restrict Rpos = ref->pos, *restrict Rls = ref->ls, *restrict Rsc = ref->scale,
+                *restrict Rrgb = ref->rgb, *restrict Rop = ref->op, *restrict Rrot = ref->rot,
+                *restrict Rmf = ref->mf, *restrict Rmb = ref->mb, *restrict Pp = d->ppos, *restrict Org = bk->org;
+    float *restrict Dpos = dst->pos, *restrict Dls = dst->ls, *restrict Dsc = dst->scale, *restrict Drgb = dst->rgb,
+          *restrict Dop = dst->op, *restrict Drot = dst->rot, *restrict Dmf = dst->mf, *restrict Dmb = dst->mb;
+    const int32_t *restrict Rix = d->rix;
+    const uint32_t *restrict Fl = d->flags, *restrict Bid = bk->id;
+    const struct dblk *restrict Bf = d->bf;
+    const float c2 = cf[2], c3 = cf[3], c4 = cf[4], c5 = cf[5], c6 = cf[6];
+    kc = 0;
+    kn = 0;
+    for (size_t i = 0; i < n; i++) {
+        const int32_t r = Rix[i];
+        if (r < 0) {
+            intra_recon(d->rec, stride, kn++, z, rot_bits, motion, dst, i);
+            for (int c = 0; c < 3; c++)
+                Dsc[3 * i + c] = expf(Dls[3 * i + c]);
+            continue;
+        }
+        int32_t res[NCH] = { 0 };
+        const int chg = Fl[i] == 1;
+        if (chg) {
+            for (int c = 0; c < nch; c++)
+                res[c] = unzig(rp[c][kc]);
+            kc++;
+        }
+        const size_t ri = (size_t)r;
+        float f[3], b[3], pos[3], mf[3], mb[3];
+        for (int c = 0; c < 3; c++) {
+            f[c] = rmot ? Rmf[3 * ri + c] : 0.0f;
+            b[c] = rmot ? Rmb[3 * ri + c] : 0.0f;
+            pos[c] = Pp[3 * i + c] + (float)res[CH_POS + c] * st[CH_POS + c];
+            mf[c] = c2 * f[c] + c3 * b[c];
+            mb[c] = c4 * f[c] + c5 * b[c];
+            Dpos[3 * i + c] = pos[c];
+        }
+        const struct dblk *bl = block_motion ? &Bf[Bid[i]] : NULL;
+        if (bmf) {
+            const float *o = Org + 3 * (size_t)Bid[i];
+            float dd[3] = { pos[0] - o[0], pos[1] - o[1], pos[2] - o[2] };
+            for (int c = 0; c < 3; c++) {
+                float v = bl->t[c];
+                for (int k = 0; k < 3; k++)
+                    v += bl->m[3 * c + k] * dd[k];
+                mf[c] = v;
+            }
+        }
+        if (c6 != 0.0f)
+            for (int c = 0; c < 3; c++)
+                mb[c] += c6 * (Rpos[3 * ri + c] - pos[c]);
+        for (int c = 0; c < 3; c++) {
+            const float rl = Rls[3 * ri + c];
+            const float ls = rl + (float)res[CH_LS + c] * st[CH_LS + c];
+            Dls[3 * i + c] = ls;
+            Dsc[3 * i + c] = ls == rl ? Rsc[3 * ri + c] : expf(ls);
+            Drgb[3 * i + c] = Rrgb[3 * ri + c] + (float)res[CH_RGB + c] * st[CH_RGB + c];
+            Dmb[3 * i + c] = motion ? mb[c] + (float)res[CH_MB + c] * st[CH_MB + c] : 0.0f;
+            Dmf[3 * i + c] = motion ? mf[c] + (float)res[CH_MF + c] * st[CH_MF + c] : 0.0f;
+        }
+        Dop[i] = clamp01(Rop[ri] + (float)res[CH_OP] * st[CH_OP]);
+        float rot[4];
+        memcpy(rot, Rrot + 4 * ri, sizeof rot);
+        if (brot && bl->rot) {
+            float q[4], nn = 0;
+            qmul(bl->dq, rot, q);
+            for (int c = 0; c < 4; c++)
+                nn += q[c] * q[c];
+            nn = nn > 1e-30f ? 1.0f / sqrtf(nn) : 0.0f;
+            if (nn != 0.0f)
+                for (int c = 0; c < 4; c++)
+                    rot[c] = q[c] * nn;
+        }
+        float *o = Drot + 4 * i;
+        if (res[CH_ROT] | res[CH_ROT + 1] | res[CH_ROT + 2] | res[CH_ROT + 3]) {
+            float q[4], nn = 0;
+            for (int c = 0; c < 4; c++) {
+                q[c] = rot[c] + (float)res[CH_ROT + c] * rs;
+                nn += q[c] * q[c];
+            }
+            if (nn > 1e-30f) {
+                nn = 1.0f / sqrtf(nn);
+                for (int c = 0; c < 4; c++)
+                    o[c] = q[c] * nn;
+            } else {
+                o[0] = 1.0f;
+                o[1] = o[2] = o[3] = 0.0f;
+            }
+        } else {
+            memcpy(o, rot, sizeof rot);
+        }
     }
     return F4D_OK;
 }
@@ -1786,7 +2107,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     const int nch = motion ? NCH : CH_MB;
     const size_t stride = d->cap ? d->cap : 1;
-    int rc, mort[NCH] = { 0 };
+    int rc;
     char what[16];
     dst->count = n;
     dst->motion = motion;
@@ -1799,155 +2120,16 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
         for (size_t i = 0; i < n; i++)
             intra_recon(d->rec, stride, i, z, rot_bits, motion, dst, i);
     } else {
-        if (explicit_match && (rc = get_plane(d, in, len, &off, n, d->idx, "index", NULL)) < 0)
+        if ((rc = decode_pred(d, in, len, &off, n, nref, n_new, n_changed, explicit_match, block_motion,
+                              block_mf_used, block_rot_used, rot_bits, motion, cf, z, ref, dst)) < 0)
             return rc;
-        if ((rc = get_plane(d, in, len, &off, n, d->flags, "flags", NULL)) < 0)
-            return rc;
-        if (block_motion) {
-            /* the blocks: every matched Gaussian's reference, validated */
-            int64_t prev = -1;
-            for (size_t i = 0; i < n; i++) {
-                uint32_t fl = d->flags[i];
-                if (fl > 2)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
-                d->rix[i] = -1;
-                if (fl == 2)
-                    continue;
-                int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
-                if (r < 0 || r >= (int64_t)nref)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
-                                    (long long)r, nref);
-                prev = r;
-                d->rix[i] = (int32_t)r;
-            }
-            blocks_assign(&d->bk, &d->mo, ref, cf, z, d->rix, n);
-            for (int k = 0; k < NBP; k++) {
-                uint32_t *v = d->bk.par + (size_t)k * d->bk.nbmax;
-                int mo = 0;
-                snprintf(what, sizeof what, "b%d", k);
-                if ((rc = get_plane(d, in, len, &off, d->bk.nb, v, what, &mo)) < 0)
-                    return rc;
-                if (mo)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: plane %s: Morton flag on block parameters", what);
-                for (size_t j = 0; j < d->bk.nb; j++)
-                    if (unzig(v[j]) > BPAR_MAX || unzig(v[j]) < -BPAR_MAX)
-                        return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: parameter %d = %d out of range", j,
-                                        k, unzig(v[j]));
-            }
-            /* t was sent against its prediction from the block before */
-            blocks_units(&d->bk, z, rot_bits);
-            for (size_t j = 0; j < d->bk.nb; j++)
-                for (int c = 0; c < 3; c++) {
-                    uint32_t *t = d->bk.par + (size_t)c * d->bk.nbmax + j;
-                    int64_t a = (int64_t)unzig(*t) + block_t_pred(&d->bk, j, c);
-                    if (a > BPAR_MAX || a < -BPAR_MAX)
-                        return f4d_fail(&d->err, F4D_EFORMAT, "frame: block %zu: t%d = %lld out of range", j, c,
-                                        (long long)a);
-                    *t = zig((int32_t)a);
-                }
-        }
-        for (int c = 0; c < nch; c++) {
-            snprintf(what, sizeof what, "r%d", c);
-            if ((rc = get_plane(d, in, len, &off, n_changed, d->res + (size_t)c * stride, what,
-                                p->version >= 2 ? &mort[c] : NULL)) < 0)
-                return rc;
-        }
-        for (int c = 0; c < nch; c++) {
-            snprintf(what, sizeof what, "n%d", c);
-            if ((rc = get_plane(d, in, len, &off, n_new, d->rec + (size_t)c * stride, what, NULL)) < 0)
-                return rc;
-        }
-        int any_mort = 0;
-        for (int c = 0; c < nch; c++)
-            any_mort |= mort[c];
-        if (any_mort && n_changed) {
-            /* the residuals come in the Morton order of the changed
-             * Gaussians' predicted positions: find it, put them back in
-             * index order */
-            size_t kc = 0;
-            int64_t prev = -1;
-            for (size_t i = 0; i < n; i++) {
-                uint32_t fl = d->flags[i];
-                if (fl > 2)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
-                if (fl == 2)
-                    continue;
-                int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
-                if (r < 0 || r >= (int64_t)nref)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
-                                    (long long)r, nref);
-                prev = r;
-                if (fl != 1)
-                    continue;
-                if (kc >= n_changed)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: more changed Gaussians than the %zu announced",
-                                    n_changed);
-                struct pred pr;
-                predict(ref, (size_t)r, cf, &pr);
-                d->mo.key[kc++] = morton_key(z, pr.pos);
-            }
-            if (kc != n_changed)
-                return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed, header %zu", kc, n_changed);
-            morton_sort(&d->mo, n_changed);
-            for (int c = 0; c < nch; c++) {
-                if (!mort[c])
-                    continue;
-                uint32_t *v = d->res + (size_t)c * stride;
-                memcpy(d->mo.tmp, v, n_changed * sizeof(uint32_t));
-                for (size_t k = 0; k < n_changed; k++)
-                    v[d->mo.perm[k]] = d->mo.tmp[k];
-            }
-        }
-        size_t kc = 0, kn = 0;
-        int64_t prev = -1;
-        struct qz zr[NQZ];
-        residual_qz(z, block_mf_used, zr);
-        for (size_t i = 0; i < n; i++) {
-            uint32_t fl = d->flags[i];
-            if (fl > 2)
-                return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: flag %u", i, fl);
-            if (fl == 2) {
-                if (kn >= n_new)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: more new Gaussians than the %zu announced", n_new);
-                intra_recon(d->rec, stride, kn++, z, rot_bits, motion, dst, i);
-                continue;
-            }
-            int64_t r = explicit_match ? prev + 1 + unzig(d->idx[i]) : (int64_t)i;
-            if (r < 0 || r >= (int64_t)nref)
-                return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu: reference index %lld of %zu", i,
-                                (long long)r, nref);
-            prev = r;
-            struct pred pr;
-            predict(ref, (size_t)r, cf, &pr);
-            int32_t res[NCH] = { 0 };
-            if (fl == 1) {
-                if (kc >= n_changed)
-                    return f4d_fail(&d->err, F4D_EFORMAT, "frame: more changed Gaussians than the %zu announced",
-                                    n_changed);
-                for (int c = 0; c < nch; c++)
-                    res[c] = unzig(d->res[(size_t)c * stride + kc]);
-                kc++;
-            }
-            if (block_motion) {
-                float P[3];
-                for (int c = 0; c < 3; c++)
-                    P[c] = dres(pr.pos[c], z[c], res[CH_POS + c]);
-                if (block_mf_used)
-                    block_mf(&d->bk, d->bk.id[i], P, pr.mf);
-                if (block_rot_used)
-                    block_rot(&d->bk, d->bk.id[i], pr.rot);
-            }
-            resid_recon(res, &pr, cf, zr, rot_bits, motion, dst, i);
-        }
-        if (kc != n_changed || kn != n_new)
-            return f4d_fail(&d->err, F4D_EFORMAT, "frame: flags name %zu changed / %zu new, header %zu / %zu", kc,
-                            kn, n_changed, n_new);
     }
     if (off != len)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu trailing bytes", len - off);
     if ((rc = key_finite(d, dst)) < 0)
         return rc;
-    finish_scales(dst);
+    if (intra)
+        finish_scales(dst); /* a predicted key's scales were set as it was decoded */
     return F4D_OK;
 }
 
