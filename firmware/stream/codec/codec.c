@@ -1597,6 +1597,7 @@ struct codec_dec {
     uint32_t *ord, *spos;   /* changed ordinal of a Gaussian; slot of an ordinal */
     float *ppos;            /* [3 * cap] predicted positions */
     struct dblk *bf;        /* [nbmax] blocks as floats */
+    size_t checked;         /* Gaussians of a predicted key found finite as decoded */
     uint8_t *shuf;
     void *zws;
     ZSTD_DCtx *z;
@@ -1775,16 +1776,22 @@ static int get_plane(codec_dec *d, const uint8_t *in, size_t len, size_t *off, s
     return F4D_OK;
 }
 
-static int key_finite(codec_dec *d, const struct keystate *k)
+static inline int gauss_finite(const struct keystate *k, size_t i)
 {
-    for (size_t i = 0; i < k->count; i++) {
-        int ok = 1;
-        for (int c = 0; c < 3; c++)
-            ok &= isfinite(k->pos[3 * i + c]) && isfinite(k->ls[3 * i + c]) && k->ls[3 * i + c] < 80.0f &&
-                  isfinite(k->rgb[3 * i + c]) && isfinite(k->mb[3 * i + c]) && isfinite(k->mf[3 * i + c]);
-        if (!ok)
+    int ok = 1;
+    for (int c = 0; c < 3; c++)
+        ok &= isfinite(k->pos[3 * i + c]) && isfinite(k->ls[3 * i + c]) && k->ls[3 * i + c] < 80.0f &&
+              isfinite(k->rgb[3 * i + c]) && isfinite(k->mb[3 * i + c]) && isfinite(k->mf[3 * i + c]);
+    return ok;
+}
+
+/* from: the first Gaussian not yet checked (a predicted key checks its
+ * Gaussians as it decodes them and passes the first bad one or count) */
+static int key_finite(codec_dec *d, const struct keystate *k, size_t from)
+{
+    for (size_t i = from; i < k->count; i++)
+        if (!gauss_finite(k, i))
             return f4d_fail(&d->err, F4D_EFORMAT, "frame: Gaussian %zu decodes to a non-finite value", i);
-    }
     return F4D_OK;
 }
 
@@ -1964,24 +1971,27 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
     const uint32_t *rp[NCH];
     for (int c = 0; c < NCH; c++)
         rp[c] = d->res + (size_t)c * stride;
-    /* locals: the stores below cannot then alias the structs' pointers */
-    const float *restrict Rpos = ref->pos, *restrict Rls = ref->ls, *restrict Rsc = ref->scale,
-                *restrict Rrgb = ref->rgb, *restrict Rop = ref->op, *restrict Rrot = ref->rot,
-                *restrict Rmf = ref->mf, *restrict Rmb = ref->mb, *restrict Pp = d->ppos, *restrict Org = bk->org;
-    float *restrict Dpos = dst->pos, *restrict Dls = dst->ls, *restrict Dsc = dst->scale, *restrict Drgb = dst->rgb,
-          *restrict Dop = dst->op, *restrict Drot = dst->rot, *restrict Dmf = dst->mf, *restrict Dmb = dst->mb;
-    const int32_t *restrict Rix = d->rix;
-    const uint32_t *restrict Fl = d->flags, *restrict Bid = bk->id;
-    const struct dblk *restrict Bf = d->bf;
+    /* locals: the stores below then do not make the compiler reload the
+     * structs' pointers */
+    const float *Rpos = ref->pos, *Rls = ref->ls, *Rsc = ref->scale, *Rrgb = ref->rgb, *Rop = ref->op,
+                *Rrot = ref->rot, *Rmf = ref->mf, *Rmb = ref->mb, *Pp = d->ppos, *Org = bk->org;
+    float *Dpos = dst->pos, *Dls = dst->ls, *Dsc = dst->scale, *Drgb = dst->rgb, *Dop = dst->op, *Drot = dst->rot,
+          *Dmf = dst->mf, *Dmb = dst->mb;
+    const int32_t *Rix = d->rix;
+    const uint32_t *Fl = d->flags, *Bid = bk->id;
+    const struct dblk *Bf = d->bf;
     const float c2 = cf[2], c3 = cf[3], c4 = cf[4], c5 = cf[5], c6 = cf[6];
     kc = 0;
     kn = 0;
-    for (size_t i = 0; i < n; i++) {
+    size_t i;
+    for (i = 0; i < n; i++) {
         const int32_t r = Rix[i];
         if (r < 0) {
             intra_recon(d->rec, stride, kn++, z, rot_bits, motion, dst, i);
             for (int c = 0; c < 3; c++)
                 Dsc[3 * i + c] = expf(Dls[3 * i + c]);
+            if (!gauss_finite(dst, i))
+                break;
             continue;
         }
         int32_t res[NCH] = { 0 };
@@ -2055,7 +2065,10 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
         } else {
             memcpy(o, rot, sizeof rot);
         }
+        if (!gauss_finite(dst, i))
+            break; /* key_finite names it */
     }
+    d->checked = i;
     return F4D_OK;
 }
 
@@ -2126,7 +2139,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     if (off != len)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu trailing bytes", len - off);
-    if ((rc = key_finite(d, dst)) < 0)
+    if ((rc = key_finite(d, dst, intra ? 0 : d->checked)) < 0)
         return rc;
     if (intra)
         finish_scales(dst); /* a predicted key's scales were set as it was decoded */
