@@ -743,7 +743,8 @@ static void blocks_assign(struct blocks *b, struct morton *mo, const struct keys
     }
 }
 
-/* The block's forward motion at decoded position P (same code on both sides). */
+/* The block's forward motion at decoded position P (the encoder; decode_pred
+ * repeats these operations in this order: change both together). */
 static void block_mf(const struct blocks *b, uint32_t blk, const float P[3], float mf[3])
 {
     const uint32_t *q = b->par;
@@ -768,7 +769,8 @@ static void qmul(const float a[4], const float b[4], float o[4])
     memcpy(o, r, sizeof r);
 }
 
-/* The block's rotation applied to a predicted rotation (same code on both sides). */
+/* The block's rotation applied to a predicted rotation (the encoder; decode_pred
+ * repeats these operations in this order: change both together). */
 static void block_rot(const struct blocks *b, uint32_t blk, float rot[4])
 {
     const size_t s = b->nbmax;
@@ -899,7 +901,8 @@ static void residual_qz(const struct qz *z, int block_mf_used, struct qz *zr)
             zr[QZ_MF + c].step *= 0.5f;
 }
 
-/* Applies residual record (all zero = copy) to the prediction into slot j. */
+/* Applies residual record (all zero = copy) to the prediction into slot j
+ * (the encoder; decode_pred repeats these operations: change both together). */
 static void resid_recon(const int32_t r[NCH], const struct pred *p0, const float *cf, const struct qz *z,
                         int rot_bits, int motion, struct keystate *k, size_t j)
 {
