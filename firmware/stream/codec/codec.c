@@ -18,6 +18,7 @@
 #define FHDR       (FHDR1 + 4 * NCOEF) /* version 2: + predictor coefficients */
 #define COEF_MAX   1000.0f
 #define ZLEVEL     5
+#define ZLEVEL_EST 1 /* sizes candidate forms and orders (plane_pick) */
 #define SCALE_MIN  1e-7f
 
 /* Record channels. Intra: 0-2 pos, 3-5 log-scale, 6 opacity, 7-9 rgb,
@@ -306,13 +307,32 @@ static void shuffle(const uint32_t *v, size_t n, int w, uint8_t *o)
 static int pack_bits_of(int wcode) { return wcode == 5 ? 1 : wcode == 6 ? 2 : 4; }
 static size_t packed_bytes(size_t n, int bits) { return (n * (size_t)bits + 7) / 8; }
 
+/* bits is a constant in each caller below, so the inner loop unrolls. */
+static inline void pack_n(const uint32_t *v, size_t n, const int bits, uint8_t *o)
+{
+    const size_t per = (size_t)(8 / bits), full = n / per;
+    for (size_t j = 0; j < full; j++) {
+        uint32_t b = 0;
+        for (size_t k = 0; k < per; k++)
+            b |= v[j * per + k] << (bits * (int)k);
+        o[j] = (uint8_t)b;
+    }
+    if (full * per < n) {
+        uint32_t b = 0;
+        for (size_t i = full * per; i < n; i++)
+            b |= v[i] << (bits * (int)(i - full * per));
+        o[full] = (uint8_t)b;
+    }
+}
+
 static void pack(const uint32_t *v, size_t n, int bits, uint8_t *o)
 {
-    const int per = 8 / bits;
-    size_t nb = packed_bytes(n, bits);
-    memset(o, 0, nb);
-    for (size_t i = 0; i < n; i++)
-        o[i / (size_t)per] |= (uint8_t)(v[i] << (bits * (int)(i % (size_t)per)));
+    if (bits == 1)
+        pack_n(v, n, 1, o);
+    else if (bits == 2)
+        pack_n(v, n, 2, o);
+    else
+        pack_n(v, n, 4, o);
 }
 
 /* Median of three: the version 3 predictor of a residual from the three
@@ -376,85 +396,160 @@ struct codec_enc {
     struct codec_enc_stats st;
 };
 
-/* Serializes v[0..n) (max mx) as bytes (shuffled) or, when it fits in 4
- * bits, packed; compresses into the scratch buffer and keeps it at tag + 5
- * when smaller than *best. */
-static void try_plane(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int t, uint8_t *tag, size_t room,
-                      size_t *best, int *best_tag)
+/* The transform t of plane v[0..n) into pb.tmp: 1 delta of the values, 2
+ * delta of the zigzagged signed values, 3 their median-of-three
+ * prediction. Returns the largest transformed value. */
+static uint32_t plane_delta(codec_enc *e, const uint32_t *v, size_t n, int t)
 {
-    for (int form = 0; form < 2; form++) {
-        int wcode;
-        size_t nb;
-        if (form == 0) {
-            wcode = width_of(mx);
-            nb = n * (size_t)wcode;
-            shuffle(v, n, wcode, e->pb.shuf);
-        } else {
-            if (mx >= 16 || e->ver < 3)
-                break;
-            wcode = mx < 2 ? 5 : mx < 4 ? 6 : 7;
-            nb = packed_bytes(n, pack_bits_of(wcode));
-            pack(v, n, pack_bits_of(wcode), e->pb.shuf);
+    uint32_t dm = 0, *d = e->pb.tmp;
+    if (t == 1) {
+        uint32_t prev = 0;
+        for (size_t i = 0; i < n; i++) {
+            d[i] = zig((int32_t)(v[i] - prev));
+            prev = v[i];
+            dm = d[i] > dm ? d[i] : dm;
         }
-        size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
-        if (!ZSTD_isError(z) && z < *best && z <= room) {
-            memcpy(tag + 5, e->pb.zalt, z);
-            *best = z;
-            *best_tag = t | wcode << 4;
+    } else if (t == 2) {
+        int32_t a = 0;
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = unzig(v[i]);
+            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)a));
+            a = x;
+            dm = d[i] > dm ? d[i] : dm;
+        }
+    } else {
+        int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = unzig(v[i]);
+            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)med3(a, b, c)));
+            c = b;
+            b = a;
+            a = x;
+            dm = d[i] > dm ? d[i] : dm;
+        }
+    }
+    return dm;
+}
+
+/* Serializes v[0..n) (max mx) into pb.shuf as bytes (form 0, shuffled) or,
+ * when it fits in 4 bits, packed (form 1, version 3); returns the byte count
+ * and the width code, or 0 where the form does not apply. */
+static size_t plane_bytes(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int form, int *wcode)
+{
+    if (form == 0) {
+        *wcode = width_of(mx);
+        shuffle(v, n, *wcode, e->pb.shuf);
+        return n * (size_t)*wcode;
+    }
+    if (mx >= 16 || e->ver < 3)
+        return 0;
+    *wcode = mx < 2 ? 5 : mx < 4 ? 6 : 7;
+    pack(v, n, pack_bits_of(*wcode), e->pb.shuf);
+    return packed_bytes(n, pack_bits_of(*wcode));
+}
+
+/* Picks the form of a non-empty plane (max mx) put_plane keeps: the smallest
+ * of raw, delta (allow_delta 1: of the values; 2: of the zigzagged signed
+ * values, and the median-of-three prediction), each as bytes or packed.
+ * Candidates are sized with zstd at ZLEVEL_EST (several times faster than
+ * ZLEVEL, same order of sizes within about a percent); *est is the
+ * smallest, SIZE_MAX when there was only one candidate to size. */
+static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int allow_delta, int *best_t,
+                       int *best_form, size_t *est)
+{
+    int cand = 1 + (mx < 16 && e->ver >= 3);
+    if (allow_delta)
+        cand += 2 * (allow_delta == 1 ? 1 : e->ver < 3 ? 1 : 2);
+    *best_t = 0;
+    *best_form = 0;
+    *est = SIZE_MAX;
+    if (cand == 1)
+        return;
+    for (int t = 0; t <= 3; t++) {
+        if (t && (!allow_delta || (t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3)))
+            continue;
+        const uint32_t *src = v;
+        uint32_t m = mx;
+        if (t) {
+            m = plane_delta(e, v, n, t);
+            src = e->pb.tmp;
+        }
+        for (int form = 0; form < 2; form++) {
+            int wcode;
+            size_t nb = plane_bytes(e, src, n, m, form, &wcode);
+            if (!nb)
+                break;
+            size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL_EST);
+            if (!ZSTD_isError(z) && z < *est) {
+                *est = z;
+                *best_t = t;
+                *best_form = form;
+            }
         }
     }
 }
 
-/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps
- * the smallest of raw, delta (allow_delta 1: of the values; 2: of the
- * zigzagged signed values, and the median-of-three prediction). */
-static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta, uint8_t *out, size_t cap,
-                     size_t *off)
+static uint32_t plane_max(const uint32_t *v, size_t n)
+{
+    uint32_t mx = 0;
+    for (size_t i = 0; i < n; i++)
+        mx = v[i] > mx ? v[i] : mx;
+    return mx;
+}
+
+/* Bytes put_plane would take for v[0..n), as sized by plane_pick: what the
+ * encoder's choices compare. */
+static size_t plane_est(codec_enc *e, const uint32_t *v, size_t n, int allow_delta)
+{
+    if (n == 0)
+        return 5;
+    int t, form;
+    size_t est;
+    plane_pick(e, v, n, plane_max(v, n), allow_delta, &t, &form, &est);
+    return est == SIZE_MAX ? SIZE_MAX : 5 + est;
+}
+
+/* Writes one non-empty plane (max mx) at out[*off] in the form plane_pick
+ * chose (t, form): tag, compressed length, zstd bytes at ZLEVEL. */
+static int put_plane_as(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int t, int form, uint8_t *out,
+                        size_t cap, size_t *off)
 {
     if (cap < *off + 5)
         return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small");
     uint8_t *tag = out + *off;
-    size_t room = cap - *off - 5;
+    if (t) {
+        mx = plane_delta(e, v, n, t);
+        v = e->pb.tmp;
+    }
+    int wcode;
+    size_t nb = plane_bytes(e, v, n, mx, form, &wcode);
+    size_t z = ZSTD_compressCCtx(e->z, tag + 5, cap - *off - 5, e->pb.shuf, nb, ZLEVEL);
+    if (ZSTD_isError(z))
+        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
+    tag[0] = (uint8_t)(t | wcode << 4);
+    codec__put_u32(tag + 1, (uint32_t)z);
+    *off += 5 + z;
+    return F4D_OK;
+}
+
+/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps
+ * the smallest form (plane_pick). */
+static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta, uint8_t *out, size_t cap,
+                     size_t *off)
+{
     if (n == 0) {
-        tag[0] = 1 << 4;
-        codec__put_u32(tag + 1, 0);
+        if (cap < *off + 5)
+            return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small");
+        out[*off] = 1 << 4;
+        codec__put_u32(out + *off + 1, 0);
         *off += 5;
         return F4D_OK;
     }
-    uint32_t mx = 0;
-    for (size_t i = 0; i < n; i++)
-        mx = v[i] > mx ? v[i] : mx;
-    size_t best = SIZE_MAX;
-    int best_tag = 0;
-    try_plane(e, v, n, mx, 0, tag, room, &best, &best_tag);
-    for (int t = 1; t <= 3 && allow_delta; t++) {
-        if ((t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3))
-            continue;
-        uint32_t dm = 0, prev = 0;
-        int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
-        for (size_t i = 0; i < n; i++) {
-            uint32_t d;
-            if (t == 1) {
-                d = zig((int32_t)(v[i] - prev));
-            } else {
-                int32_t x = unzig(v[i]);
-                d = zig((int32_t)((uint32_t)x - (uint32_t)(t == 2 ? a : med3(a, b, c))));
-                c = b;
-                b = a;
-                a = x;
-            }
-            prev = v[i];
-            e->pb.tmp[i] = d;
-            dm = d > dm ? d : dm;
-        }
-        try_plane(e, e->pb.tmp, n, dm, t, tag, room, &best, &best_tag);
-    }
-    if (best == SIZE_MAX)
-        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
-    tag[0] = (uint8_t)best_tag;
-    codec__put_u32(tag + 1, (uint32_t)best);
-    *off += 5 + best;
-    return F4D_OK;
+    uint32_t mx = plane_max(v, n);
+    int t, form;
+    size_t est;
+    plane_pick(e, v, n, mx, allow_delta, &t, &form, &est);
+    return put_plane_as(e, v, n, mx, t, form, out, cap, off);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -1073,17 +1168,15 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
     return fabs(dt) <= 0.9 * tol ? 0 : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
 }
 
-/* Bits plane v[0..m) (index order) takes as put_plane codes it, in the
- * cheaper of index order and the Morton order in e->mo.perm (as a key's
- * residual planes are); the Morton copy goes through mo.tmp. */
+/* Bits plane v[0..m) (index order) takes as put_plane codes it (sized as
+ * plane_pick sizes it), in the cheaper of index order and the Morton order
+ * in e->mo.perm (as a key's residual planes are); the Morton copy goes
+ * through mo.tmp. */
 static double plane_cost(codec_enc *e, const uint32_t *v, size_t m)
 {
     for (size_t j = 0; j < m; j++)
         e->mo.tmp[j] = v[e->mo.perm[j]];
-    size_t o1 = 0, o2 = 0;
-    if (put_plane(e, e->mo.tmp, m, 2, e->est, e->est_cap, &o1) < 0 ||
-        put_plane(e, v, m, 2, e->est, e->est_cap, &o2) < 0)
-        return INFINITY;
+    size_t o1 = plane_est(e, e->mo.tmp, m, 2), o2 = plane_est(e, v, m, 2);
     return 8.0 * (double)(o1 < o2 ? o1 : o2);
 }
 
@@ -1092,11 +1185,8 @@ static double block_param_cost(codec_enc *e, const struct blocks *bk, int from, 
 {
     double bits = 0;
     for (int k = from; k < to; k++) {
-        size_t o = 0;
         const uint32_t *bv = (k < 3 ? bk->wire : bk->par) + (size_t)k * bk->nbmax;
-        if (put_plane(e, bv, bk->nb, 2, e->est, e->est_cap, &o) < 0)
-            return INFINITY;
-        bits += 8.0 * (double)o;
+        bits += 8.0 * (double)plane_est(e, bv, bk->nb, 2);
     }
     return bits;
 }
@@ -1514,19 +1604,22 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         for (int c = 0; c < nch; c++) {
             o0 = off;
             uint32_t *src = e->res + (size_t)c * stride;
-            if ((rc = put_plane(e, src, n_changed, 2, pl, pcap, &off)) < 0)
-                return rc;
             if (n_changed > 1) {
                 /* the same plane in Morton order, kept when smaller (tag
-                 * bit 2); written after the first, so it may not fit */
+                 * bit 2): both orders sized, only the smaller compressed */
                 for (size_t k = 0; k < n_changed; k++)
                     e->mo.tmp[k] = src[e->mo.perm[k]];
-                size_t o1 = off;
-                if (put_plane(e, e->mo.tmp, n_changed, 2, pl, pcap, &o1) == 0 && o1 - off < off - o0) {
-                    memmove(pl + o0, pl + off, o1 - off);
-                    pl[o0] |= 4;
-                    off = o0 + (o1 - off);
-                }
+                uint32_t mx = plane_max(src, n_changed);
+                int t[2], form[2];
+                size_t est[2];
+                plane_pick(e, src, n_changed, mx, 2, &t[0], &form[0], &est[0]);
+                plane_pick(e, e->mo.tmp, n_changed, mx, 2, &t[1], &form[1], &est[1]);
+                int k = est[1] < est[0];
+                if ((rc = put_plane_as(e, k ? e->mo.tmp : src, n_changed, mx, t[k], form[k], pl, pcap, &off)) < 0)
+                    return rc;
+                pl[o0] |= (uint8_t)(4 * k);
+            } else if ((rc = put_plane(e, src, n_changed, 2, pl, pcap, &off)) < 0) {
+                return rc;
             }
             *g[stat_group(c)] += off - o0;
             e->st.bytes_channel[c] += off - o0;
