@@ -286,6 +286,7 @@ static void morton_sort(struct morton *m, size_t n)
 struct planebuf {
     uint8_t  *shuf;   /* [4 * cap] */
     uint32_t *tmp;    /* [cap]     */
+    uint32_t *samp;   /* [cap] the part of a plane its candidates are sized on */
     uint8_t  *zalt;   /* [zbound]  */
     size_t    zbound;
 };
@@ -497,16 +498,56 @@ static uint32_t plane_max(const uint32_t *v, size_t n)
     return mx;
 }
 
-/* Bytes put_plane would take for v[0..n), as sized by plane_pick: what the
- * encoder's choices compare. */
-static size_t plane_est(codec_enc *e, const uint32_t *v, size_t n, int allow_delta)
+/* Candidates are sized on a sample of a long plane: every k-th run of
+ * EST_RUN values, k = n / EST_TARGET (at most EST_KMAX), copied (through
+ * perm when given) to pb.samp. Runs keep the neighbours the delta forms and
+ * zstd's matches see; sizes scale to the whole plane. */
+#define EST_RUN    1024
+#define EST_TARGET 8192
+#define EST_KMAX   8
+
+static size_t plane_sample(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, const uint32_t **out)
 {
+    size_t k = n / EST_TARGET, ns = 0;
+    k = k < 1 ? 1 : k > EST_KMAX ? EST_KMAX : k;
+    if (k == 1 && !perm) {
+        *out = v;
+        return n;
+    }
+    for (size_t c0 = 0; c0 < n; c0 += k * EST_RUN) {
+        size_t c1 = c0 + EST_RUN < n ? c0 + EST_RUN : n;
+        if (perm)
+            for (size_t i = c0; i < c1; i++)
+                e->pb.samp[ns++] = v[perm[i]];
+        else
+            for (size_t i = c0; i < c1; i++)
+                e->pb.samp[ns++] = v[i];
+    }
+    *out = e->pb.samp;
+    return ns;
+}
+
+/* Picks the form of plane v[0..n) (read through perm when given) as
+ * plane_pick does, on its sample; returns the bytes put_plane would take
+ * for the whole plane (estimated: what the encoder's choices compare). */
+static double plane_choose(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, int allow_delta, int *t,
+                           int *form)
+{
+    *t = *form = 0;
     if (n == 0)
-        return 5;
+        return 5.0;
+    const uint32_t *sv;
+    size_t ns = plane_sample(e, v, perm, n, &sv), est;
+    plane_pick(e, sv, ns, plane_max(sv, ns), allow_delta, t, form, &est);
+    if (est == SIZE_MAX) /* one candidate (allow_delta 0, put_plane only): nothing compared */
+        return INFINITY;
+    return 5.0 + (double)est * (double)n / (double)ns;
+}
+
+static double plane_est(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, int allow_delta)
+{
     int t, form;
-    size_t est;
-    plane_pick(e, v, n, plane_max(v, n), allow_delta, &t, &form, &est);
-    return est == SIZE_MAX ? SIZE_MAX : 5 + est;
+    return plane_choose(e, v, perm, n, allow_delta, &t, &form);
 }
 
 /* Writes one non-empty plane (max mx) at out[*off] in the form plane_pick
@@ -523,6 +564,8 @@ static int put_plane_as(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, 
     }
     int wcode;
     size_t nb = plane_bytes(e, v, n, mx, form, &wcode);
+    if (!nb) /* packed on a sample whose values fit, the plane's do not */
+        nb = plane_bytes(e, v, n, mx, 0, &wcode);
     size_t z = ZSTD_compressCCtx(e->z, tag + 5, cap - *off - 5, e->pb.shuf, nb, ZLEVEL);
     if (ZSTD_isError(z))
         return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
@@ -545,11 +588,9 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
         *off += 5;
         return F4D_OK;
     }
-    uint32_t mx = plane_max(v, n);
     int t, form;
-    size_t est;
-    plane_pick(e, v, n, mx, allow_delta, &t, &form, &est);
-    return put_plane_as(e, v, n, mx, t, form, out, cap, off);
+    plane_choose(e, v, NULL, n, allow_delta, &t, &form);
+    return put_plane_as(e, v, n, plane_max(v, n), t, form, out, cap, off);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -578,13 +619,14 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->flags = malloc(c * sizeof(uint32_t));
     e->pb.shuf = malloc(4 * c);
     e->pb.tmp = malloc(c * sizeof(uint32_t));
+    e->pb.samp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
     e->est_cap = e->pb.zbound + 5;
     e->est = malloc(e->est_cap);
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
-    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -606,7 +648,7 @@ void codec_enc_free(codec_enc *e)
     morton_free(&e->mo);
     blocks_free(&e->bk);
     free(e->rix); free(e->bacc); free(e->est);
-    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.zalt); free(e->zws);
+    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
     free(e);
@@ -1174,10 +1216,8 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
  * through mo.tmp. */
 static double plane_cost(codec_enc *e, const uint32_t *v, size_t m)
 {
-    for (size_t j = 0; j < m; j++)
-        e->mo.tmp[j] = v[e->mo.perm[j]];
-    size_t o1 = plane_est(e, e->mo.tmp, m, 2), o2 = plane_est(e, v, m, 2);
-    return 8.0 * (double)(o1 < o2 ? o1 : o2);
+    double o1 = plane_est(e, v, e->mo.perm, m, 2), o2 = plane_est(e, v, NULL, m, 2);
+    return 8.0 * (o1 < o2 ? o1 : o2);
 }
 
 /* Bits of block parameter planes [from, to) as the key sends them. */
@@ -1186,7 +1226,7 @@ static double block_param_cost(codec_enc *e, const struct blocks *bk, int from, 
     double bits = 0;
     for (int k = from; k < to; k++) {
         const uint32_t *bv = (k < 3 ? bk->wire : bk->par) + (size_t)k * bk->nbmax;
-        bits += 8.0 * (double)plane_est(e, bv, bk->nb, 2);
+        bits += 8.0 * plane_est(e, bv, NULL, bk->nb, 2);
     }
     return bits;
 }
@@ -1607,14 +1647,13 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             if (n_changed > 1) {
                 /* the same plane in Morton order, kept when smaller (tag
                  * bit 2): both orders sized, only the smaller compressed */
-                for (size_t k = 0; k < n_changed; k++)
-                    e->mo.tmp[k] = src[e->mo.perm[k]];
-                uint32_t mx = plane_max(src, n_changed);
                 int t[2], form[2];
-                size_t est[2];
-                plane_pick(e, src, n_changed, mx, 2, &t[0], &form[0], &est[0]);
-                plane_pick(e, e->mo.tmp, n_changed, mx, 2, &t[1], &form[1], &est[1]);
-                int k = est[1] < est[0];
+                double est0 = plane_choose(e, src, NULL, n_changed, 2, &t[0], &form[0]);
+                int k = plane_choose(e, src, e->mo.perm, n_changed, 2, &t[1], &form[1]) < est0;
+                if (k)
+                    for (size_t j = 0; j < n_changed; j++)
+                        e->mo.tmp[j] = src[e->mo.perm[j]];
+                uint32_t mx = plane_max(src, n_changed);
                 if ((rc = put_plane_as(e, k ? e->mo.tmp : src, n_changed, mx, t[k], form[k], pl, pcap, &off)) < 0)
                     return rc;
                 pl[o0] |= (uint8_t)(4 * k);
