@@ -18,7 +18,6 @@
 #define FHDR       (FHDR1 + 4 * NCOEF) /* version 2: + predictor coefficients */
 #define COEF_MAX   1000.0f
 #define ZLEVEL     5
-#define ZLEVEL_EST 1 /* sizes candidate forms and orders (plane_pick) */
 #define SCALE_MIN  1e-7f
 
 /* Record channels. Intra: 0-2 pos, 3-5 log-scale, 6 opacity, 7-9 rgb,
@@ -288,6 +287,9 @@ struct planebuf {
     uint32_t *tmp;    /* [cap]     */
     uint32_t *samp;   /* [cap] the part of a plane its candidates are sized on */
     uint8_t  *zalt;   /* [zbound]  */
+    uint8_t  *zbest;  /* [zbound] the smallest candidate plane_pick compressed */
+    uint8_t  *zkeep;  /* [zbound] a first order's, while the second is tried */
+    int       best_tag; /* zbest's tag byte                                   */
     size_t    zbound;
 };
 
@@ -452,9 +454,9 @@ static size_t plane_bytes(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx
 /* Picks the form of a non-empty plane (max mx) put_plane keeps: the smallest
  * of raw, delta (allow_delta 1: of the values; 2: of the zigzagged signed
  * values, and the median-of-three prediction), each as bytes or packed.
- * Candidates are sized with zstd at ZLEVEL_EST (several times faster than
- * ZLEVEL, same order of sizes within about a percent); *est is the
- * smallest, SIZE_MAX when there was only one candidate to size. */
+ * Candidates are compressed at ZLEVEL; *est is the smallest, kept in
+ * pb.zbest (tag pb.best_tag), SIZE_MAX when there was only one candidate
+ * (not compressed). */
 static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int allow_delta, int *best_t,
                        int *best_form, size_t *est)
 {
@@ -480,8 +482,12 @@ static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, i
             size_t nb = plane_bytes(e, src, n, m, form, &wcode);
             if (!nb)
                 break;
-            size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL_EST);
+            size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
             if (!ZSTD_isError(z) && z < *est) {
+                uint8_t *sw = e->pb.zbest;
+                e->pb.zbest = e->pb.zalt;
+                e->pb.zalt = sw;
+                e->pb.best_tag = t | wcode << 4;
                 *est = z;
                 *best_t = t;
                 *best_form = form;
@@ -503,7 +509,7 @@ static uint32_t plane_max(const uint32_t *v, size_t n)
  * perm when given) to pb.samp. Runs keep the neighbours the delta forms and
  * zstd's matches see; sizes scale to the whole plane. */
 #define EST_RUN    1024
-#define EST_TARGET 8192
+#define EST_TARGET 32768
 #define EST_KMAX   8
 
 static size_t plane_sample(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, const uint32_t **out)
@@ -531,9 +537,10 @@ static size_t plane_sample(codec_enc *e, const uint32_t *v, const uint32_t *perm
  * plane_pick does, on its sample; returns the bytes put_plane would take
  * for the whole plane (estimated: what the encoder's choices compare). */
 static double plane_choose(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, int allow_delta, int *t,
-                           int *form)
+                           int *form, size_t *exact)
 {
     *t = *form = 0;
+    *exact = 0;
     if (n == 0)
         return 5.0;
     const uint32_t *sv;
@@ -541,13 +548,28 @@ static double plane_choose(codec_enc *e, const uint32_t *v, const uint32_t *perm
     plane_pick(e, sv, ns, plane_max(sv, ns), allow_delta, t, form, &est);
     if (est == SIZE_MAX) /* one candidate (allow_delta 0, put_plane only): nothing compared */
         return INFINITY;
+    if (ns == n) /* the whole plane: pb.zbest is what put_plane writes */
+        *exact = est;
     return 5.0 + (double)est * (double)n / (double)ns;
 }
 
 static double plane_est(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, int allow_delta)
 {
     int t, form;
-    return plane_choose(e, v, perm, n, allow_delta, &t, &form);
+    size_t exact;
+    return plane_choose(e, v, perm, n, allow_delta, &t, &form, &exact);
+}
+
+/* Writes a plane plane_pick already compressed (z[0..zn), tag byte). */
+static int put_plane_z(codec_enc *e, int tag, const uint8_t *z, size_t zn, uint8_t *out, size_t cap, size_t *off)
+{
+    if (cap < *off + 5 || cap - *off - 5 < zn)
+        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu bytes", zn);
+    out[*off] = (uint8_t)tag;
+    codec__put_u32(out + *off + 1, (uint32_t)zn);
+    memcpy(out + *off + 5, z, zn);
+    *off += 5 + zn;
+    return F4D_OK;
 }
 
 /* Writes one non-empty plane (max mx) at out[*off] in the form plane_pick
@@ -589,7 +611,10 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
         return F4D_OK;
     }
     int t, form;
-    plane_choose(e, v, NULL, n, allow_delta, &t, &form);
+    size_t exact;
+    plane_choose(e, v, NULL, n, allow_delta, &t, &form, &exact);
+    if (exact)
+        return put_plane_z(e, e->pb.best_tag, e->pb.zbest, exact, out, cap, off);
     return put_plane_as(e, v, n, plane_max(v, n), t, form, out, cap, off);
 }
 
@@ -622,11 +647,13 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->pb.samp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
+    e->pb.zbest = malloc(e->pb.zbound);
+    e->pb.zkeep = malloc(e->pb.zbound);
     e->est_cap = e->pb.zbound + 5;
     e->est = malloc(e->est_cap);
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
-    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -648,7 +675,7 @@ void codec_enc_free(codec_enc *e)
     morton_free(&e->mo);
     blocks_free(&e->bk);
     free(e->rix); free(e->bacc); free(e->est);
-    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->zws);
+    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
     free(e);
@@ -1276,11 +1303,14 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
             for (int c = 0; c < 3; c++)
                 e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], zh[c], pos_tol[c]));
         }
-        e->mo.key[m++] = morton_key(z, p.pos);
+        if (!bk) /* else mo.perm holds blocks_assign's order of these */
+            e->mo.key[m] = morton_key(z, p.pos);
+        m++;
     }
     if (m < 2)
         return 0;
-    morton_sort(&e->mo, m);
+    if (!bk)
+        morton_sort(&e->mo, m);
     double cost[3] = { 0, 0, 0 };
     if (bk) {
         /* version 3: measured as the key codes them (see choose_block_rot) */
@@ -1330,7 +1360,8 @@ static int rot_resid(const struct splat_frame *f, size_t i, const float prot[4],
     for (int c = 0; c < 4; c++) {
         float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
         double t = ((double)qc - (double)prot[c]) / rs;
-        r[c] = (int32_t)llround(t);
+        /* llround, inline (|t| is far below 2^31; NaN gives 0 as before) */
+        r[c] = fabs(t) < 1e9 ? (int32_t)(t < 0 ? t - 0.5 : t + 0.5) : 0;
         rot_near &= fabs(t) <= 1.0;
     }
     /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
@@ -1369,7 +1400,6 @@ static int choose_block_rot(codec_enc *e, const struct keystate *ref, const stru
             continue;
         struct pred p;
         predict(ref, (size_t)e->rix[i], cf, &p);
-        e->mo.key[m] = morton_key(z, p.pos);
         for (int k = 0; k < 2; k++) {
             int32_t r[4];
             if (k)
@@ -1383,7 +1413,8 @@ static int choose_block_rot(codec_enc *e, const struct keystate *ref, const stru
     }
     if (m < 2)
         return 0;
-    morton_sort(&e->mo, m);
+    /* mo.perm holds blocks_assign's Morton order of these (the positions
+     * predicted alike: cf[2], cf[3] do not move them) */
     for (int k = 0; k < 2; k++)
         for (int c = 0; c < 4; c++) {
             cost[k] += plane_cost(e, e->res + (size_t)(4 * k + c) * stride, m);
@@ -1608,6 +1639,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             for (int c = 0; c < nch; c++)
                 any |= res[c];
             resid_recon(res, &p, cf, zr, qi->rot_bits, motion, dst, i);
+            if (block_motion) /* where matched Gaussian matched-1 lands among the changed */
+                e->mo.tmp[matched - 1] = any ? (uint32_t)n_changed : UINT32_MAX;
             if (!any) {
                 e->flags[i] = 0;
                 n_same++;
@@ -1616,7 +1649,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             e->flags[i] = 1;
             for (int c = 0; c < nch; c++)
                 e->res[(size_t)c * stride + n_changed] = zig(res[c]);
-            e->mo.key[n_changed] = morton_key(z, p.pos);
+            if (!block_motion)
+                e->mo.key[n_changed] = morton_key(z, p.pos);
             n_changed++;
         }
         size_t o0 = off;
@@ -1639,22 +1673,43 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         /* residual planes may be delta-coded too: neighbours in index order
          * (pixel-aligned, or sampled along a surface) share their motion
          * change, so differences along the index are smaller */
-        if (n_changed)
+        if (block_motion) {
+            /* mo.perm holds blocks_assign's (stable) Morton order of the
+             * matched Gaussians, at the same predicted positions: the
+             * changed ones' order is that order filtered, as sorting them
+             * alone gives */
+            size_t w = 0;
+            for (size_t k = 0; k < matched; k++)
+                if (e->mo.tmp[e->mo.perm[k]] != UINT32_MAX)
+                    e->mo.perm[w++] = e->mo.tmp[e->mo.perm[k]];
+        } else if (n_changed) {
             morton_sort(&e->mo, n_changed);
+        }
         for (int c = 0; c < nch; c++) {
             o0 = off;
             uint32_t *src = e->res + (size_t)c * stride;
             if (n_changed > 1) {
                 /* the same plane in Morton order, kept when smaller (tag
                  * bit 2): both orders sized, only the smaller compressed */
-                int t[2], form[2];
-                double est0 = plane_choose(e, src, NULL, n_changed, 2, &t[0], &form[0]);
-                int k = plane_choose(e, src, e->mo.perm, n_changed, 2, &t[1], &form[1]) < est0;
-                if (k)
-                    for (size_t j = 0; j < n_changed; j++)
-                        e->mo.tmp[j] = src[e->mo.perm[j]];
-                uint32_t mx = plane_max(src, n_changed);
-                if ((rc = put_plane_as(e, k ? e->mo.tmp : src, n_changed, mx, t[k], form[k], pl, pcap, &off)) < 0)
+                int t[2], form[2], tg[2];
+                size_t ex[2];
+                double est1 = plane_choose(e, src, e->mo.perm, n_changed, 2, &t[1], &form[1], &ex[1]);
+                tg[1] = e->pb.best_tag;
+                uint8_t *sw = e->pb.zkeep; /* the Morton order's, while index order is tried */
+                e->pb.zkeep = e->pb.zbest;
+                e->pb.zbest = sw;
+                int k = est1 < plane_choose(e, src, NULL, n_changed, 2, &t[0], &form[0], &ex[0]);
+                tg[0] = e->pb.best_tag;
+                if (ex[k]) {
+                    rc = put_plane_z(e, tg[k], k ? e->pb.zkeep : e->pb.zbest, ex[k], pl, pcap, &off);
+                } else {
+                    if (k)
+                        for (size_t j = 0; j < n_changed; j++)
+                            e->mo.tmp[j] = src[e->mo.perm[j]];
+                    rc = put_plane_as(e, k ? e->mo.tmp : src, n_changed, plane_max(src, n_changed), t[k], form[k],
+                                      pl, pcap, &off);
+                }
+                if (rc < 0)
                     return rc;
                 pl[o0] |= (uint8_t)(4 * k);
             } else if ((rc = put_plane(e, src, n_changed, 2, pl, pcap, &off)) < 0) {
