@@ -470,17 +470,13 @@ static uint32_t plane_max(const uint32_t *v, size_t n)
 static double plane_bits(const uint32_t *v, size_t n)
 {
     uint32_t h[256] = { 0 };
-    double extra = 0;
+    uint64_t extra = 0;
     for (size_t i = 0; i < n; i++) {
         uint32_t x = v[i];
-        if (x < 255) {
-            h[x]++;
-        } else {
-            h[255]++;
-            extra += 32 - __builtin_clz(x);
-        }
+        h[x < 255 ? x : 255]++;
+        extra += x < 255 ? 0 : (uint64_t)(32 - __builtin_clz(x));
     }
-    double bits = extra;
+    double bits = (double)extra;
     for (int b = 0; b < 256; b++)
         if (h[b])
             bits -= (double)h[b] * log2((double)h[b] / (double)n);
