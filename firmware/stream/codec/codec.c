@@ -285,7 +285,11 @@ static void morton_sort(struct morton *m, size_t n)
 struct planebuf {
     uint8_t  *shuf;   /* [4 * cap] */
     uint32_t *tmp;    /* [cap]     */
+    uint32_t *samp;   /* [cap] the part of a plane its candidates are sized on */
     uint8_t  *zalt;   /* [zbound]  */
+    uint8_t  *zbest;  /* [zbound] the smallest candidate plane_pick compressed */
+    uint8_t  *zkeep;  /* [zbound] a first order's, while the second is tried */
+    int       best_tag; /* zbest's tag byte                                   */
     size_t    zbound;
 };
 
@@ -306,13 +310,32 @@ static void shuffle(const uint32_t *v, size_t n, int w, uint8_t *o)
 static int pack_bits_of(int wcode) { return wcode == 5 ? 1 : wcode == 6 ? 2 : 4; }
 static size_t packed_bytes(size_t n, int bits) { return (n * (size_t)bits + 7) / 8; }
 
+/* bits is a constant in each caller below, so the inner loop unrolls. */
+static inline void pack_n(const uint32_t *v, size_t n, const int bits, uint8_t *o)
+{
+    const size_t per = (size_t)(8 / bits), full = n / per;
+    for (size_t j = 0; j < full; j++) {
+        uint32_t b = 0;
+        for (size_t k = 0; k < per; k++)
+            b |= v[j * per + k] << (bits * (int)k);
+        o[j] = (uint8_t)b;
+    }
+    if (full * per < n) {
+        uint32_t b = 0;
+        for (size_t i = full * per; i < n; i++)
+            b |= v[i] << (bits * (int)(i - full * per));
+        o[full] = (uint8_t)b;
+    }
+}
+
 static void pack(const uint32_t *v, size_t n, int bits, uint8_t *o)
 {
-    const int per = 8 / bits;
-    size_t nb = packed_bytes(n, bits);
-    memset(o, 0, nb);
-    for (size_t i = 0; i < n; i++)
-        o[i / (size_t)per] |= (uint8_t)(v[i] << (bits * (int)(i % (size_t)per)));
+    if (bits == 1)
+        pack_n(v, n, 1, o);
+    else if (bits == 2)
+        pack_n(v, n, 2, o);
+    else
+        pack_n(v, n, 4, o);
 }
 
 /* Median of three: the version 3 predictor of a residual from the three
@@ -376,85 +399,259 @@ struct codec_enc {
     struct codec_enc_stats st;
 };
 
-/* Serializes v[0..n) (max mx) as bytes (shuffled) or, when it fits in 4
- * bits, packed; compresses into the scratch buffer and keeps it at tag + 5
- * when smaller than *best. */
-static void try_plane(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int t, uint8_t *tag, size_t room,
-                      size_t *best, int *best_tag)
+/* The transform t of plane v[0..n) into pb.tmp: 1 delta of the values, 2
+ * delta of the zigzagged signed values, 3 their median-of-three
+ * prediction. Returns the largest transformed value. */
+static uint32_t plane_delta(codec_enc *e, const uint32_t *v, size_t n, int t)
 {
-    for (int form = 0; form < 2; form++) {
-        int wcode;
-        size_t nb;
-        if (form == 0) {
-            wcode = width_of(mx);
-            nb = n * (size_t)wcode;
-            shuffle(v, n, wcode, e->pb.shuf);
-        } else {
-            if (mx >= 16 || e->ver < 3)
-                break;
-            wcode = mx < 2 ? 5 : mx < 4 ? 6 : 7;
-            nb = packed_bytes(n, pack_bits_of(wcode));
-            pack(v, n, pack_bits_of(wcode), e->pb.shuf);
+    uint32_t dm = 0, *d = e->pb.tmp;
+    if (t == 1) {
+        uint32_t prev = 0;
+        for (size_t i = 0; i < n; i++) {
+            d[i] = zig((int32_t)(v[i] - prev));
+            prev = v[i];
+            dm = d[i] > dm ? d[i] : dm;
         }
-        size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
-        if (!ZSTD_isError(z) && z < *best && z <= room) {
-            memcpy(tag + 5, e->pb.zalt, z);
-            *best = z;
-            *best_tag = t | wcode << 4;
+    } else if (t == 2) {
+        int32_t a = 0;
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = unzig(v[i]);
+            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)a));
+            a = x;
+            dm = d[i] > dm ? d[i] : dm;
+        }
+    } else {
+        int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
+        for (size_t i = 0; i < n; i++) {
+            int32_t x = unzig(v[i]);
+            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)med3(a, b, c)));
+            c = b;
+            b = a;
+            a = x;
+            dm = d[i] > dm ? d[i] : dm;
+        }
+    }
+    return dm;
+}
+
+/* Serializes v[0..n) (max mx) into pb.shuf as bytes (form 0, shuffled) or,
+ * when it fits in 4 bits, packed (form 1, version 3); returns the byte count
+ * and the width code, or 0 where the form does not apply. */
+static size_t plane_bytes(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int form, int *wcode)
+{
+    if (form == 0) {
+        *wcode = width_of(mx);
+        shuffle(v, n, *wcode, e->pb.shuf);
+        return n * (size_t)*wcode;
+    }
+    if (mx >= 16 || e->ver < 3)
+        return 0;
+    *wcode = mx < 2 ? 5 : mx < 4 ? 6 : 7;
+    pack(v, n, pack_bits_of(*wcode), e->pb.shuf);
+    return packed_bytes(n, pack_bits_of(*wcode));
+}
+
+/* Picks the form of a non-empty plane (max mx) put_plane keeps: the smallest
+ * of raw, delta (allow_delta 1: of the values; 2: of the zigzagged signed
+ * values, and the median-of-three prediction), each as bytes or packed.
+ * Candidates are compressed at ZLEVEL; *est is the smallest, kept in
+ * pb.zbest (tag pb.best_tag), SIZE_MAX when there was only one candidate
+ * (not compressed). */
+static uint32_t plane_max(const uint32_t *v, size_t n)
+{
+    uint32_t mx = 0;
+    for (size_t i = 0; i < n; i++)
+        mx = v[i] > mx ? v[i] : mx;
+    return mx;
+}
+
+/* Order-0 entropy of v[0..n) in bits (values over 254 share a bucket and
+ * add their bit length): a cheap proxy of a transform's zstd size. */
+static double plane_bits(const uint32_t *v, size_t n)
+{
+    uint32_t h[256] = { 0 };
+    uint64_t extra = 0;
+    for (size_t i = 0; i < n; i++) {
+        uint32_t x = v[i];
+        h[x < 255 ? x : 255]++;
+        extra += x < 255 ? 0 : (uint64_t)(32 - __builtin_clz(x));
+    }
+    double bits = (double)extra;
+    for (int b = 0; b < 256; b++)
+        if (h[b])
+            bits -= (double)h[b] * log2((double)h[b] / (double)n);
+    return bits;
+}
+
+/* On residual planes (allow_delta 2: small signed values) a transform
+ * whose proxy exceeds the best one's by this much is not compressed (the
+ * walk at 37.6k / 300k: +0.1-1 % bytes). Not on intra planes: their wide
+ * values' low bytes look random to the proxy, not to zstd (Morton order). */
+#define PROXY_SLACK 1.25
+
+static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int allow_delta, int *best_t,
+                       int *best_form, size_t *est)
+{
+    int cand = 1 + (mx < 16 && e->ver >= 3);
+    if (allow_delta)
+        cand += 2 * (allow_delta == 1 ? 1 : e->ver < 3 ? 1 : 2);
+    *best_t = 0;
+    *best_form = 0;
+    *est = SIZE_MAX;
+    if (cand == 1)
+        return;
+    double proxy[4] = { INFINITY, INFINITY, INFINITY, INFINITY }, pbest = INFINITY;
+    int last = 0;
+    for (int t = 0; t <= 3; t++) {
+        if (t && (!allow_delta || (t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3)))
+            continue;
+        if (t) {
+            plane_delta(e, v, n, t);
+            last = t;
+        }
+        proxy[t] = allow_delta == 2 ? plane_bits(t ? e->pb.tmp : v, n) : 0.0;
+        pbest = proxy[t] < pbest ? proxy[t] : pbest;
+    }
+    for (int t = 0; t <= 3; t++) {
+        if (proxy[t] == INFINITY || (allow_delta == 2 && proxy[t] > PROXY_SLACK * pbest + 512.0))
+            continue;
+        const uint32_t *src = v;
+        uint32_t m = mx;
+        if (t) {
+            m = t == last ? plane_max(e->pb.tmp, n) : plane_delta(e, v, n, t);
+            src = e->pb.tmp;
+        }
+        for (int form = 0; form < 2; form++) {
+            int wcode;
+            size_t nb = plane_bytes(e, src, n, m, form, &wcode);
+            if (!nb)
+                break;
+            size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
+            if (!ZSTD_isError(z) && z < *est) {
+                uint8_t *sw = e->pb.zbest;
+                e->pb.zbest = e->pb.zalt;
+                e->pb.zalt = sw;
+                e->pb.best_tag = t | wcode << 4;
+                *est = z;
+                *best_t = t;
+                *best_form = form;
+            }
         }
     }
 }
 
-/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps
- * the smallest of raw, delta (allow_delta 1: of the values; 2: of the
- * zigzagged signed values, and the median-of-three prediction). */
-static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta, uint8_t *out, size_t cap,
-                     size_t *off)
+/* Candidates are sized on a sample of a long plane: every k-th run of
+ * EST_RUN values, k = n / EST_TARGET (at most EST_KMAX), copied (through
+ * perm when given) to pb.samp. Runs keep the neighbours the delta forms and
+ * zstd's matches see; sizes scale to the whole plane. */
+#define EST_RUN    1024
+#define EST_TARGET 32768
+#define EST_KMAX   8
+
+static size_t plane_sample(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, const uint32_t **out)
+{
+    size_t k = n / EST_TARGET, ns = 0;
+    k = k < 1 ? 1 : k > EST_KMAX ? EST_KMAX : k;
+    if (k == 1 && !perm) {
+        *out = v;
+        return n;
+    }
+    for (size_t c0 = 0; c0 < n; c0 += k * EST_RUN) {
+        size_t c1 = c0 + EST_RUN < n ? c0 + EST_RUN : n;
+        if (perm)
+            for (size_t i = c0; i < c1; i++)
+                e->pb.samp[ns++] = v[perm[i]];
+        else
+            for (size_t i = c0; i < c1; i++)
+                e->pb.samp[ns++] = v[i];
+    }
+    *out = e->pb.samp;
+    return ns;
+}
+
+/* Picks the form of plane v[0..n) (read through perm when given) as
+ * plane_pick does, on its sample; returns the bytes put_plane would take
+ * for the whole plane (estimated: what the encoder's choices compare). */
+static double plane_choose(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, int allow_delta, int *t,
+                           int *form, size_t *exact)
+{
+    *t = *form = 0;
+    *exact = 0;
+    if (n == 0)
+        return 5.0;
+    const uint32_t *sv;
+    size_t ns = plane_sample(e, v, perm, n, &sv), est;
+    plane_pick(e, sv, ns, plane_max(sv, ns), allow_delta, t, form, &est);
+    if (est == SIZE_MAX) /* one candidate (allow_delta 0, put_plane only): nothing compared */
+        return INFINITY;
+    if (ns == n) /* the whole plane: pb.zbest is what put_plane writes */
+        *exact = est;
+    return 5.0 + (double)est * (double)n / (double)ns;
+}
+
+static double plane_est(codec_enc *e, const uint32_t *v, const uint32_t *perm, size_t n, int allow_delta)
+{
+    int t, form;
+    size_t exact;
+    return plane_choose(e, v, perm, n, allow_delta, &t, &form, &exact);
+}
+
+/* Writes a plane plane_pick already compressed (z[0..zn), tag byte). */
+static int put_plane_z(codec_enc *e, int tag, const uint8_t *z, size_t zn, uint8_t *out, size_t cap, size_t *off)
+{
+    if (cap < *off + 5 || cap - *off - 5 < zn)
+        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu bytes", zn);
+    out[*off] = (uint8_t)tag;
+    codec__put_u32(out + *off + 1, (uint32_t)zn);
+    memcpy(out + *off + 5, z, zn);
+    *off += 5 + zn;
+    return F4D_OK;
+}
+
+/* Writes one non-empty plane (max mx) at out[*off] in the form plane_pick
+ * chose (t, form): tag, compressed length, zstd bytes at ZLEVEL. */
+static int put_plane_as(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, int t, int form, uint8_t *out,
+                        size_t cap, size_t *off)
 {
     if (cap < *off + 5)
         return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small");
     uint8_t *tag = out + *off;
-    size_t room = cap - *off - 5;
+    if (t) {
+        mx = plane_delta(e, v, n, t);
+        v = e->pb.tmp;
+    }
+    int wcode;
+    size_t nb = plane_bytes(e, v, n, mx, form, &wcode);
+    if (!nb) /* packed on a sample whose values fit, the plane's do not */
+        nb = plane_bytes(e, v, n, mx, 0, &wcode);
+    size_t z = ZSTD_compressCCtx(e->z, tag + 5, cap - *off - 5, e->pb.shuf, nb, ZLEVEL);
+    if (ZSTD_isError(z))
+        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
+    tag[0] = (uint8_t)(t | wcode << 4);
+    codec__put_u32(tag + 1, (uint32_t)z);
+    *off += 5 + z;
+    return F4D_OK;
+}
+
+/* Writes one plane at out[*off]: tag, compressed length, zstd bytes; keeps
+ * the smallest form (plane_pick). */
+static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta, uint8_t *out, size_t cap,
+                     size_t *off)
+{
     if (n == 0) {
-        tag[0] = 1 << 4;
-        codec__put_u32(tag + 1, 0);
+        if (cap < *off + 5)
+            return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small");
+        out[*off] = 1 << 4;
+        codec__put_u32(out + *off + 1, 0);
         *off += 5;
         return F4D_OK;
     }
-    uint32_t mx = 0;
-    for (size_t i = 0; i < n; i++)
-        mx = v[i] > mx ? v[i] : mx;
-    size_t best = SIZE_MAX;
-    int best_tag = 0;
-    try_plane(e, v, n, mx, 0, tag, room, &best, &best_tag);
-    for (int t = 1; t <= 3 && allow_delta; t++) {
-        if ((t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3))
-            continue;
-        uint32_t dm = 0, prev = 0;
-        int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
-        for (size_t i = 0; i < n; i++) {
-            uint32_t d;
-            if (t == 1) {
-                d = zig((int32_t)(v[i] - prev));
-            } else {
-                int32_t x = unzig(v[i]);
-                d = zig((int32_t)((uint32_t)x - (uint32_t)(t == 2 ? a : med3(a, b, c))));
-                c = b;
-                b = a;
-                a = x;
-            }
-            prev = v[i];
-            e->pb.tmp[i] = d;
-            dm = d > dm ? d : dm;
-        }
-        try_plane(e, e->pb.tmp, n, dm, t, tag, room, &best, &best_tag);
-    }
-    if (best == SIZE_MAX)
-        return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
-    tag[0] = (uint8_t)best_tag;
-    codec__put_u32(tag + 1, (uint32_t)best);
-    *off += 5 + best;
-    return F4D_OK;
+    int t, form;
+    size_t exact;
+    plane_choose(e, v, NULL, n, allow_delta, &t, &form, &exact);
+    if (exact)
+        return put_plane_z(e, e->pb.best_tag, e->pb.zbest, exact, out, cap, off);
+    return put_plane_as(e, v, n, plane_max(v, n), t, form, out, cap, off);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -483,13 +680,16 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->flags = malloc(c * sizeof(uint32_t));
     e->pb.shuf = malloc(4 * c);
     e->pb.tmp = malloc(c * sizeof(uint32_t));
+    e->pb.samp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
+    e->pb.zbest = malloc(e->pb.zbound);
+    e->pb.zkeep = malloc(e->pb.zbound);
     e->est_cap = e->pb.zbound + 5;
     e->est = malloc(e->est_cap);
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
-    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.zalt || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -511,7 +711,7 @@ void codec_enc_free(codec_enc *e)
     morton_free(&e->mo);
     blocks_free(&e->bk);
     free(e->rix); free(e->bacc); free(e->est);
-    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.zalt); free(e->zws);
+    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
     free(e);
@@ -1076,18 +1276,14 @@ static int32_t mf_resid(const struct splat_frame *f, size_t i, int c, float rpos
     return fabs(dt) <= 0.9 * tol ? 0 : u > RMAX ? RMAX : u < -RMAX ? -RMAX : (int32_t)llround(u);
 }
 
-/* Bits plane v[0..m) (index order) takes as put_plane codes it, in the
- * cheaper of index order and the Morton order in e->mo.perm (as a key's
- * residual planes are); the Morton copy goes through mo.tmp. */
+/* Bits plane v[0..m) (index order) takes as put_plane codes it (sized as
+ * plane_pick sizes it), in the cheaper of index order and the Morton order
+ * in e->mo.perm (as a key's residual planes are); the Morton copy goes
+ * through mo.tmp. */
 static double plane_cost(codec_enc *e, const uint32_t *v, size_t m)
 {
-    for (size_t j = 0; j < m; j++)
-        e->mo.tmp[j] = v[e->mo.perm[j]];
-    size_t o1 = 0, o2 = 0;
-    if (put_plane(e, e->mo.tmp, m, 2, e->est, e->est_cap, &o1) < 0 ||
-        put_plane(e, v, m, 2, e->est, e->est_cap, &o2) < 0)
-        return INFINITY;
-    return 8.0 * (double)(o1 < o2 ? o1 : o2);
+    double o1 = plane_est(e, v, e->mo.perm, m, 2), o2 = plane_est(e, v, NULL, m, 2);
+    return 8.0 * (o1 < o2 ? o1 : o2);
 }
 
 /* Bits of block parameter planes [from, to) as the key sends them. */
@@ -1095,11 +1291,8 @@ static double block_param_cost(codec_enc *e, const struct blocks *bk, int from, 
 {
     double bits = 0;
     for (int k = from; k < to; k++) {
-        size_t o = 0;
         const uint32_t *bv = (k < 3 ? bk->wire : bk->par) + (size_t)k * bk->nbmax;
-        if (put_plane(e, bv, bk->nb, 2, e->est, e->est_cap, &o) < 0)
-            return INFINITY;
-        bits += 8.0 * (double)o;
+        bits += 8.0 * plane_est(e, bv, NULL, bk->nb, 2);
     }
     return bits;
 }
@@ -1149,11 +1342,14 @@ static int choose_mf_predictor(codec_enc *e, const struct keystate *ref, const s
             for (int c = 0; c < 3; c++)
                 e->res[(size_t)(6 + c) * stride + m] = zig(mf_resid(f, i, c, rp3[c], bmf[c], zh[c], pos_tol[c]));
         }
-        e->mo.key[m++] = morton_key(z, p.pos);
+        if (!bk) /* else mo.perm holds blocks_assign's order of these */
+            e->mo.key[m] = morton_key(z, p.pos);
+        m++;
     }
     if (m < 2)
         return 0;
-    morton_sort(&e->mo, m);
+    if (!bk)
+        morton_sort(&e->mo, m);
     double cost[3] = { 0, 0, 0 };
     if (bk) {
         /* version 3: measured as the key codes them (see choose_block_rot) */
@@ -1203,7 +1399,8 @@ static int rot_resid(const struct splat_frame *f, size_t i, const float prot[4],
     for (int c = 0; c < 4; c++) {
         float qc = qn != 0.0f ? qin[c] * qn : (c == 0 ? 1.0f : 0.0f);
         double t = ((double)qc - (double)prot[c]) / rs;
-        r[c] = (int32_t)llround(t);
+        /* llround, inline (|t| is far below 2^31; NaN gives 0 as before) */
+        r[c] = fabs(t) < 1e9 ? (int32_t)(t < 0 ? t - 0.5 : t + 0.5) : 0;
         rot_near &= fabs(t) <= 1.0;
     }
     /* A rotation by angle a moves the Gaussian's 2-sigma ellipsoid
@@ -1242,7 +1439,6 @@ static int choose_block_rot(codec_enc *e, const struct keystate *ref, const stru
             continue;
         struct pred p;
         predict(ref, (size_t)e->rix[i], cf, &p);
-        e->mo.key[m] = morton_key(z, p.pos);
         for (int k = 0; k < 2; k++) {
             int32_t r[4];
             if (k)
@@ -1256,7 +1452,8 @@ static int choose_block_rot(codec_enc *e, const struct keystate *ref, const stru
     }
     if (m < 2)
         return 0;
-    morton_sort(&e->mo, m);
+    /* mo.perm holds blocks_assign's Morton order of these (the positions
+     * predicted alike: cf[2], cf[3] do not move them) */
     for (int k = 0; k < 2; k++)
         for (int c = 0; c < 4; c++) {
             cost[k] += plane_cost(e, e->res + (size_t)(4 * k + c) * stride, m);
@@ -1481,6 +1678,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             for (int c = 0; c < nch; c++)
                 any |= res[c];
             resid_recon(res, &p, cf, zr, qi->rot_bits, motion, dst, i);
+            if (block_motion) /* where matched Gaussian matched-1 lands among the changed */
+                e->mo.tmp[matched - 1] = any ? (uint32_t)n_changed : UINT32_MAX;
             if (!any) {
                 e->flags[i] = 0;
                 n_same++;
@@ -1489,7 +1688,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             e->flags[i] = 1;
             for (int c = 0; c < nch; c++)
                 e->res[(size_t)c * stride + n_changed] = zig(res[c]);
-            e->mo.key[n_changed] = morton_key(z, p.pos);
+            if (!block_motion)
+                e->mo.key[n_changed] = morton_key(z, p.pos);
             n_changed++;
         }
         size_t o0 = off;
@@ -1512,24 +1712,47 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         /* residual planes may be delta-coded too: neighbours in index order
          * (pixel-aligned, or sampled along a surface) share their motion
          * change, so differences along the index are smaller */
-        if (n_changed)
+        if (block_motion) {
+            /* mo.perm holds blocks_assign's (stable) Morton order of the
+             * matched Gaussians, at the same predicted positions: the
+             * changed ones' order is that order filtered, as sorting them
+             * alone gives */
+            size_t w = 0;
+            for (size_t k = 0; k < matched; k++)
+                if (e->mo.tmp[e->mo.perm[k]] != UINT32_MAX)
+                    e->mo.perm[w++] = e->mo.tmp[e->mo.perm[k]];
+        } else if (n_changed) {
             morton_sort(&e->mo, n_changed);
+        }
         for (int c = 0; c < nch; c++) {
             o0 = off;
             uint32_t *src = e->res + (size_t)c * stride;
-            if ((rc = put_plane(e, src, n_changed, 2, pl, pcap, &off)) < 0)
-                return rc;
             if (n_changed > 1) {
                 /* the same plane in Morton order, kept when smaller (tag
-                 * bit 2); written after the first, so it may not fit */
-                for (size_t k = 0; k < n_changed; k++)
-                    e->mo.tmp[k] = src[e->mo.perm[k]];
-                size_t o1 = off;
-                if (put_plane(e, e->mo.tmp, n_changed, 2, pl, pcap, &o1) == 0 && o1 - off < off - o0) {
-                    memmove(pl + o0, pl + off, o1 - off);
-                    pl[o0] |= 4;
-                    off = o0 + (o1 - off);
+                 * bit 2): both orders sized, only the smaller compressed */
+                int t[2], form[2], tg[2];
+                size_t ex[2];
+                double est1 = plane_choose(e, src, e->mo.perm, n_changed, 2, &t[1], &form[1], &ex[1]);
+                tg[1] = e->pb.best_tag;
+                uint8_t *sw = e->pb.zkeep; /* the Morton order's, while index order is tried */
+                e->pb.zkeep = e->pb.zbest;
+                e->pb.zbest = sw;
+                int k = est1 < plane_choose(e, src, NULL, n_changed, 2, &t[0], &form[0], &ex[0]);
+                tg[0] = e->pb.best_tag;
+                if (ex[k]) {
+                    rc = put_plane_z(e, tg[k], k ? e->pb.zkeep : e->pb.zbest, ex[k], pl, pcap, &off);
+                } else {
+                    if (k)
+                        for (size_t j = 0; j < n_changed; j++)
+                            e->mo.tmp[j] = src[e->mo.perm[j]];
+                    rc = put_plane_as(e, k ? e->mo.tmp : src, n_changed, plane_max(src, n_changed), t[k], form[k],
+                                      pl, pcap, &off);
                 }
+                if (rc < 0)
+                    return rc;
+                pl[o0] |= (uint8_t)(4 * k);
+            } else if ((rc = put_plane(e, src, n_changed, 2, pl, pcap, &off)) < 0) {
+                return rc;
             }
             *g[stat_group(c)] += off - o0;
             e->st.bytes_channel[c] += off - o0;
