@@ -18,11 +18,29 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <time.h>
 
 #include "f4d_status.h"
 #include "hal.h"
 #include "interp.h"
 #include "splat.h"
+
+/* ---- clocks shared by the daemon's threads ---- */
+static inline uint64_t mono_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* The calling thread's CPU time (ms): what a stage cost, without the time
+ * other jobs held the core. */
+static inline double thread_cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
 
 /* ---- the take of a capture run (forge4d record and forge4d run) ----
  * Creates the take in dir for the board's cameras with the formats capture

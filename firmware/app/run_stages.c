@@ -18,22 +18,6 @@
 #include "preprocess.h"
 #include "run_internal.h"
 
-static uint64_t mono_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
-/* The calling thread's CPU time (ms): what a stage cost, without the time
- * other jobs held the core. */
-static double thread_cpu_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
 /* ---- inference: preprocess -> Forge4D sequence (state, motions, metric
  * cameras) -> scene budget ----
  * With motion weights a key leaves one push late: key t-1 gets its forward
