@@ -14,6 +14,7 @@ int bench_hal(int argc, char **argv);
 int bench_codec(int argc, char **argv);
 int bench_display(int argc, char **argv);
 int bench_tokens(int argc, char **argv);
+int bench_pairs(int argc, char **argv);
 
 struct model_config;
 /* A GGUF weight file of `groups` (model.h MODEL_G_*) with random weights that

@@ -17,6 +17,7 @@ static const struct subcommand table[] = {
     { "render",  bench_render,  "CPU Gaussian rasterizer vs Mesa llvmpipe (EGL) on 100k/300k/1M Gaussians" },
     { "interp",  bench_interp,  "4D interpolation quality/speed vs nearest key frame, and the scene budget" },
     { "stream",  bench_stream,  "Forge4D playback: interpolation per step (100k/300k Gaussians) vs streaming its bytes at the measured bandwidth" },
+    { "pairs",   bench_pairs,   "the display's per-key interpolation work (lookup, partners, prepare) per key, with a digest of the steps" },
     { "hal",     bench_hal,     "synchronizer, sim capture and take writer throughput vs raw write()" },
 #ifdef F4D_BENCH_TOKENS
     { "tokens",  bench_tokens,  "foreground-only key frames (walk take): time, tokens and error at 2 mask margins vs all patches" },

@@ -14,6 +14,8 @@ struct interp {
     splat_renderer  *r;
     float           *depth;   /* [H * W] scratch */
     long            *pix;     /* [count] scratch */
+    float           *fk;      /* [count] scratch: f = axis . mu of each Gaussian */
+    uint64_t        *sk, *sk2;/* [count] scratch: (f's order bits, index) to sort */
     size_t           cap_depth, cap_pix;
     float           *bx, *bo; /* batched fusion: [BATCH * FUSE_IN], [BATCH * ATTRS] */
     size_t          *bslot;   /* [BATCH] output slot of each row */
@@ -98,6 +100,9 @@ void interp_free(interp *ip)
     free(ip->bslot);
     free(ip->depth);
     free(ip->pix);
+    free(ip->fk);
+    free(ip->sk);
+    free(ip->sk2);
     free(ip);
 }
 
@@ -152,6 +157,7 @@ struct pix_job {
     interp                    *ip;
     const struct splat_camera *cam;
     const struct splat_frame  *f;
+    float                      axis[3]; /* the camera's unit viewing axis */
 };
 
 static void pix_task(void *arg, int t, int thread)
@@ -166,7 +172,80 @@ static void pix_task(void *arg, int t, int thread)
         if (p >= 0 && !(fabsf(z - j->ip->depth[p]) <= INTERP_VISIBLE_TOL))
             p = -1; /* hidden behind the surface this pixel shows */
         j->ip->pix[g] = p;
+        const float *mu = j->f->pos + 3 * g;
+        j->ip->fk[g] = j->axis[0] * mu[0] + j->axis[1] * mu[1] + j->axis[2] * mu[2];
     }
+}
+
+/* Copies the positions and f of view v's list entries (already sorted by f
+ * within each pixel) into k->cell_pos's planes (x, y, z, f), split over the
+ * threads: the partner search reads a pixel's candidates from one place,
+ * starts at the moved point's f and stops where the distance along the axis
+ * alone exceeds the best found (or tau). */
+#define LIST_TASKS 16
+
+struct list_job {
+    struct interp_key *k;
+    const float       *fk;        /* [count] f of each Gaussian */
+    size_t             first, total, plane; /* view v's entries; the planes' stride */
+    float              l1[LIST_TASKS]; /* largest |mu|_1 listed, per task */
+};
+
+static void list_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    struct list_job *j = arg;
+    const struct interp_key *k = j->k;
+    size_t per = (j->total + LIST_TASKS - 1) / LIST_TASKS, lo = (size_t)t * per, hi = lo + per;
+    hi = hi < j->total ? hi : j->total;
+    const float *pos = k->f->pos;
+    float *x = k->cell_pos, *y = x + j->plane, *z = y + j->plane, *fz = z + j->plane;
+    float l1 = 0.0f;
+    for (size_t i = j->first + lo; i < j->first + hi; i++) {
+        const size_t g = (size_t)k->cell_items[i];
+        const float *mu = pos + 3 * g;
+        x[i] = mu[0];
+        y[i] = mu[1];
+        z[i] = mu[2];
+        fz[i] = j->fk[g];
+        const float s = fabsf(mu[0]) + fabsf(mu[1]) + fabsf(mu[2]);
+        l1 = s > l1 ? s : l1;
+    }
+    j->l1[t] = l1;
+}
+
+/* Stable LSD radix sort of a[0..m) by the upper 32 bits, 11 bits a pass,
+ * through tmp; a pass where every key has the same digit is skipped.
+ * Returns the sorted array (a or tmp). */
+static uint64_t *sort_hi32(uint64_t *a, uint64_t *tmp, size_t m)
+{
+    for (int shift = 32; shift < 64; shift += 11) {
+        size_t cnt[2048] = { 0 };
+        for (size_t i = 0; i < m; i++)
+            cnt[(a[i] >> shift) & 2047]++;
+        if (m == 0 || cnt[(a[0] >> shift) & 2047] == m)
+            continue;
+        size_t sum = 0;
+        for (int d = 0; d < 2048; d++) {
+            size_t c = cnt[d];
+            cnt[d] = sum;
+            sum += c;
+        }
+        for (size_t i = 0; i < m; i++)
+            tmp[cnt[(a[i] >> shift) & 2047]++] = a[i];
+        uint64_t *t = a;
+        a = tmp;
+        tmp = t;
+    }
+    return a;
+}
+
+/* Order-preserving bits of a float (finite or infinite, not NaN). */
+static inline uint32_t order_bits(float v)
+{
+    uint32_t u;
+    memcpy(&u, &v, sizeof u);
+    return u & 0x80000000u ? ~u : u | 0x80000000u;
 }
 
 int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err)
@@ -179,12 +258,12 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
         grow_i32(&k->cell_items, &k->cap_items, (size_t)V * n + 1) < 0 ||
         grow_i32(&k->origin, &k->cap_origin, n + 1) < 0)
         return fail(err, F4D_ENOMEM, "interp_key_build: out of memory for the pixel lists");
-    if (3 * ((size_t)V * n + 1) > k->cap_pos) {
-        float *q = realloc(k->cell_pos, 3 * ((size_t)V * n + 1) * sizeof *q);
+    if (4 * ((size_t)V * n + 1) > k->cap_pos) {
+        float *q = realloc(k->cell_pos, 4 * ((size_t)V * n + 1) * sizeof *q);
         if (!q)
             return fail(err, F4D_ENOMEM, "interp_key_build: out of memory for the pixel lists");
         k->cell_pos = q;
-        k->cap_pos = 3 * ((size_t)V * n + 1);
+        k->cap_pos = 4 * ((size_t)V * n + 1);
     }
     if (np > ip->cap_depth) {
         float *d = realloc(ip->depth, np * sizeof *d);
@@ -195,14 +274,27 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
     }
     if (n + 1 > ip->cap_pix) {
         long *px = realloc(ip->pix, (n + 1) * sizeof *px);
-        if (!px)
+        if (px)
+            ip->pix = px;
+        float *fk = realloc(ip->fk, (n + 1) * sizeof *fk);
+        if (fk)
+            ip->fk = fk;
+        uint64_t *sk = realloc(ip->sk, (n + 1) * sizeof *sk);
+        if (sk)
+            ip->sk = sk;
+        uint64_t *sk2 = realloc(ip->sk2, (n + 1) * sizeof *sk2);
+        if (sk2)
+            ip->sk2 = sk2;
+        if (!px || !fk || !sk || !sk2)
             return fail(err, F4D_ENOMEM, "interp_key_build: out of memory");
-        ip->pix = px;
         ip->cap_pix = n + 1;
     }
+    if (n > INT32_MAX)
+        return fail(err, F4D_EINVAL, "interp_key_build: too many Gaussians for 32-bit indices");
     k->f = f;
     k->rig = ip->rig;
     k->aligned = 0;
+    k->pos_l1 = 0.0f;
     for (size_t g = 0; g < n; g++)
         k->origin[g] = -1;
     for (int v = 0; v < V; v++) {
@@ -212,24 +304,35 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
             return fail(err, F4D_EINVAL, splat_renderer_error(ip->r));
         int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
         memset(start, 0, (np + 1) * sizeof *start);
-        struct pix_job pj = { ip, cam, f };
-        fk_parallel_for(ip->ctx, PIX_TASKS, 30.0 * (double)n, pix_task, &pj);
+        /* f = axis . mu orders each pixel's list (the partner search's bound) */
+        const float *m = cam->w2c;
+        const float an = sqrtf(m[8] * m[8] + m[9] * m[9] + m[10] * m[10]);
+        struct pix_job pj = { ip, cam, f, { m[8] / an, m[9] / an, m[10] / an } };
+        memcpy(k->zaxis[v], pj.axis, sizeof pj.axis);
+        fk_parallel_for(ip->ctx, PIX_TASKS, 36.0 * (double)n, pix_task, &pj);
+        size_t nv = 0;
         for (size_t g = 0; g < n; g++)
-            if (ip->pix[g] >= 0)
+            if (ip->pix[g] >= 0) {
                 start[ip->pix[g] + 1]++;
+                ip->sk[nv++] = (uint64_t)order_bits(ip->fk[g]) << 32 | (uint64_t)g;
+                if (k->origin[g] < 0)
+                    k->origin[g] = (int32_t)((size_t)v * np + (size_t)ip->pix[g]);
+            }
         for (size_t p = 0; p < np; p++)
             start[p + 1] += start[p];
-        for (size_t g = 0; g < n; g++) {
-            long p = ip->pix[g];
-            if (p < 0)
-                continue;
-            items[start[p]++] = (int32_t)g;
-            if (k->origin[g] < 0)
-                k->origin[g] = (int32_t)((size_t)v * np + (size_t)p);
+        /* scattered in f order (ties by index): every pixel's list sorted */
+        const uint64_t *srt = sort_hi32(ip->sk, ip->sk2, nv);
+        for (size_t i = 0; i < nv; i++) {
+            const size_t g = (size_t)(srt[i] & 0xffffffffu);
+            items[start[ip->pix[g]]++] = (int32_t)g;
         }
         for (size_t p = np; p > 0; p--) /* the scatter advanced every start by its count */
             start[p] = start[p - 1];
         start[0] = 0;
+        struct list_job lj = { .k = k, .fk = ip->fk, .first = (size_t)v * n, .total = nv, .plane = (size_t)V * n };
+        fk_parallel_for(ip->ctx, LIST_TASKS, 10.0 * (double)nv, list_task, &lj);
+        for (int t = 0; t < LIST_TASKS; t++)
+            k->pos_l1 = lj.l1[t] > k->pos_l1 ? lj.l1[t] : k->pos_l1;
     }
     return F4D_OK;
 }
@@ -362,12 +465,12 @@ static void copy_deformed(const struct splat_frame *f, size_t i, const float *mo
 
 /* Partner of Gaussian g of `self` in `other`, following `motion` (the full
  * key-to-key motion) through its origin view: among the Gaussians listed at
- * the pixel it lands on, the nearest to the moved point. D in metres. */
-typedef float   v4f __attribute__((vector_size(16)));
-typedef int32_t v4i __attribute__((vector_size(16)));
-
+ * the pixel it lands on, the nearest to the moved point (the first in index
+ * order on a tie), or -1 when none is within squared distance `cut` (a bound
+ * on tau^2 from above: a farther nearest is no partner either way). D in
+ * metres (only meaningful for a partner). */
 static int32_t partner(const interp *ip, const struct interp_key *self, const struct interp_key *other,
-                       const float *motion, size_t g, float *D)
+                       const float *motion, size_t g, float cut, float *D)
 {
     int32_t o = self->origin[g];
     if (o < 0)
@@ -389,97 +492,57 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
         return (int32_t)((size_t)v * np + (size_t)p);
     }
     const int32_t *start = other->cell_start + (size_t)v * (np + 1), *items = other->cell_items + (size_t)v * n;
-    /* refresh_list_pos's planes: x, y, z of view v's entries */
+    /* list_task's planes: x, y, z and f of view v's entries, sorted by f */
     const size_t plane = (size_t)other->rig.count * n;
-    const float *px = other->cell_pos + (size_t)v * n, *py = px + plane, *pz = py + plane;
+    const float *px = other->cell_pos + (size_t)v * n, *py = px + plane, *pz = py + plane, *pf = pz + plane;
     const int32_t lo = start[p], hi = start[p + 1];
     if (lo == hi)
         return -1;
-    /* the nearest candidate, the first in list order on a tie: the first
-     * entry, then any strictly nearer one */
-    int32_t kb = lo;
-    float bd;
-    {
-        float dx = X[0] - px[lo], dy = X[1] - py[lo], dz = X[2] - pz[lo];
-        bd = dx * dx + dy * dy + dz * dz;
+    /* |X - mu| >= |f(X) - f(mu)| for the unit axis: an entry whose f is
+     * farther from f(X) than the best distance (or sqrt(cut)) cannot be
+     * nearer, nor can any beyond it. The bound is loosened by the rounding of
+     * f (each f within 4e-7 |p|_1 of its exact value, the axis within 1e-7 of
+     * unit length) and of the squared distances (relative 1e-6), so that an
+     * entry is skipped only when its float distance is strictly above the
+     * best: the answer is the full scan's, bit for bit. */
+    const float *ax = other->zaxis[v];
+    const float fq = ax[0] * X[0] + ax[1] * X[1] + ax[2] * X[2];
+    const float eta = 1e-6f * (fabsf(X[0]) + fabsf(X[1]) + fabsf(X[2]) + other->pos_l1);
+    int32_t l = lo, len = hi - lo; /* the first entry with f >= fq: branch-free halving */
+    while (len > 1) {
+        const int32_t half = len / 2;
+        l = pf[l + half] < fq ? l + half : l;
+        len -= half;
     }
-    int32_t k = lo + 1;
-    if (hi - k >= 8) {
-        /* 4 candidates per step (a dense frame lists tens per pixel), each
-         * lane keeping its own first strict minimum; the lanes then merge by
-         * distance, then by list position: the scalar loop's answer */
-        const v4f X0 = { X[0], X[0], X[0], X[0] }, X1 = { X[1], X[1], X[1], X[1] }, X2 = { X[2], X[2], X[2], X[2] };
-        v4f bdv = { bd, bd, bd, bd };
-        v4i kbv = { lo, lo, lo, lo }, kv = { k, k + 1, k + 2, k + 3 };
-        const v4i four = { 4, 4, 4, 4 };
-        for (; k + 4 <= hi; k += 4, kv += four) {
-            v4f mx, my, mz;
-            memcpy(&mx, px + k, sizeof mx);
-            memcpy(&my, py + k, sizeof my);
-            memcpy(&mz, pz + k, sizeof mz);
-            const v4f dx = X0 - mx, dy = X1 - my, dz = X2 - mz, d2 = dx * dx + dy * dy + dz * dz;
-            const v4i lt = d2 < bdv;
-            bdv = (v4f)(((v4i)d2 & lt) | ((v4i)bdv & ~lt));
-            kbv = (kv & lt) | (kbv & ~lt);
-        }
-        for (int l = 0; l < 4; l++)
-            if (bdv[l] < bd || (bdv[l] == bd && kbv[l] < kb)) {
-                bd = bdv[l];
-                kb = kbv[l];
-            }
-    }
-    for (; k < hi; k++) {
+    l += pf[l] < fq;
+    float bd = INFINITY, lim = cut;
+    int32_t gb = -1;
+    for (int32_t k = l; k < hi; k++) {
+        float t = (pf[k] - fq) * (1.0f - 1e-6f) - eta;
+        if (t > 0.0f && t * t * (1.0f - 1e-6f) > lim)
+            break;
         float dx = X[0] - px[k], dy = X[1] - py[k], dz = X[2] - pz[k], d2 = dx * dx + dy * dy + dz * dz;
-        if (d2 < bd) {
-            kb = k;
+        if (d2 < bd || (d2 == bd && items[k] < gb)) {
             bd = d2;
+            gb = items[k];
+            lim = bd < cut ? bd : cut;
         }
     }
+    for (int32_t k = l - 1; k >= lo; k--) {
+        float t = (fq - pf[k]) * (1.0f - 1e-6f) - eta;
+        if (t > 0.0f && t * t * (1.0f - 1e-6f) > lim)
+            break;
+        float dx = X[0] - px[k], dy = X[1] - py[k], dz = X[2] - pz[k], d2 = dx * dx + dy * dy + dz * dz;
+        if (d2 < bd || (d2 == bd && items[k] < gb)) {
+            bd = d2;
+            gb = items[k];
+            lim = bd < cut ? bd : cut;
+        }
+    }
+    if (!(bd <= cut))
+        return -1;
     *D = sqrtf(bd);
-    return items[kb];
-}
-
-/* Copies the positions of every list entry of k, in list order, into
- * k->cell_pos's planes (split over the threads): the partner search then
- * walks a pixel's candidates (tens per pixel of a dense frame) contiguously,
- * 4 at a time, instead of one random read each. Done at each search, from the
- * frame as it is then, so the partners are those of the live positions. */
-#define LIST_TASKS 16
-
-struct list_job {
-    const struct interp_key *k;
-    size_t                   first, total; /* view v's entries: v * count, start[np] of them */
-    size_t                   plane;        /* views * count: x, y and z planes */
-};
-
-static void list_task(void *arg, int t, int thread)
-{
-    (void)thread;
-    const struct list_job *j = arg;
-    const struct interp_key *k = j->k;
-    size_t per = (j->total + LIST_TASKS - 1) / LIST_TASKS, lo = (size_t)t * per, hi = lo + per;
-    hi = hi < j->total ? hi : j->total;
-    const float *pos = k->f->pos;
-    float *x = k->cell_pos, *y = x + j->plane, *z = y + j->plane;
-    for (size_t i = j->first + lo; i < j->first + hi; i++) {
-        const size_t g = (size_t)k->cell_items[i];
-        x[i] = pos[3 * g];
-        y[i] = pos[3 * g + 1];
-        z[i] = pos[3 * g + 2];
-    }
-}
-
-static void refresh_list_pos(const interp *ip, const struct interp_key *k)
-{
-    if (k->aligned)
-        return; /* no lists: the partner is read straight from the frame */
-    const size_t np = (size_t)ip->W * (size_t)ip->H;
-    for (int v = 0; v < k->rig.count; v++) {
-        /* view v's lists fill the first start[np] of its count entries */
-        struct list_job j = { k, (size_t)v * k->f->count, (size_t)k->cell_start[(size_t)v * (np + 1) + np],
-                              (size_t)k->rig.count * k->f->count };
-        fk_parallel_for(ip->ctx, LIST_TASKS, 6.0 * (double)j.total, list_task, &j);
-    }
+    return gb;
 }
 
 /* Runs the batched fusion on the nb rows collected and writes their slots. */
@@ -502,7 +565,9 @@ static int32_t match(const interp *ip, const struct interp_key *self, const stru
                      size_t *matched)
 {
     *D = 0.0f;
-    int32_t h = partner(ip, self, other, motion, g, D);
+    /* tau^2 rounded up: every float d2 with sqrtf(d2) <= tau is <= cut */
+    const float cut = tau * tau * (1.0f + 1e-6f) + 1e-30f;
+    int32_t h = partner(ip, self, other, motion, g, cut, D);
     if (self->origin[g] < 0)
         (*no_origin)++;
     if (h < 0 || *D > tau) {
@@ -550,8 +615,6 @@ int interp_at(interp *ip, const struct interp_key *prev, const struct interp_key
     } else {
         float at[INTERP_ATTRS], am[INTERP_ATTRS], af[INTERP_ATTRS];
         int nb = 0; /* rows waiting for the batched fusion */
-        refresh_list_pos(ip, prev);
-        refresh_list_pos(ip, next);
         for (size_t g = 0; g < F1->count; g++) {
             float D;
             int32_t h = match(ip, next, prev, F1->motion_bwd, g, cfg->tau, &D, &st.no_origin_t, &st.kept_t,
@@ -673,8 +736,6 @@ int interp_pair_build(interp *ip, const struct interp_key *prev, const struct in
     }
     /* every Gaussian's partner is found alone: split over the threads, the
      * counts summed per task (same result with any thread count) */
-    refresh_list_pos(ip, prev);
-    refresh_list_pos(ip, next);
     struct pair_job j = { ip, prev, next, pr, cfg->tau, { { 0 } } };
     fk_parallel_for(ip->ctx, PAIR_TASKS, 60.0 * (double)(F0->count + F1->count), pair_task, &j);
     struct interp_stats st = { 0 };

@@ -110,18 +110,23 @@ int  interp_set_rig(interp *ip, const struct splat_rig *rig, struct f4d_err *err
 
 /* One key frame with its pixel lookup: per-view maps of the pixel's Gaussian
  * and each Gaussian's origin. Zero-initialise, build, reuse, free. The frame
- * is borrowed and must outlive the key. */
+ * is borrowed and must outlive the key; the lookup (the rendered depth, the
+ * lists and their positions) is the frame's as built: rebuild the key after
+ * moving its Gaussians. A display builds each key once and keeps it for both
+ * of its pairs (as the later key of one, the earlier of the next). */
 struct interp_key {
     const struct splat_frame *f;
     int32_t *cell_start;   /* [views * (H * W + 1)] start of each pixel's list */
     int32_t *cell_items;   /* [views * count] Gaussian indices, by pixel        */
-    float   *cell_pos;     /* [3][views * count] their positions (x, y, z planes)
-                              in the same order, copied from f by interp_at and
-                              interp_pair_build before their partner search:
-                              a pixel's list is then read from one place     */
+    float   *cell_pos;     /* [4][views * count] their positions (x, y, z planes)
+                              and f = zaxis . mu in the same order, copied
+                              from f at the build: a pixel's list is read from
+                              one place, sorted by f (ties by index)          */
     int32_t *origin;       /* [count] view * H * W + pixel, -1 none            */
     size_t   cap_cells, cap_items, cap_origin, cap_pos;
     struct splat_rig rig;  /* the cameras the key was built with              */
+    float    zaxis[SPLAT_RIG_MAX][3]; /* unit viewing axis of each camera     */
+    float    pos_l1;       /* largest |x| + |y| + |z| listed (rounding bound)   */
     int      aligned;      /* built by interp_key_build_aligned               */
 };
 int  interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key *k, struct f4d_err *err);
