@@ -386,6 +386,133 @@ static void test_pair_matches_interp_at(void **state)
     fk_ctx_free(ctx);
 }
 
+/* interp's pixel_of, operation for operation: the pixel a point lands on. */
+static long ref_pixel(const struct splat_camera *cam, const float p[3])
+{
+    const float *m = cam->w2c;
+    float q[3];
+    for (int r = 0; r < 3; r++)
+        q[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
+    if (!(q[2] > SPLAT_NEAR))
+        return -1;
+    float iz = 1.0f / q[2];
+    float u = cam->fx * q[0] * iz + cam->cx, v = cam->fy * q[1] * iz + cam->cy;
+    if (!(u >= 0.0f && v >= 0.0f && u < (float)cam->width && v < (float)cam->height))
+        return -1;
+    return (long)v * cam->width + (long)u;
+}
+
+/* The partner rule by brute force over the key's pixel list: the nearest
+ * entry, the lowest index on a tie, within tau. */
+static int32_t ref_partner(const struct interp_key *self, const struct interp_key *other, const float *motion,
+                           size_t g, float tau, int W, int H, float *D)
+{
+    int32_t o = self->origin[g];
+    if (o < 0)
+        return -1;
+    const size_t np = (size_t)W * (size_t)H;
+    int v = (int)((size_t)o / np);
+    const float *mu = self->f->pos + 3 * g;
+    float X[3] = { mu[0] + motion[3 * g], mu[1] + motion[3 * g + 1], mu[2] + motion[3 * g + 2] };
+    long p = ref_pixel(&other->rig.cams[v], X);
+    if (p < 0)
+        return -1;
+    const int32_t *start = other->cell_start + (size_t)v * (np + 1), *items = other->cell_items + (size_t)v * other->f->count;
+    int32_t best = -1;
+    float bd = INFINITY;
+    for (int32_t k = start[p]; k < start[p + 1]; k++) {
+        const float *m = other->f->pos + 3 * (size_t)items[k];
+        float dx = X[0] - m[0], dy = X[1] - m[1], dz = X[2] - m[2], d2 = dx * dx + dy * dy + dz * dz;
+        if (d2 < bd || (d2 == bd && items[k] < best)) {
+            bd = d2;
+            best = items[k];
+        }
+    }
+    if (best < 0 || sqrtf(bd) > tau)
+        return -1;
+    *D = sqrtf(bd);
+    return best;
+}
+
+/* The partner search walks pixel lists sorted along the view axis and stops
+ * at a bound: it must find exactly what a full scan of the list finds, ties
+ * (duplicated Gaussians) going to the lowest index, in a dense cloud with
+ * tens of entries per pixel, for a small and a large tau. */
+static void test_partner_search_is_exhaustive(void **state)
+{
+    (void)state;
+    fk_ctx *ctx = make_ctx();
+    struct splat_rig rig;
+    small_rig(&rig);
+    interp *ip;
+    struct f4d_err err;
+    assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
+    const size_t n = 4000;
+    struct splat_frame f0 = { 0 }, f1 = { 0 };
+    assert_int_equal(splat_frame_resize(&f0, n, 1, NULL), 0);
+    assert_int_equal(splat_frame_resize(&f1, n, 1, NULL), 0);
+    uint32_t seed = 12345u;
+    for (size_t i = 0; i < n; i++) {
+        float m[3];
+        for (int c = 0; c < 3; c++) {
+            seed = seed * 1664525u + 1013904223u;
+            float r = (float)(seed >> 8) / 16777216.0f - 0.5f;
+            seed = seed * 1664525u + 1013904223u;
+            m[c] = 0.04f * ((float)(seed >> 8) / 16777216.0f - 0.5f);
+            f0.pos[3 * i + c] = i % 5 == 4 ? f0.pos[3 * (i - 1) + c] : 0.3f * r; /* every 5th a duplicate */
+            f0.scale[3 * i + c] = f1.scale[3 * i + c] = 0.01f;
+            f0.rgb[3 * i + c] = f1.rgb[3 * i + c] = 0.5f;
+        }
+        for (int c = 0; c < 3; c++) {
+            f1.pos[3 * i + c] = i % 5 == 4 ? f1.pos[3 * (i - 1) + c] : f0.pos[3 * i + c] + m[c];
+            f0.motion_fwd[3 * i + c] = m[c];
+            /* a third come back elsewhere: partners far away or none */
+            f1.motion_bwd[3 * i + c] = i % 3 ? -m[c] : 2.0f * m[c];
+        }
+        f0.opacity[i] = f1.opacity[i] = 0.5f;
+    }
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    assert_int_equal(interp_key_build(ip, &f0, &k0, &err), 0);
+    assert_int_equal(interp_key_build(ip, &f1, &k1, &err), 0);
+    size_t longest = 0;
+    for (size_t p = 0; p < 64 * 64; p++) {
+        size_t L = (size_t)(k0.cell_start[p + 1] - k0.cell_start[p]);
+        longest = L > longest ? L : longest;
+    }
+    assert_true(longest >= 20); /* the lists are long enough for the bound to matter */
+    const float taus[2] = { 0.05f, 1.0f };
+    for (int ti = 0; ti < 2; ti++) {
+        struct interp_config cfg = interp_config_default();
+        cfg.tau = taus[ti];
+        struct interp_pair pr = { 0 };
+        assert_int_equal(interp_pair_build(ip, &k0, &k1, &cfg, &pr, &err), 0);
+        size_t matched = 0, ties = 0;
+        for (size_t g = 0; g < n; g++) {
+            float D = -1.0f;
+            int32_t h = ref_partner(&k1, &k0, f1.motion_bwd, g, cfg.tau, 64, 64, &D);
+            assert_int_equal(pr.partner_t[g], h);
+            if (h >= 0) {
+                assert_true(pr.dist_t[g] == D);
+                matched++;
+                ties += h % 5 == 3; /* its duplicate h + 1 is as near: the lower index wins */
+            }
+        }
+        for (size_t g = 0; g < n; g++) {
+            float D;
+            assert_int_equal(pr.partner_tm1[g], ref_partner(&k0, &k1, f0.motion_fwd, g, cfg.tau, 64, 64, &D));
+        }
+        assert_true(matched > n / 4);
+        assert_true(ties > 0);
+        interp_pair_free(&pr);
+    }
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    interp_free(ip);
+    fk_ctx_free(ctx);
+}
+
 static void test_budget(void **state)
 {
     (void)state;
@@ -756,6 +883,7 @@ int main(void)
         cmocka_unit_test(test_pair_matches_interp_at),
         cmocka_unit_test(test_step_matches_pair_at),
         cmocka_unit_test(test_step_empty_pair),
+        cmocka_unit_test(test_partner_search_is_exhaustive),
         cmocka_unit_test(test_budget),
         cmocka_unit_test(test_budget_ws),
         cmocka_unit_test(test_budget_motion),

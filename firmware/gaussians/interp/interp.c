@@ -842,6 +842,8 @@ static void prep_count_task(void *arg, int t, int thread)
     j->off[t + 1] = c;
 }
 
+#define PREP_AHEAD 8 /* partners fetched this many slots ahead */
+
 static void prep_task(void *arg, int t, int thread)
 {
     (void)thread;
@@ -853,6 +855,18 @@ static void prep_task(void *arg, int t, int thread)
     size_t lo, hi;
     prep_range(F1->count, t, &lo, &hi);
     for (size_t g = lo; g < hi; g++) { /* interp_pair_at's first loop at a = 0: slot g */
+        if (g + PREP_AHEAD < hi) { /* the partners are scattered over key t-1: fetch ahead */
+            const int32_t ha = pr->partner_t[g + PREP_AHEAD];
+            if (ha >= 0) {
+                const size_t q = (size_t)ha;
+                __builtin_prefetch(p0 + 3 * q);
+                __builtin_prefetch(m0 + 3 * q);
+                __builtin_prefetch(F0->scale + 3 * q);
+                __builtin_prefetch(F0->rgb + 3 * q);
+                __builtin_prefetch(F0->rot + 4 * q);
+                __builtin_prefetch(F0->opacity + q);
+            }
+        }
         int32_t h = pr->partner_t[g];
         if (h < 0)
             copy_deformed(F1, g, m1, 1.0f, j->out, g);
