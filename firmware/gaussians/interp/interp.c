@@ -469,22 +469,34 @@ static void copy_deformed(const struct splat_frame *f, size_t i, const float *mo
  * order on a tie), or -1 when none is within squared distance `cut` (a bound
  * on tau^2 from above: a farther nearest is no partner either way). D in
  * metres (only meaningful for a partner). */
-static int32_t partner(const interp *ip, const struct interp_key *self, const struct interp_key *other,
-                       const float *motion, size_t g, float cut, float *D)
+/* Where Gaussian g of `self` moved by `motion` lands in `other`'s lists:
+ * the pixel (or -1: no origin, behind the camera, outside), its view and the
+ * moved point X. */
+static long partner_pixel(const interp *ip, const struct interp_key *self, const struct interp_key *other,
+                          const float *motion, size_t g, float X[3], int *view)
 {
     int32_t o = self->origin[g];
     if (o < 0)
         return -1;
-    const size_t np = (size_t)ip->W * (size_t)ip->H, n = other->f->count;
+    const size_t np = (size_t)ip->W * (size_t)ip->H;
     int v = 0; /* o / np without a 64-bit division: at most SPLAT_RIG_MAX steps */
     while ((size_t)o >= (size_t)(v + 1) * np)
         v++;
     const float *mu = self->f->pos + 3 * g;
-    float X[3] = { mu[0] + motion[3 * g], mu[1] + motion[3 * g + 1], mu[2] + motion[3 * g + 2] }, z;
+    float z;
+    X[0] = mu[0] + motion[3 * g];
+    X[1] = mu[1] + motion[3 * g + 1];
+    X[2] = mu[2] + motion[3 * g + 2];
+    *view = v;
     /* X' lives at the other key's time: its cameras, its pixel lists */
-    long p = pixel_of(&other->rig.cams[v], X, &z);
-    if (p < 0)
-        return -1;
+    return pixel_of(&other->rig.cams[v], X, &z);
+}
+
+/* The partner of X (landed on pixel p >= 0 of view v) among other's entries. */
+static int32_t partner_in(const interp *ip, const struct interp_key *other, int v, long p, const float X[3],
+                          float cut, float *D)
+{
+    const size_t np = (size_t)ip->W * (size_t)ip->H, n = other->f->count;
     if (other->aligned) { /* one Gaussian per pixel: no list to walk */
         const float *m = other->f->pos + 3 * ((size_t)v * np + (size_t)p);
         float dx = X[0] - m[0], dy = X[1] - m[1], dz = X[2] - m[2];
@@ -545,6 +557,15 @@ static int32_t partner(const interp *ip, const struct interp_key *self, const st
     return gb;
 }
 
+static int32_t partner(const interp *ip, const struct interp_key *self, const struct interp_key *other,
+                       const float *motion, size_t g, float cut, float *D)
+{
+    float X[3];
+    int v = 0;
+    long p = partner_pixel(ip, self, other, motion, g, X, &v);
+    return p < 0 ? -1 : partner_in(ip, other, v, p, X, cut, D);
+}
+
 /* Runs the batched fusion on the nb rows collected and writes their slots. */
 static int flush_batch(interp *ip, const struct interp_config *cfg, int nb, struct splat_frame *out,
                        struct f4d_err *err)
@@ -560,14 +581,29 @@ static int flush_batch(interp *ip, const struct interp_config *cfg, int nb, stru
  * within tau (occluded there: kept, deformed); counts the case into
  * *no_origin, *kept or *matched. The one rule of interp_at and
  * interp_pair_build. */
+/* tau^2 rounded up: every float d2 with sqrtf(d2) <= tau is <= cut */
+static float tau_cut(float tau) { return tau * tau * (1.0f + 1e-6f) + 1e-30f; }
+
+/* match's counting, for a partner h found with distance D */
+static int32_t match_count(int32_t origin, int32_t h, float D, float tau, size_t *no_origin, size_t *kept,
+                           size_t *matched)
+{
+    if (origin < 0)
+        (*no_origin)++;
+    if (h < 0 || D > tau) {
+        (*kept)++;
+        return -1;
+    }
+    (*matched)++;
+    return h;
+}
+
 static int32_t match(const interp *ip, const struct interp_key *self, const struct interp_key *other,
                      const float *motion, size_t g, float tau, float *D, size_t *no_origin, size_t *kept,
                      size_t *matched)
 {
     *D = 0.0f;
-    /* tau^2 rounded up: every float d2 with sqrtf(d2) <= tau is <= cut */
-    const float cut = tau * tau * (1.0f + 1e-6f) + 1e-30f;
-    int32_t h = partner(ip, self, other, motion, g, cut, D);
+    int32_t h = partner(ip, self, other, motion, g, tau_cut(tau), D);
     if (self->origin[g] < 0)
         (*no_origin)++;
     if (h < 0 || *D > tau) {
@@ -681,6 +717,60 @@ struct pair_job {
     struct interp_stats      st[PAIR_TASKS];
 };
 
+/* One direction of interp_pair_build over Gaussians [lo, hi) of `self`: each
+ * one's match as interp_at finds it. The lists are scattered over megabytes,
+ * so the loop runs ahead: the landing pixel 2 * AHEAD Gaussians on (its list
+ * bounds fetched), the list itself AHEAD on, the search now. */
+#define AHEAD 8
+
+static void pair_range(const interp *ip, const struct interp_key *self, const struct interp_key *other,
+                       const float *motion, size_t lo, size_t hi, float tau, int32_t *partner_out, float *dist_out,
+                       size_t *no_origin, size_t *kept, size_t *matched)
+{
+    enum { RING = 4 * AHEAD };
+    float X[RING][3];
+    long px[RING];
+    int vw[RING];
+    const size_t np = (size_t)ip->W * (size_t)ip->H, n = other->f->count, plane = (size_t)other->rig.count * n;
+    const float cut = tau_cut(tau);
+    for (size_t g = lo; g < hi + 2 * AHEAD; g++) {
+        if (g < hi) { /* stage 1: where g lands; fetch its list bounds */
+            const int r = (int)(g % RING);
+            px[r] = partner_pixel(ip, self, other, motion, g, X[r], &vw[r]);
+            if (px[r] >= 0)
+                __builtin_prefetch(other->aligned ? other->f->pos + 3 * ((size_t)vw[r] * np + (size_t)px[r])
+                                                  : (const float *)(other->cell_start + (size_t)vw[r] * (np + 1) +
+                                                                    (size_t)px[r]));
+        }
+        if (g >= lo + AHEAD && g - AHEAD < hi && !other->aligned) { /* stage 2: the list's f and positions */
+            const int r = (int)((g - AHEAD) % RING);
+            if (px[r] >= 0) {
+                const int32_t *start = other->cell_start + (size_t)vw[r] * (np + 1);
+                const size_t l0 = (size_t)start[px[r]], l1 = (size_t)start[px[r] + 1];
+                if (l1 > l0) {
+                    const float *pf = other->cell_pos + (size_t)vw[r] * n + 3 * plane, *pmx = pf - 3 * plane;
+                    const size_t mid = (l0 + l1) / 2;
+                    __builtin_prefetch(pf + l0);
+                    __builtin_prefetch(pf + mid);
+                    __builtin_prefetch(pf + l1 - 1);
+                    __builtin_prefetch(pmx + mid);
+                    __builtin_prefetch(pmx + plane + mid);
+                    __builtin_prefetch(pmx + 2 * plane + mid);
+                }
+            }
+        }
+        if (g >= lo + 2 * AHEAD) { /* stage 3: the search */
+            const size_t q = g - 2 * AHEAD;
+            const int r = (int)(q % RING);
+            float D = 0.0f;
+            int32_t h = px[r] < 0 ? -1 : partner_in(ip, other, vw[r], px[r], X[r], cut, &D);
+            partner_out[q] = match_count(self->origin[q], h, D, tau, no_origin, kept, matched);
+            if (dist_out)
+                dist_out[q] = D;
+        }
+    }
+}
+
 /* Task t of interp_pair_build: its share of both of interp_at's loops. */
 static void pair_task(void *arg, int t, int thread)
 {
@@ -690,20 +780,15 @@ static void pair_task(void *arg, int t, int thread)
     struct interp_stats *st = &j->st[t];
     size_t per = (F1->count + PAIR_TASKS - 1) / PAIR_TASKS, lo = (size_t)t * per, hi = lo + per;
     hi = hi < F1->count ? hi : F1->count;
-    for (size_t g = lo; g < hi; g++) { /* as interp_at's first loop */
-        float D;
-        j->pr->partner_t[g] = match(j->ip, j->next, j->prev, F1->motion_bwd, g, j->tau, &D, &st->no_origin_t,
-                                    &st->kept_t, &st->fused);
-        j->pr->dist_t[g] = D;
-    }
+    if (lo < hi) /* as interp_at's first loop */
+        pair_range(j->ip, j->next, j->prev, F1->motion_bwd, lo, hi, j->tau, j->pr->partner_t, j->pr->dist_t,
+                   &st->no_origin_t, &st->kept_t, &st->fused);
     per = (F0->count + PAIR_TASKS - 1) / PAIR_TASKS;
     lo = (size_t)t * per;
     hi = lo + per < F0->count ? lo + per : F0->count;
-    for (size_t h = lo; h < hi; h++) { /* and its second */
-        float D;
-        j->pr->partner_tm1[h] = match(j->ip, j->prev, j->next, F0->motion_fwd, h, j->tau, &D,
-                                      &st->no_origin_tm1, &st->kept_tm1, &st->dropped_tm1);
-    }
+    if (lo < hi) /* and its second */
+        pair_range(j->ip, j->prev, j->next, F0->motion_fwd, lo, hi, j->tau, j->pr->partner_tm1, NULL,
+                   &st->no_origin_tm1, &st->kept_tm1, &st->dropped_tm1);
 }
 
 int interp_pair_build(interp *ip, const struct interp_key *prev, const struct interp_key *next,
