@@ -438,15 +438,15 @@ static int32_t ref_partner(const struct interp_key *self, const struct interp_ke
  * at a bound: it must find exactly what a full scan of the list finds, ties
  * (duplicated Gaussians) going to the lowest index, in a dense cloud with
  * tens of entries per pixel, for a small and a large tau. */
-static void test_partner_search_is_exhaustive(void **state)
+static void partner_search_is_exhaustive(enum interp_lookup lookup)
 {
-    (void)state;
     fk_ctx *ctx = make_ctx();
     struct splat_rig rig;
     small_rig(&rig);
     interp *ip;
     struct f4d_err err;
     assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
+    assert_int_equal(interp_set_lookup(ip, lookup, &err), 0);
     const size_t n = 4000;
     struct splat_frame f0 = { 0 }, f1 = { 0 };
     assert_int_equal(splat_frame_resize(&f0, n, 1, NULL), 0);
@@ -509,6 +509,66 @@ static void test_partner_search_is_exhaustive(void **state)
     interp_key_free(&k1);
     splat_frame_free(&f0);
     splat_frame_free(&f1);
+    interp_free(ip);
+    fk_ctx_free(ctx);
+}
+
+static void test_partner_search_is_exhaustive(void **state)
+{
+    (void)state;
+    partner_search_is_exhaustive(INTERP_LOOKUP_RENDER);
+    partner_search_is_exhaustive(INTERP_LOOKUP_ZBUFFER);
+}
+
+/* The z-buffer lookup on the hand-made pair: the same matches as the
+ * render's (two fused, the new one kept), and an unknown lookup refused. */
+static void test_zbuffer_lookup(void **state)
+{
+    (void)state;
+    fk_ctx *ctx = make_ctx();
+    struct splat_rig rig;
+    small_rig(&rig);
+    interp *ip;
+    struct f4d_err err;
+    assert_int_equal(interp_new(ctx, &rig, &ip, &err), 0);
+    assert_int_equal(interp_set_lookup(ip, (enum interp_lookup)7, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "unknown lookup"));
+    assert_int_equal(interp_set_lookup(ip, INTERP_LOOKUP_ZBUFFER, &err), 0);
+    struct splat_frame f0 = { 0 }, f1 = { 0 }, out = { 0 };
+    assert_int_equal(splat_frame_resize(&f0, 3, 1, NULL), 0);
+    assert_int_equal(splat_frame_resize(&f1, 3, 1, NULL), 0);
+    /* 0 and 1 move 4 cm; 2 sits 0.5 m behind 0, large and opaque in front of
+     * it is 0, a few pixels off its centre: hidden behind its core in both
+     * cameras, so it has no origin */
+    const float x[3][3] = { { -0.4f, 0, 0 }, { 0.4f, 0, 0.2f }, { -0.25f, -0.5f, 0 } };
+    for (int i = 0; i < 3; i++)
+        for (int s = 0; s < 2; s++) {
+            struct splat_frame *f = s ? &f1 : &f0;
+            for (int c = 0; c < 3; c++) {
+                f->pos[3 * i + c] = x[i][c] + (c == 0 && i < 2 ? 0.04f * (float)s : 0.0f);
+                f->scale[3 * i + c] = i == 0 ? 0.3f : 0.05f;
+                f->rgb[3 * i + c] = 0.5f;
+                f->motion_fwd[3 * i + c] = c == 0 && i < 2 ? 0.04f : 0.0f;
+                f->motion_bwd[3 * i + c] = c == 0 && i < 2 ? -0.04f : 0.0f;
+            }
+            f->opacity[i] = 0.95f;
+        }
+    struct interp_key k0 = { 0 }, k1 = { 0 };
+    assert_int_equal(interp_key_build(ip, &f0, &k0, &err), 0);
+    assert_int_equal(interp_key_build(ip, &f1, &k1, &err), 0);
+    assert_true(k1.origin[0] >= 0 && k1.origin[1] >= 0);
+    assert_int_equal(k1.origin[2], -1); /* behind 0's core */
+    struct interp_config cfg = interp_config_default();
+    struct interp_stats st;
+    assert_int_equal(interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &st, &err), 0);
+    assert_int_equal(st.fused, 2);
+    assert_int_equal(st.no_origin_t, 1);
+    assert_int_equal(st.kept_t, 1);
+    interp_key_free(&k0);
+    interp_key_free(&k1);
+    splat_frame_free(&f0);
+    splat_frame_free(&f1);
+    splat_frame_free(&out);
     interp_free(ip);
     fk_ctx_free(ctx);
 }
@@ -884,6 +944,7 @@ int main(void)
         cmocka_unit_test(test_step_matches_pair_at),
         cmocka_unit_test(test_step_empty_pair),
         cmocka_unit_test(test_partner_search_is_exhaustive),
+        cmocka_unit_test(test_zbuffer_lookup),
         cmocka_unit_test(test_budget),
         cmocka_unit_test(test_budget_ws),
         cmocka_unit_test(test_budget_motion),

@@ -123,12 +123,23 @@ static int model_key(fk_ctx *ctx, const scene *sc, const struct splat_rig *rig, 
 struct stage { double key_cpu, pair_cpu, prep_cpu, key_ms, pair_ms, prep_ms, step_cpu; };
 
 /* One pass over the keys as the player handles them; per-key sums from key 2. */
+/* Mid-time pictures: each step's output rendered by the display's camera,
+ * kept (cmp 0) or compared with those kept (cmp 1: PSNR per picture). */
+struct pics {
+    const struct splat_camera *cam;
+    splat_renderer            *r;
+    float                    **img; /* [2 * (keys - 1)] */
+    int                        cmp;
+    double                     psnr_min, psnr_sum;
+    int                        count;
+};
+
 static int run_pass(fk_ctx *ctx, const struct splat_rig *lrig, struct splat_frame *keys, int nk, struct stage *s,
-                    uint64_t *digest, struct interp_stats *last)
+                    uint64_t *digest, struct interp_stats *last, int lookup, struct pics *pics)
 {
     struct f4d_err err;
     interp *ip;
-    if (interp_new(ctx, lrig, &ip, &err) < 0) {
+    if (interp_new(ctx, lrig, &ip, &err) < 0 || interp_set_lookup(ip, (enum interp_lookup)lookup, &err) < 0) {
         fprintf(stderr, "f4d-bench pairs: %s\n", err.msg);
         return -1;
     }
@@ -153,6 +164,25 @@ static int run_pass(fk_ctx *ctx, const struct splat_rig *lrig, struct splat_fram
         for (int st = 1; st <= 2 && rc == 0; st++) {
             rc = interp_pair_step(ip, &pr, (float)st / 3.0f, &out, &err);
             h = frame_digest(h, &out);
+            if (pics && rc == 0) {
+                const int W = pics->cam->width, H = pics->cam->height;
+                float **slot = &pics->img[2 * (i - 1) + st - 1], *img = pics->cmp ? malloc((size_t)W * H * 3 * sizeof *img) : NULL;
+                if (!pics->cmp)
+                    img = *slot = malloc((size_t)W * H * 3 * sizeof *img);
+                struct splat_render_out o = { .rgb = img };
+                if (!img || splat_render(pics->r, pics->cam, &out, NULL, &o) < 0) {
+                    free(img);
+                    rc = -1;
+                    break;
+                }
+                if (pics->cmp) {
+                    double q = splat_psnr(img, *slot, W, H, 3);
+                    pics->psnr_min = pics->count == 0 || q < pics->psnr_min ? q : pics->psnr_min;
+                    pics->psnr_sum += q;
+                    pics->count++;
+                    free(img);
+                }
+            }
         }
         double q4 = cpu_ms();
         if (rc == 0) {
@@ -183,7 +213,7 @@ static int run_pass(fk_ctx *ctx, const struct splat_rig *lrig, struct splat_fram
 int bench_pairs(int argc, char **argv)
 {
     size_t ns[8];
-    int nn = 0, nk = 8, reps = 3, threads = 0, model = 1, model_px = 112;
+    int nn = 0, nk = 8, reps = 3, threads = 0, model = 1, model_px = 112, lookup = INTERP_LOOKUP_RENDER, psnr = 0;
     const char *json = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--gaussians") && i + 1 < argc && nn < 8)
@@ -198,11 +228,18 @@ int bench_pairs(int argc, char **argv)
             model_px = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--no-model"))
             model = 0;
+        else if (!strcmp(argv[i], "--lookup") && i + 1 < argc && !strcmp(argv[i + 1], "render"))
+            lookup = INTERP_LOOKUP_RENDER, i++;
+        else if (!strcmp(argv[i], "--lookup") && i + 1 < argc && !strcmp(argv[i + 1], "zbuffer"))
+            lookup = INTERP_LOOKUP_ZBUFFER, i++;
+        else if (!strcmp(argv[i], "--psnr"))
+            psnr = 1;
         else if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
         else {
             fprintf(stderr, "usage: f4d-bench pairs [--gaussians N]... [--no-model] [--model-px S] [--keys K] "
-                            "[--reps R] [--threads T] [--json FILE]\n");
+                            "[--reps R] [--threads T] [--lookup render|zbuffer] [--psnr] [--json FILE]\n"
+                            "  --psnr: also the mid-time pictures (cam1 at 1280x720) of --lookup against render's\n");
             return 2;
         }
     }
@@ -222,8 +259,8 @@ int bench_pairs(int argc, char **argv)
     FILE *jf = json ? fopen(json, "w") : NULL;
     if (jf)
         fprintf(jf, "[\n");
-    printf("f4d-bench pairs: per key (from key 2 of %d), best of %d; lookup view 518 px, %d threads\n", nk, reps,
-           fk_ctx_threads(ctx));
+    printf("f4d-bench pairs: per key (from key 2 of %d), best of %d; lookup view 518 px (%s), %d threads\n", nk, reps,
+           lookup == INTERP_LOOKUP_ZBUFFER ? "zbuffer" : "render", fk_ctx_threads(ctx));
     int rc = 0;
     for (int row = 0; row < nn + model && rc == 0; row++) {
         int is_model = row == nn;
@@ -261,7 +298,7 @@ int bench_pairs(int argc, char **argv)
         for (int r = 0; r < reps && rc == 0; r++) {
             struct stage s;
             uint64_t d;
-            if (run_pass(ctx, &lrig, keys, nk, &s, &d, &st) < 0) {
+            if (run_pass(ctx, &lrig, keys, nk, &s, &d, &st, lookup, NULL) < 0) {
                 rc = 1;
                 break;
             }
@@ -275,6 +312,26 @@ int bench_pairs(int argc, char **argv)
                 best = s;
             }
             best_ms = w < best_ms ? w : best_ms;
+        }
+        if (rc == 0 && psnr) { /* the pictures of render's lookup, then of this one's */
+            struct pics pc = { .cam = &rig.cams[1], .img = calloc(2 * (size_t)nk, sizeof(float *)) };
+            struct stage s2;
+            uint64_t d2;
+            struct interp_stats st2;
+            if (!pc.img || splat_renderer_new(ctx, rig.cams[1].width, rig.cams[1].height, &pc.r, &err) < 0 ||
+                run_pass(ctx, &lrig, keys, nk, &s2, &d2, &st2, INTERP_LOOKUP_RENDER, &pc) < 0 ||
+                (pc.cmp = 1, run_pass(ctx, &lrig, keys, nk, &s2, &d2, &st2, lookup, &pc) < 0))
+                rc = 1;
+            else
+                printf("  %-6s %7zu Gaussians: mid-time pictures (a = 1/3, 2/3, %d), %s lookup vs render: PSNR min %.2f "
+                       "mean %.2f dB\n",
+                       is_model ? "model" : "walk", keys[0].count, pc.count,
+                       lookup == INTERP_LOOKUP_ZBUFFER ? "zbuffer" : "render", pc.psnr_min,
+                       pc.count ? pc.psnr_sum / pc.count : 0.0);
+            for (int i = 0; pc.img && i < 2 * nk; i++)
+                free(pc.img[i]);
+            free(pc.img);
+            splat_renderer_free(pc.r);
         }
         if (rc == 0) {
             const double per = 1.0 / (double)(nk - 2);

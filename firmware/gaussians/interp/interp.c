@@ -17,6 +17,8 @@ struct interp {
     float           *fk;      /* [count] scratch: f = axis . mu of each Gaussian */
     uint64_t        *sk, *sk2;/* [count] scratch: (f's order bits, index) to sort */
     size_t           cap_depth, cap_pix;
+    enum interp_lookup lookup; /* how interp_key_build finds each pixel's depth */
+    float           *zb;      /* [threads * H * W] INTERP_LOOKUP_ZBUFFER: per-thread depths */
     float           *bx, *bo; /* batched fusion: [BATCH * FUSE_IN], [BATCH * ATTRS] */
     size_t          *bslot;   /* [BATCH] output slot of each row */
 };
@@ -90,6 +92,16 @@ int interp_set_rig(interp *ip, const struct splat_rig *rig, struct f4d_err *err)
     return F4D_OK;
 }
 
+int interp_set_lookup(interp *ip, enum interp_lookup mode, struct f4d_err *err)
+{
+    if (!ip)
+        return fail(err, F4D_EINVAL, "interp_set_lookup: NULL argument");
+    if (mode != INTERP_LOOKUP_RENDER && mode != INTERP_LOOKUP_ZBUFFER)
+        return f4d_fail(err, F4D_EINVAL, "interp_set_lookup: unknown lookup %d", (int)mode);
+    ip->lookup = mode;
+    return F4D_OK;
+}
+
 void interp_free(interp *ip)
 {
     if (!ip)
@@ -103,6 +115,7 @@ void interp_free(interp *ip)
     free(ip->fk);
     free(ip->sk);
     free(ip->sk2);
+    free(ip->zb);
     free(ip);
 }
 
@@ -175,6 +188,98 @@ static void pix_task(void *arg, int t, int thread)
         const float *mu = j->f->pos + 3 * g;
         j->ip->fk[g] = j->axis[0] * mu[0] + j->axis[1] * mu[1] + j->axis[2] * mu[2];
     }
+}
+
+/* INTERP_LOOKUP_ZBUFFER: each pixel's depth is the nearest camera depth of
+ * the Gaussians whose centre lands in it or whose core covers it: the disc
+ * around its centre pixel where alpha = o exp(-r^2 / (2 s^2)) >= 1/2 with s
+ * its largest scale seen face-on (radius capped at 64 px): the surface the
+ * pixel mostly shows, with no projection of covariances, no sort and no
+ * compositing. Each thread keeps its own buffer, merged by the minimum (the
+ * same depths with any thread count). */
+#define ZB_TASKS 16
+
+struct zb_job {
+    interp                    *ip;
+    const struct splat_camera *cam;
+    const struct splat_frame  *f;
+    size_t                     np;
+};
+
+static void zb_task(void *arg, int t, int thread)
+{
+    const struct zb_job *j = arg;
+    const struct splat_camera *cam = j->cam;
+    const int W = cam->width, H = cam->height;
+    float *zb = j->ip->zb + (size_t)thread * j->np;
+    const size_t n = j->f->count, per = (n + ZB_TASKS - 1) / ZB_TASKS, lo = (size_t)t * per;
+    const size_t hi = lo + per < n ? lo + per : n;
+    for (size_t g = lo; g < hi; g++) {
+        float z;
+        long p = pixel_of(cam, j->f->pos + 3 * g, &z);
+        if (p < 0)
+            continue;
+        if (z < zb[p])
+            zb[p] = z;
+        const float o = j->f->opacity[g];
+        if (!(o > 0.5f))
+            continue; /* no core: alpha stays below 1/2 */
+        /* the core as a disc: the largest scale seen face-on, sqrt(k) sigmas
+         * wide (alpha >= 1/2 out to d' C^-1 d <= k); no covariance projection */
+        const float *sc = j->f->scale + 3 * g;
+        float smax = sc[0] > sc[1] ? sc[0] : sc[1];
+        smax = sc[2] > smax ? sc[2] : smax;
+        const float k = 2.0f * logf(2.0f * o);
+        const float rad = sqrtf(k) * smax * (cam->fx > cam->fy ? cam->fx : cam->fy) / z;
+        if (!(rad >= 0.5f))
+            continue; /* within about its own pixel: listed there already */
+        const float r = rad < 64.0f ? rad : 64.0f, r2 = r * r;
+        const float mx = (float)(p % W) + 0.5f, my = (float)(p / W) + 0.5f; /* its pixel's centre */
+        int x0 = (int)ceilf(mx - r - 0.5f), x1 = (int)floorf(mx + r - 0.5f);
+        int y0 = (int)ceilf(my - r - 0.5f), y1 = (int)floorf(my + r - 0.5f);
+        x0 = x0 < 0 ? 0 : x0;
+        y0 = y0 < 0 ? 0 : y0;
+        x1 = x1 >= W ? W - 1 : x1;
+        y1 = y1 >= H ? H - 1 : y1;
+        for (int y = y0; y <= y1; y++) {
+            const float dy = (float)y + 0.5f - my;
+            float *row = zb + (size_t)y * W;
+            for (int x = x0; x <= x1; x++) {
+                const float dx = (float)x + 0.5f - mx;
+                if (dx * dx + dy * dy <= r2 && z < row[x])
+                    row[x] = z;
+            }
+        }
+    }
+}
+
+struct zb_merge_job { interp *ip; size_t np; int threads; };
+
+static void zb_merge_task(void *arg, int t, int thread)
+{
+    (void)thread;
+    const struct zb_merge_job *j = arg;
+    const size_t per = (j->np + ZB_TASKS - 1) / ZB_TASKS, lo = (size_t)t * per;
+    const size_t hi = lo + per < j->np ? lo + per : j->np;
+    for (size_t p = lo; p < hi; p++) {
+        float d = j->ip->zb[p];
+        for (int k = 1; k < j->threads; k++)
+            d = j->ip->zb[(size_t)k * j->np + p] < d ? j->ip->zb[(size_t)k * j->np + p] : d;
+        j->ip->depth[p] = d;
+    }
+}
+
+static int zbuffer_depth(interp *ip, const struct splat_camera *cam, const struct splat_frame *f)
+{
+    const size_t np = (size_t)ip->W * (size_t)ip->H;
+    const int threads = fk_ctx_threads(ip->ctx);
+    for (size_t i = 0; i < (size_t)threads * np; i++)
+        ip->zb[i] = INFINITY;
+    struct zb_job j = { ip, cam, f, np };
+    fk_parallel_for(ip->ctx, ZB_TASKS, 60.0 * (double)f->count, zb_task, &j);
+    struct zb_merge_job mj = { ip, np, threads };
+    fk_parallel_for(ip->ctx, ZB_TASKS, (double)threads * (double)np, zb_merge_task, &mj);
+    return F4D_OK;
 }
 
 /* Copies the positions and f of view v's list entries (already sorted by f
@@ -291,6 +396,11 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
     }
     if (n > INT32_MAX)
         return fail(err, F4D_EINVAL, "interp_key_build: too many Gaussians for 32-bit indices");
+    if (ip->lookup == INTERP_LOOKUP_ZBUFFER && !ip->zb) {
+        ip->zb = malloc((size_t)fk_ctx_threads(ip->ctx) * np * sizeof *ip->zb);
+        if (!ip->zb)
+            return fail(err, F4D_ENOMEM, "interp_key_build: out of memory");
+    }
     k->f = f;
     k->rig = ip->rig;
     k->aligned = 0;
@@ -300,7 +410,9 @@ int interp_key_build(interp *ip, const struct splat_frame *f, struct interp_key 
     for (int v = 0; v < V; v++) {
         const struct splat_camera *cam = &ip->rig.cams[v];
         struct splat_render_out o = { .depth = ip->depth };
-        if (splat_render(ip->r, cam, f, NULL, &o) < 0)
+        if (ip->lookup == INTERP_LOOKUP_ZBUFFER)
+            zbuffer_depth(ip, cam, f);
+        else if (splat_render(ip->r, cam, f, NULL, &o) < 0)
             return fail(err, F4D_EINVAL, splat_renderer_error(ip->r));
         int32_t *start = k->cell_start + (size_t)v * (np + 1), *items = k->cell_items + (size_t)v * n;
         memset(start, 0, (np + 1) * sizeof *start);

@@ -29,7 +29,11 @@
  * Gaussian's origin is the first view where it is listed. The lookup reads
  * the list of the pixel the moved Gaussian lands on: a pixel-aligned frame has
  * exactly one Gaussian there, as in the paper; a denser frame (the synthetic
- * ground truth) may have several and the one nearest to X' is taken.
+ * ground truth) may have several and the one nearest to X' is taken (the
+ * lowest index on a tie). Each pixel's list is kept sorted along the view
+ * axis, so the search starts where X' sits on it and stops once the distance
+ * along the axis alone exceeds the best found or tau (a nearest one farther
+ * than tau is no partner either way): the same partner as a full scan.
  * Gaussians that are visible nowhere have no origin and no partner: kept.
  * interp_key_build_aligned skips the render for a frame that IS pixel aligned
  * (the model's output, Gaussian (s * H + y) * W + x from view s, pixel
@@ -104,6 +108,19 @@ typedef struct interp interp;
 /* A workspace for the rig's cameras; ctx (borrowed) gives the threads. */
 int  interp_new (fk_ctx *ctx, const struct splat_rig *rig, interp **out, struct f4d_err *err);
 void interp_free(interp *ip);
+
+/* How interp_key_build finds the depth each pixel shows (the visibility
+ * test's reference): RENDER (default) the rasterizer's expected depth;
+ * ZBUFFER the nearest depth among the Gaussians whose centre lands in the
+ * pixel or whose core (alpha >= 1/2 of a disc as wide as its largest scale)
+ * covers it, with no sort and no compositing: the surface the pixel mostly shows, several times cheaper,
+ * and the partners change slightly (f4d-bench pairs --psnr measures the
+ * frames against RENDER's). For the keys built from now on. */
+enum interp_lookup {
+    INTERP_LOOKUP_RENDER  = 0,
+    INTERP_LOOKUP_ZBUFFER = 1,
+};
+int  interp_set_lookup(interp *ip, enum interp_lookup mode, struct f4d_err *err);
 /* New cameras for the keys built from now on: same count and image size as
  * the rig of interp_new (F4D_EINVAL otherwise); never allocates. */
 int  interp_set_rig(interp *ip, const struct splat_rig *rig, struct f4d_err *err);
@@ -154,7 +171,8 @@ struct interp_pair {
     const struct interp_key *prev, *next;
     int32_t *partner_t;    /* [next count] partner in prev, or -1: kept        */
     int32_t *partner_tm1;  /* [prev count] partner in next, or -1: kept        */
-    float   *dist_t;       /* [next count] consistency distance D (metres)     */
+    float   *dist_t;       /* [next count] consistency distance D (metres) to
+                              the partner; unspecified where there is none    */
     size_t   cap_t, cap_tm1;
     float    tau;          /* the tau it was built with                        */
     struct interp_stats st;/* the a-independent counts                         */
