@@ -23,7 +23,8 @@
  * Gaussians of t-1 with D <= tau are dropped.
  *
  * Pixel lookup: Forge4D's Gaussians are pixel-aligned, one per input pixel.
- * For any frame, interp_key_build renders the depth of every view and lists,
+ * For any frame, interp_key_build renders the depth of every view (or takes
+ * a z-buffer's, interp_set_lookup) and lists,
  * per pixel, the Gaussians whose centre falls in that pixel and is visible
  * there (centre depth within INTERP_VISIBLE_TOL of the rendered depth). A
  * Gaussian's origin is the first view where it is listed. The lookup reads
