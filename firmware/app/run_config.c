@@ -82,6 +82,12 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
         c->no_lockstep = !strcmp(v, "off");
         return 0;
     }
+    if (!strcmp(key, "motion")) {
+        if (strcmp(v, "on") && strcmp(v, "off"))
+            return f4d_fail(err, F4D_EINVAL, "motion must be on or off, got \"%s\"", v);
+        c->motion_off = !strcmp(v, "off");
+        return 0;
+    }
     if (!strcmp(key, "keys"))
         return set_uint(&c->keys, key, v, 0, 1000000000, err);
     if (!strcmp(key, "stall_ms"))
