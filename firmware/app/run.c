@@ -3,7 +3,8 @@
  *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] [--record DIR]
  *               [--seconds S] [--keys N] [--stats-json FILE] [--precision f32|f16|int8]
  *               [--quality low|medium|high] [--threads N] [--stall-ms MS]
- *               [--config FILE | --no-config] [--quiet]
+ *               [--config FILE | --no-config] [--quiet] [--lockstep auto|off]
+ *               [--motion on|off] [--key-hz HZ]
  *
  * Threads and the queues between them (each queue's overload policy beside it):
  *
@@ -528,6 +529,20 @@ static void infer_ready_signal(struct run *r)
     pthread_mutex_unlock(&r->idle_mu);
 }
 
+/* key_hz: waits until `start` + 1 / key_hz before inference takes the next
+ * set. In lockstep this runs before capture is told inference is idle, so the
+ * next set is handed over (and its trigger mapped) only then: no set waits in
+ * the mailbox for the pace; on a real rig the newest set is taken after it. */
+static void key_pace(struct run *r, uint64_t start)
+{
+    if (!(r->cfg->key_hz > 0))
+        return;
+    uint64_t at = start + (uint64_t)(1e9 / r->cfg->key_hz);
+    struct timespec ts = {(time_t)(at / 1000000000u), (long)(at % 1000000000u)};
+    while (!*r->stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
+    }
+}
+
 static void *infer_main(void *arg)
 {
     struct run *r = arg;
@@ -542,6 +557,7 @@ static void *infer_main(void *arg)
         k->arrive_wall_ns = s->arrive_wall_ns;
         k->delivery_ns = s->delivery_ns;
         k->infer_start_ns = mono_ns();
+        uint64_t start = k->infer_start_ns;
         int rc = r->infer.key(r->infer.self, &s->set, k, &err);
         uint64_t seq = s->set.seq;
         slot_release(r, s); /* capture may reuse it from here */
@@ -552,17 +568,20 @@ static void *infer_main(void *arg)
                 say(r, "key from set %llu failed (%llu so far): %s", (unsigned long long)seq,
                     (unsigned long long)n + 1, err.msg);
             run_fifo_try_push(&r->free_keys, k);
+            key_pace(r, start);
             infer_ready(r);
             continue;
         }
         if (rc == 0) { /* the stage holds this set's key until the next set (its forward motion) */
             run_fifo_try_push(&r->free_keys, k);
+            key_pace(r, start);
             infer_ready(r);
             continue;
         }
         atomic_store(&r->key_us_last, (uint64_t)(k->infer_ms * 1000.0));
         k->queued_ns = mono_ns();
         run_fifo_try_push(&r->key_q, k); /* RUN_KEYS buffers, RUN_KEYS places: always fits */
+        key_pace(r, start);
         infer_ready(r);
     }
     if (r->infer.flush) { /* the key the stage still holds (no forward motion) */
@@ -893,20 +912,29 @@ static int write_stats(struct run *r, const char *path, const struct display_fig
                     cJSON_AddNumberToObject(lb, display_part_names[i], disp->part[i]);
     }
     /* CPU ms a key by stage between the first key and the end of capture
-     * (start-up excluded), and the attached display's (its JSON) */
-    uint64_t dk = r->cpu_last_keys > r->cpu_first_keys ? r->cpu_last_keys - r->cpu_first_keys : 0;
-    cJSON *cp = atomic_load(&r->cpu_first_taken) && dk ? cJSON_AddObjectToObject(o, "cpu_ms_per_key") : NULL;
+     * (start-up excluded; null when no key followed the first before capture
+     * ended), and the attached display's (its JSON) */
+    uint64_t dk = atomic_load(&r->cpu_first_taken) && r->cpu_last_keys > r->cpu_first_keys
+                      ? r->cpu_last_keys - r->cpu_first_keys : 0;
+    cJSON *cp = keys ? cJSON_AddObjectToObject(o, "cpu_ms_per_key") : NULL;
     double csum = 0;
     for (int i = 0; cp && i < RUN_CPU_PARTS; i++) {
-        double v = (r->cpu_last[i] - r->cpu_first[i]) * 1e3 / (double)dk;
-        cJSON_AddNumberToObject(cp, cpu_part_names[i], v);
+        double v = dk ? (r->cpu_last[i] - r->cpu_first[i]) * 1e3 / (double)dk : NAN;
         csum += v;
+        if (isfinite(v))
+            cJSON_AddNumberToObject(cp, cpu_part_names[i], v);
+        else
+            cJSON_AddNullToObject(cp, cpu_part_names[i]);
     }
     if (cp) {
-        cJSON_AddNumberToObject(cp, "daemon", csum);
-        if (disp && isfinite(disp->cpu_per_key)) {
-            cJSON_AddNumberToObject(cp, "display", disp->cpu_per_key);
-            cJSON_AddNumberToObject(cp, "total", csum + disp->cpu_per_key);
+        double dc = disp ? disp->cpu_per_key : NAN;
+        const char *const names[3] = {"daemon", "display", "total"};
+        const double vals[3] = {csum, dc, csum + dc};
+        for (int i = 0; i < 3; i++) {
+            if (isfinite(vals[i]))
+                cJSON_AddNumberToObject(cp, names[i], vals[i]);
+            else
+                cJSON_AddNullToObject(cp, names[i]);
         }
         cJSON_AddNumberToObject(cp, "keys", (double)dk);
     }
@@ -1007,7 +1035,7 @@ static int usage(void)
                     "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE] [--rig-json FILE]\n"
                     "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
                     "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
-                    "                   [--lockstep auto|off] [--motion on|off]\n"
+                    "                   [--lockstep auto|off] [--motion on|off] [--key-hz HZ]\n"
                     "                   [--key-times FILE] [--display F4D_DISPLAY [--display-args ARGS]\n"
                     "                    [--display-json FILE]]\n"
                     "  settings absent from the command line come from the config file (default "

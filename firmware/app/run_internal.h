@@ -163,6 +163,9 @@ struct run_config {
     char display_json[512];    /* its JSON summary (default: the stream file + ".display.json") */
     char precision[16], quality[16];
     double seconds;            /* 0: until SIGINT / SIGTERM */
+    double key_hz;             /* most keys a second (0: as many as inference manages): inference
+                                  starts a key at most every 1 / key_hz s, leaving the rest of the
+                                  CPU to capture, the encoder and a display on the same cores */
     uint32_t keys;             /* stop after this many keys were streamed (0: no limit) */
     int threads;
     uint32_t stall_ms;         /* watchdog: a stage busy this long on one item is reported */
