@@ -17,6 +17,8 @@
  *              times file has a line per key (skipped without f4d-display).
  * alloc:       (not in sanitized builds: LD_PRELOAD) the process allocates
  *              as often for 3 keys as for 9: nothing per set or key.
+ * key_hz:      --key-hz paces the keys (triggers at least 1 / key_hz apart)
+ * motion_off:  --motion off: keys without motion, none held (app/run_motion)
  * config:      settings from a config file; bad keys, bad values, --stream
  *              without weights and an unknown stream scheme are refused.
  * load_faults: (ctest label "load", ~90 s) the faulty board (cameras at
@@ -266,6 +268,42 @@ static void motion_off(void **state)
     assert_int_equal(rc, 2);
     assert_non_null(strstr(out, "motion must be on or off"));
     cJSON_Delete(st);
+}
+
+/* --key-hz 2: inference starts a key at most every 0.5 s. On the lockstep
+ * sim board the next set is handed over (and its trigger placed) only after
+ * that wait, so consecutive keys' triggers in the key-times file are at least
+ * 0.5 s apart (less the few ms of modelled delivery that can differ): a
+ * lower bound, whatever the machine's load. Bad values are refused. */
+static void key_hz(void **state)
+{
+    (void)state;
+    char out[4096], path[512];
+    int rc = sh(out, sizeof out,
+                "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --keys 3 --key-hz 2 "
+                "--stream file:%s/k.f4ds --key-times %s/k.keys --stats-json %s/k.json 2>&1",
+                forge4d, F4D_BOARD_DIR, weights, tmp, tmp, tmp);
+    if (rc != 0)
+        fail_msg("forge4d run --key-hz 2: exit %d: %s", rc, out);
+    snprintf(path, sizeof path, "%s/k.keys", tmp);
+    FILE *f = fopen(path, "r");
+    assert_non_null(f);
+    unsigned long long t, trig, prev = 0;
+    int n = 0;
+    while (fscanf(f, "%llu %llu %*u %*u", &t, &trig) == 2) {
+        if (n > 0 && (double)(trig - prev) < 0.45e9)
+            fail_msg("--key-hz 2: triggers %.3f s apart", (double)(trig - prev) * 1e-9);
+        prev = trig;
+        n++;
+    }
+    fclose(f);
+    assert_true(n >= 3);
+    snprintf(path, sizeof path, "%s/k.json", tmp);
+    cJSON_Delete(check_stats(path));
+    rc = sh(out, sizeof out, "%s run --no-config --board %s/sim-4cam.json --weights %s --keys 1 --key-hz -1 2>&1",
+            forge4d, F4D_BOARD_DIR, weights);
+    assert_int_equal(rc, 2);
+    assert_non_null(strstr(out, "key_hz wants a number"));
 }
 
 static pid_t spawn(char *const argv[], const char *log, char *const envp[])
@@ -726,6 +764,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(sim_short), cmocka_unit_test(sigterm),     cmocka_unit_test(replay),
         cmocka_unit_test(srt),       cmocka_unit_test(config),      cmocka_unit_test(load_faults),
         cmocka_unit_test(alloc),     cmocka_unit_test(display),     cmocka_unit_test(motion_off),
+        cmocka_unit_test(key_hz),
     };
     return F4D_TEST_MAIN(argc, argv, "app/run", tests, setup, teardown);
 }
