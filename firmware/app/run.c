@@ -537,9 +537,12 @@ static void key_pace(struct run *r, uint64_t start)
 {
     if (!(r->cfg->key_hz > 0))
         return;
-    uint64_t at = start + (uint64_t)(1e9 / r->cfg->key_hz);
-    struct timespec ts = {(time_t)(at / 1000000000u), (long)(at % 1000000000u)};
-    while (!*r->stop && clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
+    uint64_t at = start + (uint64_t)(1e9 / r->cfg->key_hz), now;
+    /* in steps of at most 50 ms: a stop is not kept waiting for a slow pace */
+    while (!*r->stop && (now = mono_ns()) < at) {
+        uint64_t until = at - now > 50000000u ? now + 50000000u : at;
+        struct timespec ts = {(time_t)(until / 1000000000u), (long)(until % 1000000000u)};
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
     }
 }
 
