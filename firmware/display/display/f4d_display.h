@@ -25,8 +25,12 @@
  * refresh as fast as the machine goes; paced (cfg.realtime, window and KMS
  * default), refreshes start every 1 / fps and show t_first_key + the wall
  * time since the first, so a slow machine skips ahead instead of falling
- * behind a live stream. The display shows the interval between the last two
- * keys, so its latency is up to one key interval plus the source's.
+ * behind a live stream; a refresh that misses its slot is not made up
+ * (slots_missed). The display shows the interval between the last two keys,
+ * so its latency is up to one key interval plus the source's; a live source
+ * (cfg.live_lag_keys >= 0) is read to its newest packet at every refresh and
+ * the clock kept within live_lag_keys key intervals of the newest key
+ * (display_player_clock): 0 shows each key once decoded and holds it.
  *
  * Renderers (both present through EGL):
  *   DISPLAY_RENDER_GLES: GLES 3 instanced quads, the reference 3DGS shading
