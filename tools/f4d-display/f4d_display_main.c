@@ -19,7 +19,8 @@
  * refresh and the display's clock is kept at most K key intervals behind the
  * newest key, catching up when it falls further behind (0: each key shown as
  * soon as it is decoded and held until the next; 1: the interval before the
- * newest key interpolated, one key interval later). --key-times FILE (the
+ * newest key interpolated, one key interval later; -1: off, the clock runs
+ * from the first key, e.g. to play a finished file at its pace). --key-times FILE (the
  * daemon's `forge4d run --key-times`: per key its stream time and trigger on
  * CLOCK_MONOTONIC, written before the key's packet) times each key from its
  * trigger to the end of the first refresh that shows it in full (stream time
@@ -376,7 +377,7 @@ int main(int argc, char **argv)
             } else if (!strcmp(a, "--key-times")) {
                 kt_path = v;
             } else if (!strcmp(a, "--live-lag")) {
-                if (num(a, v, 0, 1000, &live_lag) < 0)
+                if (num(a, v, -1, 1000, &live_lag) < 0)
                     return 2;
             } else if (!strcmp(a, "--follow-idle")) {
                 if (num(a, v, 0.1, 1e6, &follow_idle) < 0)
