@@ -21,7 +21,12 @@
 # Weights: WEIGHTS=FILE, else the shipped default, else a random-weight model
 # (labelled UNTRAINED everywhere it shows). SECONDS_RUN (default 20) sets the
 # length, DISPLAY_SIZE (default 640x360) the live display's; extra arguments
-# go to `forge4d run`.
+# go to `forge4d run`. Latency first (README, the appliance section): MOTION
+# (default off: the shipped model's motion is no better than none, and a key
+# with motion leaves one set late) and KEY_HZ (default 5.5 keys a second, 0:
+# as fast as inference goes; the spare CPU keeps the stages and the display
+# from queueing on 2 cores) and INFER_THREADS (default 1: the model's second
+# thread costs more CPU than it saves wall time when every core is busy).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 tools/setup-debian.sh
@@ -59,8 +64,12 @@ if [ -x "$display" ]; then
 else
   echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label); f4d-display is not in this tree: nothing displayed"
 fi
+motion=${MOTION:-off}
+key_hz=${KEY_HZ:-5.5}
+infer_threads=${INFER_THREADS:-1}
 "$bin/firmware/app/forge4d" run --no-config --board board/sim-4cam.json --weights "$weights" \
   --seconds "${SECONDS_RUN:-20}" --record "$out/take" --stream "file:$out/stream.f4ds" \
+  --motion "$motion" --key-hz "$key_hz" --threads "$infer_threads" \
   --stats-json "$out/run.json" --rig-json "$out/model-cameras.json" "${attach[@]}" "$@"
 "$bin/firmware/app/forge4d" verify "$out/take"
 
@@ -80,12 +89,19 @@ rigarg=()
 field() { sed -n "s/.*\"$1\":[[:space:]]*\([-0-9.eE+]*\|null\).*/\1/p" "$2" | head -1; }
 # a number of the stats JSON to 2 decimals (null stays null)
 num() { local v; v=$(field "$1" "$2"); case "$v" in ''|null) echo "${v:-null}" ;; *) printf '%.2f' "$v" ;; esac; }
+# the same inside one object of the stats ("latency_breakdown_ms", "cpu_ms_per_key"), to 0 decimals
+sub() { local v; v=$(sed -n "/\"$1\"/,/}/p" "$3" | sed -n "s/.*\"$2\":[[:space:]]*\([-0-9.eE+]*\|null\).*/\1/p" | head -1)
+        case "$v" in ''|null) echo "${v:-null}" ;; *) printf '%.0f' "$v" ;; esac; }
+lb() { sub latency_breakdown_ms "$1" "$out/run.json"; }
+cpu() { sub cpu_ms_per_key "$1" "$out/run.json"; }
 {
   echo "weights:           $weights ($label)"
   echo "key frames:        $(field key_frames "$out/run.json") at $(num key_hz "$out/run.json") Hz"
   echo "sets captured:     $(field sets_captured "$out/run.json") (skipped by inference: $(field sets_skipped_by_inference "$out/run.json"))"
   echo "latency p50 / p95: $(num latency_ms_p50 "$out/run.json") / $(num latency_ms_p95 "$out/run.json") ms from the trigger to the $(sed -n 's/.*"latency_to":[[:space:]]*"\([a-z]*\)".*/\1/p' "$out/run.json" | head -1) (to the stream sink: $(num latency_sink_ms_p50 "$out/run.json") / $(num latency_sink_ms_p95 "$out/run.json") ms)"
+  echo "latency parts:     delivery $(lb delivery), to inference $(lb infer_wait), inference $(lb inference), key queue $(lb key_queue_wait), encode $(lb encode), sink $(lb sink_write) = $(lb to_sink) ms to the sink; then display read $(lb display_read), shown $(lb display_show) = $(lb to_display) ms (means)"
   echo "key stages (ms):   preprocess $(num preprocess "$out/run.json"), model $(num model "$out/run.json"), budget $(num budget "$out/run.json"), encode $(num encode "$out/run.json") (mean wall time a key)"
+  echo "CPU a key (ms):    simulated cameras $(cpu capture), inference $(cpu inference), stream $(cpu stream), recorder $(cpu record), display $(cpu display): $(cpu total) (motion $motion, keys paced at ${key_hz} Hz, inference threads $infer_threads)"
   echo "bitrate:           $(num bitrate_mbps "$out/run.json") Mbit/s"
   if [ -x "$display" ]; then
     echo "displayed fps:     $(num displayed_fps "$out/run.json") (live, $size, paced at 30; $(field keys_displayed "$out/run.json") keys shown)"

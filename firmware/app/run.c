@@ -3,7 +3,8 @@
  *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] [--record DIR]
  *               [--seconds S] [--keys N] [--stats-json FILE] [--precision f32|f16|int8]
  *               [--quality low|medium|high] [--threads N] [--stall-ms MS]
- *               [--config FILE | --no-config] [--quiet]
+ *               [--config FILE | --no-config] [--quiet] [--lockstep auto|off]
+ *               [--motion on|off] [--key-hz HZ]
  *
  * Threads and the queues between them (each queue's overload policy beside it):
  *
@@ -17,8 +18,9 @@
  *   |     replaces an unread one: inference skips to the newest complete set
  *   |     and counts each skipped set (sets_skipped_by_inference).
  *   |     Lockstep (a sim rig whose clock waits for its renderer; lockstep =
- *   |     off disables it): capture waits until inference is idle before it
- *   |     hands a set over, so the sim renders only the sets inference takes;
+ *   |     off disables it): capture waits until inference is idle and the
+ *   |     stream thread took the last key (key_q empty) before it hands a
+ *   |     set over, so the sim renders only the sets inference takes;
  *   |     its clock stands still meanwhile, so no frame is late or lost.
  *   inference (preprocess -> model with the Gaussian head, metric -> scene
  *   |          budget) -> one of 3 key buffers
@@ -61,6 +63,8 @@
 #include <string.h>
 #include <signal.h>
 #include <spawn.h>
+#include <dirent.h>
+#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -95,6 +99,70 @@
  * of both cores from the stages being demonstrated. */
 #define RUN_INFER_NICE 5
 #define RUN_LAT_MAX (1u << 16) /* latency samples kept (the last ones) */
+/* A streamed key's trigger-to-sink latency, part by part (they add up to it):
+ * rig time from the trigger to on_set; on_set to inference taking the set
+ * (mailbox, a free key buffer); inference (preprocess, model, budget, and with
+ * motion weights the wait for the next set); the stream queue; the encoder;
+ * the sink's write (file: flushed). */
+/* CPU by stage, from the threads' names (prctl PR_SET_NAME; a thread
+ * inherits its creator's, so a stage's kernel pool counts with it): capture
+ * is the main thread with the simulated cameras' render pool (the process's
+ * own name), inference its thread and the model's pool, stream the encoder
+ * and sink, record the take writer, other the status thread. */
+#define RUN_CPU_PARTS 5
+static const char *const cpu_part_names[RUN_CPU_PARTS] = {"capture", "inference", "stream", "record", "other"};
+static const char *const cpu_thread_names[RUN_CPU_PARTS] = {NULL, "f4d-infer", "f4d-stream", "f4d-record", NULL};
+
+static void name_thread(const char *name) { (void)prctl(PR_SET_NAME, name, 0, 0, 0); }
+
+/* CPU seconds of this process's live threads by stage (a thread that has
+ * exited is not listed: called while the stages run). Allocates (opendir):
+ * twice per run, outside the per-set path. */
+static void cpu_by_stage(double out[RUN_CPU_PARTS])
+{
+    for (int i = 0; i < RUN_CPU_PARTS; i++)
+        out[i] = 0.0;
+    DIR *d = opendir("/proc/self/task");
+    if (!d)
+        return;
+    double tick = (double)sysconf(_SC_CLK_TCK);
+    struct dirent *e;
+    while ((e = readdir(d))) {
+        if (e->d_name[0] == '.')
+            continue;
+        char path[64], buf[1024];
+        snprintf(path, sizeof path, "/proc/self/task/%.20s/stat", e->d_name);
+        int fd = open(path, O_RDONLY);
+        if (fd < 0)
+            continue;
+        ssize_t n = read(fd, buf, sizeof buf - 1);
+        close(fd);
+        if (n <= 0)
+            continue;
+        buf[n] = 0;
+        char *lp = strchr(buf, '('), *rp = strrchr(buf, ')');
+        if (!lp || !rp || rp < lp)
+            continue;
+        *rp = 0;
+        const char *comm = lp + 1;
+        unsigned long long ut = 0, st = 0;
+        /* after the name: state (field 3) ... utime (14), stime (15) */
+        if (sscanf(rp + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu", &ut, &st) != 2)
+            continue;
+        int part = 0; /* the main thread's name (capture) unless named */
+        if (!strcmp(comm, "f4d-status"))
+            part = RUN_CPU_PARTS - 1;
+        for (int i = 1; i < RUN_CPU_PARTS; i++)
+            if (cpu_thread_names[i] && !strcmp(comm, cpu_thread_names[i]))
+                part = i;
+        out[part] += (double)(ut + st) / tick;
+    }
+    closedir(d);
+}
+
+#define RUN_LAT_PARTS 6
+static const char *const lat_part_names[RUN_LAT_PARTS] = {
+    "delivery", "infer_wait", "inference", "key_queue_wait", "encode", "sink_write"};
 
 typedef _Atomic uint64_t counter;
 
@@ -142,6 +210,14 @@ struct run {
      * stats: preprocessing, model, budget, encoder */
     double stage_ms[4];
     double stage_cpu_ms[3]; /* thread CPU time: preprocessing, budget, encoder */
+    /* where a key's latency to the sink went (stream thread only; sums of ms
+     * over the keys streamed), RUN_LAT_PARTS parts in lat_part_names order */
+    double lat_part_ms[RUN_LAT_PARTS];
+    /* CPU seconds of the threads by stage (cpu_by_stage) when the first key
+     * had been streamed and when capture ended, and the keys streamed then */
+    double cpu_first[RUN_CPU_PARTS], cpu_last[RUN_CPU_PARTS];
+    uint64_t cpu_first_keys, cpu_last_keys;
+    _Atomic int cpu_first_taken;
     /* capture statistics, copied by the progress callback */
     pthread_mutex_t st_mu;
     struct f4d_capture_stats cap_st;
@@ -288,7 +364,10 @@ static int on_set(void *user, const struct hal_set *set)
          * set ages nothing in rig time: its trigger maps to wall time at the
          * handover below, delivery_ns (rig time since the trigger) before it */
         pthread_mutex_lock(&r->idle_mu);
-        while (!atomic_load(&r->infer_idle) && !*r->stop) {
+        /* ... and once the stream thread took the last key: a key waiting
+         * behind the encoder would only age there (latency), as the
+         * throughput is the encoder's either way */
+        while ((!atomic_load(&r->infer_idle) || run_fifo_depth(&r->key_q) > 0) && !*r->stop) {
             struct timespec ts;
             clock_gettime(CLOCK_REALTIME, &ts);
             ts.tv_nsec += 50000000;
@@ -337,6 +416,7 @@ static void on_progress(void *user, const struct f4d_capture_stats *st, uint64_t
 static void *record_main(void *arg)
 {
     struct run *r = arg;
+    name_thread("f4d-record");
     void *it;
     while (run_fifo_pop(&r->rec_q, &it) == 1) {
         struct run_slot *s = it;
@@ -396,6 +476,7 @@ struct infer_setup {
 static void *infer_setup_main(void *arg)
 {
     struct infer_setup *s = arg;
+    name_thread("f4d-infer"); /* the model's kernel pool inherits it */
     nicer(infer_nice_for(s->board));
     s->rc = run_infer_model_new(s->st, s->cfg, s->board, s->err);
     return NULL;
@@ -437,9 +518,38 @@ static void infer_ready(struct run *r)
     pthread_mutex_unlock(&r->idle_mu);
 }
 
+/* Lockstep: wakes capture to check its condition again (the stream thread
+ * took a key). */
+static void infer_ready_signal(struct run *r)
+{
+    if (!r->lockstep)
+        return;
+    pthread_mutex_lock(&r->idle_mu);
+    pthread_cond_signal(&r->idle_cv);
+    pthread_mutex_unlock(&r->idle_mu);
+}
+
+/* key_hz: waits until `start` + 1 / key_hz before inference takes the next
+ * set. In lockstep this runs before capture is told inference is idle, so the
+ * next set is handed over (and its trigger mapped) only then: no set waits in
+ * the mailbox for the pace; on a real rig the newest set is taken after it. */
+static void key_pace(struct run *r, uint64_t start)
+{
+    if (!(r->cfg->key_hz > 0))
+        return;
+    uint64_t at = start + (uint64_t)(1e9 / r->cfg->key_hz), now;
+    /* in steps of at most 50 ms: a stop is not kept waiting for a slow pace */
+    while (!*r->stop && (now = mono_ns()) < at) {
+        uint64_t until = at - now > 50000000u ? now + 50000000u : at;
+        struct timespec ts = {(time_t)(until / 1000000000u), (long)(until % 1000000000u)};
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+    }
+}
+
 static void *infer_main(void *arg)
 {
     struct run *r = arg;
+    name_thread("f4d-infer");
     nicer(infer_nice_for(r->board));
     void *it;
     while (run_fifo_pop(&r->infer_box, &it) == 1) {
@@ -449,6 +559,8 @@ static void *infer_main(void *arg)
         hb_busy(&r->hb_infer);
         k->arrive_wall_ns = s->arrive_wall_ns;
         k->delivery_ns = s->delivery_ns;
+        k->infer_start_ns = mono_ns();
+        uint64_t start = k->infer_start_ns;
         int rc = r->infer.key(r->infer.self, &s->set, k, &err);
         uint64_t seq = s->set.seq;
         slot_release(r, s); /* capture may reuse it from here */
@@ -459,16 +571,20 @@ static void *infer_main(void *arg)
                 say(r, "key from set %llu failed (%llu so far): %s", (unsigned long long)seq,
                     (unsigned long long)n + 1, err.msg);
             run_fifo_try_push(&r->free_keys, k);
+            key_pace(r, start);
             infer_ready(r);
             continue;
         }
         if (rc == 0) { /* the stage holds this set's key until the next set (its forward motion) */
             run_fifo_try_push(&r->free_keys, k);
+            key_pace(r, start);
             infer_ready(r);
             continue;
         }
         atomic_store(&r->key_us_last, (uint64_t)(k->infer_ms * 1000.0));
+        k->queued_ns = mono_ns();
         run_fifo_try_push(&r->key_q, k); /* RUN_KEYS buffers, RUN_KEYS places: always fits */
+        key_pace(r, start);
         infer_ready(r);
     }
     if (r->infer.flush) { /* the key the stage still holds (no forward motion) */
@@ -477,6 +593,7 @@ static void *infer_main(void *arg)
         int rc = r->infer.flush(r->infer.self, k, &err);
         if (rc < 0)
             say(r, "last key failed: %s", err.msg);
+        k->queued_ns = mono_ns();
         run_fifo_try_push(rc == 1 ? &r->key_q : &r->free_keys, k);
     }
     run_fifo_close(&r->key_q);
@@ -523,6 +640,7 @@ static void key_time_line(struct run *r, const struct run_key *k)
 static void *stream_main(void *arg)
 {
     struct run *r = arg;
+    name_thread("f4d-stream");
     struct f4d_err err = {0};
     size_t len = r->enc.packet_cap;
     if (r->enc.header(r->enc.self, 0, r->pkt, &len, &err) < 0)
@@ -534,6 +652,7 @@ static void *stream_main(void *arg)
     void *it;
     while (run_fifo_pop(&r->key_q, &it) == 1) {
         struct run_key *k = it;
+        infer_ready_signal(r); /* lockstep: the key queue is empty again */
         if (r->cfg->keys && atomic_load(&r->keys) >= r->cfg->keys) {
             /* --keys reached: keys still queued behind it are not streamed */
             run_fifo_try_push(&r->free_keys, k);
@@ -546,6 +665,7 @@ static void *stream_main(void *arg)
         double ec0 = thread_cpu_ms();
         int rc = r->enc.key(r->enc.self, k, intra, r->pkt, &len, &err);
         double enc_cpu = thread_cpu_ms() - ec0;
+        uint64_t e1 = mono_ns();
         if (rc < 0) {
             uint64_t e = atomic_fetch_add(&r->stream_errors, 1);
             if (e < 3 || e % 100 == 0)
@@ -565,6 +685,10 @@ static void *stream_main(void *arg)
             r->stage_cpu_ms[1] += k->budget_cpu_ms;
             r->stage_cpu_ms[2] += enc_cpu;
             double ms = (double)(k->delivery_ns + (now - k->arrive_wall_ns)) * 1e-6;
+            const uint64_t at[RUN_LAT_PARTS + 1] = {k->arrive_wall_ns, k->infer_start_ns, k->queued_ns, e0, e1, now};
+            r->lat_part_ms[0] += (double)k->delivery_ns * 1e-6;
+            for (int j = 0; j + 1 < RUN_LAT_PARTS; j++)
+                r->lat_part_ms[j + 1] += at[j + 1] > at[j] ? (double)(at[j + 1] - at[j]) * 1e-6 : 0.0;
             uint64_t i = atomic_fetch_add(&r->lat_n, 1);
             r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
             if (atomic_fetch_add(&r->keys, 1) + 1 == r->cfg->keys)
@@ -642,6 +766,7 @@ static void status_tick(struct run *r, uint64_t now, uint64_t *prev_sets, uint64
 static void *status_main(void *arg)
 {
     struct run *r = arg;
+    name_thread("f4d-status");
     uint64_t prev_sets = 0, prev_keys = 0, prev_bytes = 0, prev_t = r->t0, next = r->t0 + 1000000000u;
     while (!atomic_load(&r->done)) {
         nanosleep(&(struct timespec){0, 50000000}, NULL);
@@ -658,6 +783,12 @@ static void *status_main(void *arg)
          * buffers (pending_max + spares per camera, first written as they
          * cycle), the slots, and arena, codec and sink by the first key; a
          * run too short for that keeps its first sample after the first key. */
+        uint64_t kn = atomic_load(&r->keys);
+        if (kn > 0 && !atomic_load(&r->cpu_first_taken) && atomic_load(&r->capturing)) {
+            r->cpu_first_keys = kn;
+            cpu_by_stage(r->cpu_first);
+            atomic_store(&r->cpu_first_taken, 1);
+        }
         double rss = rss_mb();
         if (atomic_load(&r->capturing))
             r->rss_end = rss;
@@ -681,9 +812,16 @@ static int cmp_float(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* The attached display's figures from its JSON summary (NAN when absent). */
+/* The attached display's figures from its JSON summary (NAN when absent);
+ * part: its latency_breakdown_ms, the mean ms from the key-times line
+ * (written once the key is encoded) to the display reading the packet, from
+ * there to the end of the refresh that shows it, and trigger to display. */
+#define DISPLAY_LAT_PARTS 3
+static const char *const display_part_names[DISPLAY_LAT_PARTS] = {"display_read", "display_show", "to_display"};
 struct display_figures {
     double fps, p50, p95, presented;
+    double part[DISPLAY_LAT_PARTS];
+    double cpu_per_key;        /* its process CPU ms a key after the first */
 };
 
 static double json_num(const cJSON *o, const char *name)
@@ -694,7 +832,9 @@ static double json_num(const cJSON *o, const char *name)
 
 static void display_figures_read(const char *path, struct display_figures *d)
 {
-    d->fps = d->p50 = d->p95 = d->presented = NAN;
+    d->fps = d->p50 = d->p95 = d->presented = d->cpu_per_key = NAN;
+    for (int i = 0; i < DISPLAY_LAT_PARTS; i++)
+        d->part[i] = NAN;
     FILE *f = path[0] ? fopen(path, "rb") : NULL;
     if (!f)
         return;
@@ -709,6 +849,10 @@ static void display_figures_read(const char *path, struct display_figures *d)
     d->p50 = json_num(o, "latency_trigger_ms_p50");
     d->p95 = json_num(o, "latency_trigger_ms_p95");
     d->presented = json_num(o, "keys_timed");
+    d->cpu_per_key = json_num(o, "cpu_ms_per_key");
+    const cJSON *lb = cJSON_GetObjectItemCaseSensitive(o, "latency_breakdown_ms");
+    for (int i = 0; lb && i < DISPLAY_LAT_PARTS; i++)
+        d->part[i] = json_num(lb, display_part_names[i]);
     cJSON_Delete(o);
 }
 
@@ -755,6 +899,48 @@ static int write_stats(struct run *r, const char *path, const struct display_fig
     static const char *const cpu_names[3] = { "preprocess", "budget", "encode" };
     for (int i = 0; sc && i < 3; i++)
         cJSON_AddNumberToObject(sc, cpu_names[i], r->stage_cpu_ms[i] / (double)keys);
+    /* the mean trigger-to-sink latency part by part (they add up to its mean);
+     * with a display, its parts after the sink (the display's own JSON) */
+    cJSON *lb = keys ? cJSON_AddObjectToObject(o, "latency_breakdown_ms") : NULL;
+    double lsum = 0;
+    for (int i = 0; lb && i < RUN_LAT_PARTS; i++) {
+        cJSON_AddNumberToObject(lb, lat_part_names[i], r->lat_part_ms[i] / (double)keys);
+        lsum += r->lat_part_ms[i] / (double)keys;
+    }
+    if (lb) {
+        cJSON_AddNumberToObject(lb, "to_sink", lsum);
+        if (disp)
+            for (int i = 0; i < DISPLAY_LAT_PARTS; i++)
+                if (isfinite(disp->part[i]))
+                    cJSON_AddNumberToObject(lb, display_part_names[i], disp->part[i]);
+    }
+    /* CPU ms a key by stage between the first key and the end of capture
+     * (start-up excluded; null when no key followed the first before capture
+     * ended), and the attached display's (its JSON) */
+    uint64_t dk = atomic_load(&r->cpu_first_taken) && r->cpu_last_keys > r->cpu_first_keys
+                      ? r->cpu_last_keys - r->cpu_first_keys : 0;
+    cJSON *cp = keys ? cJSON_AddObjectToObject(o, "cpu_ms_per_key") : NULL;
+    double csum = 0;
+    for (int i = 0; cp && i < RUN_CPU_PARTS; i++) {
+        double v = dk ? (r->cpu_last[i] - r->cpu_first[i]) * 1e3 / (double)dk : NAN;
+        csum += v;
+        if (isfinite(v))
+            cJSON_AddNumberToObject(cp, cpu_part_names[i], v);
+        else
+            cJSON_AddNullToObject(cp, cpu_part_names[i]);
+    }
+    if (cp) {
+        double dc = disp ? disp->cpu_per_key : NAN;
+        const char *const names[3] = {"daemon", "display", "total"};
+        const double vals[3] = {csum, dc, csum + dc};
+        for (int i = 0; i < 3; i++) {
+            if (isfinite(vals[i]))
+                cJSON_AddNumberToObject(cp, names[i], vals[i]);
+            else
+                cJSON_AddNullToObject(cp, names[i]);
+        }
+        cJSON_AddNumberToObject(cp, "keys", (double)dk);
+    }
     /* which latency the fields give, and the sink's in any case */
     cJSON_AddStringToObject(o, "latency_to", shown ? "display" : "sink");
     NUM_OR_NULL("latency_sink_ms_p50", *p50);
@@ -852,6 +1038,7 @@ static int usage(void)
                     "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE] [--rig-json FILE]\n"
                     "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
                     "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
+                    "                   [--lockstep auto|off] [--motion on|off] [--key-hz HZ]\n"
                     "                   [--key-times FILE] [--display F4D_DISPLAY [--display-args ARGS]\n"
                     "                    [--display-json FILE]]\n"
                     "  settings absent from the command line come from the config file (default "
@@ -923,6 +1110,8 @@ static int run_threads(struct run *r, struct f4d_capture_stats *st, struct f4d_e
         on_progress(r, st, 0);
     }
     atomic_store(&r->capturing, 0);
+    r->cpu_last_keys = atomic_load(&r->keys);
+    cpu_by_stage(r->cpu_last); /* every stage thread still runs */
 
     /* stop: the set waiting for inference is dropped, the key in flight finishes */
     struct run_slot *s = run_fifo_try_pop(&r->infer_box);
@@ -1030,6 +1219,7 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         const char *env = getenv("F4D_RUN_TEST_INFER_DELAY_MS");
         struct run_infer_config ic = {.weights = cfg.weights, .wtype = FK_W_F32, .threads = cfg.threads,
                                       .delay_ms = env ? (uint32_t)strtoul(env, NULL, 10) : 0};
+        ic.motion_off = cfg.motion_off;
         ic.wtype = !strcmp(cfg.precision, "f16") ? FK_W_F16 : !strcmp(cfg.precision, "int8") ? FK_W_Q8 : FK_W_F32;
         if (infer_new_nicer(&r->infer, &ic, &board, &err) < 0 ||
             run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, &err) < 0)
@@ -1092,7 +1282,8 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             fprintf(stderr, "[forge4d run] %s (%s): %zu Gaussians per key before the budget, one key %.0f ms at start; "
                     "%s\n", cfg.weights, cfg.precision, r->infer.capacity, r->infer.warm_ms,
                     r->infer.motion ? "motion M1/M2 encoded with the keys (a key leaves one set late)"
-                                    : "no motion in the weights (keys without motion)");
+                    : cfg.motion_off ? "motion off (the motion head skipped: keys without motion, out at once)"
+                                     : "no motion in the weights (keys without motion)");
     } else if (!cfg.quiet) {
         fprintf(stderr, "[forge4d run] no weights: capture%s only, no inference or stream\n",
                 r->take_dir ? " and recording" : "");

@@ -70,6 +70,14 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
         c->seconds = s;
         return 0;
     }
+    if (!strcmp(key, "key_hz")) {
+        char *end;
+        double h = strtod(v, &end);
+        if (end == v || *end || !(h >= 0) || h > 1000)
+            return f4d_fail(err, F4D_EINVAL, "key_hz wants a number in [0, 1000] (0: no limit), got \"%s\"", v);
+        c->key_hz = h;
+        return 0;
+    }
     if (!strcmp(key, "threads")) {
         uint32_t t;
         int rc = set_uint(&t, key, v, 0, 256, err);
@@ -80,6 +88,12 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
         if (strcmp(v, "auto") && strcmp(v, "off"))
             return f4d_fail(err, F4D_EINVAL, "lockstep must be auto or off, got \"%s\"", v);
         c->no_lockstep = !strcmp(v, "off");
+        return 0;
+    }
+    if (!strcmp(key, "motion")) {
+        if (strcmp(v, "on") && strcmp(v, "off"))
+            return f4d_fail(err, F4D_EINVAL, "motion must be on or off, got \"%s\"", v);
+        c->motion_off = !strcmp(v, "off");
         return 0;
     }
     if (!strcmp(key, "keys"))

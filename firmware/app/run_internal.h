@@ -89,6 +89,8 @@ struct run_key {
     uint64_t match_ref;        /* seq of the key match refers to (UINT64_MAX: none) */
     uint64_t seq, t_us;        /* trigger sequence and time */
     uint64_t arrive_wall_ns, delivery_ns;
+    uint64_t infer_start_ns;   /* CLOCK_MONOTONIC: inference took its set (the caller sets it, as arrive) */
+    uint64_t queued_ns;        /* CLOCK_MONOTONIC: the key went into the stream's queue (run.c) */
     double infer_ms;           /* preprocessing + model + budget */
     double prep_ms, model_ms, budget_ms; /* its parts (wall): preprocessing, the sequence push
                                             (model + key build), the budget with the codec match */
@@ -98,8 +100,9 @@ struct run_key {
 /* ---- stage: synchronized set -> metric Gaussians (one key) ----
  * Preprocess + the Forge4D sequence (state between keys, motions M1 / M2,
  * metric cameras) + scene budget (motion carried through it). With motion
- * weights a key leaves one set late (its forward motion needs the next set).
- * key: the caller sets out->arrive_wall_ns / delivery_ns for `set` first;
+ * weights a key leaves one set late (its forward motion needs the next set);
+ * with cfg motion_off the motion head is skipped and keys leave at once.
+ * key: the caller sets out->arrive_wall_ns / delivery_ns / infer_start_ns for `set` first;
  * returns 1 with a key in *out (all its fields set, possibly an older set's),
  * 0 when none is ready yet, < 0 on error. flush (NULL: nothing held): the key
  * still held at the end, same returns. */
@@ -120,6 +123,7 @@ struct run_infer_config {
     int wtype;                 /* enum fk_wtype */
     int threads;               /* fk_ctx threads, 0 = all CPUs */
     uint32_t delay_ms;         /* test knob: added to every key (F4D_RUN_TEST_INFER_DELAY_MS) */
+    bool motion_off;           /* skip the motion head: keys without motion, out at once */
     const struct budget_config *budget; /* NULL: budget_config_default() */
 };
 int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
@@ -159,12 +163,18 @@ struct run_config {
     char display_json[512];    /* its JSON summary (default: the stream file + ".display.json") */
     char precision[16], quality[16];
     double seconds;            /* 0: until SIGINT / SIGTERM */
+    double key_hz;             /* most keys a second (0: as many as inference manages): inference
+                                  starts a key at most every 1 / key_hz s, leaving the rest of the
+                                  CPU to capture, the encoder and a display on the same cores */
     uint32_t keys;             /* stop after this many keys were streamed (0: no limit) */
     int threads;
     uint32_t stall_ms;         /* watchdog: a stage busy this long on one item is reported */
     uint32_t intra_every;      /* keys between forced intra keys */
     bool quiet;
     bool no_lockstep;          /* lockstep = off: a waiting-clock sim rig hands sets over as a real one */
+    bool motion_off;           /* motion = off: weights with a motion part run without their motion head;
+                                  keys carry no motion and leave as soon as their set ran (on: M1 / M2,
+                                  a key one set late) */
 };
 void run_config_defaults(struct run_config *c);
 /* key=value lines, '#' comments; unknown keys and bad values are errors

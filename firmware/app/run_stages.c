@@ -41,7 +41,7 @@ struct infer_seq {
     uint64_t prev_seq;
     size_t n;                  /* views * H * W */
     bool motion, held;         /* held: the newest key waits for its forward motion */
-    uint64_t held_seq, held_t_us, held_arrive, held_delivery;
+    uint64_t held_seq, held_t_us, held_arrive, held_delivery, held_start;
     double held_ms, held_prep_ms, held_model_ms, held_prep_cpu_ms;
     uint32_t delay_ms;
     struct splat_rig rig;      /* cameras of the last key out */
@@ -137,8 +137,8 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     double ms = (double)(mono_ns() - t0) * 1e-6;
     double prep_ms = (double)(t1 - t0) * 1e-6, model_ms = (double)(t2 - t1) * 1e-6;
     uint64_t seq = set->seq, t_us = set->trigger_ts_ns / 1000u, arrive = k->arrive_wall_ns,
-             delivery = k->delivery_ns;
-    if (!im->motion) {
+             delivery = k->delivery_ns, start = k->infer_start_ns;
+    if (!im->motion) { /* no motion: this set's key now */
         uint64_t b0 = mono_ns();
         double bc0 = thread_cpu_ms();
         if ((rc = infer_emit(im, 0, seq, k, err)) < 0)
@@ -165,6 +165,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
         k->t_us = im->held_t_us;
         k->arrive_wall_ns = im->held_arrive;
         k->delivery_ns = im->held_delivery;
+        k->infer_start_ns = im->held_start;
         k->prep_ms = im->held_prep_ms;
         k->model_ms = im->held_model_ms;
         k->budget_ms = (double)(mono_ns() - b0) * 1e-6;
@@ -175,6 +176,7 @@ static int infer_key(void *self, const struct hal_set *set, struct run_key *k, s
     im->held_t_us = t_us;
     im->held_arrive = arrive;
     im->held_delivery = delivery;
+    im->held_start = start;
     im->held_ms = ms;
     im->held_prep_ms = prep_ms;
     im->held_prep_cpu_ms = prep_cpu_ms;
@@ -198,6 +200,7 @@ static int infer_flush(void *self, struct run_key *k, struct f4d_err *err)
     k->t_us = im->held_t_us;
     k->arrive_wall_ns = im->held_arrive;
     k->delivery_ns = im->held_delivery;
+    k->infer_start_ns = im->held_start;
     k->prep_ms = im->held_prep_ms;
     k->model_ms = im->held_model_ms;
     k->budget_ms = (double)(mono_ns() - b0) * 1e-6;
@@ -240,6 +243,13 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
         rc = f4d_fail(err, rc, "inference: %s", model_error(im->m));
         goto fail;
     }
+    /* motion off: nothing reads the motion head's maps (about a third of a
+     * key's model time here), and no key waits one set for its forward
+     * motion; the keys go out without motion (the sequence sees none) */
+    if (cfg->motion_off && (rc = model_skip_head(im->m, "motion_head")) < 0) {
+        rc = f4d_fail(err, rc, "inference: %s", model_error(im->m));
+        goto fail;
+    }
     im->T = model_get_config(im->m)->img_size;
     for (int i = 0; i < im->S; i++) {
         const struct hal_camera_config *c = &board->cams[i];
@@ -272,7 +282,7 @@ int run_infer_model_new(struct run_infer *st, const struct run_infer_config *cfg
     }
     if ((rc = f4d_sequence_open_model(im->m, im->S, im->H, im->W, &im->sq, err)) < 0)
         goto fail;
-    im->motion = f4d_sequence_has_motion(im->sq) != 0;
+    im->motion = f4d_sequence_has_motion(im->sq) != 0 && !cfg->motion_off;
     /* Warm-up on a grey set straight on the model (not a key: the state is
      * reset after it): checks the weights give Gaussians and cameras,
      * touches the arena (flat RSS from here) and times one key. */
@@ -414,6 +424,19 @@ static int tx_write(void *self, const uint8_t *pkt, size_t len, struct f4d_err *
     return rc < 0 ? f4d_fail(err, rc, "stream: %s", transport_tx_error(tx)) : 0;
 }
 
+/* file:PATH: the transport writes through stdio, whose buffer would keep a
+ * packet's tail (up to a block) until the next key's packet pushes it out; a
+ * display following the file would then see key k only one key interval
+ * later. Flushed per packet, as the plain file sink does. */
+static int tx_write_file(void *self, const uint8_t *pkt, size_t len, struct f4d_err *err)
+{
+    transport_tx *tx = self;
+    int rc = transport_tx_send(tx, pkt, len);
+    if (rc == 0)
+        rc = transport_tx_drain(tx, 0);
+    return rc < 0 ? f4d_fail(err, rc, "stream: %s", transport_tx_error(tx)) : 0;
+}
+
 static int tx_close(void *self, struct f4d_err *err)
 {
     (void)err;
@@ -434,7 +457,7 @@ int run_sink_open(struct run_sink *st, const char *url, size_t max_packet, struc
         if (rc < 0)
             return rc;
         st->self = tx;
-        st->write = tx_write;
+        st->write = strncmp(url, "file:", 5) ? tx_write : tx_write_file;
         st->close = tx_close;
         return 0;
     }

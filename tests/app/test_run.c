@@ -17,6 +17,8 @@
  *              times file has a line per key (skipped without f4d-display).
  * alloc:       (not in sanitized builds: LD_PRELOAD) the process allocates
  *              as often for 3 keys as for 9: nothing per set or key.
+ * key_hz:      --key-hz paces the keys (triggers at least 1 / key_hz apart)
+ * motion_off:  --motion off: keys without motion, none held (app/run_motion)
  * config:      settings from a config file; bad keys, bad values, --stream
  *              without weights and an unknown stream scheme are refused.
  * load_faults: (ctest label "load", ~90 s) the faulty board (cameras at
@@ -31,6 +33,7 @@
 
 #include <cjson/cJSON.h>
 #include <fcntl.h>
+#include <math.h>
 #include <signal.h>
 #include <spawn.h>
 #include <stdio.h>
@@ -101,7 +104,9 @@ static double num(const cJSON *o, const char *key)
 
 /* Exactly the issue's keys, in its order, then key_stage_ms (where a key's
  * time went: four means, present once a key was streamed, and three on the
- * stage threads' CPU clocks), then what the
+ * stage threads' CPU clocks), latency_breakdown_ms (the mean trigger-to-sink
+ * latency part by part, adding up to it) and cpu_ms_per_key (CPU by stage),
+ * both also present once a key was streamed, then what the
  * latency runs to (sink, or display when one is attached), the sink's
  * latency and, with a display, the keys it showed; displayed figures null
  * unless a display is attached. */
@@ -111,14 +116,15 @@ static cJSON *check_stats_display(const char *path, bool display)
     static const char *const keys[] = {"sets_captured", "sets_skipped_by_inference", "key_frames", "key_hz",
                                        "displayed_fps", "latency_ms_p50", "latency_ms_p95", "bitrate_mbps",
                                        "rss_mb_start", "rss_mb_end", "key_stage_ms", "key_stage_cpu_ms",
+                                       "latency_breakdown_ms", "cpu_ms_per_key",
                                        "latency_to", "latency_sink_ms_p50", "latency_sink_ms_p95",
                                        "keys_displayed"};
     const cJSON *kf = cJSON_GetObjectItemCaseSensitive(st, "key_frames");
     bool any = cJSON_IsNumber(kf) && kf->valuedouble > 0;
-    int k = 0, n = 16 - !display;
+    int k = 0, n = 18 - !display;
     for (const cJSON *it = st->child; it; it = it->next, k++) {
         if (k == 10 && !any)
-            k += 2; /* no key_stage_ms nor key_stage_cpu_ms without a key */
+            k += 4; /* no per-key objects without a key */
         if (k >= n)
             fail_msg("stats: extra key \"%s\"", it->string);
         assert_string_equal(it->string, keys[k]);
@@ -134,6 +140,31 @@ static cJSON *check_stats_display(const char *path, bool display)
         const cJSON *v = cJSON_GetObjectItemCaseSensitive(sm, stages[i]);
         if (!cJSON_IsNumber(v) || !(v->valuedouble >= 0))
             fail_msg("stats: key_stage_ms.%s missing or negative", stages[i]);
+    }
+    /* the latency's parts are >= 0 and add up to its mean to the sink */
+    const cJSON *lb = cJSON_GetObjectItemCaseSensitive(st, "latency_breakdown_ms");
+    static const char *const parts[] = {"delivery", "infer_wait", "inference", "key_queue_wait", "encode",
+                                        "sink_write"};
+    double sum = 0;
+    for (int i = 0; lb && i < 6; i++) {
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(lb, parts[i]);
+        if (!cJSON_IsNumber(v) || !(v->valuedouble >= 0))
+            fail_msg("stats: latency_breakdown_ms.%s missing or negative", parts[i]);
+        sum += v->valuedouble;
+    }
+    if (lb) {
+        double to_sink = num(lb, "to_sink");
+        if (!(fabs(sum - to_sink) <= 1e-6 * (1 + to_sink)) || !(to_sink > 0))
+            fail_msg("stats: latency_breakdown_ms parts add up to %g, to_sink %g", sum, to_sink);
+    }
+    /* CPU by stage: a number (>= 0) or null for each, the stages named */
+    const cJSON *cp = cJSON_GetObjectItemCaseSensitive(st, "cpu_ms_per_key");
+    static const char *const cparts[] = {"capture", "inference", "stream", "record", "other", "daemon", "display",
+                                         "total", "keys"};
+    for (int i = 0; cp && i < 9; i++) {
+        const cJSON *v = cJSON_GetObjectItemCaseSensitive(cp, cparts[i]);
+        if (!v || !(cJSON_IsNull(v) || (cJSON_IsNumber(v) && v->valuedouble >= 0)))
+            fail_msg("stats: cpu_ms_per_key.%s missing or negative", cparts[i]);
     }
     if (!display)
         assert_true(cJSON_IsNull(cJSON_GetObjectItemCaseSensitive(st, "displayed_fps")));
@@ -203,6 +234,76 @@ static void sim_short(void **state)
     snprintf(path, sizeof path, "%s/s.f4ds", tmp);
     assert_int_equal(decode_stream(path, "dec"), (int)keys);
     cJSON_Delete(st);
+}
+
+/* --motion off on weights with a motion part: the motion head is skipped,
+ * keys leave as soon as their set ran (none held for its forward motion, so
+ * --keys N streams N, or N + 1 with the key in flight) and carry no motion;
+ * the stream decodes key for key. On weights without motion it changes
+ * nothing. */
+static void motion_off(void **state)
+{
+    (void)state;
+    char out[4096], path[512];
+    int rc = sh(out, sizeof out,
+                "%s run --no-config --board %s/sim-4cam.json --weights %s --keys 3 --motion off "
+                "--stream file:%s/m.f4ds --stats-json %s/m.json 2>&1",
+                forge4d, F4D_BOARD_DIR, weights, tmp, tmp);
+    if (rc != 0)
+        fail_msg("forge4d run --motion off: exit %d: %s", rc, out);
+    if (!strstr(out, "no motion in the weights") && !strstr(out, "motion off (the motion head skipped"))
+        fail_msg("forge4d run --motion off: no word of the motion: %s", out);
+    snprintf(path, sizeof path, "%s/m.json", tmp);
+    cJSON *st = check_stats(path);
+    double keys = num(st, "key_frames");
+    assert_true(keys >= 3 && keys <= 4);
+    snprintf(path, sizeof path, "%s/m.f4ds", tmp);
+    assert_int_equal(decode_stream(path, "dec_m"), (int)keys);
+    rc = sh(out, sizeof out, "%s info %s/dec_m/key_00000.ply 2>&1", codec, tmp);
+    assert_int_equal(rc, 0);
+    if (strstr(out, "with motion"))
+        fail_msg("--motion off: the keys carry motion:\n%s", out);
+    rc = sh(out, sizeof out, "%s run --no-config --board %s/sim-4cam.json --weights %s --keys 1 --motion sideways 2>&1",
+            forge4d, F4D_BOARD_DIR, weights);
+    assert_int_equal(rc, 2);
+    assert_non_null(strstr(out, "motion must be on or off"));
+    cJSON_Delete(st);
+}
+
+/* --key-hz 2: inference starts a key at most every 0.5 s. On the lockstep
+ * sim board the next set is handed over (and its trigger placed) only after
+ * that wait, so consecutive keys' triggers in the key-times file are at least
+ * 0.5 s apart (less the few ms of modelled delivery that can differ): a
+ * lower bound, whatever the machine's load. Bad values are refused. */
+static void key_hz(void **state)
+{
+    (void)state;
+    char out[4096], path[512];
+    int rc = sh(out, sizeof out,
+                "%s run --no-config --quiet --board %s/sim-4cam.json --weights %s --keys 3 --key-hz 2 "
+                "--stream file:%s/k.f4ds --key-times %s/k.keys --stats-json %s/k.json 2>&1",
+                forge4d, F4D_BOARD_DIR, weights, tmp, tmp, tmp);
+    if (rc != 0)
+        fail_msg("forge4d run --key-hz 2: exit %d: %s", rc, out);
+    snprintf(path, sizeof path, "%s/k.keys", tmp);
+    FILE *f = fopen(path, "r");
+    assert_non_null(f);
+    unsigned long long t, trig, prev = 0;
+    int n = 0;
+    while (fscanf(f, "%llu %llu %*u %*u", &t, &trig) == 2) {
+        if (n > 0 && (double)(trig - prev) < 0.45e9)
+            fail_msg("--key-hz 2: triggers %.3f s apart", (double)(trig - prev) * 1e-9);
+        prev = trig;
+        n++;
+    }
+    fclose(f);
+    assert_true(n >= 3);
+    snprintf(path, sizeof path, "%s/k.json", tmp);
+    cJSON_Delete(check_stats(path));
+    rc = sh(out, sizeof out, "%s run --no-config --board %s/sim-4cam.json --weights %s --keys 1 --key-hz -1 2>&1",
+            forge4d, F4D_BOARD_DIR, weights);
+    assert_int_equal(rc, 2);
+    assert_non_null(strstr(out, "key_hz wants a number"));
 }
 
 static pid_t spawn(char *const argv[], const char *log, char *const envp[])
@@ -411,6 +512,11 @@ static void display(void **state)
     assert_true(num(st, "keys_displayed") == keys); /* the display follows to the end packet */
     assert_true(num(st, "latency_ms_p50") > 0 && num(st, "latency_ms_p95") >= num(st, "latency_ms_p50"));
     assert_true(num(st, "latency_sink_ms_p50") > 0);
+    /* past the sink: the display's parts (key line to packet read, read to
+     * shown) and its own mean from the trigger, at least the sink's part */
+    const cJSON *lb = cJSON_GetObjectItemCaseSensitive(st, "latency_breakdown_ms");
+    assert_true(num(lb, "display_read") >= 0 && num(lb, "display_show") >= 0);
+    assert_true(num(lb, "to_display") >= num(lb, "display_read") + num(lb, "display_show"));
     rc = sh(out, sizeof out, "wc -l < %s/d.keys", tmp);
     assert_int_equal(atoi(out), (int)keys);
     snprintf(path, sizeof path, "%s/dd.json", tmp);
@@ -657,7 +763,8 @@ int main(int argc, char **argv)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(sim_short), cmocka_unit_test(sigterm),     cmocka_unit_test(replay),
         cmocka_unit_test(srt),       cmocka_unit_test(config),      cmocka_unit_test(load_faults),
-        cmocka_unit_test(alloc),     cmocka_unit_test(display),
+        cmocka_unit_test(alloc),     cmocka_unit_test(display),     cmocka_unit_test(motion_off),
+        cmocka_unit_test(key_hz),
     };
     return F4D_TEST_MAIN(argc, argv, "app/run", tests, setup, teardown);
 }

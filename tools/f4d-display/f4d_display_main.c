@@ -5,7 +5,7 @@
  *               [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]
  *               [--interp fused|both|nearest] [--offset BYTES] [--no-status]
  *               [--realtime|--no-realtime] [--threads N] [--json FILE]
- *               [--follow [--follow-idle S]] [--key-times FILE] INPUT
+ *               [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] INPUT
  *
  * INPUT is a stream file (.f4ds), or srt://HOST:PORT?... / file:PATH through
  * the stream transport (f4d_transport.h: caller or listener, latency,
@@ -14,7 +14,13 @@
  * the middle (a join: the display waits for the next intra key). --follow
  * reads INPUT, a stream file, while it is being written (live: it waits for
  * the file and for more bytes, ends at the stream's end packet or after
- * --follow-idle S, default 30, without new bytes). --key-times FILE (the
+ * --follow-idle S, default 30, without new bytes). --live-lag K (default 0
+ * with --follow, else off): a live source; every packet there is read at each
+ * refresh and the display's clock is kept at most K key intervals behind the
+ * newest key, catching up when it falls further behind (0: each key shown as
+ * soon as it is decoded and held until the next; 1: the interval before the
+ * newest key interpolated, one key interval later; -1: off, the clock runs
+ * from the first key, e.g. to play a finished file at its pace). --key-times FILE (the
  * daemon's `forge4d run --key-times`: per key its stream time and trigger on
  * CLOCK_MONOTONIC, written before the key's packet) times each key from its
  * trigger to the end of the first refresh that shows it in full (stream time
@@ -40,7 +46,14 @@ static void usage(FILE *f)
                "                   [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]\n"
                "                   [--interp fused|both|nearest] [--offset BYTES] [--no-status]\n"
                "                   [--realtime|--no-realtime] [--threads N] [--json FILE]\n"
-               "                   [--follow [--follow-idle S]] [--key-times FILE] INPUT\n");
+               "                   [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] INPUT\n");
+}
+
+static double cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
 static uint64_t mono_ns(void)
@@ -56,6 +69,7 @@ static uint64_t mono_ns(void)
  * points into it until the next call. Damaged bytes are skipped to the next
  * packet and counted, as the other sources do. */
 #define FOLLOW_BUF ((size_t)64 << 20)
+#define FOLLOW_READS 64 /* the last key packets' stream times and read times */
 struct follow {
     const char *path;
     int fd, ended;
@@ -63,8 +77,18 @@ struct follow {
     size_t lo, hi;
     double idle_s;
     uint64_t last_ns;
+    uint64_t rd_t_us[FOLLOW_READS], rd_ns[FOLLOW_READS], rd_n;
     struct display_source_stats st;
 };
+
+/* When the key packet of stream time t_us was read (0: not among the last). */
+static uint64_t follow_read_ns(const struct follow *f, uint64_t t_us)
+{
+    for (uint64_t i = f->rd_n; i > 0 && i + FOLLOW_READS > f->rd_n; i--)
+        if (f->rd_t_us[(i - 1) % FOLLOW_READS] == t_us)
+            return f->rd_ns[(i - 1) % FOLLOW_READS];
+    return 0;
+}
 
 static int follow_next(void *impl, struct codec_packet *p, struct f4d_err *err)
 {
@@ -86,6 +110,10 @@ static int follow_next(void *impl, struct codec_packet *p, struct f4d_err *err)
                 f->st.packets++;
                 f->st.bytes += p->size;
                 f->ended = p->type == CODEC_PKT_END;
+                if (p->type == CODEC_PKT_INTRA || p->type == CODEC_PKT_PRED) {
+                    f->rd_t_us[f->rd_n % FOLLOW_READS] = p->t_us;
+                    f->rd_ns[f->rd_n++ % FOLLOW_READS] = mono_ns();
+                }
                 return 1;
             }
             if (rc != F4D_EEOF) { /* damaged: on to the next packet start */
@@ -132,7 +160,8 @@ static void follow_free(void *impl)
     free(f);
 }
 
-static int follow_open(const char *path, double idle_s, display_source **out, struct f4d_err *err)
+static int follow_open(const char *path, double idle_s, display_source **out, const struct follow **fw,
+                       struct f4d_err *err)
 {
     static const struct display_source_ops ops = { follow_next, follow_stats, follow_free };
     struct follow *f = calloc(1, sizeof *f);
@@ -148,23 +177,31 @@ static int follow_open(const char *path, double idle_s, display_source **out, st
     int rc = display_source_new(&ops, f, out, err);
     if (rc < 0)
         follow_free(f);
+    else
+        *fw = f;
     return rc;
 }
 
 /* ---- --key-times: trigger -> presentation per key ----
- * Lines "t_us trigger_ns ..." are read as they appear (the daemon writes a
- * key's line before its packet, so a key on screen has its line on disk);
- * a key waits in `pend` until a refresh shows it in full. */
+ * Lines "t_us trigger_ns sent_ns ..." are read as they appear (the daemon
+ * writes a key's line, once it is encoded, before its packet, so a key on
+ * screen has its line on disk); a key waits in `pend` until a refresh shows
+ * it in full. With --follow the latency is split: sent -> the packet read
+ * here (the sink's write, the file, this reader's polling) -> shown (decode,
+ * the display clock reaching the key, draw, present). */
 #define KT_PEND 4096
 #define KT_SAMPLES 65536
 struct keytimes {
     int fd;
     char line[512];
     size_t len;
-    uint64_t pend_t[KT_PEND], pend_trig[KT_PEND];
+    uint64_t pend_t[KT_PEND], pend_trig[KT_PEND], pend_sent[KT_PEND];
     size_t head, n;
     float *ms;
     uint64_t timed, overflow;
+    const struct follow *fw;       /* read times of the key packets (--follow), or NULL */
+    double sum_read, sum_show, sum_total;
+    uint64_t parts;                /* keys with all three times */
 };
 
 static void kt_read(struct keytimes *k)
@@ -180,8 +217,8 @@ static void kt_read(struct keytimes *k)
             }
             k->line[k->len] = 0;
             k->len = 0;
-            unsigned long long t, trig;
-            if (sscanf(k->line, "%llu %llu", &t, &trig) != 2)
+            unsigned long long t, trig, sent = 0;
+            if (sscanf(k->line, "%llu %llu %llu", &t, &trig, &sent) < 2)
                 continue;
             if (k->n == KT_PEND) { /* never shown: the oldest gives way */
                 k->head = (k->head + 1) % KT_PEND;
@@ -191,6 +228,7 @@ static void kt_read(struct keytimes *k)
             size_t j = (k->head + k->n++) % KT_PEND;
             k->pend_t[j] = t;
             k->pend_trig[j] = trig;
+            k->pend_sent[j] = sent;
         }
 }
 
@@ -200,8 +238,15 @@ static void kt_presented(struct keytimes *k, const struct display_stats *st, uin
     kt_read(k);
     uint64_t shown = st->shown_us < st->key_us ? st->shown_us : st->key_us;
     while (k->n && k->pend_t[k->head] <= shown) {
-        uint64_t trig = k->pend_trig[k->head];
+        uint64_t trig = k->pend_trig[k->head], sent = k->pend_sent[k->head];
         k->ms[k->timed++ % KT_SAMPLES] = now > trig ? (float)((double)(now - trig) * 1e-6) : 0.0f;
+        uint64_t rd = k->fw ? follow_read_ns(k->fw, k->pend_t[k->head]) : 0;
+        if (rd && sent && trig && sent <= rd && rd <= now && trig <= now) {
+            k->sum_read += (double)(rd - sent) * 1e-6;
+            k->sum_show += (double)(now - rd) * 1e-6;
+            k->sum_total += (double)(now - trig) * 1e-6;
+            k->parts++;
+        }
         k->head = (k->head + 1) % KT_PEND;
         k->n--;
     }
@@ -237,8 +282,15 @@ static int num(const char *opt, const char *v, double lo, double hi, double *out
     return 0;
 }
 
+/* Process CPU from the first presented refresh on, per key decoded since. */
+struct cpu_mark {
+    double ms0;
+    uint64_t keys0;
+    int taken;
+};
+
 static void summary(FILE *f, const struct display_stats *st, const struct display_config *cfg, int W, int H,
-                    const struct keytimes *kt, double p50, double p95)
+                    const struct keytimes *kt, double p50, double p95, const struct cpu_mark *cm)
 {
     const struct display_player_stats *p = &st->player;
     double fps = st->seconds > 0 && st->frames > 1 ? (double)(st->frames - 1) / st->seconds : 0.0;
@@ -251,7 +303,9 @@ static void summary(FILE *f, const struct display_stats *st, const struct displa
             " \"bytes\": %llu, \"bitrate_mbps\": %.3f, \"latency_ms\": %.1f,\n"
             " \"decode_ms_per_key\": %.3f, \"lookup_ms_per_key\": %.3f, \"interp_ms_per_frame\": %.3f,\n"
             " \"render_ms_per_frame\": %.3f, \"present_ms_per_frame\": %.3f, \"raster_ms_per_frame\": %.3f,\n"
-            " \"gaussians_per_frame\": %.0f, \"visible_per_frame\": %.0f, \"tile_pairs_per_frame\": %.0f,\n",
+            " \"gaussians_per_frame\": %.0f, \"visible_per_frame\": %.0f, \"tile_pairs_per_frame\": %.0f,\n"
+            " \"slots_missed\": %llu, \"live_lag_keys\": %.2f, \"clock_raises\": %llu, \"clock_raised_ms\": %.1f,"
+            " \"frames_held\": %llu, \"decode_cpu_ms_per_key\": %.3f, \"lookup_cpu_ms_per_key\": %.3f,\n",
             (unsigned long long)st->frames, (unsigned long long)(st->frames - st->redraws_skipped), fps, cfg->fps, W, H, st->renderer == DISPLAY_RENDER_CPU ? "cpu" : "gles",
             st->gl_renderer, st->auto_cpu_ms, st->auto_gles_ms, (unsigned long long)p->keys,
             (unsigned long long)st->source.dropped, (unsigned long long)p->lost, (unsigned long long)p->skipped,
@@ -259,7 +313,16 @@ static void summary(FILE *f, const struct display_stats *st, const struct displa
             (unsigned long long)st->source.skipped_bytes, (unsigned long long)st->source.bytes, st->bitrate_mbps,
             st->latency_ms, p->decode_ms / keys, p->lookup_ms / keys, p->interp_ms / fr, st->render_ms / fr,
             st->present_ms / fr, st->raster_ms / fr, (double)st->drawn / fr, (double)st->visible / fr,
-            (double)st->pairs / fr);
+            (double)st->pairs / fr, (unsigned long long)st->slots_missed, cfg->live_lag_keys,
+            (unsigned long long)p->clock_raises, p->clock_raised_ms, (unsigned long long)p->held,
+            p->decode_cpu_ms / keys, p->lookup_cpu_ms / keys);
+    if (cm->taken && p->keys > cm->keys0)
+        fprintf(f, " \"cpu_ms_per_key\": %.1f,\n", (cpu_ms() - cm->ms0) / (double)(p->keys - cm->keys0));
+    if (kt && kt->parts)
+        fprintf(f, " \"latency_breakdown_ms\": {\"display_read\": %.1f, \"display_show\": %.1f, \"to_display\": %.1f, "
+                   "\"keys\": %llu},\n",
+                kt->sum_read / (double)kt->parts, kt->sum_show / (double)kt->parts, kt->sum_total / (double)kt->parts,
+                (unsigned long long)kt->parts);
     if (kt && isfinite(p50))
         fprintf(f, " \"keys_timed\": %llu, \"latency_trigger_ms_p50\": %.1f, \"latency_trigger_ms_p95\": %.1f}\n",
                 (unsigned long long)kt->timed, p50, p95);
@@ -273,7 +336,7 @@ int main(int argc, char **argv)
     struct display_config cfg = display_config_default();
     const char *input = NULL, *rig_path = NULL, *cam_sel = NULL, *json = NULL, *kt_path = NULL;
     int size_given = 0, realtime = -1, threads = 0, follow = 0;
-    double seconds = 0, frames = 0, offset = 0, follow_idle = 30;
+    double seconds = 0, frames = 0, offset = 0, follow_idle = 30, live_lag = NAN;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -313,6 +376,9 @@ int main(int argc, char **argv)
                 json = v;
             } else if (!strcmp(a, "--key-times")) {
                 kt_path = v;
+            } else if (!strcmp(a, "--live-lag")) {
+                if (num(a, v, -1, 1000, &live_lag) < 0)
+                    return 2;
             } else if (!strcmp(a, "--follow-idle")) {
                 if (num(a, v, 0.1, 1e6, &follow_idle) < 0)
                     return 2;
@@ -376,6 +442,7 @@ int main(int argc, char **argv)
         return 2;
     }
     cfg.realtime = realtime >= 0 ? realtime : cfg.output != DISPLAY_HEADLESS;
+    cfg.live_lag_keys = isfinite(live_lag) ? live_lag : follow ? 0.0 : -1.0;
     struct f4d_err err = { 0 };
     struct splat_rig rig;
     struct splat_camera cam;
@@ -439,26 +506,33 @@ int main(int argc, char **argv)
         fk_ctx_free(ctx);
         return 2;
     }
+    const struct follow *fw = NULL;
 #ifdef F4D_DISPLAY_TRANSPORT
-    int src_rc = follow ? follow_open(input, follow_idle, &src, &err)
+    int src_rc = follow ? follow_open(input, follow_idle, &src, &fw, &err)
                  : net  ? display_source_transport(input, 0, &src, &err)
                         : display_source_file(input, (size_t)offset, &src, &err);
 #else
-    int src_rc = follow ? follow_open(input, follow_idle, &src, &err)
+    int src_rc = follow ? follow_open(input, follow_idle, &src, &fw, &err)
                  : net  ? f4d_fail(&err, F4D_ENOTSUP, "'%s': built without the stream transport", input)
                         : display_source_file(input, (size_t)offset, &src, &err);
 #endif
+    if (kt)
+        kt->fw = fw;
     if (src_rc < 0 || display_new(ctx, &cfg, &d, &err) < 0) {
         fprintf(stderr, "f4d-display: %s\n", err.msg);
         goto done;
     }
     /* the refresh limit: --frames, or --seconds of stream time at --fps */
     uint64_t limit = frames > 0 ? (uint64_t)frames : seconds > 0 ? (uint64_t)ceil(seconds * cfg.fps) : 0;
+    struct cpu_mark cm = { 0 };
     for (;;) {
         const struct display_stats *st = display_get_stats(d);
         if (limit && st->frames >= limit)
             break;
         uint64_t before = st->frames;
+        if (before > 0 && !cm.taken) {
+            cm = (struct cpu_mark){ cpu_ms(), st->player.keys, 1 };
+        }
         int s = display_step(d, src);
         if (s < 0) {
             fprintf(stderr, "f4d-display: '%s': %s\n", input, display_error(d));
@@ -481,14 +555,14 @@ int main(int argc, char **argv)
         W = used->width;
         H = used->height;
     }
-    summary(stdout, st, &cfg, W, H, kt, p50, p95);
+    summary(stdout, st, &cfg, W, H, kt, p50, p95, &cm);
     if (json) {
         FILE *f = fopen(json, "w");
         if (!f) {
             fprintf(stderr, "f4d-display: cannot create '%s': %s\n", json, strerror(errno));
             goto done;
         }
-        summary(f, st, &cfg, W, H, kt, p50, p95);
+        summary(f, st, &cfg, W, H, kt, p50, p95, &cm);
         fclose(f);
     }
     if (st->frames == 0) {

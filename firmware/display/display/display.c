@@ -55,6 +55,7 @@ struct display_config display_config_default(void)
     c.status_line = 1;
     c.interp = INTERP_FUSED;
     c.kms_device = "/dev/dri/card0";
+    c.live_lag_keys = -1.0;
     return c;
 }
 
@@ -339,17 +340,29 @@ static int pump(display *d, display_source *src, uint64_t until, int want_first)
     }
 }
 
+/* Refresh slots every 1 / fps on absolute deadlines (clock_nanosleep on
+ * CLOCK_MONOTONIC, TIMER_ABSTIME: no drift from the time spent computing the
+ * wait). A refresh that starts a whole period or more after its slot began
+ * has missed it: it takes the current slot and the missed ones are counted
+ * (slots_missed), never made up by presenting refreshes back to back. */
 static void pace(display *d)
 {
     if (!d->cfg.realtime)
         return;
     double now = display__now_ms(), period = 1e3 / d->cfg.fps;
-    if (d->next_ms == 0.0 || now - d->next_ms > 4 * period)
-        d->next_ms = now; /* first refresh, or too late to catch up */
-    double wait = d->next_ms - now;
-    if (wait > 0) {
-        struct timespec ts = { (time_t)(wait / 1e3), (long)(fmod(wait, 1e3) * 1e6) };
-        nanosleep(&ts, NULL);
+    if (d->next_ms == 0.0)
+        d->next_ms = now; /* the first refresh */
+    else if (now - d->next_ms >= period) {
+        double missed = floor((now - d->next_ms) / period);
+        if (d->st.frames > 0)
+            d->st.slots_missed += (uint64_t)missed;
+        d->next_ms += missed * period;
+    }
+    if (d->next_ms > now) {
+        double at = d->next_ms;
+        struct timespec ts = { (time_t)(at / 1e3), (long)(fmod(at, 1e3) * 1e6) };
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
+        }
     }
     d->next_ms += period;
 }
@@ -394,9 +407,16 @@ int display_step(display *d, display_source *src)
     if (d->cfg.realtime && d->refresh == 0)
         d->wall0_ms = t_start;
     double k = d->cfg.realtime ? (t_start - d->wall0_ms) * 1e-3 * d->cfg.fps : (double)d->refresh;
-    uint64_t t_us = d->t0_us + (uint64_t)(k * 1e6 / d->cfg.fps + 0.5);
-    if ((rc = pump(d, src, t_us, 0)) < 0)
+    uint64_t t_us = d->t0_us + (uint64_t)(k * 1e6 / d->cfg.fps + 0.5), t_own = t_us;
+    /* live: every packet there is now is read (the newest key first), and the
+     * clock is kept near the newest key (the player's policy) */
+    int live = d->cfg.live_lag_keys >= 0.0;
+    if (live)
+        t_us = display_player_clock(d->player, t_own, d->cfg.live_lag_keys);
+    if ((rc = pump(d, src, live ? UINT64_MAX : t_us, 0)) < 0)
         return rc;
+    if (live)
+        t_us = display_player_clock(d->player, t_own, d->cfg.live_lag_keys);
     uint64_t tp, tn;
     display_player_keys(d->player, &tp, &tn);
     display_source_get_stats(src, &d->st.source);

@@ -25,8 +25,12 @@
  * refresh as fast as the machine goes; paced (cfg.realtime, window and KMS
  * default), refreshes start every 1 / fps and show t_first_key + the wall
  * time since the first, so a slow machine skips ahead instead of falling
- * behind a live stream. The display shows the interval between the last two
- * keys, so its latency is up to one key interval plus the source's.
+ * behind a live stream; a refresh that misses its slot is not made up
+ * (slots_missed). The display shows the interval between the last two keys,
+ * so its latency is up to one key interval plus the source's; a live source
+ * (cfg.live_lag_keys >= 0) is read to its newest packet at every refresh and
+ * the clock kept within live_lag_keys key intervals of the newest key
+ * (display_player_clock): 0 shows each key once decoded and holds it.
  *
  * Renderers (both present through EGL):
  *   DISPLAY_RENDER_GLES: GLES 3 instanced quads, the reference 3DGS shading
@@ -121,6 +125,10 @@ struct display_player_stats {
     double   decode_cpu_ms, lookup_cpu_ms, interp_cpu_ms; /* the same as process
                                 CPU time (all threads), blind to neighbours    */
     int      interp_mode;   /* enum interp_mode of the last frame              */
+    uint64_t clock_raises;  /* display_player_clock: times the clock was raised */
+    double   clock_raised_ms; /* stream time it skipped in total (ms)          */
+    uint64_t held;          /* frames that showed the newest key as decoded
+                               (live: the clock at or past it)                 */
 };
 /* ctx (borrowed) gives the threads; lookup_rig may be NULL (then the first
  * display_player_frame's camera is the lookup view); mode INTERP_FUSED etc.;
@@ -143,6 +151,18 @@ int  display_player_prepare(display_player *p, const struct splat_camera *cam);
  * lookup view when the player has no rig (the first call fixes it). */
 int  display_player_frame(display_player *p, uint64_t t_us, const struct splat_camera *cam,
                           const struct splat_frame **out);
+/* The live clock policy. t_us: the display's own clock (stream time of this
+ * refresh); returns it raised so that it trails the newest key by at most
+ * lag_keys key intervals (the interval between the two keys held), and keeps
+ * the raise for later calls: the clock never goes back, and a display that
+ * started late, or fell behind a live stream, catches up instead of showing
+ * it a fixed delay late. lag_keys 0: each key is shown as soon as it is
+ * decoded and held until the next (no wait for key k+1 to interpolate
+ * towards); 1: the interval before the newest key is played as it arrives
+ * (interpolation, one key interval of latency). From the first call on, a
+ * frame at or past the newest key's time is that key as decoded (no pixel
+ * lookup for a pair the clock is already past). */
+uint64_t display_player_clock(display_player *p, uint64_t t_us, double lag_keys);
 size_t display_player_capacity(const display_player *p);
 const struct display_player_stats *display_player_get_stats(const display_player *p);
 
@@ -162,6 +182,11 @@ struct display_config {
     const struct splat_camera *camera;     /* NULL: orbit camera from the first key;
                                                scaled to the output's size      */
     const struct splat_rig    *lookup_rig; /* NULL: the starting camera         */
+    double      live_lag_keys;      /* < 0 (default): the paced clock runs from the
+                                       first key; >= 0: a live source, the clock kept
+                                       within this many key intervals of the newest key
+                                       (display_player_clock) and every packet read as
+                                       it comes                                      */
     enum interp_mode interp;        /* INTERP_FUSED                              */
     size_t      capacity;           /* 0: from the stream                        */
     const char *kms_device;         /* "/dev/dri/card0"                          */
@@ -182,6 +207,8 @@ struct display_stats {
                                        present (llvmpipe's threads included)      */
     double   bitrate_mbps;          /* received bits over the stream time seen    */
     double   latency_ms;            /* newest key time minus displayed time (+ source) */
+    uint64_t slots_missed;          /* paced: refresh slots (1 / fps) no refresh was presented in
+                                       (a slow refresh; not made up by back-to-back ones) */
     uint64_t redraws_skipped;       /* refreshes that re-presented the last picture drawn (CPU path:
                                        same key pair, stream time past the newest key, same camera) */
     uint64_t shown_us, key_us;      /* last refresh: its stream time, the newest key held

@@ -28,6 +28,8 @@ struct display_player {
     struct interp_pair pair;          /* partners of the current key pair */
     int              pair_ok;         /* pair holds (slot[newest ^ 1], slot[newest]) */
     int              warm;            /* interp sized for the capacity */
+    uint64_t         clock_off_us;    /* display_player_clock's raise so far */
+    int              live;            /* display_player_clock was called: hold the newest key */
     struct display_player_stats st;
     struct f4d_err   err;
 };
@@ -290,6 +292,27 @@ int display_player_prepare(display_player *p, const struct splat_camera *cam)
     return F4D_OK;
 }
 
+uint64_t display_player_clock(display_player *p, uint64_t t_us, double lag_keys)
+{
+    if (!p)
+        return t_us;
+    p->live = 1;
+    uint64_t t = t_us + p->clock_off_us;
+    if (p->nkeys == 0 || !(lag_keys >= 0.0))
+        return t;
+    uint64_t tn = p->slot[p->newest].t_us;
+    uint64_t span = p->nkeys == 2 ? tn - p->slot[p->newest ^ 1].t_us : 0;
+    double lag = lag_keys * (double)span;
+    uint64_t floor_t = (double)tn > lag ? tn - (uint64_t)lag : 0;
+    if (t < floor_t) { /* behind the newest key by more than the lag: catch up */
+        p->clock_off_us += floor_t - t;
+        p->st.clock_raises++;
+        p->st.clock_raised_ms += (double)(floor_t - t) * 1e-3;
+        t = floor_t;
+    }
+    return t;
+}
+
 int display_player_frame(display_player *p, uint64_t t_us, const struct splat_camera *cam,
                          const struct splat_frame **out)
 {
@@ -301,6 +324,13 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
     if (p->nkeys == 1) {
         *out = &next->f;
         p->st.interp_mode = INTERP_NEAREST;
+        return F4D_OK;
+    }
+    if (p->live && t_us >= next->t_us) {
+        /* live, the clock at or past the newest key: that key as decoded
+         * (held until the next one), no pair to build for times gone by */
+        *out = &next->f;
+        p->st.held++;
         return F4D_OK;
     }
     struct key_slot *prev = &p->slot[p->newest ^ 1];
