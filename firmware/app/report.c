@@ -900,6 +900,7 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
     }
     fprintf(stderr, "[report] -> %s/report.md, report.json, pareto.png, bitrate.png, display.png\n", out);
     status = 0;
+#undef BEST
 done:
     if (takes)
         for (int i = 0; i < ntakes; i++)
