@@ -3,13 +3,17 @@
  * forge4d_main.c include it.
  *
  *     forge4d report [--quick] -o DIR --take TAKE [--take TAKE ...]
- *                    [--weights W] [--threads N] [--keys N]
+ *                    [--weights W] [--clock cpu|wall] [--threads N] [--keys N]
+ *                    [--reps N] [--precision L] [--size L] [--tokens L]
+ *                    [--budget L] [--codec L]
  *
  * Every grid point (precision x input size x token budget x Gaussian budget
  * x codec level) runs the appliance's path on each venue take: model (with
  * state and motion when the weights have them) -> scene budget -> stream
  * encoder -> the display's player (decode, interpolation) -> a render, and
  * is scored against the take's ground truth (firmware/gaussians/score).
+ * Time per key (the speed axis): the key path's CPU time on one kernel thread
+ * (--clock cpu, the default) or its wall time (--clock wall); both printed.
  * DIR gets report.md, report.json and the PNG plots.
  *
  *     struct report_plot p = {.path = "pareto.png", .title = ..., .n = n, .x = x, .y = y, ...};

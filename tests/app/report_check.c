@@ -117,12 +117,20 @@ int main(int argc, char **argv)
     CHECK(n >= 2, "fewer than 2 points (%d)", n);
     CHECK(cJSON_IsArray(front) && cJSON_IsObject(goal) && cJSON_IsNumber(base) && cJSON_IsBool(motion),
           "missing \"front\", \"goal\", \"baseline\" or \"motion\"");
+    /* the speed axis is one of the two clocks, named */
+    const cJSON *clk = cJSON_GetObjectItem(root, "clock");
+    CHECK(cJSON_IsString(clk) && (!strcmp(clk->valuestring, "cpu") || !strcmp(clk->valuestring, "wall")),
+          "no \"clock\" (cpu or wall)");
+    const char *key_clock = cJSON_IsString(clk) && !strcmp(clk->valuestring, "wall") ? "key_wall_ms" : "key_cpu_ms";
     if (fails) {
         cJSON_Delete(root);
         return 1;
     }
     /* every figure; null only where it may be missing (no mid times, no motion) */
-    static const char *const must[] = {"key_ms", "key_hz", "model_ms", "model_cpu_ms", "budget_ms", "encode_ms", "decode_ms",
+    static const char *const must[] = {"key_ms", "key_hz", "key_wall_ms", "key_cpu_ms", "model_ms", "model_cpu_ms",
+                                       "model_process_cpu_ms", "budget_ms", "budget_cpu_ms", "encode_ms",
+                                       "encode_cpu_ms", "decode_ms", "wall_speedup_vs_baseline",
+                                       "cpu_speedup_vs_baseline",
                                        "tokens_ran_fraction", "gaussians_per_key", "bytes_per_key",
                                        "mbps_at_take_rate", "novel_view_psnr", "novel_view_ssim", "point_dist_m",
                                        "rot_err_deg", "trans_err_m", "speedup_vs_baseline",
@@ -157,6 +165,8 @@ int main(int argc, char **argv)
         CHECK(hz[i] > 0, "point %d: key_hz %g", i, hz[i]);
         CHECK(get(o, "model_cpu_ms", &ok) > 0 && get(o, "model_ms", &ok) > 0, "point %d: no model time", i);
         CHECK(fabs(hz[i] * get(o, "key_ms", &ok) - 1e3) < 1e-3 * 1e3, "point %d: key_hz and key_ms disagree", i);
+        CHECK(get(o, "key_ms", &ok) == get(o, key_clock, &ok), "point %d: key_ms is not %s", i, key_clock);
+        CHECK(get(o, "key_cpu_ms", &ok) >= get(o, "model_cpu_ms", &ok), "point %d: key CPU time below the model's", i);
         motion_pts += isfinite(get(o, "motion_epe_m", &ok));
     }
     /* the front, recomputed */

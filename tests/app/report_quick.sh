@@ -4,9 +4,13 @@
 # wrote (JSON fields, a non-dominated non-empty front, the goal line, PNGs that
 # decode). The take carries its empty-venue plate (--background) for the foreground model. The checker is also run on broken copies, which it must refuse, and a
 # missing take must fail with a clear message.
-#   report_quick.sh FORGE4D F4D-SCENE REPORT_CHECK WEIGHTS [SIZE] [--motion]
+# Bad options (CPU clock with 2 threads, a grid without the baseline, an unknown axis
+# value) must fail naming what is wrong.
+#   report_quick.sh FORGE4D F4D-SCENE REPORT_CHECK WEIGHTS [SIZE] [--motion|-] [REPORT OPTIONS...]
 set -euo pipefail
 forge4d=$1 scene=$2 check=$3 weights=$4 size=${5:-112x112} motion=${6:-}
+shift $(( $# < 6 ? $# : 6 ))
+[ "$motion" = - ] && motion=
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 [ -s "$weights" ] || { echo "missing weights $weights"; exit 1; }
@@ -19,8 +23,18 @@ if "$forge4d" report --quick -o "$tmp/none" --take "$tmp/missing" 2> "$tmp/err";
   echo "report on a missing take succeeded"; exit 1
 fi
 grep -q "not a venue take" "$tmp/err" || { echo "unclear error for a missing take:"; cat "$tmp/err"; exit 1; }
+refuse() { # refuse PATTERN OPTIONS...: the report must fail before running, naming the problem
+  local want=$1; shift
+  if "$forge4d" report --quick -o "$tmp/none" --take "$tmp/take" --weights "$weights" "$@" 2> "$tmp/err"; then
+    echo "report $* succeeded"; exit 1
+  fi
+  grep -q -- "$want" "$tmp/err" || { echo "unclear error for $*:"; cat "$tmp/err"; exit 1; }
+}
+refuse "use --threads 1" --clock cpu --threads 2
+refuse "must hold the baseline" --precision int8
+refuse 'unknown value "9/8"' --size 1,9/8
 
-"$forge4d" report --quick -o "$tmp/out" --take "$tmp/take" --weights "$weights" --threads 2
+"$forge4d" report --quick -o "$tmp/out" --take "$tmp/take" --weights "$weights" "$@"
 "$check" "$tmp/out" $motion
 # the take has the empty-venue plate (--background): the foreground model learned from it
 grep -q '"background_plate":[[:space:]]*true' "$tmp/out/report.json" ||
