@@ -1769,10 +1769,18 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             blocks_units(&e->bk, z, qi->rot_bits);
             blocks_fit(&e->bk, f, ref, e->rix, e->bacc);
         }
-        if (keyed && motion && n > 1)
+        /* CODEC_EFFORT_FAST: block mf and rotations wherever blocks are
+         * fitted, unmeasured (the measuring codes every matched Gaussian's
+         * residuals twice or three times over) */
+        const int fast = e->effort == CODEC_EFFORT_FAST;
+        if (keyed && motion && n > 1 && fast && block_motion) {
+            block_mf_used = 1;
+            cf[2] = cf[3] = 0.0f;
+        } else if (keyed && motion && n > 1) {
             block_mf_used = choose_mf_predictor(e, ref, f, match, z, pos_tol, cf, block_motion ? &e->bk : NULL);
+        }
         if (block_motion) {
-            block_rot_used = choose_block_rot(e, ref, f, cf, z, rot_step(qi->rot_bits), rot_tol);
+            block_rot_used = fast ? 1 : choose_block_rot(e, ref, f, cf, z, rot_step(qi->rot_bits), rot_tol);
             /* a part not used is sent as zeros (nearly free) */
             for (int k = block_mf_used ? 12 : 0; k < (block_rot_used ? 12 : NBP); k++)
                 memset(e->bk.par + (size_t)k * e->bk.nbmax, 0, e->bk.nb * sizeof(uint32_t));
@@ -1897,7 +1905,14 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         for (int c = 0; c < nch; c++) {
             o0 = off;
             uint32_t *src = e->res + (size_t)c * stride;
-            if (n_changed > 1) {
+            if (n_changed > 1 && e->effort == CODEC_EFFORT_FAST) {
+                /* fast: the Morton order alone (the smaller one mostly) */
+                for (size_t j = 0; j < n_changed; j++)
+                    e->mo.tmp[j] = src[e->mo.perm[j]];
+                if ((rc = put_plane(e, e->mo.tmp, n_changed, 2, pl, pcap, &off)) < 0)
+                    return rc;
+                pl[o0] |= 4;
+            } else if (n_changed > 1) {
                 /* the same plane in Morton order, kept when smaller (tag
                  * bit 2): both orders sized, only the smaller compressed */
                 int t[2], form[2], tg[2];
