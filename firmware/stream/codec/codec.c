@@ -805,8 +805,15 @@ int codec_enc_set_reorder(codec_enc *e, int on)
         e->pf.motion_bwd = malloc(3 * c * sizeof(float));
         e->pf.motion_fwd = malloc(3 * c * sizeof(float));
         if (!e->ord[0] || !e->ord[1] || !e->inv || !e->slot || !e->pmatch || !e->pf.pos || !e->pf.scale ||
-            !e->pf.rot || !e->pf.opacity || !e->pf.rgb || !e->pf.motion_bwd || !e->pf.motion_fwd)
+            !e->pf.rot || !e->pf.opacity || !e->pf.rgb || !e->pf.motion_bwd || !e->pf.motion_fwd) {
+            free(e->ord[0]); free(e->ord[1]); free(e->inv); free(e->slot); free(e->pmatch);
+            free(e->pf.pos); free(e->pf.scale); free(e->pf.rot); free(e->pf.opacity); free(e->pf.rgb);
+            free(e->pf.motion_bwd); free(e->pf.motion_fwd);
+            e->ord[0] = e->ord[1] = e->inv = NULL;
+            e->slot = e->pmatch = NULL;
+            memset(&e->pf, 0, sizeof e->pf);
             return f4d_fail(&e->err, F4D_ENOMEM, "codec_enc_set_reorder: out of memory for %zu Gaussians", e->cap);
+        }
         e->pf.capacity = e->cap;
     }
     if (!on != !e->reorder)
@@ -824,18 +831,15 @@ static const int32_t *stream_order(codec_enc *e, const struct splat_frame *f, co
                                    const uint32_t *ord_ref, size_t nref, uint32_t *ord)
 {
     const size_t n = f->count;
-    uint32_t *cnt = e->mo.tmp; /* [nref + 1]: free until the key's residuals */
+    uint32_t *cnt = e->mo.tmp; /* [nref]: free until the key's residuals */
     for (size_t s = 0; s < nref; s++)
         e->inv[ord_ref[s]] = (uint32_t)s;
     memset(cnt, 0, nref * sizeof(uint32_t));
-    size_t fresh = 0;
     for (size_t i = 0; i < n; i++) {
         int32_t m = match ? match[i] : (i < nref ? (int32_t)i : -1);
         e->slot[i] = m >= 0 ? (int32_t)e->inv[m] : -1;
         if (m >= 0)
             cnt[e->slot[i]]++;
-        else
-            fresh++;
     }
     uint32_t sum = 0;
     for (size_t s = 0; s < nref; s++) {
@@ -861,7 +865,6 @@ static const int32_t *stream_order(codec_enc *e, const struct splat_frame *f, co
             memcpy(e->pf.motion_fwd + 3 * j, f->motion_fwd + 3 * (size_t)i, 3 * sizeof(float));
         }
     }
-    (void)fresh;
     return ident ? NULL : e->pmatch;
 }
 
