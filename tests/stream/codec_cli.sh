@@ -27,6 +27,16 @@ cmp "$dir/k0_back.ply" "$dir/k0v3_back.ply"
 "$codec" encode "${plys[@]:0:3}" -o "$dir/m.f4ds" --quality compact --motion-from-keys | tee "$dir/m.txt"
 grep -q "predicted key" "$dir/m.txt"
 "$codec" decode "$dir/m.f4ds" -o "$dir/m2.ply" --frame 2
+# stream order and efforts: same keys, decodable; max no larger than default
+"$codec" encode "${plys[@]:0:3}" -o "$dir/so.f4ds" --quality compact --motion-from-keys --stream-order --effort max >/dev/null
+"$codec" encode "${plys[@]:0:3}" -o "$dir/sf.f4ds" --quality compact --motion-from-keys --effort fast >/dev/null
+"$codec" decode "$dir/so.f4ds" -o "$dir/so_%02d.ply"
+"$codec" decode "$dir/sf.f4ds" -o "$dir/sf2.ply" --frame 2
+[ -s "$dir/so_02.ply" ] && [ -s "$dir/sf2.ply" ]
+"$codec" encode "${plys[@]:0:3}" -o "$dir/sd.f4ds" --quality compact --motion-from-keys --stream-order >/dev/null
+[ "$(stat -c %s "$dir/so.f4ds")" -le "$(stat -c %s "$dir/sd.f4ds")" ] || { echo "--effort max is larger than default"; exit 1; }
+if "$codec" encode "${plys[0]}" -o "$dir/x.f4ds" --effort turbo 2> "$dir/err4.txt"; then exit 1; fi
+grep -q "turbo" "$dir/err4.txt"
 # errors name the file and the field
 head -c 100 "$dir/s.f4ds" > "$dir/cut.f4ds"
 if "$codec" decode "$dir/cut.f4ds" -o "$dir/x.ply" 2> "$dir/err.txt"; then echo "truncated stream decoded"; exit 1; fi

@@ -810,6 +810,191 @@ static void test_block_motion(void **state)
     scene_free(s);
 }
 
+/* g = f in the encoder's stream order (codec_enc_order), as a frame. */
+static void in_order(const struct splat_frame *f, const uint32_t *ord, struct splat_frame *g)
+{
+    assert_int_equal(splat_frame_resize(g, f->count, f->motion_fwd != NULL, NULL), 0);
+    for (size_t j = 0; j < f->count; j++) {
+        size_t i = ord ? ord[j] : j;
+        assert_true(i < f->count);
+        memcpy(g->pos + 3 * j, f->pos + 3 * i, 12);
+        memcpy(g->scale + 3 * j, f->scale + 3 * i, 12);
+        memcpy(g->rot + 4 * j, f->rot + 4 * i, 16);
+        memcpy(g->rgb + 3 * j, f->rgb + 3 * i, 12);
+        g->opacity[j] = f->opacity[i];
+        if (f->motion_fwd) {
+            memcpy(g->motion_bwd + 3 * j, f->motion_bwd + 3 * i, 12);
+            memcpy(g->motion_fwd + 3 * j, f->motion_fwd + 3 * i, 12);
+        }
+    }
+}
+
+/* Stream order (codec_enc_set_reorder): the intra key in Morton order is
+ * smaller than in input order; every key decodes within the level's bounds
+ * of the input read through codec_enc_order (a permutation), predicted keys
+ * with the identity match, with dropped and new Gaussians through a match
+ * in input indices, and a shrinking count; no allocation per key. */
+static void test_stream_order(void **state)
+{
+    (void)state;
+    scene *s = walk();
+    struct splat_frame f[4] = { { 0 } }, g = { 0 }, c = { 0 };
+    for (int k = 0; k < 4; k++)
+        make_key(s, k, 0.1, &f[k]);
+    struct rig r0, r;
+    rig_open(&r0, CODEC_Q_COMPACT);
+    size_t plain = pass(&r0, &f[0], CODEC_KEY_AUTO, NULL);
+    assert_null(codec_enc_order(r0.e));
+    rig_close(&r0);
+    rig_open(&r, CODEC_Q_COMPACT);
+    assert_int_equal(codec_enc_set_reorder(r.e, 1), 0);
+    uint8_t *seen = calloc(CAP, 1);
+    for (int k = 0; k < 3; k++) {
+        g_allocs = 0;
+        g_count_allocs = 1;
+        size_t n = pass(&r, &f[k], CODEC_KEY_AUTO, NULL);
+        g_count_allocs = 0;
+        assert_int_equal(g_allocs, 0);
+        const uint32_t *ord = codec_enc_order(r.e);
+        assert_non_null(ord);
+        memset(seen, 0, CAP);
+        for (size_t j = 0; j < f[k].count; j++) {
+            assert_true(ord[j] < f[k].count && !seen[ord[j]]);
+            seen[ord[j]] = 1;
+        }
+        in_order(&f[k], ord, &g);
+        check_bounds_k(&g, codec_dec_frame(r.d), CODEC_Q_COMPACT, k > 0);
+        if (k == 0) {
+            fprintf(stderr, "intra key, sparse take: input order %zu bytes, stream order %zu\n", plain, n);
+            assert_true(n <= plain); /* the encoder keeps the input order where Morton's is larger */
+        } else {
+            assert_false(codec_enc_last(r.e)->intra);
+            assert_int_equal(codec_enc_last(r.e)->bytes_match, 0); /* the identity, in stream order */
+        }
+    }
+    /* the same key shuffled (a producer whose numbering says nothing of
+     * space): Morton order is kept, and smaller */
+    {
+        uint32_t *perm = malloc(f[0].count * sizeof *perm);
+        uint64_t x = 12345;
+        for (size_t i = 0; i < f[0].count; i++)
+            perm[i] = (uint32_t)i;
+        for (size_t i = f[0].count - 1; i > 0; i--) {
+            x = x * 6364136223846793005ull + 1442695040888963407ull;
+            size_t j = (size_t)(x >> 33) % (i + 1);
+            uint32_t t = perm[i];
+            perm[i] = perm[j];
+            perm[j] = t;
+        }
+        struct splat_frame sh = { 0 };
+        in_order(&f[0], perm, &sh);
+        size_t nd[2];
+        for (int on = 0; on < 2; on++) {
+            rig_open(&r0, CODEC_Q_COMPACT);
+            assert_int_equal(codec_enc_set_reorder(r0.e, on), 0);
+            nd[on] = pass(&r0, &sh, CODEC_KEY_AUTO, NULL);
+            assert_int_equal(!!codec_enc_order(r0.e), on);
+            in_order(&sh, codec_enc_order(r0.e), &g);
+            check_bounds(&g, codec_dec_frame(r0.d), CODEC_Q_COMPACT);
+            rig_close(&r0);
+        }
+        fprintf(stderr, "intra key, shuffled: input order %zu bytes, stream order %zu\n", nd[0], nd[1]);
+        assert_true(nd[1] < nd[0]);
+        free(perm);
+        splat_frame_free(&sh);
+    }
+    /* key 3 with every 5th Gaussian dropped, reversed, and 30 new ones */
+    size_t n = 0, extra = 30;
+    int32_t *match = malloc((f[3].count + extra) * sizeof *match);
+    assert_int_equal(splat_frame_resize(&c, f[3].count + extra, 1, NULL), 0);
+    for (size_t q = f[3].count; q-- > 0;) {
+        if (q % 5 == 1)
+            continue;
+        memcpy(c.pos + 3 * n, f[3].pos + 3 * q, 12);
+        memcpy(c.scale + 3 * n, f[3].scale + 3 * q, 12);
+        memcpy(c.rot + 4 * n, f[3].rot + 4 * q, 16);
+        memcpy(c.rgb + 3 * n, f[3].rgb + 3 * q, 12);
+        memcpy(c.motion_bwd + 3 * n, f[3].motion_bwd + 3 * q, 12);
+        memcpy(c.motion_fwd + 3 * n, f[3].motion_fwd + 3 * q, 12);
+        c.opacity[n] = f[3].opacity[q];
+        match[n++] = (int32_t)q;
+    }
+    for (size_t k = 0; k < extra; k++, n++) {
+        c.pos[3 * n] = 0.02f * (float)k;
+        c.pos[3 * n + 1] = 0.4f;
+        c.pos[3 * n + 2] = 1.1f;
+        c.scale[3 * n] = c.scale[3 * n + 1] = c.scale[3 * n + 2] = 0.01f;
+        c.rot[4 * n] = 1.0f;
+        c.opacity[n] = 0.5f;
+        match[n] = -1;
+    }
+    c.count = n;
+    pass(&r, &c, CODEC_KEY_AUTO, match);
+    assert_int_equal(codec_enc_last(r.e)->fresh, extra);
+    assert_int_equal(codec_enc_last(r.e)->dropped, (f[3].count + 3) / 5);
+    in_order(&c, codec_enc_order(r.e), &g);
+    check_bounds_k(&g, codec_dec_frame(r.d), CODEC_Q_COMPACT, 1);
+    /* the identity again (input index i continues input index i of c), shrinking */
+    c.count = n - extra - 40;
+    pass(&r, &c, CODEC_KEY_AUTO, NULL);
+    assert_int_equal(codec_enc_last(r.e)->fresh, 0);
+    in_order(&c, codec_enc_order(r.e), &g);
+    check_bounds_k(&g, codec_dec_frame(r.d), CODEC_Q_COMPACT, 1);
+    /* switching it off: the next key is intra, in input order */
+    assert_int_equal(codec_enc_set_reorder(r.e, 0), 0);
+    pass(&r, &f[0], CODEC_KEY_AUTO, NULL);
+    assert_true(codec_enc_last(r.e)->intra);
+    assert_null(codec_enc_order(r.e));
+    check_bounds(&f[0], codec_dec_frame(r.d), CODEC_Q_COMPACT);
+    free(match);
+    free(seen);
+    rig_close(&r);
+    for (int k = 0; k < 4; k++)
+        splat_frame_free(&f[k]);
+    splat_frame_free(&g);
+    splat_frame_free(&c);
+    scene_free(s);
+}
+
+/* Effort: MAX writes the same choices as DEFAULT (decoded keys bit-identical)
+ * at a higher zstd level, so no more bytes; FAST stays within the bounds;
+ * out-of-range efforts are refused; no allocation per key at any effort. */
+static void test_effort(void **state)
+{
+    (void)state;
+    scene *s = walk();
+    struct splat_frame f[4] = { { 0 } };
+    for (int k = 0; k < 4; k++)
+        make_key(s, k, 0.1, &f[k]);
+    static const int eff[3] = { CODEC_EFFORT_DEFAULT, CODEC_EFFORT_MAX, CODEC_EFFORT_FAST };
+    struct rig r[3];
+    size_t bytes[3] = { 0, 0, 0 };
+    for (int x = 0; x < 3; x++) {
+        rig_open(&r[x], CODEC_Q_COMPACT);
+        assert_int_equal(codec_enc_set_effort(r[x].e, eff[x]), 0);
+    }
+    assert_int_equal(codec_enc_set_effort(r[0].e, 3), F4D_EINVAL);
+    assert_int_equal(codec_enc_set_effort(r[0].e, -1), F4D_EINVAL);
+    for (int k = 0; k < 4; k++)
+        for (int x = 0; x < 3; x++) {
+            g_allocs = 0;
+            g_count_allocs = 1;
+            bytes[x] += pass(&r[x], &f[k], CODEC_KEY_AUTO, NULL);
+            g_count_allocs = 0;
+            assert_int_equal(g_allocs, 0);
+            check_bounds_k(&f[k], codec_dec_frame(r[x].d), CODEC_Q_COMPACT, k > 0);
+            if (x == 1)
+                same_frame(codec_dec_frame(r[0].d), codec_dec_frame(r[1].d));
+        }
+    fprintf(stderr, "4 keys: default %zu bytes, max %zu, fast %zu\n", bytes[0], bytes[1], bytes[2]);
+    assert_true(bytes[1] < bytes[0]);
+    for (int x = 0; x < 3; x++)
+        rig_close(&r[x]);
+    for (int k = 0; k < 4; k++)
+        splat_frame_free(&f[k]);
+    scene_free(s);
+}
+
 /* The frame flags of version 3 are refused where they cannot apply: block
  * motion in a version-2 packet, block mf without the block parameters,
  * block motion on an intra key; a payload whose block planes are cut short
@@ -898,6 +1083,8 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_no_allocation_per_frame),
         cmocka_unit_test(test_block_motion),
         cmocka_unit_test(test_block_flags_refused),
+        cmocka_unit_test(test_stream_order),
+        cmocka_unit_test(test_effort),
         cmocka_unit_test(test_spz_gzip_claim_refused),
         cmocka_unit_test(test_spz_round_trip),
         cmocka_unit_test(test_predictor_fit),

@@ -13,6 +13,8 @@
  * ../shared/data/splats/donut.ply (static, 4 cameras around it) when present:
  * intra per level, a repeated key as a predicted key, the key as a still
  * (Morton-reordered) key ("donut-still"), SPZ.
+ * --stream-order / --effort NAME: the encoder's stream order
+ * (codec_enc_set_reorder) and effort (codec_enc_set_effort) for every row.
  * PSNR: float renders (not 8-bit), mean over the cameras and keys, 518x518,
  * 100 dB where identical. */
 #include <math.h>
@@ -36,6 +38,7 @@ struct crow {
     double intra_bpg, pred_bpg, motion_bpg, unchanged, mbps, psnr_key, psnr_key_min, psnr_mid;
     double enc_intra_ms, enc_pred_ms, dec_intra_ms, dec_pred_ms;
     double chan_bpg[CODEC_CHANNELS], index_bpg; /* predicted keys, by channel */
+    double ichan_bpg[CODEC_CHANNELS];           /* the intra key, by channel */
 };
 struct srow {
     char preset[24];
@@ -44,6 +47,7 @@ struct srow {
 };
 
 struct ctx {
+    int reorder, effort; /* encoder settings of every row */
     splat_renderer *r;
     const float *bg;
     float *a, *b;
@@ -88,8 +92,9 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
     codec_enc *e;
     codec_dec *d;
     struct f4d_err err = { 0 };
-    if (codec_enc_new(cap, (enum codec_quality)q, &e, &err) < 0 || codec_dec_new(cap, &d, &err) < 0) {
-        fprintf(stderr, "f4d-bench codec: %s\n", err.msg);
+    if (codec_enc_new(cap, (enum codec_quality)q, &e, &err) < 0 || codec_dec_new(cap, &d, &err) < 0 ||
+        codec_enc_set_reorder(e, c->reorder) < 0 || codec_enc_set_effort(e, c->effort) < 0) {
+        fprintf(stderr, "f4d-bench codec: %s\n", err.msg[0] ? err.msg : codec_enc_error(e));
         return -1;
     }
     size_t pcap = codec_packet_bound(cap);
@@ -120,6 +125,8 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
             row->intra_bpg = (double)n / g;
             row->enc_intra_ms = 1e3 * (t1 - t0);
             row->dec_intra_ms = 1e3 * (t2 - t1);
+            for (int ch = 0; ch < CODEC_CHANNELS; ch++)
+                row->ichan_bpg[ch] = (double)st->bytes_channel[ch] / g;
         } else {
             pred_bytes += (double)n / g;
             unch += (double)st->unchanged / g;
@@ -199,9 +206,14 @@ static void print_row(const struct crow *r)
     fflush(stdout);
 }
 
-/* Bytes per Gaussian of the predicted keys by channel (--channels). */
+/* Bytes per Gaussian of the intra and the predicted keys by channel (--channels). */
 static void print_channels(const struct crow *r)
 {
+    printf("       intra B/G by channel:");
+    for (int ch = 0; ch < CODEC_CHANNELS; ch++)
+        if (r->ichan_bpg[ch] >= 0.0005)
+            printf("  %s %.3f", codec_channel_name(ch), r->ichan_bpg[ch]);
+    printf("\n");
     printf("       predicted B/G by channel: index %.3f", r->index_bpg);
     for (int ch = 0; ch < CODEC_CHANNELS; ch++)
         if (r->chan_bpg[ch] >= 0.0005)
@@ -228,7 +240,7 @@ static void json_num(FILE *fp, const char *k, double v, const char *sep)
 int bench_codec(int argc, char **argv)
 {
     const char *json = NULL, *donut = "../shared/data/splats/donut.ply";
-    int only = -1, only_q = -1, channels = 0, big_all_rates = 0;
+    int only = -1, only_q = -1, channels = 0, big_all_rates = 0, reorder = 0, effort = CODEC_EFFORT_DEFAULT;
     size_t big = 300000;
     double seconds = 1.0;
     for (int i = 1; i < argc; i++) {
@@ -256,9 +268,18 @@ int bench_codec(int argc, char **argv)
             channels = 1;
         else if (!strcmp(argv[i], "--big-all-rates"))
             big_all_rates = 1;
+        else if (!strcmp(argv[i], "--stream-order"))
+            reorder = 1;
+        else if (!strcmp(argv[i], "--effort") && i + 1 < argc) {
+            struct f4d_err e;
+            if ((effort = codec_effort_from_name(argv[++i], &e)) < 0) {
+                fprintf(stderr, "f4d-bench codec: %s\n", e.msg);
+                return 2;
+            }
+        }
         else {
             fprintf(stderr, "usage: f4d-bench codec [--preset NAME] [--seconds S] [--big N (0 = skip)] "
-                            "[--donut PLY] [--quality NAME] [--channels] [--big-all-rates] [--json FILE]\n");
+                            "[--donut PLY] [--quality NAME] [--channels] [--big-all-rates] [--stream-order] [--effort fast|default|max] [--json FILE]\n");
             return 2;
         }
     }
@@ -271,7 +292,7 @@ int bench_codec(int argc, char **argv)
     struct f4d_err err = { 0 };
     if (fk_ctx_new(&cfg, &fk) != F4D_OK)
         return 1;
-    struct ctx c = { 0 };
+    struct ctx c = { .reorder = reorder, .effort = effort };
     if (splat_renderer_new(fk, W, H, &c.r, &err) < 0) {
         fprintf(stderr, "f4d-bench codec: %s\n", err.msg);
         return 1;
@@ -402,7 +423,8 @@ int bench_codec(int argc, char **argv)
             return 1;
         }
         fprintf(fp, "{\"psnr\": \"float renders 518x518, mean over 4 rig cameras and all keys, vs uncompressed\",\n"
-                    " \"donut\": \"%s\",\n \"codec\": [", donut_present ? donut : "absent");
+                    " \"donut\": \"%s\", \"stream_order\": %s, \"effort\": %d,\n \"codec\": [",
+                donut_present ? donut : "absent", reorder ? "true" : "false", effort);
         for (int i = 0; i < nr; i++) {
             const struct crow *r = &rows[i];
             fprintf(fp, "%s\n  {\"preset\": \"%s\", \"gaussians\": %zu, \"key_rate_hz\": %d, \"quality\": \"%s\", "

@@ -11,6 +11,10 @@
  *   --motion-from-keys: motions re-derived over the key interval from the
  *     keys' own positions (takes whose Gaussians keep their index, keyed
  *     below their frame rate: their motions span one frame, not one key).
+ *   --stream-order: keys coded in the encoder's order (codec_enc_set_reorder:
+ *     an intra key in Morton order where smaller); decoded Gaussians come out
+ *     in that order.
+ *   --effort fast|default|max: the encoder's search (codec_enc_set_effort).
  * The file kind comes from its first bytes (F4DP, gzip / NGSP, "ply"). */
 #include <errno.h>
 #include <stdio.h>
@@ -25,6 +29,7 @@ static void usage(FILE *f)
 {
     fprintf(f, "usage: f4d-codec encode IN.ply|IN.spz... -o OUT.f4ds|OUT.spz|OUT.ply [--quality compact|low|medium|high]\n"
                "                        [--key-rate HZ] [--intra-every N] [--spz-version 3|4] [--motion-from-keys]\n"
+               "                        [--stream-order] [--effort fast|default|max]\n"
                "       f4d-codec decode IN.f4ds|IN.spz|IN.ply -o OUT.ply|OUT.spz|'OUT_%%04d.ply' [--frame K]\n"
                "       f4d-codec info FILE...\n");
 }
@@ -174,7 +179,7 @@ static int keyed_motion(struct splat_frame *f, const float *prev_pos, const stru
 }
 
 static int do_encode(const char **in, int nin, const char *out, int quality, double rate, int intra_every,
-                     int spz_version, int motion_from_keys)
+                     int spz_version, int motion_from_keys, int stream_order, int effort)
 {
     struct splat_frame nx = { 0 };
     float *prev = NULL;
@@ -198,10 +203,12 @@ static int do_encode(const char **in, int nin, const char *out, int quality, dou
         }
         cap = f.count > cap ? f.count : cap;
     }
-    codec_enc *e;
+    codec_enc *e = NULL;
     struct f4d_err err = { 0 };
-    if (codec_enc_new(cap, (enum codec_quality)quality, &e, &err) < 0) {
-        fprintf(stderr, "f4d-codec: %s\n", err.msg);
+    if (codec_enc_new(cap, (enum codec_quality)quality, &e, &err) < 0 ||
+        (stream_order && codec_enc_set_reorder(e, 1) < 0) || codec_enc_set_effort(e, effort) < 0) {
+        fprintf(stderr, "f4d-codec: %s\n", e ? codec_enc_error(e) : err.msg);
+        codec_enc_free(e);
         splat_frame_free(&f);
         return 1;
     }
@@ -375,7 +382,7 @@ static int do_decode(const char *in, const char *out, long frame, int spz_versio
     enum kind k = kind_of_bytes(b, n);
     if (k != K_STREAM) {
         free(b);
-        return do_encode(&in, 1, out, CODEC_Q_MEDIUM, 10.0, 0, spz_version, 0); /* PLY <-> SPZ */
+        return do_encode(&in, 1, out, CODEC_Q_MEDIUM, 10.0, 0, spz_version, 0, 0, CODEC_EFFORT_DEFAULT); /* PLY <-> SPZ */
     }
     codec_dec *d;
     struct f4d_err err = { 0 };
@@ -451,12 +458,15 @@ int main(int argc, char **argv)
     const char *cmd = argv[1], *out = NULL;
     const char **in = calloc((size_t)argc, sizeof *in);
     int nin = 0, quality = CODEC_Q_MEDIUM, intra_every = 0, spz_version = 4, motion_from_keys = 0;
+    int stream_order = 0, effort = CODEC_EFFORT_DEFAULT;
     double rate = 10.0;
     long frame = 0;
     for (int i = 2; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--motion-from-keys")) {
             motion_from_keys = 1;
+        } else if (!strcmp(a, "--stream-order")) {
+            stream_order = 1;
         } else if (a[0] == '-' && a[1]) {
             if (i + 1 >= argc) {
                 fprintf(stderr, "f4d-codec: option '%s' needs a value (or is unknown)\n", a);
@@ -470,6 +480,12 @@ int main(int argc, char **argv)
                 struct f4d_err err = { 0 };
                 if ((quality = codec_quality_from_name(v, &err)) < 0) {
                     fprintf(stderr, "f4d-codec: --quality: %s\n", err.msg);
+                    return 2;
+                }
+            } else if (!strcmp(a, "--effort")) {
+                struct f4d_err err = { 0 };
+                if ((effort = codec_effort_from_name(v, &err)) < 0) {
+                    fprintf(stderr, "f4d-codec: --effort: %s\n", err.msg);
                     return 2;
                 }
             } else if (!strcmp(a, "--key-rate")) {
@@ -522,7 +538,8 @@ int main(int argc, char **argv)
             fprintf(stderr, "f4d-codec: decode takes one input, %d given\n", nin);
             return 2;
         }
-        rc = !strcmp(cmd, "encode") ? do_encode(in, nin, out, quality, rate, intra_every, spz_version, motion_from_keys)
+        rc = !strcmp(cmd, "encode") ? do_encode(in, nin, out, quality, rate, intra_every, spz_version, motion_from_keys,
+                                                stream_order, effort)
                                      : do_decode(in[0], out, frame, spz_version);
     } else {
         fprintf(stderr, "f4d-codec: unknown command '%s'\n", cmd);

@@ -17,7 +17,9 @@
 #define NCOEF      7
 #define FHDR       (FHDR1 + 4 * NCOEF) /* version 2: + predictor coefficients */
 #define COEF_MAX   1000.0f
-#define ZLEVEL     5
+#define ZLEVEL     5    /* candidates and planes (default effort)          */
+#define ZLEVEL_FAST 1   /* both, CODEC_EFFORT_FAST                        */
+#define ZLEVEL_MAX 19   /* the chosen planes, CODEC_EFFORT_MAX            */
 #define SCALE_MIN  1e-7f
 
 /* Record channels. Intra: 0-2 pos, 3-5 log-scale, 6 opacity, 7-9 rgb,
@@ -393,6 +395,16 @@ struct codec_enc {
     size_t est_cap;
     int last_still;    /* mo.perm holds a still key's order           */
     int ver;           /* codec version written (2 or 3)             */
+    int effort, zest, zfin; /* zstd levels of the candidates, of the planes written */
+    size_t zws_size;
+    /* stream order (codec_enc_set_reorder): key slot k's decoded Gaussian
+     * j is input Gaussian ord[k][j] */
+    int reorder;
+    uint32_t *ord[2];  /* [cap] per key slot                          */
+    uint32_t *inv;     /* [cap] reference input index -> slot         */
+    int32_t *slot;     /* [cap] reference slot of each input Gaussian  */
+    int32_t *pmatch;   /* [cap] the match in stream order             */
+    struct splat_frame pf; /* the input in stream order               */
     struct planebuf pb;
     void *zws;
     ZSTD_CCtx *z;
@@ -526,7 +538,7 @@ static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, i
             size_t nb = plane_bytes(e, src, n, m, form, &wcode);
             if (!nb)
                 break;
-            size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, ZLEVEL);
+            size_t z = ZSTD_compressCCtx(e->z, e->pb.zalt, e->pb.zbound, e->pb.shuf, nb, e->zest);
             if (!ZSTD_isError(z) && z < *est) {
                 uint8_t *sw = e->pb.zbest;
                 e->pb.zbest = e->pb.zalt;
@@ -624,7 +636,7 @@ static int put_plane_as(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, 
     size_t nb = plane_bytes(e, v, n, mx, form, &wcode);
     if (!nb) /* packed on a sample whose values fit, the plane's do not */
         nb = plane_bytes(e, v, n, mx, 0, &wcode);
-    size_t z = ZSTD_compressCCtx(e->z, tag + 5, cap - *off - 5, e->pb.shuf, nb, ZLEVEL);
+    size_t z = ZSTD_compressCCtx(e->z, tag + 5, cap - *off - 5, e->pb.shuf, nb, e->zfin);
     if (ZSTD_isError(z))
         return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small for a plane of %zu values", n);
     tag[0] = (uint8_t)(t | wcode << 4);
@@ -649,7 +661,7 @@ static int put_plane(codec_enc *e, const uint32_t *v, size_t n, int allow_delta,
     int t, form;
     size_t exact;
     plane_choose(e, v, NULL, n, allow_delta, &t, &form, &exact);
-    if (exact)
+    if (exact && e->zfin == e->zest)
         return put_plane_z(e, e->pb.best_tag, e->pb.zbest, exact, out, cap, off);
     return put_plane_as(e, v, n, plane_max(v, n), t, form, out, cap, off);
 }
@@ -689,6 +701,9 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->est = malloc(e->est_cap);
     size_t zsz = ZSTD_estimateCCtxSize(ZLEVEL);
     e->zws = malloc(zsz);
+    e->zws_size = zsz;
+    e->effort = CODEC_EFFORT_DEFAULT;
+    e->zest = e->zfin = ZLEVEL;
     int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
@@ -711,6 +726,9 @@ void codec_enc_free(codec_enc *e)
     morton_free(&e->mo);
     blocks_free(&e->bk);
     free(e->rix); free(e->bacc); free(e->est);
+    free(e->ord[0]); free(e->ord[1]); free(e->inv); free(e->slot); free(e->pmatch);
+    free(e->pf.pos); free(e->pf.scale); free(e->pf.rot); free(e->pf.opacity); free(e->pf.rgb);
+    free(e->pf.motion_bwd); free(e->pf.motion_fwd);
     free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
@@ -723,7 +741,132 @@ const struct splat_frame *codec_enc_recon(const codec_enc *e)
     return e ? key_view((struct keystate *)&e->key[e->cur]) : NULL;
 }
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e) { return e ? &e->st : NULL; }
-const uint32_t *codec_enc_order(const codec_enc *e) { return e && e->last_still ? e->mo.perm : NULL; }
+const uint32_t *codec_enc_order(const codec_enc *e)
+{
+    return !e ? NULL : e->last_still ? e->mo.perm : e->reorder && e->have_ref ? e->ord[e->cur] : NULL;
+}
+
+int codec_effort_from_name(const char *name, struct f4d_err *err)
+{
+    static const char *nm[3] = { "fast", "default", "max" };
+    for (int i = 0; i < 3; i++)
+        if (name && !strcmp(name, nm[i]))
+            return i;
+    return f4d_fail(err, F4D_EINVAL, "effort '%s' is not one of fast, default, max", name ? name : "(null)");
+}
+
+int codec_enc_set_effort(codec_enc *e, int effort)
+{
+    if (!e)
+        return F4D_EINVAL;
+    if (effort < CODEC_EFFORT_FAST || effort > CODEC_EFFORT_MAX)
+        return f4d_fail(&e->err, F4D_EINVAL, "codec_enc_set_effort: %d is not %d..%d", effort, CODEC_EFFORT_FAST,
+                        CODEC_EFFORT_MAX);
+    int zfin = effort == CODEC_EFFORT_FAST ? ZLEVEL_FAST : effort == CODEC_EFFORT_MAX ? ZLEVEL_MAX : ZLEVEL;
+    /* the workspace of the highest level used, for planes up to 4 bytes a Gaussian */
+    size_t src = 4 * (e->cap ? e->cap : 1);
+    size_t zsz = ZSTD_estimateCCtxSize_usingCParams(ZSTD_getCParams(zfin, src, 0));
+    size_t z5 = ZSTD_estimateCCtxSize(ZLEVEL);
+    zsz = zsz > z5 ? zsz : z5;
+    if (zsz > e->zws_size) {
+        void *ws = malloc(zsz);
+        ZSTD_CCtx *z = ws ? ZSTD_initStaticCCtx(ws, zsz) : NULL;
+        if (!z) {
+            free(ws);
+            return f4d_fail(&e->err, F4D_ENOMEM, "codec_enc_set_effort: out of memory for zstd level %d", zfin);
+        }
+        free(e->zws);
+        e->zws = ws;
+        e->zws_size = zsz;
+        e->z = z;
+    }
+    e->effort = effort;
+    e->zest = effort == CODEC_EFFORT_FAST ? ZLEVEL_FAST : ZLEVEL;
+    e->zfin = zfin;
+    return F4D_OK;
+}
+
+int codec_enc_set_reorder(codec_enc *e, int on)
+{
+    if (!e)
+        return F4D_EINVAL;
+    if (on && !e->ord[0]) {
+        size_t c = e->cap ? e->cap : 1;
+        e->ord[0] = malloc(c * sizeof(uint32_t));
+        e->ord[1] = malloc(c * sizeof(uint32_t));
+        e->inv = malloc(c * sizeof(uint32_t));
+        e->slot = malloc(c * sizeof(int32_t));
+        e->pmatch = malloc(c * sizeof(int32_t));
+        e->pf.pos = malloc(3 * c * sizeof(float));
+        e->pf.scale = malloc(3 * c * sizeof(float));
+        e->pf.rot = malloc(4 * c * sizeof(float));
+        e->pf.opacity = malloc(c * sizeof(float));
+        e->pf.rgb = malloc(3 * c * sizeof(float));
+        e->pf.motion_bwd = malloc(3 * c * sizeof(float));
+        e->pf.motion_fwd = malloc(3 * c * sizeof(float));
+        if (!e->ord[0] || !e->ord[1] || !e->inv || !e->slot || !e->pmatch || !e->pf.pos || !e->pf.scale ||
+            !e->pf.rot || !e->pf.opacity || !e->pf.rgb || !e->pf.motion_bwd || !e->pf.motion_fwd) {
+            free(e->ord[0]); free(e->ord[1]); free(e->inv); free(e->slot); free(e->pmatch);
+            free(e->pf.pos); free(e->pf.scale); free(e->pf.rot); free(e->pf.opacity); free(e->pf.rgb);
+            free(e->pf.motion_bwd); free(e->pf.motion_fwd);
+            e->ord[0] = e->ord[1] = e->inv = NULL;
+            e->slot = e->pmatch = NULL;
+            memset(&e->pf, 0, sizeof e->pf);
+            return f4d_fail(&e->err, F4D_ENOMEM, "codec_enc_set_reorder: out of memory for %zu Gaussians", e->cap);
+        }
+        e->pf.capacity = e->cap;
+    }
+    if (!on != !e->reorder)
+        e->have_ref = 0; /* the reference's order is the other one's: the next key is intra */
+    e->reorder = !!on;
+    return F4D_OK;
+}
+
+/* Stream order of a predicted key: the input Gaussians sorted (stably) by
+ * the reference slot they continue, new ones after them in input order, so
+ * that a take whose Gaussians keep their index keeps the identity match.
+ * Fills e->ord[slot k], e->pf (the input in that order) and returns the
+ * match in stream order (NULL: identity). */
+static const int32_t *stream_order(codec_enc *e, const struct splat_frame *f, const int32_t *match,
+                                   const uint32_t *ord_ref, size_t nref, uint32_t *ord)
+{
+    const size_t n = f->count;
+    uint32_t *cnt = e->mo.tmp; /* [nref]: free until the key's residuals */
+    for (size_t s = 0; s < nref; s++)
+        e->inv[ord_ref[s]] = (uint32_t)s;
+    memset(cnt, 0, nref * sizeof(uint32_t));
+    for (size_t i = 0; i < n; i++) {
+        int32_t m = match ? match[i] : (i < nref ? (int32_t)i : -1);
+        e->slot[i] = m >= 0 ? (int32_t)e->inv[m] : -1;
+        if (m >= 0)
+            cnt[e->slot[i]]++;
+    }
+    uint32_t sum = 0;
+    for (size_t s = 0; s < nref; s++) {
+        uint32_t t = cnt[s];
+        cnt[s] = sum;
+        sum += t;
+    }
+    size_t nx = sum;
+    for (size_t i = 0; i < n; i++)
+        ord[e->slot[i] >= 0 ? cnt[e->slot[i]]++ : nx++] = (uint32_t)i;
+    int ident = sum == nref; /* every reference slot continued once, new ones last */
+    for (size_t j = 0; j < n; j++) {
+        uint32_t i = ord[j];
+        e->pmatch[j] = e->slot[i];
+        ident &= j < sum ? e->slot[i] == (int32_t)j : 1;
+        memcpy(e->pf.pos + 3 * j, f->pos + 3 * (size_t)i, 3 * sizeof(float));
+        memcpy(e->pf.scale + 3 * j, f->scale + 3 * (size_t)i, 3 * sizeof(float));
+        memcpy(e->pf.rot + 4 * j, f->rot + 4 * (size_t)i, 4 * sizeof(float));
+        e->pf.opacity[j] = f->opacity[i];
+        memcpy(e->pf.rgb + 3 * j, f->rgb + 3 * (size_t)i, 3 * sizeof(float));
+        if (f->motion_bwd && f->motion_fwd) {
+            memcpy(e->pf.motion_bwd + 3 * j, f->motion_bwd + 3 * (size_t)i, 3 * sizeof(float));
+            memcpy(e->pf.motion_fwd + 3 * j, f->motion_fwd + 3 * (size_t)i, 3 * sizeof(float));
+        }
+    }
+    return ident ? NULL : e->pmatch;
+}
 
 int codec_enc_set_version(codec_enc *e, int version)
 {
@@ -1499,6 +1642,19 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             if (match[i] < -1 || (match[i] >= 0 && (size_t)match[i] >= ref->count))
                 return f4d_fail(&e->err, F4D_EINVAL, "codec_enc_key: match[%zu] = %d, the reference has %zu",
                                 i, match[i], ref->count);
+    /* stream order: a predicted key is coded on the input permuted into
+     * the reference's order (the match then names reference slots) */
+    const int reorder = e->reorder && !still;
+    uint32_t *ord_dst = reorder ? e->ord[e->cur ^ 1] : NULL;
+    struct splat_frame pview;
+    if (reorder && !intra) {
+        match = stream_order(e, f, match, e->ord[e->cur], ref->count, ord_dst);
+        pview = e->pf;
+        pview.count = n;
+        if (!motion)
+            pview.motion_bwd = pview.motion_fwd = NULL;
+        f = &pview;
+    }
 
     /* Quantizers from this frame's ranges. */
     struct qz z[NQZ];
@@ -1541,16 +1697,33 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     dst->motion = motion;
 
     if (intra) {
-        if (still && n > 1) {
+        int morton = (still || reorder) && n > 1;
+        if (morton) {
             /* Morton order of the positions: neighbours in space get
              * neighbouring indices, so every plane's deltas shrink */
             for (size_t i = 0; i < n; i++)
                 e->mo.key[i] = morton_key(z, f->pos + 3 * i);
             morton_sort(&e->mo, n);
-        } else {
+        }
+        if (morton && !still) {
+            /* stream order: kept where the planes measure smaller than in
+             * input order (a sparse take, or pixel-aligned Gaussians in
+             * image order, may already have their neighbours beside them) */
+            for (size_t i = 0; i < n; i++)
+                intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, i);
+            double in_order = 0, in_morton = 0;
+            for (int c = 0; c < nch; c++) {
+                in_order += plane_est(e, e->rec + (size_t)c * stride, NULL, n, 1);
+                in_morton += plane_est(e, e->rec + (size_t)c * stride, e->mo.perm, n, 1);
+            }
+            morton = in_morton < in_order;
+        }
+        if (!morton) {
             for (size_t i = 0; i < n; i++)
                 e->mo.perm[i] = (uint32_t)i;
         }
+        if (reorder)
+            memcpy(ord_dst, e->mo.perm, n * sizeof(uint32_t));
         for (size_t j = 0; j < n; j++) {
             intra_record(f, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
             intra_recon(e->rec, stride, j, z, qi->rot_bits, motion, dst, j);
@@ -1599,10 +1772,18 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             blocks_units(&e->bk, z, qi->rot_bits);
             blocks_fit(&e->bk, f, ref, e->rix, e->bacc);
         }
-        if (keyed && motion && n > 1)
+        /* CODEC_EFFORT_FAST: block mf and rotations wherever blocks are
+         * fitted, unmeasured (the measuring codes every matched Gaussian's
+         * residuals twice or three times over) */
+        const int fast = e->effort == CODEC_EFFORT_FAST;
+        if (keyed && motion && n > 1 && fast && block_motion) {
+            block_mf_used = 1;
+            cf[2] = cf[3] = 0.0f;
+        } else if (keyed && motion && n > 1) {
             block_mf_used = choose_mf_predictor(e, ref, f, match, z, pos_tol, cf, block_motion ? &e->bk : NULL);
+        }
         if (block_motion) {
-            block_rot_used = choose_block_rot(e, ref, f, cf, z, rot_step(qi->rot_bits), rot_tol);
+            block_rot_used = fast ? 1 : choose_block_rot(e, ref, f, cf, z, rot_step(qi->rot_bits), rot_tol);
             /* a part not used is sent as zeros (nearly free) */
             for (int k = block_mf_used ? 12 : 0; k < (block_rot_used ? 12 : NBP); k++)
                 memset(e->bk.par + (size_t)k * e->bk.nbmax, 0, e->bk.nb * sizeof(uint32_t));
@@ -1727,7 +1908,14 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         for (int c = 0; c < nch; c++) {
             o0 = off;
             uint32_t *src = e->res + (size_t)c * stride;
-            if (n_changed > 1) {
+            if (n_changed > 1 && e->effort == CODEC_EFFORT_FAST) {
+                /* fast: the Morton order alone (the smaller one mostly) */
+                for (size_t j = 0; j < n_changed; j++)
+                    e->mo.tmp[j] = src[e->mo.perm[j]];
+                if ((rc = put_plane(e, e->mo.tmp, n_changed, 2, pl, pcap, &off)) < 0)
+                    return rc;
+                pl[o0] |= 4;
+            } else if (n_changed > 1) {
                 /* the same plane in Morton order, kept when smaller (tag
                  * bit 2): both orders sized, only the smaller compressed */
                 int t[2], form[2], tg[2];
@@ -1739,7 +1927,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 e->pb.zbest = sw;
                 int k = est1 < plane_choose(e, src, NULL, n_changed, 2, &t[0], &form[0], &ex[0]);
                 tg[0] = e->pb.best_tag;
-                if (ex[k]) {
+                if (ex[k] && e->zfin == e->zest) {
                     rc = put_plane_z(e, tg[k], k ? e->pb.zkeep : e->pb.zbest, ex[k], pl, pcap, &off);
                 } else {
                     if (k)

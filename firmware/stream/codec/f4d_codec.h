@@ -120,6 +120,9 @@
  *   MEDIUM  intra 6.81 B/G, predicted 2.11 B/G [2.52], 60.4 dB (min 59.1)
  *   HIGH    intra 8.43 B/G, predicted 2.84 B/G [3.36], 72.1 dB (min 69.8)
  *   the walk at 292.7k Gaussians, COMPACT: intra 3.47, predicted 0.28 [0.85]
+ *   the same in stream order (codec_enc_set_reorder): intra 2.67, predicted
+ *   0.28, 11.6 Mbit/s at 10 Hz keys with an intra key a second (effort MAX:
+ *   2.24 / 0.25, 10.1 Mbit/s), 47.9 dB
  *   (SPZ v4 by codec_spz_encode, same key: 5.98 B/G, 56.5 dB, no motion.)
  *
  * Non-finite input: the encoder refuses a frame with a NaN or Inf anywhere
@@ -250,9 +253,30 @@ int  codec_enc_end  (codec_enc *e, uint64_t t_us, uint8_t *out, size_t cap, size
 /* What a decoder holds after the last key (the encoder's reconstruction). */
 const struct splat_frame *codec_enc_recon(const codec_enc *e);
 const struct codec_enc_stats *codec_enc_last(const codec_enc *e);
+/* Encoder effort (default CODEC_EFFORT_DEFAULT; the stream format is the
+ * same at every effort, only the encoder's searching differs):
+ *   FAST     candidates and planes at zstd level 1 (live encoders short of CPU)
+ *   DEFAULT  candidates and planes at zstd level 5
+ *   MAX      candidates at level 5, the chosen planes again at level 19
+ *            (archives, offline streams: several times the default's CPU)
+ * Allocates a larger zstd workspace (at capacity) where the level needs it. */
+enum codec_effort { CODEC_EFFORT_FAST = 0, CODEC_EFFORT_DEFAULT = 1, CODEC_EFFORT_MAX = 2 };
+int  codec_enc_set_effort(codec_enc *e, int effort);
+int  codec_effort_from_name(const char *name, struct f4d_err *err); /* fast|default|max */
+/* Stream order (default off): every key is coded in an order of the
+ * encoder's choosing instead of the input's, which the decoder needs no
+ * word of (it is what any decoder of these versions reads): an intra key in
+ * the Morton order of its positions (neighbours in space get neighbouring
+ * indices, so every plane's deltas shrink: the 300k walk's intra key 3.48 ->
+ * 2.67 B/G), a predicted key in the order of the reference slots its
+ * Gaussians continue, new ones last. The match argument of codec_enc_key
+ * keeps naming the previous key's INPUT indices; decoded Gaussian j is input
+ * Gaussian codec_enc_order(e)[j]. Switching it forces the next key intra.
+ * Allocates its buffers (capacity) on the first call with on = 1. */
+int  codec_enc_set_reorder(codec_enc *e, int on);
 /* Input index of each decoded Gaussian of the last key when it was
- * CODEC_KEY_STILL; NULL when the order is the input's. Valid until the next
- * call. */
+ * CODEC_KEY_STILL or the stream order is on; NULL when the order is the
+ * input's. Valid until the next call. */
 const uint32_t *codec_enc_order(const codec_enc *e);
 
 /* ---- decoder ---- */

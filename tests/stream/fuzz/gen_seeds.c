@@ -1,6 +1,6 @@
 /* gen_seeds.c - writes the fuzz seed corpora: OUT/packets/ (small streams:
  * header, intra, predicted with block motion, end, per level; one written
- * as version 2) and OUT/frame/ (selector byte + payload:
+ * as version 2, one in stream order at the fast effort) and OUT/frame/ (selector byte + payload:
  * intra, predicted against fuzz_frame(0), SPZ). */
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,12 +29,15 @@ int main(int argc, char **argv)
     struct splat_frame f0 = { 0 }, f1 = { 0 };
     if (fuzz_frame(0, &f0) || fuzz_frame(1, &f1))
         return 1;
-    /* every level at the current version, and compact written as version 2 */
-    for (int q = 0; q <= CODEC_QUALITY_COUNT; q++) {
+    /* every level at the current version, compact written as version 2, and
+     * compact in stream order at the fast effort (intra in Morton order,
+     * forced block motion) */
+    for (int q = 0; q <= CODEC_QUALITY_COUNT + 1; q++) {
         codec_enc *e;
-        int v2 = q == CODEC_QUALITY_COUNT;
-        if (codec_enc_new(FUZZ_N + 8, v2 ? CODEC_Q_COMPACT : (enum codec_quality)q, &e, NULL) < 0 ||
-            (v2 && codec_enc_set_version(e, 2) < 0))
+        int v2 = q == CODEC_QUALITY_COUNT, so = q == CODEC_QUALITY_COUNT + 1;
+        if (codec_enc_new(FUZZ_N + 8, v2 || so ? CODEC_Q_COMPACT : (enum codec_quality)q, &e, NULL) < 0 ||
+            (v2 && codec_enc_set_version(e, 2) < 0) ||
+            (so && (codec_enc_set_reorder(e, 1) < 0 || codec_enc_set_effort(e, CODEC_EFFORT_FAST) < 0)))
             return 1;
         size_t cap = codec_packet_bound(FUZZ_N + 8), len = 0, n;
         uint8_t *s = malloc(4 * cap);
@@ -53,7 +56,7 @@ int main(int argc, char **argv)
         if (rc)
             return 1;
         char name[64];
-        snprintf(name, sizeof name, v2 ? "stream_v2" : "stream_q%d", q);
+        snprintf(name, sizeof name, v2 ? "stream_v2" : so ? "stream_order" : "stream_q%d", q);
         if (!v2 && (s[k1 + CODEC_PACKET_HEADER + 2] & 4) == 0) {
             fprintf(stderr, "gen_seeds: level %d: the predicted key sends no block motion to seed\n", q);
             return 1;
