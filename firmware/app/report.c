@@ -360,8 +360,13 @@ static int run_stream(const struct score_take *t, const struct keyrun *r, int b,
     }
     for (int i = 0; i < 4 * r->T; i++)
         kb[i] = INFINITY;
+    /* the encoder at the daemon's effort (run_config_defaults: fast) */
     if (splat_frame_reserve(&pf, n, 1, err) < 0 || codec_enc_new(n, codec_level(c), &enc, err) < 0)
         goto done;
+    if (codec_enc_set_effort(enc, CODEC_EFFORT_FAST) < 0) {
+        f4d_fail(err, F4D_EINVAL, "report: encoder: %s", codec_enc_error(enc));
+        goto done;
+    }
     /* lookups in the model's cameras, as f4d-display with the daemon's --rig-json */
     if (display_player_new(ctx, &r->rigs[0], r->motion ? INTERP_FUSED : INTERP_NEAREST, n, &pl, err) < 0)
         goto done;
@@ -382,7 +387,8 @@ static int run_stream(const struct score_take *t, const struct keyrun *r, int b,
         if (timing) {
             codec_enc_free(te);
             te = NULL;
-            if (codec_enc_new(n, codec_level(c), &te, err) < 0 || codec_enc_stream_header(te, 0, pkt, cap, &len) < 0) {
+            if (codec_enc_new(n, codec_level(c), &te, err) < 0 || codec_enc_set_effort(te, CODEC_EFFORT_FAST) < 0 ||
+                codec_enc_stream_header(te, 0, pkt, cap, &len) < 0) {
                 if (te)
                     f4d_fail(err, F4D_EINVAL, "report: stream header: %s", codec_enc_error(te));
                 goto done;

@@ -2,7 +2,8 @@
  *
  *   forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream URL] [--record DIR]
  *               [--seconds S] [--keys N] [--stats-json FILE] [--precision f32|f16|int8]
- *               [--quality low|medium|high] [--threads N] [--stall-ms MS]
+ *               [--quality low|medium|high] [--codec-effort fast|default|max]
+ *               [--threads N] [--stall-ms MS]
  *               [--config FILE | --no-config] [--quiet] [--lockstep auto|off]
  *               [--motion on|off] [--key-hz HZ]
  *
@@ -1036,7 +1037,8 @@ static int usage(void)
 {
     fprintf(stderr, "usage: forge4d run [--board FILE | --replay TAKE] [--weights W] [--stream file:PATH]\n"
                     "                   [--record DIR] [--seconds S] [--keys N] [--stats-json FILE] [--rig-json FILE]\n"
-                    "                   [--precision f32|f16|int8] [--quality low|medium|high] [--threads N]\n"
+                    "                   [--precision f32|f16|int8] [--quality low|medium|high]\n"
+                    "                   [--codec-effort fast|default|max] [--threads N]\n"
                     "                   [--stall-ms MS] [--config FILE | --no-config] [--quiet]\n"
                     "                   [--lockstep auto|off] [--motion on|off] [--key-hz HZ]\n"
                     "                   [--key-times FILE] [--display F4D_DISPLAY [--display-args ARGS]\n"
@@ -1222,7 +1224,7 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         ic.motion_off = cfg.motion_off;
         ic.wtype = !strcmp(cfg.precision, "f16") ? FK_W_F16 : !strcmp(cfg.precision, "int8") ? FK_W_Q8 : FK_W_F32;
         if (infer_new_nicer(&r->infer, &ic, &board, &err) < 0 ||
-            run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, &err) < 0)
+            run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, cfg.codec_effort, &err) < 0)
             goto out;
         r->have_infer = true;
         r->lockstep = infer_nice_for(&board) == 0 && !cfg.no_lockstep;

@@ -14,6 +14,7 @@ void run_config_defaults(struct run_config *c)
     memset(c, 0, sizeof *c);
     snprintf(c->precision, sizeof c->precision, "f32");
     snprintf(c->quality, sizeof c->quality, "medium");
+    snprintf(c->codec_effort, sizeof c->codec_effort, "fast");
     c->stall_ms = 5000;
     c->intra_every = 10;
 }
@@ -61,6 +62,11 @@ int run_config_set(struct run_config *c, const char *key, const char *v, struct 
         if (strcmp(v, "low") && strcmp(v, "medium") && strcmp(v, "high"))
             return f4d_fail(err, F4D_EINVAL, "quality must be low, medium or high, got \"%s\"", v);
         return set_str(c->quality, sizeof c->quality, key, v, err);
+    }
+    if (!strcmp(key, "codec_effort")) {
+        if (strcmp(v, "fast") && strcmp(v, "default") && strcmp(v, "max"))
+            return f4d_fail(err, F4D_EINVAL, "codec_effort must be fast, default or max, got \"%s\"", v);
+        return set_str(c->codec_effort, sizeof c->codec_effort, key, v, err);
     }
     if (!strcmp(key, "seconds")) {
         char *end;

@@ -139,7 +139,8 @@ struct run_encoder {
     int (*end)(void *self, uint64_t t_us, uint8_t *pkt, size_t *len, struct f4d_err *err);
     void (*free)(void *self);
 };
-int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, struct f4d_err *err);
+int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, const char *effort,
+                          struct f4d_err *err);
 
 /* ---- stage: packets -> the stream transport (srt://, file:) ---- */
 struct run_sink {
@@ -162,6 +163,8 @@ struct run_config {
     char display_args[512];    /* extra arguments for it, separated by spaces */
     char display_json[512];    /* its JSON summary (default: the stream file + ".display.json") */
     char precision[16], quality[16];
+    char codec_effort[16];     /* the encoder's search: fast (default: a live encoder shares the
+                                  cores with inference), default or max (codec_enc_set_effort) */
     double seconds;            /* 0: until SIGINT / SIGTERM */
     double key_hz;             /* most keys a second (0: as many as inference manages): inference
                                   starts a key at most every 1 / key_hz s, leaving the rest of the

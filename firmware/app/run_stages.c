@@ -369,17 +369,28 @@ static void enc_free(void *self)
     free(en);
 }
 
-int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, struct f4d_err *err)
+int run_encoder_codec_new(struct run_encoder *st, size_t capacity, const char *quality, const char *effort,
+                          struct f4d_err *err)
 {
     memset(st, 0, sizeof *st);
     int q = codec_quality_from_name(quality, err);
     if (q < 0)
         return q;
+    int ef = codec_effort_from_name(effort, err);
+    if (ef < 0)
+        return ef;
     struct enc *en = calloc(1, sizeof *en);
     if (!en)
         return f4d_fail(err, F4D_ENOMEM, "encoder: out of memory");
     int rc = codec_enc_new(capacity ? capacity : 1, (enum codec_quality)q, &en->e, err);
     if (rc < 0) {
+        free(en);
+        return rc;
+    }
+    rc = codec_enc_set_effort(en->e, ef);
+    if (rc < 0) {
+        f4d_fail(err, rc, "encoder: %s", codec_enc_error(en->e));
+        codec_enc_free(en->e);
         free(en);
         return rc;
     }

@@ -597,6 +597,9 @@ static void config(void **state)
     rc = sh(out, sizeof out, "%s run --no-config --precision f8 2>&1", forge4d);
     assert_int_equal(rc, 2);
     assert_non_null(strstr(out, "precision must be f32, f16 or int8"));
+    rc = sh(out, sizeof out, "%s run --no-config --codec-effort quick 2>&1", forge4d);
+    assert_int_equal(rc, 2);
+    assert_non_null(strstr(out, "codec_effort must be fast, default or max"));
     rc = sh(out, sizeof out, "%s run --no-config --board %s/sim-4cam.json --stream file:/dev/null 2>&1", forge4d,
             F4D_BOARD_DIR);
     assert_int_equal(rc, 2);
