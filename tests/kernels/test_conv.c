@@ -124,6 +124,7 @@ static void test_conv2d_shapes(void **state)
     check_conv(3, 3, 1, 33, 3, 3, 1, 1, 7);     /* cout not a multiple of 16 */
     check_conv(14, 12, 8, 32, 3, 3, 1, 1, 8);   /* 8 channels, 3x3 (the shipped DPT's full resolution) */
     check_conv(19, 18, 2, 5, 17, 17, 1, 2, 9);  /* 17 kernel rows: int8 gathers the row */
+    check_conv(11, 13, 24, 40, 3, 3, 1, 1, 10); /* cin >= 16: f32 / f16 read A in place (direct) */
 }
 
 static void check_tconv(int h, int w, int cin, int cout, int k, uint64_t seed)

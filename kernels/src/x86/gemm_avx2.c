@@ -648,8 +648,9 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
             kc = kc < KC ? kc : KC;
             if (!j->direct)
                 pack_a_f32(src, m0, rows, k0, kc, ap, zeros);
-            /* AVX-512: two panels per step (a 6x32 tile), the direct conv stays 6x16 */
-            int step = j->wide && !j->direct ? 2 : 1;
+            /* AVX-512: two panels per step (a 6x32 tile), direct convolutions too
+             * (at 6x16 in ymm they ran the DPT heads at half the zmm rate) */
+            int step = j->wide ? 2 : 1;
             size_t esz = f32 ? 4 : 2, sliver_lines = (size_t)kc * NR * esz / 64;
             for (int jp = jg; jp < jge; jp += step) {
                 int pair = step == 2 && jp + 1 < jge;
@@ -692,7 +693,10 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (j->direct) {
                         const float *ar[MR];
                         direct_rows(src, m0, rows, i, k0, zeros, ar);
-                        ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
+                        if (pair)
+                            fk__gemm_f32_ukr_avx512_rows(kc, ar, bp, bp1, ci, k0 > 0);
+                        else
+                            ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
                     } else if (pair) {
                         fk__gemm_f32_ukr_avx512(kc, ap + (size_t)i * (size_t)kc * MR, bp, bp1, ci, k0 > 0);
                     } else {
