@@ -633,6 +633,47 @@ static inline void prefetch_share(const char *p, size_t lines, int i, int mp)
 /* The C tile is [mp][np][6][16]: micro-tile (i, p) at ((i * np + p) * 6) * 16. */
 static inline size_t tile_at(int i, int np, int p) { return ((size_t)i * (size_t)np + (size_t)p) * MR * NR; }
 
+/* The epilogue of one finished 6 x 16 fp32 tile (panel jp, rows m .. m +
+ * nr - 1), run right after its last k block while the tile is in L1
+ * (a pass over the whole mc x nc tile afterwards read it back from L2). */
+static void epi_f32(const struct gemm_job *j, const float *ci, int m, int nr, int jp)
+{
+    const struct fk_linear *L = j->L;
+    int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+    __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+    for (int r = 0; r < nr; r++) {
+        const float *cr = ci + (size_t)r * NR;
+        __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), b0));
+        __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), b1));
+        store_row(j->c, j->ep, m + r, n0, nn, t0, t1);
+    }
+}
+
+/* The int8 epilogue of one finished 6 x 16 int32 tile: take the +128 of the
+ * u8 activations back out, scale by row and channel, bias, activation. */
+static void epi_q8(const struct gemm_job *j, const int32_t *ci, const float *sa, int m, int nr, int jp,
+                   int u8)
+{
+    const struct fk_linear *L = j->L;
+    int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+    __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+    __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
+    __m256i cs0 = _mm256_setzero_si256(), cs1 = _mm256_setzero_si256();
+    if (u8) {
+        cs0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
+        cs1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
+    }
+    for (int r = 0; r < nr; r++) {
+        const int32_t *cr = ci + (size_t)r * NR;
+        __m256 s_r = _mm256_set1_ps(sa[r]);
+        __m256i a0 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)cr), cs0);
+        __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(cr + 8)), cs1);
+        __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
+        __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
+        store_row(j->c, j->ep, m + r, n0, nn, activate(j->ep->act, t0), activate(j->ep->act, t1));
+    }
+}
+
 static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
 {
     const struct fk_linear *L = j->L;
@@ -702,17 +743,15 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     } else {
                         fk__ukr_f32_6x16(kc, ap + (size_t)i * (size_t)kc * MR, bp, ci, NR, k0 > 0);
                     }
+                    if (k0 + kc >= k) { /* last k block: this tile is final */
+                        int nr = rows - i * MR < MR ? rows - i * MR : MR;
+                        epi_f32(j, ci, m0 + i * MR, nr, jp);
+                        if (pair)
+                            epi_f32(j, ci + MR * NR, m0 + i * MR, nr, jp + 1);
+                    }
                 }
             }
         }
-        for (int r = 0; r < rows; r++)
-            for (int jp = jg; jp < jge; jp++) {
-                int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-                const float *cr = ct + tile_at(r / MR, np, jp - jg) + (size_t)(r % MR) * NR;
-                __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), _mm256_load_ps(L->bias + n0)));
-                __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), _mm256_load_ps(L->bias + n0 + 8)));
-                store_row(j->c, j->ep, m0 + r, n0, nn, t0, t1);
-            }
     }
 }
 
@@ -745,34 +784,20 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                     int32_t *ci = ct + tile_at(i, np, jp - jg);
                     if (pair) {
                         fk__gemm_q8_ukr_avx512(qn, (const uint8_t *)ai, bp, bp + panel_b, ci, q0 > 0);
-                        continue;
+                    } else {
+                        switch (j->path) {
+                        case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
+                        case Q8_7BIT:  ukr_q7_avx2(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
+                        default:       ukr_q8_avx2(qn, (const int16_t *)(const void *)ai, bp, ci, q0 > 0); break;
+                        }
                     }
-                    switch (j->path) {
-                    case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
-                    case Q8_7BIT:  ukr_q7_avx2(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
-                    default:       ukr_q8_avx2(qn, (const int16_t *)(const void *)ai, bp, ci, q0 > 0); break;
+                    if (q0 + qn >= k4) { /* last k block: this tile is final */
+                        int nr = rows - i * MR < MR ? rows - i * MR : MR;
+                        epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);
+                        if (pair)
+                            epi_q8(j, ci + MR * NR, sa + i * MR, m0 + i * MR, nr, jp + 1, u8);
                     }
                 }
-            }
-        }
-        /* epilogue row by row: each output row written left to right */
-        for (int r = 0; r < rows; r++) {
-            __m256 s_r = _mm256_set1_ps(sa[r]);
-            for (int jp = jg; jp < jge; jp++) {
-                int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-                const int32_t *cr = ct + tile_at(r / MR, np, jp - jg) + (size_t)(r % MR) * NR;
-                __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
-                __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
-                __m256i a0 = _mm256_load_si256((const __m256i *)cr);
-                __m256i a1 = _mm256_load_si256((const __m256i *)(cr + 8));
-                if (u8) { /* take the +128 of the unsigned activations back out */
-                    a0 = _mm256_sub_epi32(a0, _mm256_load_si256((const __m256i *)(L->colsum + n0)));
-                    a1 = _mm256_sub_epi32(a1, _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8)));
-                }
-                __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
-                __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
-                store_row(j->c, j->ep, m0 + r, n0, nn, activate(j->ep->act, t0),
-                          activate(j->ep->act, t1));
             }
         }
     }
