@@ -82,6 +82,9 @@ void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
  * fp32: c (+)= a[kc][6] * (b0 | b1)[kc][16]; int8: u8 a x s8 b with vpdpbusd. */
 void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const float *b1, float *c,
                              int accumulate);
+/* fp32, rows of A read in place (a[r][k], the direct stride-1 convolution). */
+void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *b0, const float *b1,
+                                  float *c, int accumulate);
 void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const int8_t *b1,
                             int32_t *c, int accumulate);
 /* n fp16 weights (a multiple of 16, h 32-byte and d 64-byte aligned) widened

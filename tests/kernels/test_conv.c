@@ -86,6 +86,22 @@ static void check_conv(int h, int w, int cin, int cout, int kh, int kw, int stri
                 if (!(fabs((double)got[i] - want[i]) <= (t == FK_W_Q8 ? qb[i] : budget[t] * s[i])))
                     fail_msg("%s type %d conv %dx%d s%d p%d %dx%dx%d->%d: out %zu = %g, ref %g",
                              fk_isa_name(all[a]), t, kh, kw, stride, pad, h, w, cin, cout, i, got[i], want[i]);
+            if (t == FK_W_Q8 && all[a] != FK_ISA_REF) {
+                /* int8: bit-exact with the reference of the same weight codes
+                 * (the optimized paths quantize im2col rows straight from the
+                 * image, the reference from a gathered row) */
+                fk_ctx *rc = test_ctx_q8(FK_ISA_REF, 1, fk_ctx_q8_bits(ctx));
+                struct fk_conv2d cr;
+                float *exact = xmalloc(sizeof(float) * n);
+                assert_int_equal(fk_conv2d_pack(rc, &cr, FK_W_Q8, wt, b, cout, cin, kh, kw, stride, pad), F4D_OK);
+                assert_int_equal(fk_conv2d_forward(rc, &cr, x, h, w, exact, FK_ACT_NONE), F4D_OK);
+                if (memcmp(exact, got, sizeof(float) * n) != 0)
+                    fail_msg("%s int8 conv %dx%d s%d p%d %dx%dx%d->%d not bit-exact with the reference",
+                             fk_isa_name(all[a]), kh, kw, stride, pad, h, w, cin, cout);
+                free(exact);
+                fk_conv2d_free(&cr);
+                fk_ctx_free(rc);
+            }
             /* fused ReLU */
             assert_int_equal(fk_conv2d_forward(ctx, &c, x, h, w, got, FK_ACT_RELU), F4D_OK);
             for (size_t i = 0; i < n; i++)
@@ -106,6 +122,9 @@ static void test_conv2d_shapes(void **state)
     check_conv(28, 42, 3, 20, 14, 14, 14, 0, 5);/* ViT patchify          */
     check_conv(1, 1, 1, 1, 1, 1, 1, 0, 6);      /* smallest              */
     check_conv(3, 3, 1, 33, 3, 3, 1, 1, 7);     /* cout not a multiple of 16 */
+    check_conv(14, 12, 8, 32, 3, 3, 1, 1, 8);   /* 8 channels, 3x3 (the shipped DPT's full resolution) */
+    check_conv(19, 18, 2, 5, 17, 17, 1, 2, 9);  /* 17 kernel rows: int8 gathers the row */
+    check_conv(11, 13, 24, 40, 3, 3, 1, 1, 10); /* cin >= 16: f32 / f16 read A in place (direct) */
 }
 
 static void check_tconv(int h, int w, int cin, int cout, int k, uint64_t seed)

@@ -41,7 +41,7 @@
  *        "max_rel_err", ...}], "stream": {...}, ...}.
  *
  *   f4d-bench model --weights W.gguf [--views S] [--size HxW] [--reps R]
- *                   [--skip-head PREFIX]
+ *                   [--skip-head PREFIX] [--precision f32|f16|int8]
  *
  * times a given weight file (the shipped model: its own img_size unless
  * --size) per stage at f32, f16 and int8, best of R steps (with motion
@@ -342,7 +342,8 @@ static double stage_sec(const struct result *r, const char *name, double *flops)
 }
 
 /* --weights: one file, per stage and precision. */
-static int bench_weights(fk_ctx *ctx, const char *path, int S, int H, int W, int reps, const char *skip)
+static int bench_weights(fk_ctx *ctx, const char *path, int S, int H, int W, int reps, const char *skip,
+                         const char *only)
 {
     if (H == 0) { /* the file's own input size */
         struct f4d_err err = {0};
@@ -358,6 +359,8 @@ static int bench_weights(fk_ctx *ctx, const char *path, int S, int H, int W, int
     static const char *const wn[3] = { "f32", "f16", "int8" };
     for (int p = 0; p < 3; p++) {
         struct result r;
+        if (only && strcmp(only, wn[p]))
+            continue;
         if (run_model(ctx, path, wt[p], S, H, W, reps, 0, 0, skip, &r) < 0)
             return 1;
         printf("model %s%s%s: %d views %dx%d, %s, isa %s, %d threads, best of %d: %.2f ms wall, %.2f ms CPU, "
@@ -375,7 +378,7 @@ static int bench_weights(fk_ctx *ctx, const char *path, int S, int H, int W, int
 int bench_model(int argc, char **argv)
 {
     const char *json = NULL, *tmpdir = "/tmp", *write_path = NULL, *preset = "tiny", *weights = NULL;
-    const char *skip_head = NULL;
+    const char *skip_head = NULL, *only_prec = NULL;
     int threads = 0, S = 4, H = 518, W = 518, reps = 3, skip_full = 0, all_isas = 0, sized = 0;
     int stream_only = 0, skip_stream = 0, cpu_clock = 0;
     enum fk_isa isa = FK_ISA_AUTO;
@@ -392,6 +395,9 @@ int bench_model(int argc, char **argv)
             weights = argv[++i];
         else if (!strcmp(argv[i], "--skip-head") && i + 1 < argc)
             skip_head = argv[++i];
+        else if (!strcmp(argv[i], "--precision") && i + 1 < argc &&
+                 (!strcmp(argv[i + 1], "f32") || !strcmp(argv[i + 1], "f16") || !strcmp(argv[i + 1], "int8")))
+            only_prec = argv[++i];
         else if (!strcmp(argv[i], "--reps") && i + 1 < argc)
             reps = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--write-random") && i + 1 < argc)
@@ -425,7 +431,7 @@ int bench_model(int argc, char **argv)
                             "[--size HxW] [--reps R] [--skip-full] [--stream-only | --skip-stream] [--clock wall|cpu] [--tmp DIR] "
                             "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n"
                             "       f4d-bench model --weights W.gguf [--views S] [--size HxW] [--reps R] "
-                            "[--threads N] [--isa NAME] [--skip-head PREFIX]\n"
+                            "[--threads N] [--isa NAME] [--skip-head PREFIX] [--precision f32|f16|int8]\n"
                             "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid]\n");
             return 2;
         }
@@ -452,7 +458,7 @@ int bench_model(int argc, char **argv)
                 n_x++;
         }
     if (weights) {
-        int wrc = bench_weights(ctx, weights, S, sized ? H : 0, sized ? W : 0, reps, skip_head);
+        int wrc = bench_weights(ctx, weights, S, sized ? H : 0, sized ? W : 0, reps, skip_head, only_prec);
         for (int i = 0; i < n_x; i++)
             fk_ctx_free(xctx[i]);
         fk_ctx_free(ctx);

@@ -209,14 +209,12 @@ __attribute__((noinline)) static void ukr_q7_avx2(int k4, const uint8_t *a, cons
 
 /* ----------------------------------------------------------------- packing */
 
-/* Six rows of 8 values -> 8 columns of 6, each stored as 8 floats at
- * d + 6 j (the last two lanes are overwritten by the next column). */
-static inline void transpose_6x8(const float *const r[MR], int k0, float *d)
+/* Six rows of 8 values (a0..a5) -> 8 columns of 6, each stored as 8 floats
+ * at d + 6 j (the last two lanes are overwritten by the next column). */
+static inline void transpose_6x8_v(__m256 a0, __m256 a1, __m256 a2, __m256 a3, __m256 a4, __m256 a5,
+                                   float *d)
 {
     __m256 z = _mm256_setzero_ps();
-    __m256 a0 = _mm256_loadu_ps(r[0] + k0), a1 = _mm256_loadu_ps(r[1] + k0);
-    __m256 a2 = _mm256_loadu_ps(r[2] + k0), a3 = _mm256_loadu_ps(r[3] + k0);
-    __m256 a4 = _mm256_loadu_ps(r[4] + k0), a5 = _mm256_loadu_ps(r[5] + k0);
     __m256 t0 = _mm256_unpacklo_ps(a0, a1), t1 = _mm256_unpackhi_ps(a0, a1);
     __m256 t2 = _mm256_unpacklo_ps(a2, a3), t3 = _mm256_unpackhi_ps(a2, a3);
     __m256 t4 = _mm256_unpacklo_ps(a4, a5), t5 = _mm256_unpackhi_ps(a4, a5);
@@ -233,6 +231,13 @@ static inline void transpose_6x8(const float *const r[MR], int k0, float *d)
     _mm256_storeu_ps(d + 5 * MR, _mm256_permute2f128_ps(u1, u5, 0x31));
     _mm256_storeu_ps(d + 6 * MR, _mm256_permute2f128_ps(u2, u6, 0x31));
     _mm256_storeu_ps(d + 7 * MR, _mm256_permute2f128_ps(u3, u7, 0x31));
+}
+
+/* Six rows of 8 values from r[i] + k0 -> 8 columns of 6 at d + 6 j. */
+static inline void transpose_6x8(const float *const r[MR], int k0, float *d)
+{
+    transpose_6x8_v(_mm256_loadu_ps(r[0] + k0), _mm256_loadu_ps(r[1] + k0), _mm256_loadu_ps(r[2] + k0),
+                    _mm256_loadu_ps(r[3] + k0), _mm256_loadu_ps(r[4] + k0), _mm256_loadu_ps(r[5] + k0), d);
 }
 
 /* pack_a_f32 for a convolution: each tap's run of channels is transposed
@@ -340,52 +345,180 @@ static float quantize_row(const float *x, int k, int8_t *q)
     return am / 127.0f;
 }
 
+/* A run of row m of A: n floats at p, or n zeros (p NULL). */
+struct arun {
+    const float *p;
+    int          n;
+};
+
+/* Most runs a convolution row may take: a zero run, the in-image taps of one
+ * kernel row (adjacent pixels, so one run in channels-last), a zero run, per
+ * kernel row. Larger kernels gather the row with fk__asrc_row. */
+#define ARUN_MAX 48
+
+/* Row m of A as at most ARUN_MAX runs in k order (k = (ky kw + kx) cin + c);
+ * returns their count, or 0 when the row needs more. */
+static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
+{
+    if (!a->conv) {
+        r[0] = (struct arun){ a->x + (size_t)m * (size_t)a->ldx, k };
+        return 1;
+    }
+    int oy = m / a->wo * a->stride - a->pad, ox = m % a->wo * a->stride - a->pad, nr = 0;
+    int kx0 = ox < 0 ? -ox : 0, kx1 = a->w - ox < a->kw ? a->w - ox : a->kw; /* in-image taps */
+    if (3 * a->kh > ARUN_MAX)
+        return 0;
+    for (int ky = 0; ky < a->kh; ky++) {
+        int iy = oy + ky;
+        if (iy < 0 || iy >= a->h || kx1 <= kx0) {
+            r[nr++] = (struct arun){ NULL, a->kw * a->cin };
+            continue;
+        }
+        if (kx0 > 0)
+            r[nr++] = (struct arun){ NULL, kx0 * a->cin };
+        r[nr++] = (struct arun){ a->x + ((size_t)iy * (size_t)a->w + (size_t)(ox + kx0)) * (size_t)a->cin,
+                                 (kx1 - kx0) * a->cin };
+        if (kx1 < a->kw)
+            r[nr++] = (struct arun){ NULL, (a->kw - kx1) * a->cin };
+    }
+    return nr;
+}
+
+/* quantize_row over runs (zero runs add nothing to amax or to the poison
+ * sum; max and a sum of zeros / NaN do not depend on the order), so the codes
+ * and the scale are quantize_row's bit for bit, without copying the row. */
+static float quantize_runs(const struct arun *r, int nr, int8_t *q)
+{
+    __m256 amax = _mm256_setzero_ps(), poison = _mm256_setzero_ps();
+    const __m256 absmask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+    const __m256 zero = _mm256_setzero_ps();
+    float am = 0, pz = 0;
+    int k = 0;
+    for (int s = 0; s < nr; s++) {
+        const float *x = r[s].p;
+        int n = r[s].n, i = 0;
+        k += n;
+        if (!x)
+            continue;
+        for (; i + 8 <= n; i += 8) {
+            __m256 v = _mm256_loadu_ps(x + i);
+            poison = _mm256_add_ps(poison, _mm256_mul_ps(v, zero));
+            amax = _mm256_max_ps(amax, _mm256_and_ps(v, absmask));
+        }
+        for (; i < n; i++) {
+            pz += x[i] * 0.0f;
+            float a = fabsf(x[i]);
+            if (a > am)
+                am = a;
+        }
+    }
+    float vm = fk__hmax_avx2(amax);
+    am = vm > am ? vm : am;
+    pz += fk__hsum_avx2(poison);
+    if (am < FK_Q8_AMAX_MIN || pz != 0) {
+        memset(q, 0, (size_t)k);
+        return pz == 0 ? 0.0f : NAN;
+    }
+    float invs = 127.0f / am;
+    __m256 inv = _mm256_set1_ps(invs);
+    for (int s = 0; s < nr; s++) {
+        const float *x = r[s].p;
+        int n = r[s].n, i = 0;
+        if (!x) {
+            memset(q, 0, (size_t)n);
+            q += n;
+            continue;
+        }
+        for (; i + 8 <= n; i += 8) {
+            __m256i v = _mm256_cvtps_epi32(_mm256_mul_ps(_mm256_loadu_ps(x + i), inv));
+            __m128i w = _mm_packs_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+            _mm_storel_epi64((__m128i *)(q + i), _mm_packs_epi16(w, w));
+        }
+        for (; i < n; i++)
+            q[i] = (int8_t)(int)nearbyintf(x[i] * invs);
+        q += n;
+    }
+    return am / 127.0f;
+}
+
+/* Row m's codes into q[k] and its scale: runs straight from A, or the
+ * gathered row for kernels with more rows than ARUN_MAX covers. */
+static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q, float *rowbuf)
+{
+    struct arun r[ARUN_MAX];
+    int nr = row_runs(src, m, k, r);
+    if (nr == 0) {
+        fk__asrc_row(src, m, 0, k, rowbuf);
+        return quantize_row(rowbuf, k, q);
+    }
+    return quantize_runs(r, nr, q);
+}
+
 /* Quantizes rows [m0, m0 + rows) and packs them as micro-panels
- * [i][k4][6][4]: int16 for the AVX2 kernel, uint8 (+128) for VNNI. */
+ * [i][k4][6][4]: int16 for the AVX2 kernel, uint8 (+128) for VNNI and the
+ * 7-bit kernel. u8: the six rows' codes are quantized into q[6][k_pad] and
+ * transposed 8 groups of 4 at a time (the 6x8 fp32 transpose moves the
+ * 32-bit groups as they are), instead of a scalar store per group; the
+ * transpose writes 2 groups past the last one (the scratch has room). */
 static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int vnni,
                       void *ap, float *sa, float *rowbuf, int8_t *q)
 {
-    int mp = (rows + MR - 1) / MR;
+    int mp = (rows + MR - 1) / MR, k4n = k_pad / 4;
     size_t panel = (size_t)k_pad * MR;
+    if (vnni) {
+        const __m256i flip = _mm256_set1_epi8((char)0x80);
+        for (int i = 0; i < mp; i++) {
+            for (int rr = 0; rr < MR; rr++) {
+                int row = i * MR + rr;
+                int8_t *qr = q + (size_t)rr * (size_t)k_pad;
+                if (row < rows) {
+                    sa[row] = quantize_a_row(src, m0 + row, k, qr, rowbuf);
+                    memset(qr + k, 0, (size_t)(k_pad - k));
+                } else {
+                    sa[row] = 0;
+                    memset(qr, 0, (size_t)k_pad);
+                }
+            }
+            float *d = (float *)(void *)((uint8_t *)ap + (size_t)i * panel);
+            int g = 0;
+            for (; g + 8 <= k4n; g += 8) {
+                const int8_t *qg = q + 4 * g;
+                const size_t kp = (size_t)k_pad;
+#define QROW(rr) _mm256_castsi256_ps(_mm256_xor_si256(_mm256_loadu_si256((const __m256i *)(qg + (rr) * kp)), flip))
+                transpose_6x8_v(QROW(0), QROW(1), QROW(2), QROW(3), QROW(4), QROW(5), d + (size_t)g * MR);
+#undef QROW
+            }
+            for (; g < k4n; g++)
+                for (int rr = 0; rr < MR; rr++) {
+                    uint32_t w;
+                    memcpy(&w, q + (size_t)rr * (size_t)k_pad + 4 * g, 4);
+                    w ^= 0x80808080u;
+                    memcpy(d + (size_t)g * MR + rr, &w, 4);
+                }
+        }
+        return;
+    }
     for (int row = 0; row < mp * MR; row++) {
         int i = row / MR, rr = row % MR;
         if (row < rows) {
-            const float *x;
-            if (!src->conv) {
-                x = src->x + (size_t)(m0 + row) * (size_t)src->ldx;
-            } else {
-                fk__asrc_row(src, m0 + row, 0, k, rowbuf);
-                x = rowbuf;
-            }
-            sa[row] = quantize_row(x, k, q);
+            sa[row] = quantize_a_row(src, m0 + row, k, q, rowbuf);
         } else {
             sa[row] = 0;
             memset(q, 0, (size_t)k);
         }
         for (int kk = k; kk < k_pad; kk++)
             q[kk] = 0;
-        /* 4 consecutive k of this row go to one 32-bit (VNNI: code + 128,
-         * which is code ^ 0x80 per byte) or 64-bit (int16) slot per k4 */
-        if (vnni) {
-            uint8_t *d = (uint8_t *)ap + (size_t)i * panel + (size_t)rr * 4;
-            for (int k4 = 0; k4 < k_pad / 4; k4++) {
-                uint32_t w;
-                memcpy(&w, q + 4 * k4, 4);
-                w ^= 0x80808080u;
-                memcpy(d + (size_t)k4 * MR * 4, &w, 4);
-            }
-        } else {
-            int16_t *d = (int16_t *)ap + (size_t)i * panel + (size_t)rr * 4;
-            int k4 = 0, k4n = k_pad / 4;
-            for (; k4 + 1 < k4n; k4 += 2) {
-                __m128i v = _mm_cvtepi8_epi16(_mm_loadl_epi64((const __m128i *)(q + 4 * k4)));
-                _mm_storel_epi64((__m128i *)(d + (size_t)k4 * MR * 4), v);
-                _mm_storeh_pd((double *)(void *)(d + (size_t)(k4 + 1) * MR * 4), _mm_castsi128_pd(v));
-            }
-            for (; k4 < k4n; k4++)
-                for (int e = 0; e < 4; e++)
-                    d[(size_t)k4 * MR * 4 + (size_t)e] = q[4 * k4 + e];
+        /* 4 consecutive k of this row go to one 64-bit (int16) slot per k4 */
+        int16_t *d = (int16_t *)ap + (size_t)i * panel + (size_t)rr * 4;
+        int k4 = 0;
+        for (; k4 + 1 < k4n; k4 += 2) {
+            __m128i v = _mm_cvtepi8_epi16(_mm_loadl_epi64((const __m128i *)(q + 4 * k4)));
+            _mm_storel_epi64((__m128i *)(d + (size_t)k4 * MR * 4), v);
+            _mm_storeh_pd((double *)(void *)(d + (size_t)(k4 + 1) * MR * 4), _mm_castsi128_pd(v));
         }
+        for (; k4 < k4n; k4++)
+            for (int e = 0; e < 4; e++)
+                d[(size_t)k4 * MR * 4 + (size_t)e] = q[4 * k4 + e];
     }
 }
 
@@ -500,6 +633,47 @@ static inline void prefetch_share(const char *p, size_t lines, int i, int mp)
 /* The C tile is [mp][np][6][16]: micro-tile (i, p) at ((i * np + p) * 6) * 16. */
 static inline size_t tile_at(int i, int np, int p) { return ((size_t)i * (size_t)np + (size_t)p) * MR * NR; }
 
+/* The epilogue of one finished 6 x 16 fp32 tile (panel jp, rows m .. m +
+ * nr - 1), run right after its last k block while the tile is in L1
+ * (a pass over the whole mc x nc tile afterwards read it back from L2). */
+static void epi_f32(const struct gemm_job *j, const float *ci, int m, int nr, int jp)
+{
+    const struct fk_linear *L = j->L;
+    int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+    __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+    for (int r = 0; r < nr; r++) {
+        const float *cr = ci + (size_t)r * NR;
+        __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), b0));
+        __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), b1));
+        store_row(j->c, j->ep, m + r, n0, nn, t0, t1);
+    }
+}
+
+/* The int8 epilogue of one finished 6 x 16 int32 tile: take the +128 of the
+ * u8 activations back out, scale by row and channel, bias, activation. */
+static void epi_q8(const struct gemm_job *j, const int32_t *ci, const float *sa, int m, int nr, int jp,
+                   int u8)
+{
+    const struct fk_linear *L = j->L;
+    int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
+    __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+    __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
+    __m256i cs0 = _mm256_setzero_si256(), cs1 = _mm256_setzero_si256();
+    if (u8) {
+        cs0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
+        cs1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
+    }
+    for (int r = 0; r < nr; r++) {
+        const int32_t *cr = ci + (size_t)r * NR;
+        __m256 s_r = _mm256_set1_ps(sa[r]);
+        __m256i a0 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)cr), cs0);
+        __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(cr + 8)), cs1);
+        __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
+        __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
+        store_row(j->c, j->ep, m + r, n0, nn, activate(j->ep->act, t0), activate(j->ep->act, t1));
+    }
+}
+
 static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int jp1, char *s)
 {
     const struct fk_linear *L = j->L;
@@ -515,8 +689,9 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
             kc = kc < KC ? kc : KC;
             if (!j->direct)
                 pack_a_f32(src, m0, rows, k0, kc, ap, zeros);
-            /* AVX-512: two panels per step (a 6x32 tile), the direct conv stays 6x16 */
-            int step = j->wide && !j->direct ? 2 : 1;
+            /* AVX-512: two panels per step (a 6x32 tile), direct convolutions too
+             * (at 6x16 in ymm they ran the DPT heads at half the zmm rate) */
+            int step = j->wide ? 2 : 1;
             size_t esz = f32 ? 4 : 2, sliver_lines = (size_t)kc * NR * esz / 64;
             for (int jp = jg; jp < jge; jp += step) {
                 int pair = step == 2 && jp + 1 < jge;
@@ -559,23 +734,24 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (j->direct) {
                         const float *ar[MR];
                         direct_rows(src, m0, rows, i, k0, zeros, ar);
-                        ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
+                        if (pair)
+                            fk__gemm_f32_ukr_avx512_rows(kc, ar, bp, bp1, ci, k0 > 0);
+                        else
+                            ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
                     } else if (pair) {
                         fk__gemm_f32_ukr_avx512(kc, ap + (size_t)i * (size_t)kc * MR, bp, bp1, ci, k0 > 0);
                     } else {
                         fk__ukr_f32_6x16(kc, ap + (size_t)i * (size_t)kc * MR, bp, ci, NR, k0 > 0);
                     }
+                    if (k0 + kc >= k) { /* last k block: this tile is final */
+                        int nr = rows - i * MR < MR ? rows - i * MR : MR;
+                        epi_f32(j, ci, m0 + i * MR, nr, jp);
+                        if (pair)
+                            epi_f32(j, ci + MR * NR, m0 + i * MR, nr, jp + 1);
+                    }
                 }
             }
         }
-        for (int r = 0; r < rows; r++)
-            for (int jp = jg; jp < jge; jp++) {
-                int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-                const float *cr = ct + tile_at(r / MR, np, jp - jg) + (size_t)(r % MR) * NR;
-                __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), _mm256_load_ps(L->bias + n0)));
-                __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), _mm256_load_ps(L->bias + n0 + 8)));
-                store_row(j->c, j->ep, m0 + r, n0, nn, t0, t1);
-            }
     }
 }
 
@@ -608,34 +784,20 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                     int32_t *ci = ct + tile_at(i, np, jp - jg);
                     if (pair) {
                         fk__gemm_q8_ukr_avx512(qn, (const uint8_t *)ai, bp, bp + panel_b, ci, q0 > 0);
-                        continue;
+                    } else {
+                        switch (j->path) {
+                        case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
+                        case Q8_7BIT:  ukr_q7_avx2(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
+                        default:       ukr_q8_avx2(qn, (const int16_t *)(const void *)ai, bp, ci, q0 > 0); break;
+                        }
                     }
-                    switch (j->path) {
-                    case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
-                    case Q8_7BIT:  ukr_q7_avx2(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;
-                    default:       ukr_q8_avx2(qn, (const int16_t *)(const void *)ai, bp, ci, q0 > 0); break;
+                    if (q0 + qn >= k4) { /* last k block: this tile is final */
+                        int nr = rows - i * MR < MR ? rows - i * MR : MR;
+                        epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);
+                        if (pair)
+                            epi_q8(j, ci + MR * NR, sa + i * MR, m0 + i * MR, nr, jp + 1, u8);
                     }
                 }
-            }
-        }
-        /* epilogue row by row: each output row written left to right */
-        for (int r = 0; r < rows; r++) {
-            __m256 s_r = _mm256_set1_ps(sa[r]);
-            for (int jp = jg; jp < jge; jp++) {
-                int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
-                const int32_t *cr = ct + tile_at(r / MR, np, jp - jg) + (size_t)(r % MR) * NR;
-                __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
-                __m256 w0 = _mm256_load_ps(L->scale + n0), w1 = _mm256_load_ps(L->scale + n0 + 8);
-                __m256i a0 = _mm256_load_si256((const __m256i *)cr);
-                __m256i a1 = _mm256_load_si256((const __m256i *)(cr + 8));
-                if (u8) { /* take the +128 of the unsigned activations back out */
-                    a0 = _mm256_sub_epi32(a0, _mm256_load_si256((const __m256i *)(L->colsum + n0)));
-                    a1 = _mm256_sub_epi32(a1, _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8)));
-                }
-                __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
-                __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
-                store_row(j->c, j->ep, m0 + r, n0, nn, activate(j->ep->act, t0),
-                          activate(j->ep->act, t1));
             }
         }
     }
@@ -726,7 +888,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     }
 
     int kcb = k < j.kc ? k : j.kc; /* fp32 block width */
-    size_t a_bytes = q8 ? mcp * (size_t)j.k_pad * (j.path == Q8_EXACT16 ? 2 : 1)
+    size_t a_bytes = q8 ? mcp * (size_t)j.k_pad * (j.path == Q8_EXACT16 ? 2 : 1) + 8 * sizeof(float)
                         : mcp * (size_t)kcb * 4 + 8 * sizeof(float); /* + transpose spill */
     size_t bytes_a = j.direct ? 0 : fk__round_up(a_bytes, FK_ALIGN);
     j.off_c = bytes_a;
@@ -734,7 +896,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : fk__round_up((size_t)kcb * NR * 4 * 2, FK_ALIGN));
     size_t tmp = a->conv && q8 ? (size_t)k * 4 : 0; /* pack_a_q8's im2col row */
     j.off_q = j.off_tmp + fk__round_up(tmp, FK_ALIGN);
-    j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)j.k_pad, FK_ALIGN) : 0);
+    j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)MR * (size_t)j.k_pad, FK_ALIGN) : 0); /* q[6][k_pad] */
     /* a row of zeros stands in for the padding rows of the last micro-panel */
     j.off_zero = j.off_sa + fk__round_up(q8 ? mcp * 4 : 0, FK_ALIGN);
     size_t need = j.off_zero + (q8 ? 0 : (size_t)kcb * 4) + FK_ALIGN;
