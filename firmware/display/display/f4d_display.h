@@ -27,6 +27,11 @@
  * time since the first, so a slow machine skips ahead instead of falling
  * behind a live stream. The display shows the interval between the last two
  * keys, so its latency is up to one key interval plus the source's.
+ * An unpaced CPU display (cfg.serial 0) does the next refresh's pull, decode
+ * and interpolation on its own thread (and fk context) while this refresh is
+ * sorted, composited and presented, from the same source: display_step
+ * returns only once that work is done, so the source may be freed between
+ * calls; the pictures are the serial ones.
  *
  * Renderers (both present through EGL):
  *   DISPLAY_RENDER_GLES: GLES 3 instanced quads, the reference 3DGS shading
@@ -159,6 +164,10 @@ struct display_config {
     int         status_line;        /* draw the on-screen status line            */
     const char *png_dir;            /* write frame_%06d.png of each refresh, or NULL */
     int         read_back;          /* keep each refresh for display_read_back   */
+    int         serial;             /* 1: no ahead thread: each refresh decodes and
+                                       interpolates, then draws (per-stage CPU times
+                                       exact); 0: an unpaced CPU display prepares the
+                                       next refresh beside this one's drawing */
     const struct splat_camera *camera;     /* NULL: orbit camera from the first key;
                                                scaled to the output's size      */
     const struct splat_rig    *lookup_rig; /* NULL: the starting camera         */
