@@ -353,10 +353,11 @@ static int draw_cpu(display *d, const struct splat_frame *f, int ahead)
     struct splat_render_out ro = { .rgba8 = d->rgba, .rgba8_bottom_up = 1,
                                    .frame_read = ahead ? ahead_launch : NULL, .frame_read_arg = d };
     double t0 = display__now_ms();
+    const size_t count = f->count; /* f may hold the next frame once read */
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &ro) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));
     d->st.raster_ms += display__now_ms() - t0;
-    d->st.drawn += f->count;
+    d->st.drawn += count;
     d->st.visible += ro.visible;
     d->st.pairs += ro.pairs;
     for (int k = 0; k < 4; k++)
@@ -530,6 +531,16 @@ static int step(display *d, display_source *src)
             return d->ahead.rc;
         }
         f = d->ahead.f;
+        /* a live source may have more by now: pull as the serial refresh
+         * would (nothing to do when the key is held); a new key makes the
+         * prepared frame stale */
+        uint64_t tp0 = 0, tn0 = 0, tp1 = 0, tn1 = 0;
+        int k0 = display_player_keys(d->player, &tp0, &tn0);
+        if ((rc = pump(d, src, t_us, 0, &d->err)) < 0)
+            return rc;
+        int k1 = display_player_keys(d->player, &tp1, &tn1);
+        if (k1 != k0 || tp1 != tp0 || tn1 != tn0)
+            f = NULL;
     } else {
         d->ahead.valid = 0;
         if ((rc = pump(d, src, t_us, 0, &d->err)) < 0)
