@@ -207,8 +207,10 @@ int display_new(fk_ctx *ctx, const struct display_config *cfg, display **out, st
         else
             pthread_mutex_destroy(&d->ahead_mu);
     }
-    /* without the thread every refresh runs serially, as with cfg.serial */
-    d->ahead_ok = d->ahead_sync && !cfg->serial && pthread_create(&d->ahead_tid, NULL, ahead_main, d) == 0;
+    /* without the thread every refresh runs serially, as with cfg.serial; a
+     * context of one thread asked for one core: no ahead thread either */
+    d->ahead_ok = d->ahead_sync && !cfg->serial && fk_ctx_threads(ctx) > 1 &&
+                  pthread_create(&d->ahead_tid, NULL, ahead_main, d) == 0;
     if ((rc = display_player_new(d->pctx, cfg->lookup_rig, cfg->interp, cfg->capacity, &d->player, err)) < 0 ||
         (rc = splat_renderer_new(ctx, d->W, d->H, &d->cpu, err)) < 0)
         goto fail;

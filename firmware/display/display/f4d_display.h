@@ -27,11 +27,12 @@
  * time since the first, so a slow machine skips ahead instead of falling
  * behind a live stream. The display shows the interval between the last two
  * keys, so its latency is up to one key interval plus the source's.
- * An unpaced CPU display (cfg.serial 0) does the next refresh's pull, decode
- * and interpolation on its own thread (and fk context) while this refresh is
- * sorted, composited and presented, from the same source: display_step
- * returns only once that work is done, so the source may be freed between
- * calls; the pictures are the serial ones.
+ * An unpaced CPU display (cfg.serial 0, ctx of 2 threads or more) does the
+ * next refresh's pull, decode and interpolation on its own thread (and fk
+ * context) while this refresh is sorted, composited and presented, from the
+ * same source (pulled again at that refresh, as a live source may have more):
+ * display_step returns only once that work is done, so the source may be
+ * freed between calls; the pictures are the serial ones.
  *
  * Renderers (both present through EGL):
  *   DISPLAY_RENDER_GLES: GLES 3 instanced quads, the reference 3DGS shading
