@@ -1,5 +1,7 @@
 /* display.c - the refresh loop: pump packets, interpolate, draw with the CPU
- * rasterizer or GLES, overlay the status line, read back, present. */
+ * rasterizer or GLES, overlay the status line, read back, present. Unpaced
+ * with the CPU rasterizer, the next refresh's pump and interpolation run on
+ * the ahead thread once the rasterizer has read this refresh's frame. */
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
