@@ -427,6 +427,56 @@ static void no_alloc_per_frame(void **state)
     }
 }
 
+/* The ahead thread (the next refresh pulled, decoded and interpolated while
+ * this one is drawn) changes nothing: every refresh's picture, the end of the
+ * stream and the counters are the serial display's. */
+static void ahead_matches_serial(void **state)
+{
+    (void)state;
+    struct stream s;
+    make_stream(&s, 6, 3);
+    fk_ctx *ctx = ctx_new();
+    display *d[2];
+    display_source *src[2];
+    for (int m = 0; m < 2; m++) {
+        struct display_config c = headless(&s, DISPLAY_RENDER_CPU);
+        c.serial = m; /* no status line: its fps differs between runs */
+        d[m] = open_or_skip(ctx, &c);
+        assert_int_equal(display_source_memory(s.buf, s.len, &src[m], NULL), 0);
+    }
+    int n = 0, rc[2];
+    do {
+        for (int m = 0; m < 2; m++)
+            rc[m] = display_step(d[m], src[m]);
+        assert_int_equal(rc[0], rc[1]);
+        if (rc[0] == 1) {
+            int w[2], h[2];
+            const uint8_t *a = display_read_back(d[0], &w[0], &h[0]), *b = display_read_back(d[1], &w[1], &h[1]);
+            assert_non_null(a);
+            assert_non_null(b);
+            assert_memory_equal(a, b, 3 * (size_t)W * H);
+            n++;
+        }
+    } while (rc[0] == 1);
+    assert_int_equal(rc[0], 0);
+    const struct display_stats *x = display_get_stats(d[0]), *y = display_get_stats(d[1]);
+    printf("  %d refreshes identical, %llu keys, %llu redraws skipped\n", n, (unsigned long long)x->player.keys,
+           (unsigned long long)x->redraws_skipped);
+    assert_true(n >= 10);
+    assert_int_equal(x->frames, y->frames);
+    assert_int_equal(x->player.keys, y->player.keys);
+    assert_true(x->player.keys >= 5);
+    assert_int_equal(x->redraws_skipped, y->redraws_skipped);
+    assert_int_equal(x->drawn, y->drawn);
+    assert_int_equal(x->pairs, y->pairs);
+    for (int m = 0; m < 2; m++) {
+        display_source_free(src[m]);
+        display_free(d[m]);
+    }
+    fk_ctx_free(ctx);
+    free(s.buf);
+}
+
 static void bad_input(void **state)
 {
     (void)state;
@@ -455,7 +505,7 @@ int main(int argc, char **argv)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(cpu_matches_splat),  cmocka_unit_test(gles_matches_splat), cmocka_unit_test(auto_picks),
         cmocka_unit_test(join_mid_stream),    cmocka_unit_test(damaged_packet),     cmocka_unit_test(status_line),
-        cmocka_unit_test(no_alloc_per_frame), cmocka_unit_test(bad_input),
+        cmocka_unit_test(no_alloc_per_frame), cmocka_unit_test(ahead_matches_serial), cmocka_unit_test(bad_input),
     };
     return F4D_TEST_MAIN(argc, argv, "display", tests, NULL, NULL);
 }

@@ -1,7 +1,10 @@
 /* display.c - the refresh loop: pump packets, interpolate, draw with the CPU
- * rasterizer or GLES, overlay the status line, read back, present. */
+ * rasterizer or GLES, overlay the status line, read back, present. Unpaced
+ * with the CPU rasterizer, the next refresh's pump and interpolation run on
+ * the ahead thread once the rasterizer has read this refresh's frame. */
 #include <errno.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -12,6 +15,24 @@
 
 #define STATUS_SCALE 2
 #define STATUS_H     (7 * STATUS_SCALE + 6)
+
+/* The next refresh's packets and frame, prepared on the ahead thread while
+ * this refresh is sorted, composited and presented (CPU renderer, unpaced):
+ * the decode and the per-key lookup and partners, serial or parallel only in
+ * part, then fill the time the drawing leaves a core idle. The request is
+ * what the serial refresh would do next; the result is taken by that refresh. */
+struct ahead {
+    /* request */
+    display_source     *src;
+    uint64_t            t_us, refresh;   /* the refresh it prepares, its stream time */
+    struct splat_camera cam;
+    int                 drawn_keys;      /* what this refresh draws (the redraw test) */
+    uint64_t            drawn_tp, drawn_tn, drawn_t;
+    /* result */
+    int                 valid, rc;
+    const struct splat_frame *f;         /* NULL: not interpolated (a redraw or the end) */
+    struct f4d_err      err;
+};
 
 struct display {
     struct display_config cfg;
@@ -42,7 +63,85 @@ struct display {
     int               drawn_valid, drawn_keys;
     uint64_t          drawn_tp, drawn_tn, drawn_t;
     struct splat_camera drawn_cam;
+    /* the ahead thread (player on its own fk context: one caller per context) */
+    fk_ctx           *pctx;
+    pthread_t         ahead_tid;
+    pthread_mutex_t   ahead_mu;
+    pthread_cond_t    ahead_cv;
+    int               ahead_sync;       /* mutex and condition made */
+    int               ahead_ok;         /* the thread runs */
+    int               ahead_req, ahead_busy, ahead_quit, ahead_launched;
+    struct ahead      ahead;
 };
+
+static int pump(display *d, display_source *src, uint64_t until, int want_first, struct f4d_err *err);
+
+/* The ahead thread's work: what display_step does from the pump to the
+ * interpolation for refresh a->refresh (unpaced: its time is known now). */
+static void ahead_run(display *d, struct ahead *a)
+{
+    a->f = NULL;
+    a->err = (struct f4d_err){ 0 };
+    if ((a->rc = pump(d, a->src, a->t_us, 0, &a->err)) < 0)
+        return;
+    uint64_t tp = 0, tn = 0;
+    int keys = display_player_keys(d->player, &tp, &tn);
+    /* the refresh that would end the stream or present the last picture
+     * again interpolates nothing (display_step tests both again) */
+    if (keys == 0 || (d->eof && (double)a->t_us > (double)tn + 0.5e6 / d->cfg.fps))
+        return;
+    if (keys == a->drawn_keys && tp == a->drawn_tp && tn == a->drawn_tn && a->t_us >= tn && a->drawn_t >= tn)
+        return;
+    if ((a->rc = display_player_frame(d->player, a->t_us, &a->cam, &a->f)) < 0)
+        f4d_fail(&a->err, a->rc, "%s", display_player_error(d->player));
+}
+
+static void *ahead_main(void *arg)
+{
+    display *d = arg;
+    pthread_mutex_lock(&d->ahead_mu);
+    for (;;) {
+        while (!d->ahead_req && !d->ahead_quit)
+            pthread_cond_wait(&d->ahead_cv, &d->ahead_mu);
+        if (d->ahead_quit)
+            break;
+        d->ahead_req = 0;
+        d->ahead_busy = 1;
+        pthread_mutex_unlock(&d->ahead_mu);
+        ahead_run(d, &d->ahead);
+        pthread_mutex_lock(&d->ahead_mu);
+        d->ahead.valid = 1;
+        d->ahead_busy = 0;
+        pthread_cond_broadcast(&d->ahead_cv);
+    }
+    pthread_mutex_unlock(&d->ahead_mu);
+    return NULL;
+}
+
+/* splat_render's frame_read: the frame is read, the player may refill it. */
+static void ahead_launch(void *arg)
+{
+    display *d = arg;
+    pthread_mutex_lock(&d->ahead_mu);
+    d->ahead.valid = 0;
+    d->ahead_req = 1;
+    d->ahead_launched = 1;
+    pthread_cond_broadcast(&d->ahead_cv);
+    pthread_mutex_unlock(&d->ahead_mu);
+}
+
+/* Waits for the ahead thread: display_step never returns with it running
+ * (the caller may free the source between refreshes). */
+static void ahead_join(display *d)
+{
+    if (!d->ahead_launched)
+        return;
+    pthread_mutex_lock(&d->ahead_mu);
+    while (d->ahead_req || d->ahead_busy)
+        pthread_cond_wait(&d->ahead_cv, &d->ahead_mu);
+    pthread_mutex_unlock(&d->ahead_mu);
+    d->ahead_launched = 0;
+}
 
 struct display_config display_config_default(void)
 {
@@ -98,7 +197,24 @@ int display_new(fk_ctx *ctx, const struct display_config *cfg, display **out, st
     display__gl_size(d->gl, &d->W, &d->H); /* KMS: the mode's size */
 
     snprintf(d->st.gl_renderer, sizeof d->st.gl_renderer, "%s", display__gl_renderer(d->gl));
-    if ((rc = display_player_new(ctx, cfg->lookup_rig, cfg->interp, cfg->capacity, &d->player, err)) < 0 ||
+    /* the player's own threads (as many as ctx's): its per-key work runs on
+     * the ahead thread beside the rasterizer's jobs on ctx */
+    struct fk_ctx_config pc = { .isa = fk_ctx_isa(ctx), .threads = fk_ctx_threads(ctx) };
+    if (fk_ctx_new(&pc, &d->pctx) != F4D_OK) {
+        rc = f4d_fail(err, F4D_ENOMEM, "display_new: cannot make the player's thread context");
+        goto fail;
+    }
+    if (pthread_mutex_init(&d->ahead_mu, NULL) == 0) {
+        if (pthread_cond_init(&d->ahead_cv, NULL) == 0)
+            d->ahead_sync = 1;
+        else
+            pthread_mutex_destroy(&d->ahead_mu);
+    }
+    /* without the thread every refresh runs serially, as with cfg.serial; a
+     * context of one thread asked for one core: no ahead thread either */
+    d->ahead_ok = d->ahead_sync && !cfg->serial && fk_ctx_threads(ctx) > 1 &&
+                  pthread_create(&d->ahead_tid, NULL, ahead_main, d) == 0;
+    if ((rc = display_player_new(d->pctx, cfg->lookup_rig, cfg->interp, cfg->capacity, &d->player, err)) < 0 ||
         (rc = splat_renderer_new(ctx, d->W, d->H, &d->cpu, err)) < 0)
         goto fail;
     size_t px = (size_t)d->W * (size_t)d->H;
@@ -140,8 +256,20 @@ void display_free(display *d)
 {
     if (!d)
         return;
+    if (d->ahead_ok) {
+        pthread_mutex_lock(&d->ahead_mu);
+        d->ahead_quit = 1;
+        pthread_cond_broadcast(&d->ahead_cv);
+        pthread_mutex_unlock(&d->ahead_mu);
+        pthread_join(d->ahead_tid, NULL);
+    }
+    if (d->ahead_sync) {
+        pthread_cond_destroy(&d->ahead_cv);
+        pthread_mutex_destroy(&d->ahead_mu);
+    }
     splat_renderer_free(d->cpu);
     display_player_free(d->player);
+    fk_ctx_free(d->pctx);
     display__gl_close(d->gl);
     free(d->rgbf);
     free(d->rgb8);
@@ -222,16 +350,19 @@ static void apply_input(display *d, const struct display_input *in)
 
 /* ---- renderers ---------------------------------------------------------------------------- */
 
-static int draw_cpu(display *d, const struct splat_frame *f)
+static int draw_cpu(display *d, const struct splat_frame *f, int ahead)
 {
     /* the renderer writes the 8-bit image the texture takes, quantised as
-     * splat_png_write_rgb does: no float image, no second pass over it */
-    struct splat_render_out ro = { .rgba8 = d->rgba, .rgba8_bottom_up = 1 };
+     * splat_png_write_rgb does: no float image, no second pass over it;
+     * ahead: once it has read f, the next refresh is prepared beside it */
+    struct splat_render_out ro = { .rgba8 = d->rgba, .rgba8_bottom_up = 1,
+                                   .frame_read = ahead ? ahead_launch : NULL, .frame_read_arg = d };
     double t0 = display__now_ms();
+    const size_t count = f->count; /* f may hold the next frame once read */
     if (splat_render(d->cpu, &d->cam, f, d->cfg.bg, &ro) < 0)
         return f4d_fail(&d->err, F4D_EINVAL, "%s", splat_renderer_error(d->cpu));
     d->st.raster_ms += display__now_ms() - t0;
-    d->st.drawn += f->count;
+    d->st.drawn += count;
     d->st.visible += ro.visible;
     d->st.pairs += ro.pairs;
     for (int k = 0; k < 4; k++)
@@ -242,10 +373,10 @@ static int draw_cpu(display *d, const struct splat_frame *f)
     return rc;
 }
 
-static int draw(display *d, enum display_renderer r, const struct splat_frame *f)
+static int draw(display *d, enum display_renderer r, const struct splat_frame *f, int ahead)
 {
     if (r == DISPLAY_RENDER_CPU)
-        return draw_cpu(d, f);
+        return draw_cpu(d, f, ahead);
     return display__gl_draw_splats(d->gl, &d->cam, f, d->cfg.bg, &d->err);
 }
 
@@ -256,7 +387,7 @@ static int choose_renderer(display *d, const struct splat_frame *f)
     for (int r = DISPLAY_RENDER_CPU; r <= DISPLAY_RENDER_GLES; r++)
         for (int k = 0; k < 3; k++) {
             double t0 = display__now_ms();
-            int rc = draw(d, (enum display_renderer)r, f);
+            int rc = draw(d, (enum display_renderer)r, f, 0);
             if (rc < 0)
                 return rc;
             display__gl_finish(d->gl);
@@ -315,7 +446,7 @@ static void draw_status(display *d)
 
 /* Pulls packets until a key at or after `until` is held (or the source has
  * nothing now). want_first: stop at the first key. */
-static int pump(display *d, display_source *src, uint64_t until, int want_first)
+static int pump(display *d, display_source *src, uint64_t until, int want_first, struct f4d_err *err)
 {
     for (;;) {
         uint64_t tp, tn;
@@ -325,7 +456,7 @@ static int pump(display *d, display_source *src, uint64_t until, int want_first)
         if (d->eof)
             return F4D_OK;
         struct codec_packet p;
-        int rc = display_source_next(src, &p, &d->err);
+        int rc = display_source_next(src, &p, err);
         if (rc == F4D_EEOF) {
             d->eof = 1;
             return F4D_OK;
@@ -336,7 +467,7 @@ static int pump(display *d, display_source *src, uint64_t until, int want_first)
             return F4D_OK; /* live source, nothing yet */
         rc = display_player_push(d->player, &p);
         if (rc < 0)
-            return f4d_fail(&d->err, rc, "%s", display_player_error(d->player));
+            return f4d_fail(err, rc, "%s", display_player_error(d->player));
     }
 }
 
@@ -367,10 +498,8 @@ static void pace(display *d)
     d->next_ms += period;
 }
 
-int display_step(display *d, display_source *src)
+static int step(display *d, display_source *src)
 {
-    if (!d || !src)
-        return F4D_EINVAL;
     struct display_input in;
     display__gl_poll(d->gl, &in);
     if (in.quit)
@@ -379,7 +508,7 @@ int display_step(display *d, display_source *src)
     if (!d->planned) {
         pace(d); /* a paced display waiting for its first key does not spin */
         paced = 1;
-        if ((rc = pump(d, src, 0, 1)) < 0)
+        if ((rc = pump(d, src, 0, 1, &d->err)) < 0)
             return rc;
         uint64_t tp, tn;
         if (display_player_keys(d->player, &tp, &tn) == 0) {
@@ -409,14 +538,41 @@ int display_step(display *d, display_source *src)
     double k = d->cfg.realtime ? (t_start - d->wall0_ms) * 1e-3 * d->cfg.fps : (double)d->refresh;
     uint64_t t_us = d->t0_us + (uint64_t)(k * 1e6 / d->cfg.fps + 0.5), t_own = t_us;
     /* live: every packet there is now is read (the newest key first), and the
-     * clock is kept near the newest key (the player's policy) */
+     * clock is kept near the newest key (the player's policy); its times are
+     * not known ahead, so it is never prepared on the ahead thread */
     int live = d->cfg.live_lag_keys >= 0.0;
-    if (live)
+    const struct splat_frame *f = NULL;
+    if (live) {
+        d->ahead.valid = 0;
         t_us = display_player_clock(d->player, t_own, d->cfg.live_lag_keys);
-    if ((rc = pump(d, src, live ? UINT64_MAX : t_us, 0)) < 0)
-        return rc;
-    if (live)
+        if ((rc = pump(d, src, UINT64_MAX, 0, &d->err)) < 0)
+            return rc;
         t_us = display_player_clock(d->player, t_own, d->cfg.live_lag_keys);
+    } else if (d->ahead.valid && d->ahead.refresh == d->refresh && d->ahead.t_us == t_us && d->ahead.src == src &&
+               !memcmp(&d->ahead.cam, &d->cam, sizeof d->cam)) {
+        /* prepared during the last refresh (the same request: unpaced times
+         * are known ahead) */
+        d->ahead.valid = 0;
+        if (d->ahead.rc < 0) {
+            d->err = d->ahead.err;
+            return d->ahead.rc;
+        }
+        f = d->ahead.f;
+        /* a growing source may have more by now: pull as the serial refresh
+         * would (nothing to do when the key is held); a new key makes the
+         * prepared frame stale */
+        uint64_t tp0 = 0, tn0 = 0, tp1 = 0, tn1 = 0;
+        int k0 = display_player_keys(d->player, &tp0, &tn0);
+        if ((rc = pump(d, src, t_us, 0, &d->err)) < 0)
+            return rc;
+        int k1 = display_player_keys(d->player, &tp1, &tn1);
+        if (k1 != k0 || tp1 != tp0 || tn1 != tn0)
+            f = NULL;
+    } else {
+        d->ahead.valid = 0;
+        if ((rc = pump(d, src, t_us, 0, &d->err)) < 0)
+            return rc;
+    }
     uint64_t tp, tn;
     display_player_keys(d->player, &tp, &tn);
     display_source_get_stats(src, &d->st.source);
@@ -437,15 +593,15 @@ int display_step(display *d, display_source *src)
     int same = d->renderer == DISPLAY_RENDER_CPU && d->drawn_valid && keys == d->drawn_keys && tp == d->drawn_tp &&
                tn == d->drawn_tn && t_us >= tn && d->drawn_t >= tn && !memcmp(&d->cam, &d->drawn_cam, sizeof d->cam);
     double t_draw = display__now_ms();
+    /* the next refresh prepared beside this one's drawing: CPU renderer, unpaced */
+    int ahead = d->ahead_ok && d->renderer == DISPLAY_RENDER_CPU && !d->cfg.realtime && !live;
     if (same) {
         d->st.redraws_skipped++;
+        d->st.player = *display_player_get_stats(d->player);
     } else {
-        const struct splat_frame *f;
-        if ((rc = display_player_frame(d->player, t_us, &d->cam, &f)) < 0)
+        if (!f && (rc = display_player_frame(d->player, t_us, &d->cam, &f)) < 0)
             return f4d_fail(&d->err, rc, "%s", display_player_error(d->player));
-        t_draw = display__now_ms();
-        if ((rc = draw(d, d->renderer, f)) < 0)
-            return rc;
+        d->st.player = *display_player_get_stats(d->player); /* interp time of this frame */
         d->drawn_valid = 1;
         d->drawn_keys = keys;
         d->drawn_tp = tp;
@@ -453,7 +609,25 @@ int display_step(display *d, display_source *src)
         d->drawn_t = t_us;
         d->drawn_cam = d->cam;
     }
-    d->st.player = *display_player_get_stats(d->player); /* interp time of this frame */
+    if (ahead) {
+        struct ahead *a = &d->ahead;
+        a->src = src;
+        a->refresh = d->refresh + 1;
+        a->t_us = d->t0_us + (uint64_t)((double)a->refresh * 1e6 / d->cfg.fps + 0.5);
+        a->cam = d->cam;
+        a->drawn_keys = d->drawn_valid ? d->drawn_keys : -1;
+        a->drawn_tp = d->drawn_tp;
+        a->drawn_tn = d->drawn_tn;
+        a->drawn_t = d->drawn_t;
+    }
+    if (same) {
+        if (ahead) /* nothing reads the player's frame this refresh */
+            ahead_launch(d);
+    } else {
+        t_draw = display__now_ms();
+        if ((rc = draw(d, d->renderer, f, ahead)) < 0)
+            return rc;
+    }
     double span_s = (double)(tn - d->t0_us) * 1e-6;
     d->st.bitrate_mbps = span_s > 0 ? (double)d->st.source.bytes * 8e-6 / span_s : 0.0;
     d->st.shown_us = t_us;
@@ -497,4 +671,13 @@ int display_step(display *d, display_source *src)
     d->st.frames++;
     d->refresh++;
     return 1;
+}
+
+int display_step(display *d, display_source *src)
+{
+    if (!d || !src)
+        return F4D_EINVAL;
+    int rc = step(d, src);
+    ahead_join(d);
+    return rc;
 }

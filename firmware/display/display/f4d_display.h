@@ -31,6 +31,12 @@
  * (cfg.live_lag_keys >= 0) is read to its newest packet at every refresh and
  * the clock kept within live_lag_keys key intervals of the newest key
  * (display_player_clock): 0 shows each key once decoded and holds it.
+ * An unpaced CPU display that is not live (cfg.serial 0, ctx of 2 threads or
+ * more) does the next refresh's pull, decode and interpolation on its own
+ * thread (and fk context) while this refresh is sorted, composited and
+ * presented, from the same source (pulled again at that refresh, as a growing
+ * source may have more): display_step returns only once that work is done,
+ * so the source may be freed between calls; the pictures are the serial ones.
  *
  * Renderers (both present through EGL):
  *   DISPLAY_RENDER_GLES: GLES 3 instanced quads, the reference 3DGS shading
@@ -179,6 +185,10 @@ struct display_config {
     int         status_line;        /* draw the on-screen status line            */
     const char *png_dir;            /* write frame_%06d.png of each refresh, or NULL */
     int         read_back;          /* keep each refresh for display_read_back   */
+    int         serial;             /* 1: no ahead thread: each refresh decodes and
+                                       interpolates, then draws (per-stage CPU times
+                                       exact); 0: an unpaced CPU display prepares the
+                                       next refresh beside this one's drawing */
     const struct splat_camera *camera;     /* NULL: orbit camera from the first key;
                                                scaled to the output's size      */
     const struct splat_rig    *lookup_rig; /* NULL: the starting camera         */

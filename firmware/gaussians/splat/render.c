@@ -644,7 +644,8 @@ static double cpu_ms(void)
 static int render_impl(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
                        const float *features, const float *bg, float *rgb, float *alpha, float *depth,
                        int32_t *top, uint8_t *rgba8, int rgba8_up, int normalize, size_t *visible_out,
-                       size_t *pairs_out, double *ms, double *cms)
+                       size_t *pairs_out, double *ms, double *cms, void (*frame_read)(void *),
+                       void *frame_read_arg)
 {
     double t0 = now_ms(), t1, t2, t3, c0 = cms ? cpu_ms() : 0.0, c1 = 0.0, c2 = 0.0, c3 = 0.0;
     if (!r)
@@ -694,6 +695,8 @@ static int render_impl(splat_renderer *r, const struct splat_camera *cam, const 
         }
         nv += m;
     }
+    if (frame_read) /* nothing below reads f */
+        frame_read(frame_read_arg);
 
     t1 = now_ms();
     if (cms)
@@ -763,7 +766,8 @@ int splat_render(splat_renderer *r, const struct splat_camera *cam, const struct
     if (!out)
         return r ? fail(r, F4D_EINVAL, "render: out is NULL", NULL) : F4D_EINVAL;
     return render_impl(r, cam, f, NULL, bg, out->rgb, out->alpha, out->depth, out->top, out->rgba8, out->rgba8_bottom_up, 0,
-                       &out->visible, &out->pairs, out->ms_stage, out->cpu_ms_stage);
+                       &out->visible, &out->pairs, out->ms_stage, out->cpu_ms_stage, out->frame_read,
+                       out->frame_read_arg);
 }
 
 int splat_render_features(splat_renderer *r, const struct splat_camera *cam, const struct splat_frame *f,
@@ -771,5 +775,6 @@ int splat_render_features(splat_renderer *r, const struct splat_camera *cam, con
 {
     if (!features || !out)
         return r ? fail(r, F4D_EINVAL, "render_features: features or out is NULL", NULL) : F4D_EINVAL;
-    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 0, 1, NULL, NULL, NULL, NULL);
+    return render_impl(r, cam, f, features, NULL, out, NULL, NULL, NULL, NULL, 0, 1, NULL, NULL, NULL, NULL, NULL,
+                       NULL);
 }

@@ -161,6 +161,12 @@ struct splat_render_out {
                          their accumulators (the colour is bit-identical).   */
     int rgba8_bottom_up; /* rgba8's rows bottom first (GL's texture order): a
                          display copies it to its framebuffer without a flip */
+    /* Called once (on the caller's thread) when preprocessing has read all
+     * of the frame and before sorting starts: from then on the caller may
+     * refill the frame's arrays, e.g. prepare the next frame on another
+     * thread while this one is composited. NULL: no call. */
+    void (*frame_read)(void *arg);
+    void *frame_read_arg;
     /* Statistics of the last render (written, never read). */
     size_t visible;   /* Gaussians that passed culling                        */
     size_t pairs;     /* Gaussian-tile overlaps                               */

@@ -208,9 +208,13 @@ static inline __attribute__((always_inline)) void raster_tile(const struct raste
     int row_left[SPLAT_TILE + 4];
     for (int p = 0; p < NP; p++) {
         T[p] = 1.0f;
-        C0[p] = C1[p] = C2[p] = D[p] = best[p] = done[p] = 0.0f;
-        top[p] = -1;
+        C0[p] = C1[p] = C2[p] = done[p] = 0.0f;
     }
+    if (aux) /* without depth and top nothing reads these (splat__tile_write neither) */
+        for (int p = 0; p < NP; p++) {
+            D[p] = best[p] = 0.0f;
+            top[p] = -1;
+        }
     for (int y = 0; y < SPLAT_TILE + 4; y++)
         row_left[y] = y < th ? tw : 0;
     int remaining = tw * th;
