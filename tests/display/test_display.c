@@ -477,6 +477,49 @@ static void ahead_matches_serial(void **state)
     free(s.buf);
 }
 
+/* The z-buffer lookup (cfg.lookup) changes only which Gaussians fuse between
+ * keys: the pictures stay close to the render lookup's. */
+static void zbuffer_lookup_close(void **state)
+{
+    (void)state;
+    struct stream s;
+    make_stream(&s, 6, 3);
+    fk_ctx *ctx = ctx_new();
+    display *d[2];
+    display_source *src[2];
+    for (int m = 0; m < 2; m++) {
+        struct display_config c = headless(&s, DISPLAY_RENDER_CPU);
+        c.lookup = m ? INTERP_LOOKUP_ZBUFFER : INTERP_LOOKUP_RENDER;
+        d[m] = open_or_skip(ctx, &c);
+        assert_int_equal(display_source_memory(s.buf, s.len, &src[m], NULL), 0);
+    }
+    int n = 0, rc[2];
+    double worst = INFINITY;
+    do {
+        for (int m = 0; m < 2; m++)
+            rc[m] = display_step(d[m], src[m]);
+        assert_int_equal(rc[0], rc[1]);
+        if (rc[0] == 1) {
+            int w[2], h[2];
+            const uint8_t *a = display_read_back(d[0], &w[0], &h[0]), *b = display_read_back(d[1], &w[1], &h[1]);
+            assert_non_null(a);
+            assert_non_null(b);
+            double p = psnr8(a, b, 3 * (size_t)W * H);
+            worst = p < worst ? p : worst;
+            n++;
+        }
+    } while (rc[0] == 1);
+    printf("  %d refreshes, worst PSNR z-buffer vs render lookup %.1f dB\n", n, worst);
+    assert_true(n >= 10);
+    assert_true(worst >= 40.0);
+    for (int m = 0; m < 2; m++) {
+        display_source_free(src[m]);
+        display_free(d[m]);
+    }
+    fk_ctx_free(ctx);
+    free(s.buf);
+}
+
 static void bad_input(void **state)
 {
     (void)state;
@@ -497,6 +540,10 @@ static void bad_input(void **state)
     display_player *p = NULL;
     assert_int_equal(display_player_new(ctx, NULL, (enum interp_mode)7, 0, &p, &err), F4D_EINVAL);
     assert_non_null(strstr(err.msg, "mode"));
+    assert_int_equal(display_player_new(ctx, NULL, INTERP_FUSED, 0, &p, &err), 0);
+    assert_int_equal(display_player_set_lookup(p, (enum interp_lookup)9, &err), F4D_EINVAL);
+    assert_non_null(strstr(err.msg, "lookup"));
+    display_player_free(p);
     fk_ctx_free(ctx);
 }
 
@@ -505,7 +552,8 @@ int main(int argc, char **argv)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(cpu_matches_splat),  cmocka_unit_test(gles_matches_splat), cmocka_unit_test(auto_picks),
         cmocka_unit_test(join_mid_stream),    cmocka_unit_test(damaged_packet),     cmocka_unit_test(status_line),
-        cmocka_unit_test(no_alloc_per_frame), cmocka_unit_test(ahead_matches_serial), cmocka_unit_test(bad_input),
+        cmocka_unit_test(no_alloc_per_frame), cmocka_unit_test(ahead_matches_serial), cmocka_unit_test(zbuffer_lookup_close),
+        cmocka_unit_test(bad_input),
     };
     return F4D_TEST_MAIN(argc, argv, "display", tests, NULL, NULL);
 }

@@ -102,7 +102,7 @@ done:
 }
 
 static int run_row(fk_ctx *ctx, const uint8_t *buf, size_t len, int W, int H, enum display_renderer r, int serial,
-                   struct drow *row)
+                   enum interp_lookup lookup, struct drow *row)
 {
     scene *tmp;
     scene_new(SCENE_WALK, 1, 0, &tmp, NULL);
@@ -116,6 +116,7 @@ static int run_row(fk_ctx *ctx, const uint8_t *buf, size_t len, int W, int H, en
     cfg.height = H;
     cfg.camera = &rig.cams[1];
     cfg.serial = serial;
+    cfg.lookup = lookup;
     struct f4d_err err;
     display_source *src;
     display *d;
@@ -182,6 +183,7 @@ int bench_display(int argc, char **argv)
     int sizes[2][2] = { { 960, 540 }, { 1280, 720 } }, nsizes = 2, r0 = DISPLAY_RENDER_CPU, r1 = DISPLAY_RENDER_GLES;
     size_t counts[2] = { 100000, 300000 };
     int ncounts = 2, serial = 0;
+    enum interp_lookup lookup = INTERP_LOOKUP_RENDER;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
@@ -193,6 +195,10 @@ int bench_display(int argc, char **argv)
             counts[0] = (size_t)atol(argv[++i]), ncounts = 1;
         else if (!strcmp(argv[i], "--serial"))
             serial = 1;
+        else if (!strcmp(argv[i], "--lookup") && i + 1 < argc && !strcmp(argv[i + 1], "render"))
+            lookup = INTERP_LOOKUP_RENDER, i++;
+        else if (!strcmp(argv[i], "--lookup") && i + 1 < argc && !strcmp(argv[i + 1], "zbuffer"))
+            lookup = INTERP_LOOKUP_ZBUFFER, i++;
         else if (!strcmp(argv[i], "--quick"))
             nsizes = 1;
         else if (!strcmp(argv[i], "--renderer") && i + 1 < argc && !strcmp(argv[i + 1], "cpu"))
@@ -204,12 +210,14 @@ int bench_display(int argc, char **argv)
             nsizes = 1, i++;
         else {
             fprintf(stderr, "usage: f4d-bench display [--runs N] [--seconds S] [--quick] [--size WxH]\n"
-                            "                         [--renderer cpu|gles] [--gaussians N] [--serial] [--json FILE]\n"
+                            "                         [--renderer cpu|gles] [--gaussians N] [--serial]\n"
+                            "                         [--lookup render|zbuffer] [--json FILE]\n"
                             "  --quick: 960x540 only; --size: that size only; --renderer: that one only;\n"
                             "  --gaussians: that count only (100000 and 300000 by default);\n"
                             "  --serial: no ahead thread (the next refresh's decode and interpolation\n"
                             "  run after the drawing): the CPU time by stage is then exact, while with\n"
-                            "  the ahead thread the stages' process CPU times include the other thread's\n");
+                            "  the ahead thread the stages' process CPU times include the other thread's work;\n"
+                            "  --lookup: the pair matches' pixel lookup (render, the default, or zbuffer)\n");
             return 2;
         }
     }
@@ -234,7 +242,7 @@ int bench_display(int argc, char **argv)
                 double best_fps = 0.0;
                 for (int k = 0; k < runs; k++) {
                     struct drow row = { 0 };
-                    if (run_row(ctx, buf, len, sizes[z][0], sizes[z][1], (enum display_renderer)r, serial, &row) < 0)
+                    if (run_row(ctx, buf, len, sizes[z][0], sizes[z][1], (enum display_renderer)r, serial, lookup, &row) < 0)
                         return 1;
                     /* best by CPU time: on a shared machine the wall rate
                      * measures the neighbours */
@@ -248,10 +256,11 @@ int bench_display(int argc, char **argv)
                 best.H = sizes[z][1];
                 best.renderer = r == DISPLAY_RENDER_CPU ? "cpu" : "gles";
                 rows[nrows++] = best;
-                printf("display %7zu Gaussians %4dx%-4d %-4s: %6.2f fps displayed (%llu frames, %llu keys, %.1f "
+                printf("display %7zu Gaussians %4dx%-4d %-4s%s: %6.2f fps displayed (%llu frames, %llu keys, %.1f "
                        "Mbit/s); CPU %.1f ms per frame = %.1f fps on all cores  per key: decode %.1f lookup %.1f ms; "
                        "per frame: interp %.1f draw %.1f (raster %.1f) present %.1f ms\n",
-                       n, best.W, best.H, best.renderer, best.fps, best.frames, best.keys, best.mbps, best.cpu_ms,
+                       n, best.W, best.H, best.renderer, lookup == INTERP_LOOKUP_ZBUFFER ? " zbuffer" : "", best.fps,
+                       best.frames, best.keys, best.mbps, best.cpu_ms,
                        best.fps_cpu, best.decode_ms,
                        best.lookup_ms, best.interp_ms, best.render_ms, best.raster_ms, best.present_ms);
                 printf("  CPU ms per refresh: decode %.1f  lookup+partners %.1f  interp %.1f  project %.1f  sort %.1f  "
@@ -269,7 +278,8 @@ int bench_display(int argc, char **argv)
             fprintf(stderr, "f4d-bench display: cannot create '%s'\n", json);
             return 1;
         }
-        fprintf(fp, "{\"display\": [");
+        fprintf(fp, "{\"lookup\": \"%s\", \"serial\": %d, \"display\": [",
+                lookup == INTERP_LOOKUP_ZBUFFER ? "zbuffer" : "render", serial);
         for (int i = 0; i < nrows; i++)
             fprintf(fp,
                     "%s\n  {\"gaussians\": %zu, \"width\": %d, \"height\": %d, \"renderer\": \"%s\", \"fps\": %.2f, \"fps_cpu_time\": %.2f, "

@@ -3,7 +3,7 @@
  *   f4d-display [--headless] [--window] [--kms [--kms-device DEV]] [--png-dir DIR]
  *               [--rig FILE|--camera-json FILE] [--camera N|NAME] [--size WxH]
  *               [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]
- *               [--interp fused|both|nearest] [--offset BYTES] [--no-status]
+ *               [--interp fused|both|nearest] [--lookup render|zbuffer] [--offset BYTES] [--no-status]
  *               [--realtime|--no-realtime] [--threads N] [--json FILE]
  *               [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] INPUT
  *
@@ -44,7 +44,8 @@ static void usage(FILE *f)
     fprintf(f, "usage: f4d-display [--headless] [--window] [--kms [--kms-device DEV]] [--png-dir DIR]\n"
                "                   [--rig FILE|--camera-json FILE] [--camera N|NAME] [--size WxH]\n"
                "                   [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]\n"
-               "                   [--interp fused|both|nearest] [--offset BYTES] [--no-status]\n"
+               "                   [--interp fused|both|nearest] [--lookup render|zbuffer]\n"
+               "                   [--offset BYTES] [--no-status]\n"
                "                   [--realtime|--no-realtime] [--threads N] [--json FILE]\n"
                "                   [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] INPUT\n");
 }
@@ -418,6 +419,13 @@ int main(int argc, char **argv)
                 else if (!strcmp(v, "nearest")) cfg.interp = INTERP_NEAREST;
                 else {
                     fprintf(stderr, "f4d-display: --interp '%s' must be fused, both or nearest\n", v);
+                    return 2;
+                }
+            } else if (!strcmp(a, "--lookup")) {
+                if (!strcmp(v, "render")) cfg.lookup = INTERP_LOOKUP_RENDER;
+                else if (!strcmp(v, "zbuffer")) cfg.lookup = INTERP_LOOKUP_ZBUFFER;
+                else {
+                    fprintf(stderr, "f4d-display: --lookup '%s' must be render or zbuffer\n", v);
                     return 2;
                 }
             } else {

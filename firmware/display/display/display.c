@@ -153,6 +153,7 @@ struct display_config display_config_default(void)
     c.fps = 30.0;
     c.status_line = 1;
     c.interp = INTERP_FUSED;
+    c.lookup = INTERP_LOOKUP_RENDER;
     c.kms_device = "/dev/dri/card0";
     c.live_lag_keys = -1.0;
     return c;
@@ -215,6 +216,7 @@ int display_new(fk_ctx *ctx, const struct display_config *cfg, display **out, st
     d->ahead_ok = d->ahead_sync && !cfg->serial && fk_ctx_threads(ctx) > 1 &&
                   pthread_create(&d->ahead_tid, NULL, ahead_main, d) == 0;
     if ((rc = display_player_new(d->pctx, cfg->lookup_rig, cfg->interp, cfg->capacity, &d->player, err)) < 0 ||
+        (rc = display_player_set_lookup(d->player, cfg->lookup, err)) < 0 ||
         (rc = splat_renderer_new(ctx, d->W, d->H, &d->cpu, err)) < 0)
         goto fail;
     size_t px = (size_t)d->W * (size_t)d->H;

@@ -142,6 +142,10 @@ struct display_player_stats {
 int  display_player_new(fk_ctx *ctx, const struct splat_rig *lookup_rig, enum interp_mode mode, size_t capacity,
                         display_player **out, struct f4d_err *err);
 void display_player_free(display_player *p);
+/* The pixel lookup behind the pair matches (INTERP_LOOKUP_RENDER, the default,
+ * or INTERP_LOOKUP_ZBUFFER: no render, some matches differ; see interp.h);
+ * before the first key. */
+int  display_player_set_lookup(display_player *p, enum interp_lookup lookup, struct f4d_err *err);
 const char *display_player_error(const display_player *p);
 /* Feeds one packet. 1: a key was decoded; 0: none; < 0: fatal (memory). */
 int  display_player_push(display_player *p, const struct codec_packet *pkt);
@@ -198,6 +202,8 @@ struct display_config {
                                        (display_player_clock) and every packet read as
                                        it comes                                      */
     enum interp_mode interp;        /* INTERP_FUSED                              */
+    enum interp_lookup lookup;      /* INTERP_LOOKUP_RENDER; ZBUFFER: a cheaper
+                                       lookup without the depth render         */
     size_t      capacity;           /* 0: from the stream                        */
     const char *kms_device;         /* "/dev/dri/card0"                          */
     float       bg[3];              /* background, black                         */

@@ -18,6 +18,7 @@ struct display_player {
     struct splat_rig rig;
     int              have_rig;
     enum interp_mode mode;
+    enum interp_lookup lookup;      /* how the pixel lookup is made (interp_set_lookup) */
     size_t           cap_cfg, cap;
     codec_dec       *dec;
     interp          *ip;
@@ -93,6 +94,21 @@ void display_player_free(display_player *p)
     splat_frame_free(&p->out);
     interp_pair_free(&p->pair);
     free(p);
+}
+
+int display_player_set_lookup(display_player *p, enum interp_lookup lookup, struct f4d_err *err)
+{
+    if (!p)
+        return f4d_fail(err, F4D_EINVAL, "display_player_set_lookup: NULL player");
+    if (lookup != INTERP_LOOKUP_RENDER && lookup != INTERP_LOOKUP_ZBUFFER)
+        return f4d_fail(err, F4D_EINVAL, "display_player_set_lookup: unknown lookup %d", (int)lookup);
+    if (p->ip) {
+        int rc = interp_set_lookup(p->ip, lookup, err);
+        if (rc < 0)
+            return rc;
+    }
+    p->lookup = lookup;
+    return F4D_OK;
 }
 
 const char *display_player_error(const display_player *p) { return p ? p->err.msg : "display_player is NULL"; }
@@ -281,6 +297,8 @@ int display_player_prepare(display_player *p, const struct splat_camera *cam)
         p->have_rig = 1;
         int rc = interp_new(p->ctx, &p->rig, &p->ip, &p->err);
         if (rc < 0)
+            return rc;
+        if ((rc = interp_set_lookup(p->ip, p->lookup, &p->err)) < 0)
             return rc;
     }
     int rc;
