@@ -23,7 +23,7 @@
 # length, DISPLAY_SIZE (default 640x360) the live display's; extra arguments
 # go to `forge4d run`. Latency first (README, the appliance section): MOTION
 # (default off: the shipped model's motion is no better than none, and a key
-# with motion leaves one set late) and KEY_HZ (default 5.5 keys a second, 0:
+# with motion leaves one set late) and KEY_HZ (default 6 keys a second, 0:
 # as fast as inference goes; the spare CPU keeps the stages and the display
 # from queueing on 2 cores) and INFER_THREADS (default 1: the model's second
 # thread costs more CPU than it saves wall time when every core is busy).
@@ -65,7 +65,7 @@ else
   echo "main: forge4d run, ${SECONDS_RUN:-20} s of the simulated rig, weights $weights ($label); f4d-display is not in this tree: nothing displayed"
 fi
 motion=${MOTION:-off}
-key_hz=${KEY_HZ:-5.5}
+key_hz=${KEY_HZ:-6}
 infer_threads=${INFER_THREADS:-1}
 "$bin/firmware/app/forge4d" run --no-config --board board/sim-4cam.json --weights "$weights" \
   --seconds "${SECONDS_RUN:-20}" --record "$out/take" --stream "file:$out/stream.f4ds" \

@@ -92,12 +92,15 @@
 
 #define RUN_KEYS 3
 /* Inference (its thread and the kernel pool's) runs this much nicer than
- * capture, recorder and stream: on a 2-core box the model would otherwise
- * starve the capture thread and frames arrive late. Not on a simulated rig
- * whose clock waits for its renderer ("realtime": false): no frame can be
- * late there, and the CPU rasterizer that stands in for the cameras (about
- * 120 ms of CPU per 4 x 518^2 set, 3.7 cores at 30 Hz) would take nearly all
- * of both cores from the stages being demonstrated. */
+ * capture, recorder, stream and an attached display: on a 2-core box the
+ * model would otherwise starve the capture thread (frames arrive late) and
+ * the display (refresh slots missed while a key is decoded: main.sh at 6
+ * keys/s, 29.3-29.7 -> 30.0 fps presented). Not on a simulated rig whose
+ * clock waits for its renderer ("realtime": false) run without lockstep: the
+ * CPU rasterizer that stands in for the cameras (about 120 ms of CPU per
+ * 4 x 518^2 set, 3.7 cores at 30 Hz) would take nearly all of both cores from
+ * the stages being demonstrated; in lockstep it renders only while inference
+ * is idle. */
 #define RUN_INFER_NICE 5
 #define RUN_LAT_MAX (1u << 16) /* latency samples kept (the last ones) */
 /* A streamed key's trigger-to-sink latency, part by part (they add up to it):
@@ -453,15 +456,24 @@ static void nicer(int by)
         (void)setpriority(PRIO_PROCESS, 0, cur + by);
 }
 
-/* RUN_INFER_NICE, or 0 on a rig of simulated cameras on a waiting clock. */
-static int infer_nice_for(const struct hal_board *b)
+/* A rig of simulated cameras whose clock waits for its renderer. */
+static bool waiting_sim(const struct hal_board *b)
 {
     if (b->sim.realtime || b->n_cams == 0)
-        return RUN_INFER_NICE;
+        return false;
     for (uint32_t i = 0; i < b->n_cams; i++)
         if (strcmp(b->cams[i].backend, "sim") != 0)
-            return RUN_INFER_NICE;
-    return 0;
+            return false;
+    return true;
+}
+
+/* RUN_INFER_NICE, or 0 on a waiting-clock sim rig without lockstep (its
+ * renderer would take the cores from inference); in lockstep the renderer
+ * runs only while inference is idle, so inference yields to the display and
+ * the encoder there as on a real rig. */
+static int infer_nice_for(const struct hal_board *b, bool lockstep)
+{
+    return waiting_sim(b) && !lockstep ? 0 : RUN_INFER_NICE;
 }
 
 /* Builds the inference stage on its own thread at the lowered priority, so
@@ -470,6 +482,7 @@ struct infer_setup {
     struct run_infer *st;
     const struct run_infer_config *cfg;
     const struct hal_board *board;
+    bool lockstep;
     struct f4d_err *err;
     int rc;
 };
@@ -478,15 +491,15 @@ static void *infer_setup_main(void *arg)
 {
     struct infer_setup *s = arg;
     name_thread("f4d-infer"); /* the model's kernel pool inherits it */
-    nicer(infer_nice_for(s->board));
+    nicer(infer_nice_for(s->board, s->lockstep));
     s->rc = run_infer_model_new(s->st, s->cfg, s->board, s->err);
     return NULL;
 }
 
 static int infer_new_nicer(struct run_infer *st, const struct run_infer_config *cfg, const struct hal_board *board,
-                           struct f4d_err *err)
+                           bool lockstep, struct f4d_err *err)
 {
-    struct infer_setup s = {st, cfg, board, err, 0};
+    struct infer_setup s = {st, cfg, board, lockstep, err, 0};
     pthread_t th;
     if (pthread_create(&th, NULL, infer_setup_main, &s) != 0)
         return run_infer_model_new(st, cfg, board, err);
@@ -551,7 +564,7 @@ static void *infer_main(void *arg)
 {
     struct run *r = arg;
     name_thread("f4d-infer");
-    nicer(infer_nice_for(r->board));
+    nicer(infer_nice_for(r->board, r->lockstep));
     void *it;
     while (run_fifo_pop(&r->infer_box, &it) == 1) {
         struct run_slot *s = it;
@@ -1223,11 +1236,11 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
                                       .delay_ms = env ? (uint32_t)strtoul(env, NULL, 10) : 0};
         ic.motion_off = cfg.motion_off;
         ic.wtype = !strcmp(cfg.precision, "f16") ? FK_W_F16 : !strcmp(cfg.precision, "int8") ? FK_W_Q8 : FK_W_F32;
-        if (infer_new_nicer(&r->infer, &ic, &board, &err) < 0 ||
+        r->lockstep = waiting_sim(&board) && !cfg.no_lockstep;
+        if (infer_new_nicer(&r->infer, &ic, &board, r->lockstep, &err) < 0 ||
             run_encoder_codec_new(&r->enc, r->infer.capacity, cfg.quality, cfg.codec_effort, &err) < 0)
             goto out;
         r->have_infer = true;
-        r->lockstep = infer_nice_for(&board) == 0 && !cfg.no_lockstep;
         if (cfg.stream[0]) {
             if (run_sink_open(&r->sink, cfg.stream, r->enc.packet_cap, &err) < 0)
                 goto out;
