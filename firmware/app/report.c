@@ -330,6 +330,17 @@ static struct budget_config budget_level(int b)
     return c;
 }
 
+/* An encoder as the daemon makes it: at level q and the daemon's effort
+ * (run_config_defaults: fast). *e is set even on failure (the caller frees). */
+static int report_encoder_new(size_t n, enum codec_quality q, codec_enc **e, struct f4d_err *err)
+{
+    if (codec_enc_new(n, q, e, err) < 0)
+        return -1;
+    if (codec_enc_set_effort(*e, CODEC_EFFORT_FAST) < 0)
+        return f4d_fail(err, F4D_EINVAL, "report: encoder: %s", codec_enc_error(*e));
+    return 0;
+}
+
 static enum codec_quality codec_level(int c)
 {
     return c == 0 ? CODEC_Q_COMPACT : c == 1 ? CODEC_Q_LOW : c == 2 ? CODEC_Q_MEDIUM : CODEC_Q_HIGH;
@@ -360,13 +371,8 @@ static int run_stream(const struct score_take *t, const struct keyrun *r, int b,
     }
     for (int i = 0; i < 4 * r->T; i++)
         kb[i] = INFINITY;
-    /* the encoder at the daemon's effort (run_config_defaults: fast) */
-    if (splat_frame_reserve(&pf, n, 1, err) < 0 || codec_enc_new(n, codec_level(c), &enc, err) < 0)
+    if (splat_frame_reserve(&pf, n, 1, err) < 0 || report_encoder_new(n, codec_level(c), &enc, err) < 0)
         goto done;
-    if (codec_enc_set_effort(enc, CODEC_EFFORT_FAST) < 0) {
-        f4d_fail(err, F4D_EINVAL, "report: encoder: %s", codec_enc_error(enc));
-        goto done;
-    }
     /* lookups in the model's cameras, as f4d-display with the daemon's --rig-json */
     if (display_player_new(ctx, &r->rigs[0], r->motion ? INTERP_FUSED : INTERP_NEAREST, n, &pl, err) < 0)
         goto done;
@@ -387,10 +393,10 @@ static int run_stream(const struct score_take *t, const struct keyrun *r, int b,
         if (timing) {
             codec_enc_free(te);
             te = NULL;
-            if (codec_enc_new(n, codec_level(c), &te, err) < 0 || codec_enc_set_effort(te, CODEC_EFFORT_FAST) < 0 ||
-                codec_enc_stream_header(te, 0, pkt, cap, &len) < 0) {
-                if (te)
-                    f4d_fail(err, F4D_EINVAL, "report: stream header: %s", codec_enc_error(te));
+            if (report_encoder_new(n, codec_level(c), &te, err) < 0)
+                goto done;
+            if (codec_enc_stream_header(te, 0, pkt, cap, &len) < 0) {
+                f4d_fail(err, F4D_EINVAL, "report: stream header: %s", codec_enc_error(te));
                 goto done;
             }
             ce = te;
