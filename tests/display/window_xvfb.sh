@@ -5,13 +5,16 @@
 # the window's back buffer before the swap (glReadPixels, written as PNG by
 # f4d-display) and the first is compared with f4d-render of the decoded key:
 # CPU path identical, GLES path above the PSNR floor; keys sent with xdotool
-# move the free camera. Exit 77 only when Xvfb cannot start.
+# move the free camera. Exit 77 only when Xvfb cannot start. -noreset: by
+# default an X server resets when its last client leaves, and a client that
+# connects during the reset is refused ("cannot open the X display"), which
+# happened between two of the runs below.
 set -euo pipefail
 disp=$1 scenebin=$2 codec=$3 render=$4 metrics=$5 dir=$6
 rm -rf "$dir" && mkdir -p "$dir"
 command -v Xvfb >/dev/null || { echo "[  SKIP    ] Xvfb is not installed (Debian package xvfb)"; exit 77; }
 command -v xdotool >/dev/null || { echo "xdotool is not installed (Debian package xdotool)"; exit 1; }
-Xvfb -displayfd 3 -screen 0 640x480x24 -nolisten tcp 3> "$dir/displayno" 2> "$dir/xvfb.log" &
+Xvfb -displayfd 3 -screen 0 640x480x24 -nolisten tcp -noreset 3> "$dir/displayno" 2> "$dir/xvfb.log" &
 xpid=$!
 trap 'kill $xpid 2>/dev/null || true; wait $xpid 2>/dev/null || true' EXIT
 for _ in $(seq 600); do # a hang bound (60 s), not a speed limit
