@@ -260,12 +260,13 @@ static int run_model(const struct score_take *t, int keys, const char *weights, 
             goto done;
         const uint8_t *kp = NULL;
         int kept[MODEL_VIEWS_MAX] = {0};
+        /* the keep-list is part of a foreground key's model step: timed with it */
+        double t0 = now_ms(), c0 = cpu_ms(), p0 = proc_cpu_ms();
         if (fg && k > 0) { /* the first key of a take runs every patch (nothing to reuse yet) */
             if (fg_mask(fg, in, FG_MARGIN, keep, kept, err) < 0)
                 goto done;
             kp = keep;
         }
-        double t0 = now_ms(), c0 = cpu_ms(), p0 = proc_cpu_ms();
         if (f4d_sequence_push_masked(sq, in, kp, err) < 0)
             goto done;
         double dw = now_ms() - t0, dc = cpu_ms() - c0, dp = proc_cpu_ms() - p0;
