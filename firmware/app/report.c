@@ -1,8 +1,8 @@
 /* report.c: `forge4d report`, the speed-vs-error study of the appliance's path
  * on venue takes with exact ground truth (report_internal.h has the command).
  *
- * Per take and per model configuration (precision, input size, token budget)
- * the take's keys go through the Forge4D sequence (state and motion when the
+ * Per take and per model configuration (precision, input size, token budget,
+ * motion on / off as the daemon's --motion) the take's keys go through the Forge4D sequence (state and motion when the
  * weights have them; foreground-only keys through model_eval_masked with a
  * firmware/infer/foreground keep-list). Every finished key (with both motions)
  * is kept; then per Gaussian budget (the daemon's scene budget, interp.h) and
@@ -51,6 +51,7 @@
 #define NPREC 3
 #define NSCALE 5
 #define NTOK 2
+#define NMOT 2
 #define NBUD 3
 #define NCOD 4
 #define TAKES_MAX 16
@@ -63,12 +64,15 @@ static const enum fk_wtype prec_type[NPREC] = {FK_W_F32, FK_W_F16, FK_W_Q8};
 static const double scale_val[NSCALE] = {1.0, 0.875, 0.75, 0.625, 0.5};
 static const char *const scale_name[NSCALE] = {"1", "7/8", "3/4", "5/8", "1/2"};
 static const char *const tok_name[NTOK] = {"all", "fg"};
+/* motion: the daemon's --motion on|off (off: the motion head and blocks skipped,
+ * keys without motion, the display shows the nearest key) */
+static const char *const mot_name[NMOT] = {"on", "off"};
 static const char *const bud_name[NBUD] = {"none", "default", "coarse"};
 static const char *const cod_name[NCOD] = {"compact", "low", "medium", "high"};
 
 /* What the grid runs: a subset of every axis (--quick: the reduced one). */
 struct grid {
-    bool prec[NPREC], scale[NSCALE], tok[NTOK], bud[NBUD], cod[NCOD];
+    bool prec[NPREC], scale[NSCALE], tok[NTOK], mot[NMOT], bud[NBUD], cod[NCOD];
 };
 
 /* Sums over every take of one grid point. */
@@ -87,7 +91,7 @@ struct acc {
 };
 
 struct point {
-    int p, s, t, b, c;
+    int p, s, t, m, b, c;
     double key_ms, key_wall_ms, key_cpu_ms, model_ms, model_cpu_ms, model_pcpu_ms, budget_ms, budget_cpu_ms, enc_ms,
         enc_cpu_ms, dec_ms, disp_ms, lookup_ms, key_hz, gauss, bytes, mbps;
     double nv_psnr, nv_ssim, nt_psnr, nt_ssim, pt, rot, trans, mot, tok_frac, speedup, dpsnr;
@@ -181,7 +185,7 @@ static void input_size(const struct score_take *t, int s, int patch, int *h, int
  * the finished keys into r, the model's scores and times into a, and per key
  * into kt[3 k ..] (wall, thread CPU, process CPU ms) when kt is not NULL. */
 static int run_model(const struct score_take *t, int keys, const char *weights, enum fk_wtype wt, int h, int w,
-                     int tok, int threads, fk_ctx *sctx, struct keyrun *r, struct acc *a, double *kt,
+                     int tok, bool motion_off, int threads, fk_ctx *sctx, struct keyrun *r, struct acc *a, double *kt,
                      struct f4d_err *err)
 {
     fk_ctx *ctx = NULL;
@@ -209,6 +213,12 @@ static int run_model(const struct score_take *t, int keys, const char *weights, 
     }
     if (model_init(ctx, weights, wt, &m, err) < 0)
         goto done;
+    /* motion off as the daemon's: nothing reads the motion head's maps (the
+     * model then leaves out the motion blocks too) */
+    if (motion_off && model_skip_head(m, "motion_head") < 0) {
+        f4d_fail(err, F4D_EINVAL, "report: %s", model_error(m));
+        goto done;
+    }
     const int patch = model_get_config(m)->patch_size;
     if (h % patch || w % patch || h < patch || w < patch) {
         f4d_fail(err, F4D_EINVAL, "report: input %dx%d is not a multiple of the patch size %d", w, h, patch);
@@ -216,7 +226,7 @@ static int run_model(const struct score_take *t, int keys, const char *weights, 
     }
     if (f4d_sequence_open_model(m, S, h, w, &sq, err) < 0)
         goto done;
-    r->motion = f4d_sequence_has_motion(sq) != 0;
+    r->motion = f4d_sequence_has_motion(sq) != 0 && !motion_off;
     const int P = (h / patch) * (w / patch);
     if (tok == 1) { /* foreground: the background plate, else the take's own keys (median) */
         int K = t->background ? 1 : (t->T < FG_SAMPLES_MAX ? t->T : FG_SAMPLES_MAX);
@@ -250,12 +260,13 @@ static int run_model(const struct score_take *t, int keys, const char *weights, 
             goto done;
         const uint8_t *kp = NULL;
         int kept[MODEL_VIEWS_MAX] = {0};
+        /* the keep-list is part of a foreground key's model step: timed with it */
+        double t0 = now_ms(), c0 = cpu_ms(), p0 = proc_cpu_ms();
         if (fg && k > 0) { /* the first key of a take runs every patch (nothing to reuse yet) */
             if (fg_mask(fg, in, FG_MARGIN, keep, kept, err) < 0)
                 goto done;
             kp = keep;
         }
-        double t0 = now_ms(), c0 = cpu_ms(), p0 = proc_cpu_ms();
         if (f4d_sequence_push_masked(sq, in, kp, err) < 0)
             goto done;
         double dw = now_ms() - t0, dc = cpu_ms() - c0, dp = proc_cpu_ms() - p0;
@@ -553,15 +564,15 @@ static cJSON *num(double v) { return isfinite(v) ? cJSON_CreateNumber(v) : cJSON
 
 static void label(const struct point *p, char *buf, size_t cap)
 {
-    snprintf(buf, cap, "%s %dx%d %s budget:%s codec:%s", prec_name[p->p], p->w, p->h, tok_name[p->t], bud_name[p->b],
-             cod_name[p->c]);
+    snprintf(buf, cap, "%s %dx%d %s motion:%s budget:%s codec:%s", prec_name[p->p], p->w, p->h, tok_name[p->t],
+             mot_name[p->m], bud_name[p->b], cod_name[p->c]);
 }
 
 static int usage(void)
 {
     fprintf(stderr, "usage: forge4d report [--quick] -o DIR --take TAKE [--take TAKE ...] [--weights W]\n"
                     "                      [--clock cpu|wall] [--threads N] [--keys N] [--reps N]\n"
-                    "                      [--precision L] [--size L] [--tokens L] [--budget L] [--codec L]\n"
+                    "                      [--precision L] [--size L] [--tokens L] [--motion L] [--budget L] [--codec L]\n"
                     "  TAKE: a venue take with ground truth (tools/f4d-scene venue --seed S -o TAKE, or the\n"
                     "        test split of tools/train/gen_data.py); --quick: a reduced grid on the first\n"
                     "        3 keys (CI)\n"
@@ -569,7 +580,7 @@ static int usage(void)
                     "        wall: monotonic time (a quiet machine; any --threads)\n"
                     "  L: comma-separated values of one axis of the grid (default: every value):\n"
                     "        precision f32,f16,int8  size 1,7/8,3/4,5/8,1/2 (of the take's side)\n"
-                    "        tokens all,fg  budget none,default,coarse  codec compact,low,medium,high\n");
+                    "        tokens all,fg  motion on,off  budget none,default,coarse  codec compact,low,medium,high\n");
     return 2;
 }
 
@@ -624,7 +635,7 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
 {
     const char *out = NULL, *weights = NULL, *take_dirs[TAKES_MAX];
     int ntakes = 0, threads = -1, keys = 0, reps = 0;
-    bool quick = false, wall = false, picked[5] = {false};
+    bool quick = false, wall = false, picked[6] = {false};
     struct grid pick;
     memset(&pick, 0, sizeof pick);
     for (int i = 0; i < argc; i++) {
@@ -640,6 +651,9 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
         } else if (!strcmp(a, "--tokens") && v) {
             if (parse_axis(a, v, tok_name, NTOK, pick.tok) < 0) return 2;
             picked[2] = true, i++;
+        } else if (!strcmp(a, "--motion") && v) {
+            if (parse_axis(a, v, mot_name, NMOT, pick.mot) < 0) return 2;
+            picked[5] = true, i++;
         } else if (!strcmp(a, "--budget") && v) {
             if (parse_axis(a, v, bud_name, NBUD, pick.bud) < 0) return 2;
             picked[3] = true, i++;
@@ -698,21 +712,22 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
     for (int i = 0; i < NPREC; i++) g.prec[i] = picked[0] ? pick.prec[i] : !quick || i != 1;
     for (int i = 0; i < NSCALE; i++) g.scale[i] = picked[1] ? pick.scale[i] : !quick || i == 0 || i == NSCALE - 1;
     for (int i = 0; i < NTOK; i++) g.tok[i] = picked[2] ? pick.tok[i] : true;
+    for (int i = 0; i < NMOT; i++) g.mot[i] = picked[5] ? pick.mot[i] : true;
     for (int i = 0; i < NBUD; i++) g.bud[i] = picked[3] ? pick.bud[i] : !quick || i != 0;
     for (int i = 0; i < NCOD; i++) g.cod[i] = picked[4] ? pick.cod[i] : !quick || i == 0 || i == 2;
     /* every ratio is against the baseline: it must be in the grid */
-    if (!g.prec[0] || !g.scale[0] || !g.tok[0] || !g.bud[1] || !g.cod[2]) {
+    if (!g.prec[0] || !g.scale[0] || !g.tok[0] || !g.mot[0] || !g.bud[1] || !g.cod[2]) {
         fprintf(stderr, "forge4d report: the grid must hold the baseline (precision f32, size 1, tokens all, "
-                        "budget default, codec medium): every speed and PSNR is a ratio or difference to it\n");
+                        "motion on, budget default, codec medium): every speed and PSNR is a ratio or difference to it\n");
         return 2;
     }
     struct f4d_err err = {0};
     struct score_take *takes = calloc((size_t)ntakes, sizeof *takes);
-    const int NP = NPREC * NSCALE * NTOK * NBUD * NCOD;
+    const int NP = NPREC * NSCALE * NTOK * NMOT * NBUD * NCOD;
     struct acc *acc = calloc((size_t)NP, sizeof *acc);
     struct point *pt = calloc((size_t)NP, sizeof *pt);
     fk_ctx *sctx = NULL;
-    /* [take][precision][size][tokens][key][wall, cpu, process cpu]: each key's fastest model step of the passes */
+    /* [take][precision][size][tokens][motion][key][wall, cpu, process cpu]: each key's fastest model step of the passes */
     double *best = NULL, *kt = NULL;
     int kmax = 0;
     int status = 1, np = 0, base = -1;
@@ -747,7 +762,7 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
         int K = keys && keys < takes[ti].T ? keys : takes[ti].T;
         kmax = K > kmax ? K : kmax;
     }
-    const size_t nbest = 3 * (size_t)ntakes * NPREC * NSCALE * NTOK * (size_t)kmax;
+    const size_t nbest = 3 * (size_t)ntakes * NPREC * NSCALE * NTOK * NMOT * (size_t)kmax;
     best = malloc(nbest * sizeof *best);
     kt = malloc(3 * (size_t)kmax * sizeof *kt);
     if (!best || !kt) {
@@ -756,11 +771,13 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
     }
     for (size_t i = 0; i < nbest; i++)
         best[i] = INFINITY;
-#define BEST(ti, p, s, tk) (&best[3 * (size_t)kmax * ((((ti) * NPREC + (p)) * NSCALE + (s)) * NTOK + (tk))])
+#define BEST(ti, p, s, tk, mo) \
+    (&best[3 * (size_t)kmax * (((((ti) * NPREC + (p)) * NSCALE + (s)) * NTOK + (tk)) * NMOT + (mo))])
     for (int rep = 0; rep + 1 < reps; rep++)
         for (int ti = 0; ti < ntakes; ti++)
-            for (int p = 0; p < NPREC; p++) for (int s = 0; s < NSCALE; s++) for (int tk = 0; tk < NTOK; tk++) {
-                if (!g.prec[p] || !g.scale[s] || !g.tok[tk])
+            for (int p = 0; p < NPREC; p++) for (int s = 0; s < NSCALE; s++) for (int tk = 0; tk < NTOK; tk++)
+            for (int mo = 0; mo < NMOT; mo++) {
+                if (!g.prec[p] || !g.scale[s] || !g.tok[tk] || !g.mot[mo])
                     continue;
                 const struct score_take *t = &takes[ti];
                 int K = keys && keys < t->T ? keys : t->T, h, w;
@@ -770,19 +787,19 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
                 struct acc am = {0};
                 struct keyrun r = {0};
                 if (*stop || weights_for(weights, p, wbuf, sizeof wbuf, &wp, &err) < 0 ||
-                    run_model(t, K, wp, prec_type[p], h, w, tk, threads, sctx, &r, &am, kt, &err) < 0) {
-                    fprintf(stderr, "forge4d report: take %s, %s %dx%d %s: %s\n", t->dir, prec_name[p], w, h,
-                            tok_name[tk], *stop ? "interrupted" : err.msg);
+                    run_model(t, K, wp, prec_type[p], h, w, tk, mo == 1, threads, sctx, &r, &am, kt, &err) < 0) {
+                    fprintf(stderr, "forge4d report: take %s, %s %dx%d %s motion %s: %s\n", t->dir, prec_name[p], w,
+                            h, tok_name[tk], mot_name[mo], *stop ? "interrupted" : err.msg);
                     model_run_free(&r);
                     goto done;
                 }
                 model_run_free(&r);
-                double *b = BEST(ti, p, s, tk);
+                double *b = BEST(ti, p, s, tk, mo);
                 for (int i = 0; i < 3 * K; i++)
                     b[i] = fmin(b[i], kt[i]);
-                fprintf(stderr, "[report] timing pass %d/%d, take %d/%d: %s %dx%d %s: model %.1f ms/key wall, "
-                        "%.1f ms CPU\n", rep + 1, reps - 1, ti + 1, ntakes, prec_name[p], w, h, tok_name[tk],
-                        am.model_ms / K, am.model_cpu_ms / K);
+                fprintf(stderr, "[report] timing pass %d/%d, take %d/%d: %s %dx%d %s motion %s: model %.1f ms/key "
+                        "wall, %.1f ms CPU\n", rep + 1, reps - 1, ti + 1, ntakes, prec_name[p], w, h, tok_name[tk],
+                        mot_name[mo], am.model_ms / K, am.model_cpu_ms / K);
             }
     for (int ti = 0; ti < ntakes; ti++) {
         const struct score_take *t = &takes[ti];
@@ -792,8 +809,9 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
             fprintf(stderr, "forge4d report: %s\n", err.msg);
             goto done;
         }
-        for (int p = 0; p < NPREC; p++) for (int s = 0; s < NSCALE; s++) for (int tk = 0; tk < NTOK; tk++) {
-            if (!g.prec[p] || !g.scale[s] || !g.tok[tk])
+        for (int p = 0; p < NPREC; p++) for (int s = 0; s < NSCALE; s++) for (int tk = 0; tk < NTOK; tk++)
+        for (int mo = 0; mo < NMOT; mo++) {
+            if (!g.prec[p] || !g.scale[s] || !g.tok[tk] || !g.mot[mo])
                 continue;
             if (*stop) {
                 fprintf(stderr, "forge4d report: interrupted\n");
@@ -812,29 +830,29 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
             struct acc am = {0};
             struct keyrun r = {0};
             double m0 = now_ms();
-            int rc = run_model(t, K, wp, prec_type[p], h, w, tk, threads, sctx, &r, &am, kt, &err);
+            int rc = run_model(t, K, wp, prec_type[p], h, w, tk, mo == 1, threads, sctx, &r, &am, kt, &err);
             if (rc < 0) {
-                fprintf(stderr, "forge4d report: take %s, %s %dx%d %s: %s\n", t->dir, prec_name[p], w, h,
-                        tok_name[tk], err.msg);
+                fprintf(stderr, "forge4d report: take %s, %s %dx%d %s motion %s: %s\n", t->dir, prec_name[p], w, h,
+                        tok_name[tk], mot_name[mo], err.msg);
                 model_run_free(&r);
                 score_view_free(sv);
                 goto done;
             }
             motion |= r.motion;
-            const double *bt = BEST(ti, p, s, tk);
+            const double *bt = BEST(ti, p, s, tk, mo);
             am.model_ms = am.model_cpu_ms = am.model_pcpu_ms = 0;
             for (int k = 0; k < K; k++) {
                 am.model_ms += fmin(kt[3 * k], bt[3 * k]);
                 am.model_cpu_ms += fmin(kt[3 * k + 1], bt[3 * k + 1]);
                 am.model_pcpu_ms += fmin(kt[3 * k + 2], bt[3 * k + 2]);
             }
-            fprintf(stderr, "[report] take %d/%d %s: %s %dx%d %s: model %.1f ms/key wall, %.1f ms CPU (best of %d), "
-                    "%.1f s\n", ti + 1, ntakes, t->dir, prec_name[p], w, h, tok_name[tk], am.model_ms / K,
-                    am.model_cpu_ms / K, reps, (now_ms() - m0) * 1e-3);
+            fprintf(stderr, "[report] take %d/%d %s: %s %dx%d %s motion %s: model %.1f ms/key wall, %.1f ms CPU "
+                    "(best of %d), %.1f s\n", ti + 1, ntakes, t->dir, prec_name[p], w, h, tok_name[tk], mot_name[mo],
+                    am.model_ms / K, am.model_cpu_ms / K, reps, (now_ms() - m0) * 1e-3);
             for (int b = 0; b < NBUD; b++) for (int c = 0; c < NCOD; c++) {
                 if (!g.bud[b] || !g.cod[c])
                     continue;
-                int idx = (((p * NSCALE + s) * NTOK + tk) * NBUD + b) * NCOD + c;
+                int idx = ((((p * NSCALE + s) * NTOK + tk) * NMOT + mo) * NBUD + b) * NCOD + c;
                 struct acc *a = &acc[idx];
                 /* the model's share is the same for every stream setting */
                 a->model_ms += am.model_ms; a->model_cpu_ms += am.model_cpu_ms; a->keys += am.keys;
@@ -845,8 +863,8 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
                 a->tok_ran += am.tok_ran; a->tok_all += am.tok_all;
                 a->h = h; a->w = w;
                 if (run_stream(t, &r, b, c, sreps - 1, sctx, sv, a, &err) < 0) {
-                    fprintf(stderr, "forge4d report: take %s, %s %dx%d %s budget %s codec %s: %s\n", t->dir,
-                            prec_name[p], w, h, tok_name[tk], bud_name[b], cod_name[c], err.msg);
+                    fprintf(stderr, "forge4d report: take %s, %s %dx%d %s motion %s budget %s codec %s: %s\n",
+                            t->dir, prec_name[p], w, h, tok_name[tk], mot_name[mo], bud_name[b], cod_name[c], err.msg);
                     model_run_free(&r);
                     score_view_free(sv);
                     goto done;
@@ -858,13 +876,13 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
     }
     /* grid points, the baseline (f32, full size, all patches, the daemon's budget and codec level) */
     for (int p = 0; p < NPREC; p++) for (int s = 0; s < NSCALE; s++) for (int tk = 0; tk < NTOK; tk++)
-    for (int b = 0; b < NBUD; b++) for (int c = 0; c < NCOD; c++) {
-        int idx = (((p * NSCALE + s) * NTOK + tk) * NBUD + b) * NCOD + c;
+    for (int mo = 0; mo < NMOT; mo++) for (int b = 0; b < NBUD; b++) for (int c = 0; c < NCOD; c++) {
+        int idx = ((((p * NSCALE + s) * NTOK + tk) * NMOT + mo) * NBUD + b) * NCOD + c;
         const struct acc *a = &acc[idx];
         if (!a->keys)
             continue;
         struct point *q = &pt[np];
-        q->p = p, q->s = s, q->t = tk, q->b = b, q->c = c, q->h = a->h, q->w = a->w;
+        q->p = p, q->s = s, q->t = tk, q->m = mo, q->b = b, q->c = c, q->h = a->h, q->w = a->w;
         q->model_ms = a->model_ms / a->keys;
         q->model_cpu_ms = a->model_cpu_ms / a->keys;
         q->model_pcpu_ms = a->model_pcpu_ms / a->keys;
@@ -891,7 +909,7 @@ int forge4d_report_main(int argc, char **argv, volatile sig_atomic_t *stop)
         q->trans = ratio(a->trans, a->cams);
         q->mot = ratio(a->mot, a->mot_n);
         q->tok_frac = a->tok_all > 0 ? a->tok_ran / a->tok_all : NAN;
-        if (p == 0 && s == 0 && tk == 0 && b == 1 && c == 2)
+        if (p == 0 && s == 0 && tk == 0 && mo == 0 && b == 1 && c == 2)
             base = np;
         np++;
     }
@@ -1021,6 +1039,12 @@ static int write_outputs(const char *dir, struct point *pt, int np, int base, co
         if (pt[i].speedup >= 3.0 && pt[i].dpsnr >= -1.0 && (goal < 0 || pt[i].speedup > pt[goal].speedup))
             goal = i;
     }
+    /* motion off trades the mid times (nearest key) for speed: the fastest
+     * point within 1 dB that keeps the motion is named beside it */
+    int near_on = -1;
+    for (int i = 0; i < np; i++)
+        if (pt[i].m == 0 && pt[i].dpsnr >= -1.0 && (near_on < 0 || pt[i].speedup > pt[near_on].speedup))
+            near_on = i;
     /* report.json */
     cJSON *root = cJSON_CreateObject();
     if (!root)
@@ -1066,6 +1090,7 @@ static int write_outputs(const char *dir, struct point *pt, int np, int base, co
         cJSON_AddNumberToObject(o, "input_w", q->w);
         cJSON_AddNumberToObject(o, "input_h", q->h);
         cJSON_AddStringToObject(o, "tokens", tok_name[q->t]);
+        cJSON_AddStringToObject(o, "motion", mot_name[q->m]);
         cJSON_AddStringToObject(o, "budget", bud_name[q->b]);
         cJSON_AddStringToObject(o, "codec", cod_name[q->c]);
         cJSON_AddItemToObject(o, "key_ms", num(q->key_ms));
@@ -1115,6 +1140,9 @@ static int write_outputs(const char *dir, struct point *pt, int np, int base, co
     /* the same point by both clocks (the key path: model + budget + encode) */
     cJSON_AddItemToObject(jg, "cpu_speedup", num(gi >= 0 ? pt[base].key_cpu_ms / pt[gi].key_cpu_ms : NAN));
     cJSON_AddItemToObject(jg, "wall_speedup", num(gi >= 0 ? pt[base].key_wall_ms / pt[gi].key_wall_ms : NAN));
+    cJSON_AddItemToObject(jg, "dnt_psnr_db", num(gi >= 0 ? pt[gi].nt_psnr - pt[base].nt_psnr : NAN));
+    cJSON_AddItemToObject(jg, "motion_on_point", near_on >= 0 ? cJSON_CreateNumber(near_on) : cJSON_CreateNull());
+    cJSON_AddItemToObject(jg, "motion_on_speedup", num(near_on >= 0 ? pt[near_on].speedup : NAN));
     char *js = cJSON_Print(root);
     cJSON_Delete(root);
     if (!js)
@@ -1154,7 +1182,8 @@ static int write_outputs(const char *dir, struct point *pt, int np, int base, co
                "what the display shows at each key time, rendered at the held-out cameras; novel time = the "
                "same at the mid times. Point distance, camera and motion errors are the model's keys before the "
                "budget. Tokens `fg`: foreground patches (firmware/infer/foreground, margin %d; the first key "
-               "runs all) learned from %s. Budget: `none` off, `default` the daemon's (budget_config_default), "
+               "runs all) learned from %s. Motion `off`: the daemon's --motion off (the model's motion head and motion "
+               "blocks skipped; keys without motion, the display shows the nearest key: see novel time). Budget: `none` off, `default` the daemon's (budget_config_default), "
                "`coarse` 4x merge cell, 2x footprint, opacity 0.05. Bitrate at the take's key rate.\n\n",
             wall ? "wall" : "cpu", reps,
             wall ? "Wall time: trustworthy on an idle machine only."
@@ -1177,6 +1206,14 @@ static int write_outputs(const char *dir, struct point *pt, int np, int base, co
         }
         fprintf(f, "\n\n");
     }
+    if (gi >= 0 && isfinite(pt[gi].nt_psnr) && isfinite(pt[base].nt_psnr))
+        fprintf(f, "That point's novel-time PSNR: %+.2f dB against the baseline's.", pt[gi].nt_psnr - pt[base].nt_psnr);
+    if (gi >= 0 && pt[gi].m != 0 && near_on >= 0) {
+        label(&pt[near_on], lb, sizeof lb);
+        fprintf(f, " With motion on, the fastest point within 1 dB: %d (%s), %.2fx at %+.2f dB.", near_on, lb,
+                pt[near_on].speedup, pt[near_on].dpsnr);
+    }
+    fprintf(f, "\n\n");
     fprintf(f, "Pareto front (key frames/s up, novel-view PSNR up): ");
     int first = 1;
     for (int i = 0; i < np; i++)
@@ -1185,15 +1222,16 @@ static int write_outputs(const char *dir, struct point *pt, int np, int base, co
             first = 0;
         }
     fprintf(f, " (marked * below).\n\n");
-    fprintf(f, "| # | precision | input | tokens | budget | codec | key ms (%s) | speedup | key CPU ms | key wall ms | "
+    fprintf(f, "| # | precision | input | tokens | motion | budget | codec | key ms (%s) | speedup | key CPU ms | key wall ms | "
                "wall speedup | model process CPU ms | display ms | pair ms | tokens ran | "
                "Gaussians/key | kB/key | Mbit/s | NV PSNR | dPSNR | NV SSIM | NT PSNR | point dist (m) | "
                "rot (deg) | trans (m) | motion EPE (m) | front |\n", wall ? "wall" : "CPU");
-    fprintf(f, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    fprintf(f, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+               "---|\n");
     for (int i = 0; i < np; i++) {
         const struct point *q = &pt[i];
-        fprintf(f, "| %d%s | %s | %dx%d | %s | %s | %s | ", i, i == base ? " (base)" : "", prec_name[q->p], q->w,
-                q->h, tok_name[q->t], bud_name[q->b], cod_name[q->c]);
+        fprintf(f, "| %d%s | %s | %dx%d | %s | %s | %s | %s | ", i, i == base ? " (base)" : "", prec_name[q->p], q->w,
+                q->h, tok_name[q->t], mot_name[q->m], bud_name[q->b], cod_name[q->c]);
         md_num(f, q->key_ms, 1, false, ""); fputs(" | ", f);
         md_num(f, q->speedup, 2, false, "x"); fputs(" | ", f);
         md_num(f, q->key_cpu_ms, 1, false, ""); fputs(" | ", f);

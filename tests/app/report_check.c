@@ -3,7 +3,8 @@
  *   where a figure may be missing); the Pareto front (key_hz up, novel-view
  *   PSNR up) is non-empty, each front point is non-dominated and each other
  *   point is dominated, and "front" lists exactly the on_front points; the
- *   baseline is f32 with all patches at the largest input; the goal line
+ *   baseline is f32 with all patches and motion on at the largest input; a
+ *   point with motion off has no motion error (its keys carry none); the goal line
  *   agrees with the points; report.md names the CPU, the front and the goal;
  *   pareto.png, bitrate.png and display.png decode (libpng) and are not blank.
  *   --motion: the weights had motion and some motion error was measured.
@@ -137,7 +138,7 @@ int main(int argc, char **argv)
                                        "dpsnr_vs_baseline_db"};
     static const char *const may[] = {"display_frame_ms", "display_pair_ms", "novel_time_psnr", "novel_time_ssim",
                                       "motion_epe_m"};
-    static const char *const str[] = {"precision", "tokens", "budget", "codec"};
+    static const char *const str[] = {"precision", "tokens", "motion", "budget", "codec"};
     double *hz = calloc((size_t)n, sizeof *hz), *ps = calloc((size_t)n, sizeof *ps);
     bool *on = calloc((size_t)n, sizeof *on);
     int motion_pts = 0;
@@ -168,6 +169,13 @@ int main(int argc, char **argv)
         CHECK(get(o, "key_ms", &ok) == get(o, key_clock, &ok), "point %d: key_ms is not %s", i, key_clock);
         CHECK(get(o, "key_cpu_ms", &ok) >= get(o, "model_cpu_ms", &ok), "point %d: key CPU time below the model's", i);
         motion_pts += isfinite(get(o, "motion_epe_m", &ok));
+        const cJSON *mo = cJSON_GetObjectItem(o, "motion");
+        if (cJSON_IsString(mo)) {
+            CHECK(!strcmp(mo->valuestring, "on") || !strcmp(mo->valuestring, "off"), "point %d: motion \"%s\"", i,
+                  mo->valuestring);
+            CHECK(strcmp(mo->valuestring, "off") || !isfinite(get(o, "motion_epe_m", &ok)),
+                  "point %d: motion off but a motion error", i);
+        }
     }
     /* the front, recomputed */
     int nf = 0;
@@ -197,9 +205,11 @@ int main(int argc, char **argv)
     if (b >= 0 && b < n) {
         const cJSON *o = cJSON_GetArrayItem(pts, b);
         bool ok;
+        const cJSON *bm = cJSON_GetObjectItem(o, "motion");
         CHECK(!strcmp(cJSON_GetObjectItem(o, "precision")->valuestring, "f32") &&
-                  !strcmp(cJSON_GetObjectItem(o, "tokens")->valuestring, "all"),
-              "baseline %d is not f32 with all patches", b);
+                  !strcmp(cJSON_GetObjectItem(o, "tokens")->valuestring, "all") && cJSON_IsString(bm) &&
+                  !strcmp(bm->valuestring, "on"),
+              "baseline %d is not f32 with all patches and motion on", b);
         for (int i = 0; i < n; i++)
             CHECK(get(cJSON_GetArrayItem(pts, i), "input_w", &ok) <= get(o, "input_w", &ok),
                   "point %d has a larger input than the baseline", i);

@@ -4,8 +4,8 @@
 # wrote (JSON fields, a non-dominated non-empty front, the goal line, PNGs that
 # decode). The take carries its empty-venue plate (--background) for the foreground model. The checker is also run on broken copies, which it must refuse, and a
 # missing take must fail with a clear message.
-# Bad options (CPU clock with 2 threads, a grid without the baseline, an unknown axis
-# value) must fail naming what is wrong.
+# Bad options (CPU clock with 2 threads, a grid without the baseline, motion off alone,
+# an unknown axis value) must fail naming what is wrong.
 #   report_quick.sh FORGE4D F4D-SCENE REPORT_CHECK WEIGHTS [SIZE] [--motion|-] [REPORT OPTIONS...]
 set -euo pipefail
 forge4d=$1 scene=$2 check=$3 weights=$4 size=${5:-112x112} motion=${6:-}
@@ -32,6 +32,8 @@ refuse() { # refuse PATTERN OPTIONS...: the report must fail before running, nam
 }
 refuse "use --threads 1" --clock cpu --threads 2
 refuse "must hold the baseline" --precision int8
+refuse "must hold the baseline" --motion off
+refuse 'unknown value "maybe"' --motion on,maybe
 refuse 'unknown value "9/8"' --size 1,9/8
 
 "$forge4d" report --quick -o "$tmp/out" --take "$tmp/take" --weights "$weights" "$@"

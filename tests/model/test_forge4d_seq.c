@@ -509,6 +509,56 @@ static void test_reset_reproduces_first_step(void **state)
     fk_ctx_free(ctx);
 }
 
+/* Skipping the motion head (the daemon's --motion off) also leaves out the
+ * motion blocks: nothing else reads their streams. The arena is the plan
+ * without the motion groups, no step has motion or runs motion blocks, and
+ * every step's Gaussians, gauge and cameras equal the full model's bit for
+ * bit (the motion stream never feeds back into the aggregator). */
+static void test_skip_motion_head(void **state)
+{
+    (void)state;
+    char path[1200];
+    struct f4d_err err = {0};
+    snprintf(path, sizeof path, "%s/tiny_f4d_seq_f32.gguf", gguf_dir);
+    fk_ctx *ctx = new_ctx(), *ctx2 = new_ctx();
+    struct model *full = open_model(ctx, "tiny_f4d_seq_f32.gguf", FK_W_F32), *m = NULL;
+    if (model_init(ctx2, path, FK_W_F32, &m, &err) < 0)
+        fail_msg("%s: %s", path, err.msg);
+    assert_int_equal(model_skip_head(m, "motion_head"), 0);
+    assert_int_equal(model_prepare(m, SEQ_S, SEQ_H, SEQ_W), 0);
+    assert_int_equal(model_groups(m), MODEL_G_ALL); /* the file's groups */
+    const unsigned run = MODEL_G_ALL & ~(MODEL_G_MOTION | MODEL_G_MOTION_HEAD);
+    assert_int_equal(model_arena_bytes(m), model_plan_bytes(model_get_config(m), run, SEQ_S, SEQ_H, SEQ_W));
+    assert_true(model_arena_bytes(m) < model_arena_bytes(full));
+    const size_t n = (size_t)SEQ_S * SEQ_H * SEQ_W;
+    struct model_outputs a, b;
+    for (int t = 0; t < 3; t++) {
+        float *img = load_input(t);
+        assert_int_equal(model_eval(full, img, SEQ_S, SEQ_H, SEQ_W, &a), 0);
+        assert_int_equal(model_eval(m, img, SEQ_S, SEQ_H, SEQ_W, &b), 0);
+        free(img);
+        assert_int_equal(a.has_motion, t > 0);
+        assert_int_equal(b.has_motion, 0);
+        assert_null(b.motion_bwd);
+        assert_null(b.motion_fwd_prev);
+        assert_true(a.gauge == b.gauge);
+        assert_memory_equal(a.gaussians.pos, b.gaussians.pos, 3 * n * sizeof(float));
+        assert_memory_equal(a.gaussians.scale, b.gaussians.scale, 3 * n * sizeof(float));
+        assert_memory_equal(a.gaussians.rot, b.gaussians.rot, 4 * n * sizeof(float));
+        assert_memory_equal(a.extrinsic_metric, b.extrinsic_metric, (size_t)SEQ_S * 12 * sizeof(float));
+        struct model_stage st[32];
+        int ns = model_stages(m, st, 32);
+        for (int i = 0; i < ns; i++) {
+            assert_string_not_equal(st[i].name, "motion_blocks");
+            assert_string_not_equal(st[i].name, "motion_head");
+        }
+    }
+    model_free(m);
+    model_free(full);
+    fk_ctx_free(ctx2);
+    fk_ctx_free(ctx);
+}
+
 /* Checkpoints without the stage-2/3 parts: plain VGGT and the stage-1 model
  * run as before, nothing carried between Evals (the same input twice gives
  * the same bits), no motion, no fusion. */
@@ -784,6 +834,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_first_step_no_motion),
         cmocka_unit_test(test_reset_reproduces_first_step),
         cmocka_unit_test(test_without_stream_parts),
+        cmocka_unit_test(test_skip_motion_head),
         cmocka_unit_test(test_partial_stream_files),
         cmocka_unit_test(test_motion_layer_config),
     };

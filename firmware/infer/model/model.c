@@ -378,6 +378,8 @@ int model_skip_head(struct model *m, const char *prefix)
     if (gauss && (!strcmp(prefix, "point_head") || !strcmp(prefix, "camera_head")))
         return model_fail(m, F4D_EINVAL, "model: '%s' cannot be skipped: gaussian_head reads it", prefix);
     m->head_ops[at]->free(m->head[at]);
+    if (!strcmp(prefix, "motion_head"))
+        model_stream_drop_motion(m);
     for (int i = at; i + 1 < m->n_heads; i++) {
         m->head_ops[i] = m->head_ops[i + 1];
         m->head[i] = m->head[i + 1];
@@ -555,7 +557,7 @@ int model_prepare(struct model *m, int max_views, int max_h, int max_w)
     if ((rc = check_shape(m, max_views, max_h, max_w)) < 0 || (rc = check_unknown(m)) < 0)
         return rc;
     size_t persist, scratch;
-    plan_sizes(&m->cfg, m->groups, m->keep, max_views, max_h, max_w, &persist, &scratch);
+    plan_sizes(&m->cfg, model_stream_groups(m), m->keep, max_views, max_h, max_w, &persist, &scratch);
     size_t agg_persist = persist;
     for (int i = 0; i < m->n_heads; i++) {
         size_t p, s;
@@ -634,7 +636,7 @@ int model_eval_masked(struct model *m, const float *images, int S, int H, int W,
     const size_t P1 = (size_t)(1 + m->cfg.num_register_tokens + (H / p) * (W / p));
     const size_t P1max = (size_t)(1 + m->cfg.num_register_tokens + (m->max_H / p) * (m->max_W / p));
     size_t ap, as;
-    plan_sizes(&m->cfg, m->groups, m->keep, S, H, W, &ap, &as);
+    plan_sizes(&m->cfg, model_stream_groups(m), m->keep, S, H, W, &ap, &as);
     int fits = (size_t)S * P1 <= (size_t)m->max_S * P1max && as <= m->scratch_bytes &&
                (size_t)(H / p) * (W / p) <= (size_t)(m->max_H / p) * (m->max_W / p);
     for (int i = 0; fits && i < m->n_heads; i++) {
@@ -695,7 +697,7 @@ int model_stages(const struct model *m, struct model_stage *st, int cap)
         if (i == ST_DINO && m->cfg.patch_embed != MODEL_PATCH_DINO)
             continue;
         if ((i == ST_STATE && !(m->groups & MODEL_G_STATE)) ||
-            (i == ST_MOTION && !(m->groups & MODEL_G_MOTION)))
+            (i == ST_MOTION && !(model_stream_groups(m) & MODEL_G_MOTION)))
             continue;
         st[n].name = i < ST_HEAD0 ? names[i] : m->head_ops[i - ST_HEAD0]->prefix;
         st[n].seconds = m->st_sec[i];

@@ -326,7 +326,10 @@ int   model_register_head(struct model *m, const struct model_head_ops *ops);
 /* Leaves a loaded head out of Eval (its outputs stay NULL, its arena share and
  * any layer only it read are not planned); before model_prepare. For consumers
  * that never read an output: the streaming path needs no depth map, so it
- * skips "depth_head", a third of a key frame's DPT work. 0 also when the file
+ * skips "depth_head", a third of a key frame's DPT work. Skipping "motion_head"
+ * also leaves out the motion blocks (nothing else reads their streams): no
+ * step has motion, and the arena is planned without the motion groups; the
+ * other outputs are the same bits. 0 also when the file
  * has no such head; F4D_EINVAL after model_prepare or for a head another one
  * reads (point_head, camera_head under gaussian_head). */
 int   model_skip_head   (struct model *m, const char *prefix);

@@ -176,6 +176,11 @@ void model_gaussian_plan(const struct model_config *c, int S, int H, int W, size
 struct model_stream;
 int  model_stream_load   (struct model *m);
 void model_stream_free   (struct model *m);
+/* The motion head skipped: the motion blocks feed nothing else, so they are
+ * neither planned nor run (their weights stay loaded until model_free). */
+void model_stream_drop_motion(struct model *m);
+/* m->groups less the motion groups once they were dropped: what is planned. */
+unsigned model_stream_groups(const struct model *m);
 void model_stream_plan   (const struct model_config *c, unsigned groups, int S, int H, int W,
                           size_t *persist, size_t *scratch);
 void model_stream_place  (struct model *m, struct bump *b);

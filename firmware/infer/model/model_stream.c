@@ -205,6 +205,18 @@ int model_stream_load(struct model *m)
     return 0;
 }
 
+void model_stream_drop_motion(struct model *m)
+{
+    if (m->stream)
+        m->stream->has_motion = 0;
+}
+
+unsigned model_stream_groups(const struct model *m)
+{
+    const unsigned motion = MODEL_G_MOTION | MODEL_G_MOTION_HEAD;
+    return m->stream && !m->stream->has_motion ? m->groups & ~motion : m->groups;
+}
+
 void model_stream_free(struct model *m)
 {
     struct model_stream *s = m->stream;
