@@ -85,6 +85,11 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
 /* fp32, rows of A read in place (a[r][k], the direct stride-1 convolution). */
 void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *b0, const float *b1,
                                   float *c, int accumulate);
+/* PREFETCHW on `rows` rows of `cols` floats at y (row stride ldy): the
+ * AVX-512 driver's output rows, claimed for writing while the last k block
+ * of their tile runs. PRFCHW is on every AVX-512 CPU (Intel since Broadwell,
+ * AMD since K8 as 3DNowPrefetch), hence in this file's flags. */
+void fk__gemm_prefetchw_rows(const float *y, size_t ldy, int rows, int cols);
 void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const int8_t *b1,
                             int32_t *c, int accumulate);
 /* n fp16 weights (a multiple of 16, h 32-byte and d 64-byte aligned) widened

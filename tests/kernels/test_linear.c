@@ -11,6 +11,7 @@
  *   7-bit path weights (no VNNI) + int8 act.:         |dy| <= 3e-2 S
  *     (pairs |q0| + |q1| <= 128: each weight's step is 1x to 2x the 8-bit one)
  *   different cache blocks (kc, mc, nc), any type:    bit-identical
+ *   AVX-512 vs AVX2, f32 / f16 weights, epilogues:    bit-identical
  * Activations (GELU, SiLU) add at most 2e-6 relative on top. */
 #include <math.h>
 #include <stdlib.h>
@@ -162,36 +163,57 @@ static void test_epilogues(void **state)
     int n_isa = test_isas(isas);
     if (n_isa == 0)
         f4d_skip("test_epilogues: no optimized ISA under test (none on this CPU, or --isa ref)");
+    /* AVX2 (which any AVX-512 CPU runs) is the AVX-512 rows' bit reference */
+    int has_avx2 = fk_isa_supported(FK_ISA_AVX2), has_avx512 = 0;
+    for (int i = 0; i < n_isa; i++)
+        has_avx512 |= isas[i] == FK_ISA_AVX512;
     fk_ctx *refs[2] = { test_ctx_q8(FK_ISA_REF, 1, FK_Q8_8BIT), test_ctx_q8(FK_ISA_REF, 1, FK_Q8_7BIT) };
-    struct problem p;
-    problem_make(&p, 19, 45, 70, 9);
+    /* n = 45: an AVX-512 pair of panels and a lone 13-column one; n = 57: two
+     * pairs, the second with 25 columns */
+    const int widths[] = { 45, 57 };
     const enum fk_act acts[] = { FK_ACT_NONE, FK_ACT_RELU, FK_ACT_GELU, FK_ACT_SILU };
-    for (int a = 0; a < 4; a++)
-        for (int mode = 0; mode < 3; mode++) {
-            struct fk_epilogue ep = { acts[a], mode >= 1 ? p.gamma : NULL, mode == 2 };
-            for (int t = FK_W_F32; t <= FK_W_Q8; t++) {
-                for (int i = 0; i < n_isa; i++) {
-                    fk_ctx *ctx = test_ctx(isas[i], 2);
-                    float *want = run(refs[fk_ctx_q8_bits(ctx) == FK_Q8_7BIT], &p, (enum fk_wtype)t, &ep);
-                    float *got = run(ctx, &p, (enum fk_wtype)t, &ep);
-                    /* residual outputs carry y0 (|y0| ~ 1): budget on S + |y0| */
-                    double worst = 0;
-                    for (int q = 0; q < p.m * p.n; q++) {
-                        double s = p.scale[q] + (mode == 2 ? fabs(p.y0[q]) : 0) + 1e-30;
-                        double e = fabs((double)got[q] - want[q]) / s;
-                        if (e > worst)
-                            worst = e;
+    for (int wi = 0; wi < 2; wi++) {
+        struct problem p;
+        problem_make(&p, 19, widths[wi], 70, 9);
+        for (int a = 0; a < 4; a++)
+            for (int mode = 0; mode < 3; mode++) {
+                struct fk_epilogue ep = { acts[a], mode >= 1 ? p.gamma : NULL, mode == 2 };
+                for (int t = FK_W_F32; t <= FK_W_Q8; t++) {
+                    /* AVX-512 float GEMMs accumulate each element in the AVX2
+                     * order and finish it with the same operations: same bits */
+                    float *avx2 = NULL;
+                    if (has_avx2 && has_avx512 && t != FK_W_Q8) {
+                        fk_ctx *c2 = test_ctx(FK_ISA_AVX2, 2);
+                        avx2 = run(c2, &p, (enum fk_wtype)t, &ep);
+                        fk_ctx_free(c2);
                     }
-                    if (worst > 1e-5)
-                        fail_msg("%s act %d mode %d type %d: error %g", fk_isa_name(isas[i]),
-                                 a, mode, t, worst);
-                    free(got);
-                    free(want);
-                    fk_ctx_free(ctx);
+                    for (int i = 0; i < n_isa; i++) {
+                        fk_ctx *ctx = test_ctx(isas[i], 2);
+                        float *want = run(refs[fk_ctx_q8_bits(ctx) == FK_Q8_7BIT], &p, (enum fk_wtype)t, &ep);
+                        float *got = run(ctx, &p, (enum fk_wtype)t, &ep);
+                        /* residual outputs carry y0 (|y0| ~ 1): budget on S + |y0| */
+                        double worst = 0;
+                        for (int q = 0; q < p.m * p.n; q++) {
+                            double s = p.scale[q] + (mode == 2 ? fabs(p.y0[q]) : 0) + 1e-30;
+                            double e = fabs((double)got[q] - want[q]) / s;
+                            if (e > worst)
+                                worst = e;
+                        }
+                        if (worst > 1e-5)
+                            fail_msg("%s n %d act %d mode %d type %d: error %g", fk_isa_name(isas[i]),
+                                     p.n, a, mode, t, worst);
+                        if (avx2 && isas[i] == FK_ISA_AVX512 &&
+                            memcmp(got, avx2, sizeof(float) * (size_t)p.m * (size_t)p.n) != 0)
+                            fail_msg("avx512 n %d act %d mode %d type %d: not AVX2's bits", p.n, a, mode, t);
+                        free(got);
+                        free(want);
+                        fk_ctx_free(ctx);
+                    }
+                    free(avx2);
                 }
             }
-        }
-    problem_free(&p);
+        problem_free(&p);
+    }
     fk_ctx_free(refs[0]);
     fk_ctx_free(refs[1]);
 }

@@ -506,15 +506,31 @@ int bench_kernels(int argc, char **argv)
     /* OpenBLAS picks its kernels at load time; unless asked for its native
      * choice, restart once with the kernels of our ISA so that both sides use
      * the same vectors: SkylakeX (AVX-512) when the run's ISA is AVX-512 alone,
-     * else Haswell (AVX2; --isa all compares every ISA with that one). */
-    if (!o.openblas_native && !getenv("OPENBLAS_CORETYPE") && fk_isa_supported(FK_ISA_AVX2)) {
-        fk_ctx *p0 = make_ctx(o.isa, 1);
-        const char *core = fk_ctx_isa(p0) == FK_ISA_AVX512 && !o.all_isas ? "SkylakeX" : "Haswell";
-        fk_ctx_free(p0);
-        setenv("OPENBLAS_CORETYPE", core, 1);
+     * else Haswell (AVX2; --isa all compares every ISA with that one). An
+     * OPENBLAS_CORETYPE inherited from the environment is replaced (this
+     * machine's shell had Haswell set, which made --isa avx512 and
+     * --openblas-native compare with Haswell); F4D_BENCH_OPENBLAS_SET marks
+     * the restarted process. */
+    const char *inherited = getenv("OPENBLAS_CORETYPE");
+    if (!getenv("F4D_BENCH_OPENBLAS_SET") && fk_isa_supported(FK_ISA_AVX2) &&
+        (!o.openblas_native || inherited)) {
+        const char *core = NULL;
+        if (!o.openblas_native) {
+            fk_ctx *p0 = make_ctx(o.isa, 1);
+            core = fk_ctx_isa(p0) == FK_ISA_AVX512 && !o.all_isas ? "SkylakeX" : "Haswell";
+            fk_ctx_free(p0);
+        }
+        if (inherited)
+            fprintf(stderr, "f4d-bench kernels: OPENBLAS_CORETYPE=%s from the environment replaced by %s\n",
+                    inherited, core ? core : "OpenBLAS's own choice");
+        if (core)
+            setenv("OPENBLAS_CORETYPE", core, 1);
+        else
+            unsetenv("OPENBLAS_CORETYPE");
+        setenv("F4D_BENCH_OPENBLAS_SET", "1", 1);
         execv("/proc/self/exe", argv - 1);
         fprintf(stderr, "f4d-bench kernels: cannot restart with OPENBLAS_CORETYPE=%s; "
-                        "OpenBLAS keeps its own choice\n", core);
+                        "OpenBLAS keeps its own choice\n", core ? core : "(unset)");
     }
 #endif
     fk_ctx *probe = make_ctx(o.isa, 1);

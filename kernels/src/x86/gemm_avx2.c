@@ -630,6 +630,19 @@ static inline void prefetch_share(const char *p, size_t lines, int i, int mp)
         _mm_prefetch(p + l * 64, _MM_HINT_T0);
 }
 
+/* AVX-512: claims the output rows of the tile whose last k block is about
+ * to run (rows m.., `pw` panels from jp), so that its epilogue's stores find
+ * their lines in L1, owned. Without it the epilogue, mostly those stores
+ * (write misses), took 4.2-4.9 % of the f32 GEMM's samples on Zen 5 (1374 x
+ * 1024 <- 1024, one thread); with it 2.4 %. */
+static inline void prefetch_out(const struct gemm_job *j, int m, int rows, int jp, int pw)
+{
+    if (!j->wide || j->c->tconv_k)
+        return;
+    int nr = rows < MR ? rows : MR, n0 = jp * NR, nn = j->L->n - n0 < pw * NR ? j->L->n - n0 : pw * NR;
+    fk__gemm_prefetchw_rows(j->c->y + (size_t)m * (size_t)j->c->ldy + (size_t)n0, (size_t)j->c->ldy, nr, nn);
+}
+
 /* The C tile is [mp][np][6][16]: micro-tile (i, p) at ((i * np + p) * 6) * 16. */
 static inline size_t tile_at(int i, int np, int p) { return ((size_t)i * (size_t)np + (size_t)p) * MR * NR; }
 
@@ -731,6 +744,8 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (i + 1 < mp)
                         for (int l = 0; l < MR * NR * 4 * (1 + pair); l += 64)
                             _mm_prefetch((const char *)(ci + MR * NR * np) + l, _MM_HINT_T0);
+                    if (k0 + kc >= k)
+                        prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
                     if (j->direct) {
                         const float *ar[MR];
                         direct_rows(src, m0, rows, i, k0, zeros, ar);
@@ -782,6 +797,8 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                     prefetch_share(next1, sliver_lines, i, mp);
                     const char *ai = s + (size_t)i * panel_a + (size_t)q0 * MR * 4 * esz;
                     int32_t *ci = ct + tile_at(i, np, jp - jg);
+                    if (q0 + qn >= k4)
+                        prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
                     if (pair) {
                         fk__gemm_q8_ukr_avx512(qn, (const uint8_t *)ai, bp, bp + panel_b, ci, q0 > 0);
                     } else {

@@ -122,3 +122,13 @@ void fk__f16_to_f32_avx512(const uint16_t *h, float *d, int n)
     for (int e = 0; e < n; e += 16)
         _mm512_store_ps(d + e, _mm512_cvtph_ps(_mm256_load_si256((const __m256i *)(h + e))));
 }
+
+void fk__gemm_prefetchw_rows(const float *y, size_t ldy, int rows, int cols)
+{
+    for (int r = 0; r < rows; r++) {
+        const char *p = (const char *)(y + (size_t)r * ldy);
+        for (int b = 0; b < cols * 4; b += 64)
+            __builtin_prefetch(p + b, 1, 3); /* prefetchw */
+        __builtin_prefetch(p + cols * 4 - 1, 1, 3);
+    }
+}
