@@ -2566,6 +2566,101 @@ __attribute__((noinline)) static int pred_tile(const struct pctx *x, struct dtil
     return bad;
 }
 
+/* Intra key Gaussians [i0, i0 + t): intra_recon's values and their scales
+ * (expf of the log-scales, as finish_scales), a channel at a time with no
+ * branch per Gaussian (rot_unpack in SoA through fsel: the same operations,
+ * so the same bits). Returns nonzero where one may fail gauss_finite. */
+__attribute__((noinline)) static int intra_tile(struct dtile *w, const uint32_t *rec, size_t stride, size_t i0,
+                                                size_t t, const struct qz *z, int rot_bits, int motion,
+                                                struct keystate *k)
+{
+    int bad = 0;
+    float *const out3[5] = { k->pos, k->ls, k->rgb, k->mb, k->mf };
+    static const int ch3[5] = { CH_POS, CH_LS, CH_RGB, CH_MB, CH_MF };
+    static const int qz3[5] = { 0, 3, 7, QZ_MB, QZ_MF };
+    for (int a = 0; a < 5; a++) {
+        float *restrict o = out3[a] + 3 * i0;
+        if (ch3[a] >= CH_MB && !motion) {
+            memset(o, 0, 3 * t * sizeof(float));
+            continue;
+        }
+        float *v[3] = { w->qd[0], w->qd[1], w->qd[2] }; /* the channels, then interleaved */
+        for (int c = 0; c < 3; c++) {
+            const uint32_t *restrict q = rec + (size_t)(ch3[a] + c) * stride + i0;
+            const struct qz zc = z[qz3[a] + c];
+            float *restrict vc = v[c];
+            uint32_t hi = 0;
+            for (size_t j = 0; j < t; j++)
+                hi |= q[j];
+            if (hi >> 31) /* (float) of an unsigned: slow without AVX-512 */
+                for (size_t j = 0; j < t; j++)
+                    vc[j] = deq(zc, q[j]);
+            else /* the same value through a signed int */
+                for (size_t j = 0; j < t; j++)
+                    vc[j] = zc.lo + (float)(int32_t)q[j] * zc.step;
+            for (size_t j = 0; j < t; j++)
+                bad |= NOT_FINITE(vc[j]);
+            if (a == 1)
+                for (size_t j = 0; j < t; j++)
+                    bad |= !(vc[j] < 80.0f);
+        }
+        const float *restrict v0 = v[0], *restrict v1 = v[1], *restrict v2 = v[2];
+        for (size_t j = 0; j < t; j++) {
+            o[3 * j] = v0[j];
+            o[3 * j + 1] = v1[j];
+            o[3 * j + 2] = v2[j];
+        }
+    }
+    float *restrict sc = k->scale + 3 * i0;
+    const float *restrict ls = k->ls + 3 * i0;
+    for (size_t j = 0; j < 3 * t; j++)
+        sc[j] = expf(ls[j]);
+    {
+        const uint32_t *restrict q = rec + (size_t)CH_OP * stride + i0;
+        float *restrict o = k->op + i0;
+        uint32_t hi = 0;
+        for (size_t j = 0; j < t; j++)
+            hi |= q[j];
+        for (size_t j = 0; j < t; j++) {
+            const float v = hi >> 31 ? deq(z[6], q[j]) : z[6].lo + (float)(int32_t)q[j] * z[6].step;
+            o[j] = fsel(0u - (uint32_t)(v < 0.0f), 0.0f, fsel(0u - (uint32_t)(v > 1.0f), 1.0f, v)); /* clamp01 */
+        }
+    }
+    const uint32_t *restrict qb = rec + (size_t)CH_ROT * stride + i0, *restrict q1 = qb + stride,
+                             *restrict q2 = q1 + stride, *restrict q3 = q2 + stride;
+    const uint32_t um = (1u << rot_bits) - 1;
+    const float m = (float)um;
+    float *restrict a0 = w->qa[0], *restrict a1 = w->qa[1], *restrict a2 = w->qa[2], *restrict a3 = w->qa[3];
+    for (size_t j = 0; j < t; j++) {
+        const uint32_t big = qb[j] & 3;
+        const uint32_t u1 = q1[j] > um ? um : q1[j], u2 = q2[j] > um ? um : q2[j], u3 = q3[j] > um ? um : q3[j];
+        /* u <= 32767: (float) through a signed int is the same value */
+        const float v1 = ((float)(int32_t)u1 / m * 2.0f - 1.0f) * 0.70710678f;
+        const float v2 = ((float)(int32_t)u2 / m * 2.0f - 1.0f) * 0.70710678f;
+        const float v3 = ((float)(int32_t)u3 / m * 2.0f - 1.0f) * 0.70710678f;
+        float ss = 0;
+        ss += v1 * v1;
+        ss += v2 * v2;
+        ss += v3 * v3;
+        const float wq = sqrtf(fsel(0u - (uint32_t)(ss < 1.0f), 1.0f - ss, 0.0f));
+        /* component k: the largest (big) or the next of v1 v2 v3 */
+        const uint32_t b0 = 0u - (uint32_t)(big == 0), b1 = 0u - (uint32_t)(big == 1),
+                       b2 = 0u - (uint32_t)(big == 2), b3 = 0u - (uint32_t)(big == 3);
+        a0[j] = fsel(b0, wq, v1);
+        a1[j] = fsel(b1, wq, fsel(b0, v1, v2));
+        a2[j] = fsel(b2, wq, fsel(b3, v3, v2));
+        a3[j] = fsel(b3, wq, v3);
+    }
+    float *restrict r = k->rot + 4 * i0;
+    for (size_t j = 0; j < t; j++) {
+        r[4 * j] = a0[j];
+        r[4 * j + 1] = a1[j];
+        r[4 * j + 2] = a2[j];
+        r[4 * j + 3] = a3[j];
+    }
+    return bad;
+}
+
 /* Predicted key. One pass validates flags and references (rix: the
  * reference of each Gaussian, -1 new; ord: a changed one's ordinal), the
  * planes are read, then every matched Gaussian's predicted position is
@@ -2810,7 +2905,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     const int nch = motion ? NCH : CH_MB;
     const size_t stride = d->cap ? d->cap : 1;
-    int rc;
+    int rc, intra_bad = 0;
     char what[16];
     dst->count = n;
     dst->motion = motion;
@@ -2820,8 +2915,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
             if ((rc = get_plane(d, in, len, &off, n, d->rec + (size_t)c * stride, what, NULL)) < 0)
                 return rc;
         }
-        for (size_t i = 0; i < n; i++)
-            intra_recon(d->rec, stride, i, z, rot_bits, motion, dst, i);
+        for (size_t i = 0; i < n; i += DT)
+            intra_bad |= intra_tile(d->tile, d->rec, stride, i, n - i < DT ? n - i : DT, z, rot_bits, motion, dst);
     } else {
         if ((rc = decode_pred(d, in, len, &off, n, nref, n_new, n_changed, explicit_match, block_motion,
                               block_mf_used, block_rot_used, rot_bits, motion, cf, z, ref, dst)) < 0)
@@ -2829,10 +2924,9 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     if (off != len)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu trailing bytes", len - off);
-    if ((rc = key_finite(d, dst, intra ? 0 : d->checked)) < 0)
+    /* intra: every Gaussian was found finite as decoded unless intra_bad */
+    if ((rc = key_finite(d, dst, intra ? (intra_bad ? 0 : n) : d->checked)) < 0)
         return rc;
-    if (intra)
-        finish_scales(dst); /* a predicted key's scales were set as it was decoded */
     return F4D_OK;
 }
 
