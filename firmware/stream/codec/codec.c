@@ -2742,24 +2742,25 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
         any_mort |= mort[c];
     any_mort = any_mort && n_changed;
     float *pp = d->ppos;
-    for (size_t i = 0; i < n; i++)
-        if (d->rix[i] >= 0)
-            predict_pos(ref, (size_t)d->rix[i], cf, pp + 3 * i);
-        else
-            pp[3 * i] = pp[3 * i + 1] = pp[3 * i + 2] = 0.0f; /* read by pred_tile, then overwritten */
     struct morton *mo = &d->mo;
     struct mgrid mg;
     mgrid_of(z, &mg);
-    uint32_t *spos = d->spos; /* changed ordinal -> slot in the residual planes */
-    if (block_motion) {
-        /* the sort carries each Gaussian's index and, in the top bit,
-         * whether it changed (n <= CODEC_CAPACITY_MAX < 2^31) */
-        size_t k = 0;
-        for (size_t i = 0; i < n; i++)
-            if (d->rix[i] >= 0) {
+    /* with blocks, every matched Gaussian's key as its prediction is made;
+     * the sort carries its index and, in the top bit, whether it changed
+     * (n <= CODEC_CAPACITY_MAX < 2^31) */
+    size_t k = 0;
+    for (size_t i = 0; i < n; i++)
+        if (d->rix[i] >= 0) {
+            predict_pos(ref, (size_t)d->rix[i], cf, pp + 3 * i);
+            if (block_motion) {
                 mo->key[k] = morton_key_grid(&mg, pp + 3 * i);
                 mo->perm[k++] = (uint32_t)i | (uint32_t)(d->flags[i] == 1) << 31;
             }
+        } else {
+            pp[3 * i] = pp[3 * i + 1] = pp[3 * i + 2] = 0.0f; /* read by pred_tile, then overwritten */
+        }
+    uint32_t *spos = d->spos; /* changed ordinal -> slot in the residual planes */
+    if (block_motion) {
         morton_sort_with(mo, m);
         size_t kk = 0;
         for (k = 0; k < m; k++) {
@@ -2798,7 +2799,7 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
             b->dq[0] = sqrtf(ss < 1.0f ? 1.0f - ss : 0.0f);
         }
     } else if (any_mort) {
-        size_t k = 0;
+        k = 0;
         for (size_t i = 0; i < n; i++)
             if (d->flags[i] == 1)
                 mo->key[k++] = morton_key_grid(&mg, pp + 3 * i);
@@ -2814,7 +2815,7 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
                 continue;
             uint32_t *v = d->res + (size_t)c * stride, *tmp = mo->tmp;
             memcpy(tmp, v, n_changed * sizeof(uint32_t));
-            for (size_t k = 0; k < n_changed; k++)
+            for (k = 0; k < n_changed; k++)
                 v[k] = tmp[spos[k]];
         }
     struct qz zr[NQZ];
