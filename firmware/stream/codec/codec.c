@@ -260,7 +260,8 @@ static void mgrid_of(const struct qz *z, struct mgrid *g)
 
 static inline uint32_t mcell(double t)
 {
-    uint32_t q = !(t > 0) ? 0 : t >= (double)QMAX ? QMAX : (uint32_t)t;
+    /* 0 < t < QMAX: truncation through int32 is (uint32_t)t's, and short */
+    uint32_t q = !(t > 0) ? 0 : t >= (double)QMAX ? QMAX : (uint32_t)(int32_t)t;
     return q >> 3;
 }
 
