@@ -15,12 +15,16 @@
  * (Morton-reordered) key ("donut-still"), SPZ.
  * --stream-order / --effort NAME: the encoder's stream order
  * (codec_enc_set_reorder) and effort (codec_enc_set_effort) for every row.
+ * --decode-reps R: each row's packets decoded again R times by the same
+ * decoder; the row's dec figures are then the best of the R runs' thread
+ * CPU ms (intra key; mean predicted key), the decoder alone.
  * PSNR: float renders (not 8-bit), mean over the cameras and keys, 518x518,
  * 100 dB where identical. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "bench.h"
@@ -48,6 +52,7 @@ struct srow {
 
 struct ctx {
     int reorder, effort; /* encoder settings of every row */
+    int dec_reps;        /* --decode-reps */
     splat_renderer *r;
     const float *bg;
     float *a, *b;
@@ -81,6 +86,50 @@ static void mid(const struct splat_frame *src, struct splat_frame *dst)
             dst->pos[i] += 0.5f * src->motion_fwd[i];
 }
 
+static double thread_ms(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return 1e3 * (double)t.tv_sec + 1e-6 * (double)t.tv_nsec;
+}
+
+/* The packets pk[0..len) (one key after another) decoded reps times by d:
+ * the best run's intra ms and mean predicted ms (thread CPU time). */
+static int redecode(codec_dec *d, const uint8_t *pk, size_t len, int reps, double *intra_ms, double *pred_ms)
+{
+    *intra_ms = *pred_ms = INFINITY;
+    for (int r = 0; r < reps; r++) {
+        double ti = 0, tp = 0;
+        int np = 0;
+        for (size_t off = 0; off < len;) {
+            struct codec_packet p;
+            struct f4d_err err = { 0 };
+            if (codec_packet_parse(pk + off, len - off, &p, &err) < 0) {
+                fprintf(stderr, "f4d-bench codec: %s\n", err.msg);
+                return -1;
+            }
+            double t0 = thread_ms();
+            int rc = codec_dec_packet(d, &p);
+            double t1 = thread_ms();
+            if (rc != 1) {
+                fprintf(stderr, "f4d-bench codec: decode: %s\n", codec_dec_error(d));
+                return -1;
+            }
+            if (p.type == CODEC_PKT_INTRA)
+                ti += t1 - t0;
+            else {
+                tp += t1 - t0;
+                np++;
+            }
+            off += CODEC_PACKET_HEADER + p.payload_len;
+        }
+        *intra_ms = ti < *intra_ms ? ti : *intra_ms;
+        if (np)
+            *pred_ms = tp / np < *pred_ms ? tp / np : *pred_ms;
+    }
+    return 0;
+}
+
 /* Encodes + decodes keys[0..nk) at one level; fills the row. */
 /* still: keys[0] alone as a CODEC_KEY_STILL key (reordered; no predicted keys). */
 static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_frame *keys, int nk, int q,
@@ -102,6 +151,8 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
     struct splat_frame ma = { 0 }, mb = { 0 };
     double pred_bytes = 0, mot_bytes = 0, unch = 0, total = 0, ps = 0, pmin = 1e9, pm = 0;
     double te_p = 0, td_p = 0;
+    uint8_t *all = NULL; /* --decode-reps: every packet, for redecode */
+    size_t all_len = 0;
     for (int k = 0; k < nk; k++) {
         size_t n;
         double t0 = bench_now();
@@ -117,6 +168,16 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
             return -1;
         }
         double t2 = bench_now();
+        if (c->dec_reps > 0) {
+            uint8_t *a2 = realloc(all, all_len + n);
+            if (!a2) {
+                fprintf(stderr, "f4d-bench codec: out of memory\n");
+                return -1;
+            }
+            all = a2;
+            memcpy(all + all_len, pkt, n);
+            all_len += n;
+        }
         const struct codec_enc_stats *st = codec_enc_last(e);
         double g = keys[k].count ? (double)keys[k].count : 1.0;
         total += (double)n;
@@ -161,6 +222,14 @@ static int run_level(struct ctx *c, const struct splat_rig *rig, struct splat_fr
     row->psnr_key = do_psnr ? ps / nk : NAN;
     row->psnr_key_min = do_psnr ? pmin : NAN;
     row->psnr_mid = do_psnr ? pm / nk : NAN;
+    if (c->dec_reps > 0) {
+        double di, dp;
+        if (redecode(d, all, all_len, c->dec_reps, &di, &dp) < 0)
+            return -1;
+        row->dec_intra_ms = di;
+        row->dec_pred_ms = nk > 1 ? dp : 0;
+    }
+    free(all);
     splat_frame_free(&ma);
     splat_frame_free(&mb);
     free(pkt);
@@ -241,6 +310,7 @@ int bench_codec(int argc, char **argv)
 {
     const char *json = NULL, *donut = "../shared/data/splats/donut.ply";
     int only = -1, only_q = -1, channels = 0, big_all_rates = 0, reorder = 0, effort = CODEC_EFFORT_DEFAULT;
+    int dec_reps = 0;
     size_t big = 300000;
     double seconds = 1.0;
     for (int i = 1; i < argc; i++) {
@@ -270,6 +340,8 @@ int bench_codec(int argc, char **argv)
             big_all_rates = 1;
         else if (!strcmp(argv[i], "--stream-order"))
             reorder = 1;
+        else if (!strcmp(argv[i], "--decode-reps") && i + 1 < argc)
+            dec_reps = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--effort") && i + 1 < argc) {
             struct f4d_err e;
             if ((effort = codec_effort_from_name(argv[++i], &e)) < 0) {
@@ -279,7 +351,7 @@ int bench_codec(int argc, char **argv)
         }
         else {
             fprintf(stderr, "usage: f4d-bench codec [--preset NAME] [--seconds S] [--big N (0 = skip)] "
-                            "[--donut PLY] [--quality NAME] [--channels] [--big-all-rates] [--stream-order] [--effort fast|default|max] [--json FILE]\n");
+                            "[--donut PLY] [--quality NAME] [--channels] [--big-all-rates] [--stream-order] [--effort fast|default|max] [--decode-reps R] [--json FILE]\n");
             return 2;
         }
     }
@@ -292,7 +364,7 @@ int bench_codec(int argc, char **argv)
     struct f4d_err err = { 0 };
     if (fk_ctx_new(&cfg, &fk) != F4D_OK)
         return 1;
-    struct ctx c = { .reorder = reorder, .effort = effort };
+    struct ctx c = { .reorder = reorder, .effort = effort, .dec_reps = dec_reps };
     if (splat_renderer_new(fk, W, H, &c.r, &err) < 0) {
         fprintf(stderr, "f4d-bench codec: %s\n", err.msg);
         return 1;

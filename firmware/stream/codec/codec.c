@@ -72,14 +72,15 @@ struct keystate {
 static int key_alloc(struct keystate *k, size_t cap)
 {
     size_t c = cap ? cap : 1;
-    k->pos = malloc(3 * c * sizeof(float));
-    k->ls = malloc(3 * c * sizeof(float));
-    k->scale = malloc(3 * c * sizeof(float));
-    k->rot = malloc(4 * c * sizeof(float));
-    k->op = malloc(c * sizeof(float));
-    k->rgb = malloc(3 * c * sizeof(float));
-    k->mb = malloc(3 * c * sizeof(float));
-    k->mf = malloc(3 * c * sizeof(float));
+    /* zeroed: the decoder's pred_tile reads row 0 of an empty reference */
+    k->pos = calloc(3 * c, sizeof(float));
+    k->ls = calloc(3 * c, sizeof(float));
+    k->scale = calloc(3 * c, sizeof(float));
+    k->rot = calloc(4 * c, sizeof(float));
+    k->op = calloc(c, sizeof(float));
+    k->rgb = calloc(3 * c, sizeof(float));
+    k->mb = calloc(3 * c, sizeof(float));
+    k->mf = calloc(3 * c, sizeof(float));
     k->count = 0;
     k->motion = 0;
     return (k->pos && k->ls && k->scale && k->rot && k->op && k->rgb && k->mb && k->mf) ? 0 : -1;
@@ -212,15 +213,22 @@ static void morton_free(struct morton *m)
     free(m->key); free(m->key2); free(m->perm); free(m->perm2); free(m->tmp);
 }
 
-static uint64_t spread21(uint32_t v)
+/* The low 21 bits of v spread to every third bit, 7 bits at a time from a
+ * table (a third of the shift-and-mask version's operations; same values). */
+static const uint64_t spread7[128] = {
+#define S7(v) ((uint64_t)((v) & 1) | (uint64_t)((v) >> 1 & 1) << 3 | (uint64_t)((v) >> 2 & 1) << 6 | \
+               (uint64_t)((v) >> 3 & 1) << 9 | (uint64_t)((v) >> 4 & 1) << 12 | (uint64_t)((v) >> 5 & 1) << 15 | \
+               (uint64_t)((v) >> 6 & 1) << 18)
+#define S7x8(v) S7(v), S7(v + 1), S7(v + 2), S7(v + 3), S7(v + 4), S7(v + 5), S7(v + 6), S7(v + 7)
+    S7x8(0), S7x8(8), S7x8(16), S7x8(24), S7x8(32), S7x8(40), S7x8(48), S7x8(56),
+    S7x8(64), S7x8(72), S7x8(80), S7x8(88), S7x8(96), S7x8(104), S7x8(112), S7x8(120),
+#undef S7x8
+#undef S7
+};
+
+static inline uint64_t spread21(uint32_t v)
 {
-    uint64_t x = v & 0x1fffffu;
-    x = (x | x << 32) & 0x1f00000000ffffull;
-    x = (x | x << 16) & 0x1f0000ff0000ffull;
-    x = (x | x << 8) & 0x100f00f00f00f00full;
-    x = (x | x << 4) & 0x10c30c30c30c30c3ull;
-    x = (x | x << 2) & 0x1249249249249249ull;
-    return x;
+    return spread7[v & 127] | spread7[v >> 7 & 127] << 21 | spread7[v >> 14 & 127] << 42;
 }
 
 /* Key of a predicted position on the frame's position grid (21 bits a side). */
@@ -235,16 +243,50 @@ static uint64_t morton_key(const struct qz *z, const float pos[3])
     return k;
 }
 
-/* Stable LSD radix sort of key[0..n) carrying 0..n-1: perm = the order.
- * 11-bit digits over the 63 key bits: 6 passes instead of 8 bytes' (a
- * stable sort's order does not depend on the digit width), all 6 counted in
- * one read of the keys; a digit that is the same everywhere is skipped. */
+/* morton_key's values with a multiply by the step's reciprocal instead of a
+ * divide (the decoder's keys): the product is within 2^-52 of the quotient
+ * morton_key rounds, so where both ends of a 2^-48 bracket around it give
+ * the same cell, that is morton_key's cell; else morton_key's divide. */
+struct mgrid { double lo[3], step[3], inv[3]; };
+
+static void mgrid_of(const struct qz *z, struct mgrid *g)
+{
+    for (int c = 0; c < 3; c++) {
+        g->lo[c] = (double)z[c].lo;
+        g->step[c] = (double)z[c].step;
+        g->inv[c] = 1.0 / g->step[c];
+    }
+}
+
+static inline uint32_t mcell(double t)
+{
+    /* 0 < t < QMAX: truncation through int32 is (uint32_t)t's, and short */
+    uint32_t q = !(t > 0) ? 0 : t >= (double)QMAX ? QMAX : (uint32_t)(int32_t)t;
+    return q >> 3;
+}
+
+static inline uint64_t morton_key_grid(const struct mgrid *g, const float pos[3])
+{
+    uint64_t k = 0;
+    for (int c = 0; c < 3; c++) {
+        const double num = (double)pos[c] - g->lo[c], a = num * g->inv[c];
+        uint32_t q = mcell(a * (1.0 - 0x1p-48));
+        if (q != mcell(a * (1.0 + 0x1p-48)))
+            q = mcell(num / g->step[c]);
+        k |= spread21(q) << c;
+    }
+    return k;
+}
+
+/* Stable LSD radix sort of key[0..n) carrying perm[0..n) (the caller's
+ * values: morton_sort's 0..n-1 make perm the order). 11-bit digits over the
+ * 63 key bits: 6 passes instead of 8 bytes' (a stable sort's order does not
+ * depend on the digit width), all 6 counted in one read of the keys; a
+ * digit that is the same everywhere is skipped. */
 #define MORTON_DIGIT 11
 #define MORTON_PASSES 6
-static void morton_sort(struct morton *m, size_t n)
+static void morton_sort_with(struct morton *m, size_t n)
 {
-    for (size_t i = 0; i < n; i++)
-        m->perm[i] = (uint32_t)i;
     if (n == 0)
         return;
     enum { R = 1 << MORTON_DIGIT };
@@ -279,6 +321,13 @@ static void morton_sort(struct morton *m, size_t n)
         memcpy(m->perm, p, n * sizeof(uint32_t));
     if (k != m->key)
         memcpy(m->key, k, n * sizeof(uint64_t));
+}
+
+static void morton_sort(struct morton *m, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        m->perm[i] = (uint32_t)i;
+    morton_sort_with(m, n);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -368,7 +417,7 @@ static int blocks_alloc(struct blocks *b, size_t c)
     b->nbmax = c / BLK + 1;
     b->id = malloc(c * sizeof(uint32_t));
     b->par = malloc(NBP * b->nbmax * sizeof(uint32_t));
-    b->org = malloc(3 * b->nbmax * sizeof(float));
+    b->org = calloc(3 * b->nbmax, sizeof(float)); /* read (unused) for new Gaussians by pred_tile */
     b->wire = malloc(3 * b->nbmax * sizeof(uint32_t));
     b->nb = 0;
     return b->id && b->par && b->org && b->wire ? 0 : -1;
@@ -1996,6 +2045,18 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
 /* A block's parameters as the floats block_mf / block_rot form from them. */
 struct dblk { float t[3], m[9], dq[4]; int rot; };
 
+/* Scratch of pred_tile (below): DT Gaussians of a predicted key. Per-Gaussian
+ * vectors interleaved as the key's arrays are (3 j + c), rotations split. */
+#define DT 256
+
+struct dtile {
+    uint32_t ri[DT], bid[DT], rr[DT], cj[DT];
+    float dpos[3 * DT], dls[3 * DT], drgb[3 * DT], dmb[3 * DT], dmf[3 * DT], dop[DT], drot[4][DT];
+    float pos[3 * DT], f[3 * DT], b[3 * DT], mf[3 * DT], mb[3 * DT];
+    float g[3 * DT];                    /* gathered reference values (scratch) */
+    float qa[4][DT], qd[4][DT], qb[DT]; /* rotations, block dq, block mask   */
+};
+
 struct codec_dec {
     size_t cap;
     struct f4d_err err;
@@ -2011,6 +2072,7 @@ struct codec_dec {
     uint32_t *ord, *spos;   /* changed ordinal of a Gaussian; slot of an ordinal */
     float *ppos;            /* [3 * cap] predicted positions */
     struct dblk *bf;        /* [nbmax] blocks as floats */
+    struct dtile *tile;     /* pred_tile's scratch */
     size_t checked;         /* Gaussians of a predicted key found finite as decoded */
     uint8_t *shuf;
     void *zws;
@@ -2043,9 +2105,10 @@ int codec_dec_new(size_t capacity, codec_dec **out, struct f4d_err *err)
     d->ord = malloc(c * sizeof(uint32_t));
     d->spos = malloc(c * sizeof(uint32_t));
     d->ppos = malloc(3 * c * sizeof(float));
-    d->bf = malloc((c / BLK + 1) * sizeof *d->bf);
+    d->bf = calloc(c / BLK + 1, sizeof *d->bf);
+    d->tile = malloc(sizeof *d->tile);
     int bad = !d->rec || !d->res || !d->idx || !d->flags || !d->shuf || !d->zws || !d->rix || !d->ord || !d->spos ||
-              !d->ppos || !d->bf ||
+              !d->ppos || !d->bf || !d->tile ||
               morton_alloc(&d->mo, c) || blocks_alloc(&d->bk, c) ||
               key_alloc(&d->key[0], capacity) ||
               key_alloc(&d->key[1], capacity);
@@ -2066,7 +2129,7 @@ void codec_dec_free(codec_dec *d)
     free(d->rec); free(d->res); free(d->idx); free(d->flags); free(d->shuf); free(d->zws);
     morton_free(&d->mo);
     blocks_free(&d->bk);
-    free(d->rix); free(d->ord); free(d->spos); free(d->ppos); free(d->bf);
+    free(d->rix); free(d->ord); free(d->spos); free(d->ppos); free(d->bf); free(d->tile);
     key_free(&d->key[0]);
     key_free(&d->key[1]);
     free(d);
@@ -2219,6 +2282,386 @@ static inline void predict_pos(const struct keystate *ref, size_t r, const float
     }
 }
 
+/* Decoder reconstruction of a predicted key, a tile of DT Gaussians at a
+ * time: the changed Gaussians' residuals (x step) are scattered into tile
+ * vectors of 0 x step, then each attribute is one plain loop over the tile
+ * with no branch per Gaussian (the compiler vectorizes them; rotations in
+ * SoA, selects through fsel), with the operations per value of
+ * resid_recon / block_mf / block_rot in the same order: the bits are the
+ * encoder's. New Gaussians are computed as matched ones from reference row
+ * 0 (and block 0) and then overwritten by their intra records. */
+struct pctx {
+    const struct keystate *ref;
+    struct keystate *dst;
+    const int32_t *rix;
+    const uint32_t *fl, *bid, *rp[NCH];
+    const float *ppos, *org;
+    const struct dblk *bf;
+    const uint32_t *rec;
+    const struct qz *z;
+    float st[NCH], rs, cf[NCOEF];
+    size_t stride;
+    int nch, motion, rmot, bmf, brot, bm, rot_bits;
+};
+
+/* m ? a : b for a mask m of all ones or zeros, without a branch (the
+ * compiler vectorizes loops of these where it keeps a ?: as a branch). */
+static inline float fsel(uint32_t m, float a, float b)
+{
+    uint32_t ua, ub;
+    memcpy(&ua, &a, 4);
+    memcpy(&ub, &b, 4);
+    ua = (ua & m) | (ub & ~m);
+    memcpy(&a, &ua, 4);
+    return a;
+}
+
+/* dst[3j + c] = R[3 ri[j] + c] over the tile; R + 3 i0 itself when the
+ * tile's references are its own slots (no copy). */
+static const float *gather3(const float *restrict R, const uint32_t *ri, size_t t, int ident, size_t i0,
+                            float *restrict dst)
+{
+    if (ident)
+        return R + 3 * i0;
+    for (size_t j = 0; j < t; j++)
+        for (int c = 0; c < 3; c++)
+            dst[3 * j + c] = R[3 * (size_t)ri[j] + c];
+    return dst;
+}
+
+/* Returns nonzero where a Gaussian of the tile may fail gauss_finite (the
+ * caller then checks each one). Its own function: the compiler vectorizes
+ * its loops there, not inlined into decode_pred. */
+#define NOT_FINITE(v) (!(fabsf(v) <= 3.40282347e38f))
+__attribute__((noinline)) static int pred_tile(const struct pctx *x, struct dtile *w, size_t i0, size_t t,
+                                               size_t *kc, size_t *kn)
+{
+    int bad = 0;
+    const struct keystate *ref = x->ref;
+    struct keystate *dst = x->dst;
+    int ident = 1, any_new = 0;
+    size_t nc = 0;
+    for (size_t j = 0; j < t; j++) {
+        const size_t i = i0 + j;
+        const int32_t r = x->rix[i];
+        w->ri[j] = r < 0 ? 0u : (uint32_t)r;
+        ident &= (size_t)r == i;
+        any_new |= r < 0;
+        w->cj[nc] = (uint32_t)j;
+        nc += x->fl[i] == 1;
+    }
+    /* residual x step: 0 x step where unchanged, the changed Gaussians'
+     * values read in plane order */
+    const size_t k0 = *kc;
+    *kc += nc;
+    float *const d3[5] = { w->dpos, w->dls, w->drgb, w->dmb, w->dmf };
+    static const int ch3[5] = { CH_POS, CH_LS, CH_RGB, CH_MB, CH_MF };
+    for (int a = 0; a < 5; a++) {
+        float *restrict dv = d3[a];
+        float z0[3];
+        for (int c = 0; c < 3; c++)
+            z0[c] = 0.0f * x->st[ch3[a] + c];
+        for (size_t j = 0; j < t; j++)
+            for (int c = 0; c < 3; c++)
+                dv[3 * j + c] = z0[c];
+        if (ch3[a] >= x->nch)
+            continue;
+        for (int c = 0; c < 3; c++) {
+            const uint32_t *restrict p = x->rp[ch3[a] + c] + k0;
+            const float s = x->st[ch3[a] + c];
+            for (size_t q = 0; q < nc; q++)
+                dv[3 * (size_t)w->cj[q] + (size_t)c] = (float)unzig(p[q]) * s;
+        }
+    }
+    {
+        const float z0 = 0.0f * x->st[CH_OP], s = x->st[CH_OP];
+        const uint32_t *restrict p = x->rp[CH_OP] + k0;
+        for (size_t j = 0; j < t; j++)
+            w->dop[j] = z0;
+        for (size_t q = 0; q < nc; q++)
+            w->dop[w->cj[q]] = (float)unzig(p[q]) * s;
+    }
+    memset(w->rr, 0, t * sizeof w->rr[0]);
+    for (int c = 0; c < 4; c++) {
+        const float z0 = 0.0f * x->rs;
+        const uint32_t *restrict p = x->rp[CH_ROT + c] + k0;
+        float *restrict dv = w->drot[c];
+        for (size_t j = 0; j < t; j++)
+            dv[j] = z0;
+        for (size_t q = 0; q < nc; q++) {
+            dv[w->cj[q]] = (float)unzig(p[q]) * x->rs;
+            w->rr[w->cj[q]] |= p[q];
+        }
+    }
+    /* position */
+    const float *restrict pp = x->ppos + 3 * i0;
+    float *restrict pos = w->pos, *restrict Dpos = dst->pos + 3 * i0;
+    for (size_t j = 0; j < 3 * t; j++) {
+        pos[j] = pp[j] + w->dpos[j];
+        Dpos[j] = pos[j];
+        bad |= NOT_FINITE(pos[j]);
+    }
+    /* motions */
+    const float c2 = x->cf[2], c3 = x->cf[3], c4 = x->cf[4], c5 = x->cf[5], c6 = x->cf[6];
+    float *restrict mf = w->mf, *restrict mb = w->mb;
+    if (x->rmot) {
+        const float *restrict Rf = gather3(ref->mf, w->ri, t, ident, i0, w->f);
+        const float *restrict Rb = gather3(ref->mb, w->ri, t, ident, i0, w->b);
+        for (size_t j = 0; j < 3 * t; j++) {
+            mf[j] = c2 * Rf[j] + c3 * Rb[j];
+            mb[j] = c4 * Rf[j] + c5 * Rb[j];
+        }
+    } else {
+        const float zf = 0.0f;
+        for (size_t j = 0; j < 3 * t; j++) {
+            mf[j] = c2 * zf + c3 * zf;
+            mb[j] = c4 * zf + c5 * zf;
+        }
+    }
+    if (x->bm) /* a new Gaussian has no block: block 0's values, overwritten */
+        for (size_t j = 0; j < t; j++)
+            w->bid[j] = x->rix[i0 + j] < 0 ? 0u : x->bid[i0 + j];
+    if (x->bmf)
+        for (size_t j = 0; j < t; j++) {
+            const struct dblk *bl = &x->bf[w->bid[j]];
+            const float *o = x->org + 3 * (size_t)w->bid[j];
+            float dd[3] = { pos[3 * j] - o[0], pos[3 * j + 1] - o[1], pos[3 * j + 2] - o[2] };
+            for (int c = 0; c < 3; c++) {
+                float v = bl->t[c];
+                for (int q = 0; q < 3; q++)
+                    v += bl->m[3 * c + q] * dd[q];
+                mf[3 * j + c] = v;
+            }
+        }
+    if (c6 != 0.0f) {
+        const float *restrict Rp = gather3(ref->pos, w->ri, t, ident, i0, w->g);
+        for (size_t j = 0; j < 3 * t; j++)
+            mb[j] += c6 * (Rp[j] - pos[j]);
+    }
+    float *restrict Dmb = dst->mb + 3 * i0, *restrict Dmf = dst->mf + 3 * i0;
+    if (x->motion) {
+        for (size_t j = 0; j < 3 * t; j++) {
+            Dmb[j] = mb[j] + w->dmb[j];
+            Dmf[j] = mf[j] + w->dmf[j];
+            bad |= NOT_FINITE(Dmb[j]) | NOT_FINITE(Dmf[j]);
+        }
+    } else {
+        memset(Dmb, 0, 3 * t * sizeof(float));
+        memset(Dmf, 0, 3 * t * sizeof(float));
+    }
+    /* log-scales, scales (a log-scale equal to its reference's keeps the
+     * reference's scale: expf of the same bits), colours, opacity */
+    {
+        const float *restrict Rl = gather3(ref->ls, w->ri, t, ident, i0, w->g);
+        float *restrict Dls = dst->ls + 3 * i0, *restrict Dsc = dst->scale + 3 * i0;
+        for (size_t j = 0; j < 3 * t; j++) {
+            Dls[j] = Rl[j] + w->dls[j];
+            bad |= NOT_FINITE(Dls[j]) | !(Dls[j] < 80.0f);
+        }
+        const float *restrict Rs = ident ? ref->scale + 3 * i0 : NULL;
+        for (size_t j = 0; j < 3 * t; j++) {
+            const float ls = Dls[j];
+            if (ls == Rl[j])
+                Dsc[j] = Rs ? Rs[j] : ref->scale[3 * (size_t)w->ri[j / 3] + j % 3];
+            else
+                Dsc[j] = expf(ls);
+        }
+    }
+    {
+        const float *restrict Rc = gather3(ref->rgb, w->ri, t, ident, i0, w->g);
+        float *restrict Drgb = dst->rgb + 3 * i0;
+        for (size_t j = 0; j < 3 * t; j++) {
+            Drgb[j] = Rc[j] + w->drgb[j];
+            bad |= NOT_FINITE(Drgb[j]);
+        }
+    }
+    {
+        float *restrict Dop = dst->op + i0, *restrict g = w->g;
+        const float *restrict dop = w->dop;
+        const float *Ro = ref->op + i0;
+        if (!ident) {
+            for (size_t j = 0; j < t; j++)
+                g[j] = ref->op[w->ri[j]];
+            Ro = g;
+        }
+        for (size_t j = 0; j < t; j++) {
+            const float v = Ro[j] + dop[j];
+            Dop[j] = fsel(0u - (uint32_t)(v < 0.0f), 0.0f, fsel(0u - (uint32_t)(v > 1.0f), 1.0f, v)); /* clamp01 */
+        }
+    }
+    /* rotations, split: block dq times the reference, then the residual */
+    float *restrict a0 = w->qa[0], *restrict a1 = w->qa[1], *restrict a2 = w->qa[2], *restrict a3 = w->qa[3];
+    for (size_t j = 0; j < t; j++) {
+        const float *q = ref->rot + 4 * (size_t)w->ri[j];
+        a0[j] = q[0];
+        a1[j] = q[1];
+        a2[j] = q[2];
+        a3[j] = q[3];
+    }
+    if (x->brot) {
+        float *restrict e0 = w->qd[0], *restrict e1 = w->qd[1], *restrict e2 = w->qd[2], *restrict e3 = w->qd[3],
+                        *restrict bq = w->qb;
+        for (size_t j = 0; j < t; j++) {
+            const struct dblk *bl = &x->bf[w->bid[j]];
+            e0[j] = bl->dq[0];
+            e1[j] = bl->dq[1];
+            e2[j] = bl->dq[2];
+            e3[j] = bl->dq[3];
+            bq[j] = bl->rot ? 1.0f : 0.0f;
+        }
+        for (size_t j = 0; j < t; j++) {
+            const float q0 = e0[j] * a0[j] - e1[j] * a1[j] - e2[j] * a2[j] - e3[j] * a3[j];
+            const float q1 = e0[j] * a1[j] + e1[j] * a0[j] + e2[j] * a3[j] - e3[j] * a2[j];
+            const float q2 = e0[j] * a2[j] - e1[j] * a3[j] + e2[j] * a0[j] + e3[j] * a1[j];
+            const float q3 = e0[j] * a3[j] + e1[j] * a2[j] - e2[j] * a1[j] + e3[j] * a0[j];
+            float nn = 0.0f;
+            nn += q0 * q0;
+            nn += q1 * q1;
+            nn += q2 * q2;
+            nn += q3 * q3;
+            const float inv = 1.0f / sqrtf(nn);
+            /* block_rot: n = nn > 1e-30 ? inv : 0, used where n != 0 */
+            const uint32_t use = 0u - (uint32_t)((bq[j] != 0.0f) & (nn > 1e-30f) & (inv != 0.0f));
+            a0[j] = fsel(use, q0 * inv, a0[j]);
+            a1[j] = fsel(use, q1 * inv, a1[j]);
+            a2[j] = fsel(use, q2 * inv, a2[j]);
+            a3[j] = fsel(use, q3 * inv, a3[j]);
+        }
+    }
+    {
+        const float *restrict r0 = w->drot[0], *restrict r1 = w->drot[1], *restrict r2 = w->drot[2],
+                              *restrict r3 = w->drot[3];
+        const uint32_t *restrict rr = w->rr;
+        for (size_t j = 0; j < t; j++) {
+            const float q0 = a0[j] + r0[j], q1 = a1[j] + r1[j], q2 = a2[j] + r2[j], q3 = a3[j] + r3[j];
+            float nn = 0.0f;
+            nn += q0 * q0;
+            nn += q1 * q1;
+            nn += q2 * q2;
+            nn += q3 * q3;
+            const float inv = 1.0f / sqrtf(nn);
+            const uint32_t has = 0u - (uint32_t)(rr[j] != 0), ok = 0u - (uint32_t)(nn > 1e-30f);
+            a0[j] = fsel(has, fsel(ok, q0 * inv, 1.0f), a0[j]);
+            a1[j] = fsel(has, fsel(ok, q1 * inv, 0.0f), a1[j]);
+            a2[j] = fsel(has, fsel(ok, q2 * inv, 0.0f), a2[j]);
+            a3[j] = fsel(has, fsel(ok, q3 * inv, 0.0f), a3[j]);
+        }
+        float *restrict Dr = dst->rot + 4 * i0;
+        for (size_t j = 0; j < t; j++) {
+            Dr[4 * j] = a0[j];
+            Dr[4 * j + 1] = a1[j];
+            Dr[4 * j + 2] = a2[j];
+            Dr[4 * j + 3] = a3[j];
+        }
+    }
+    if (any_new)
+        for (size_t j = 0; j < t; j++) {
+            const size_t i = i0 + j;
+            if (x->rix[i] >= 0)
+                continue;
+            intra_recon(x->rec, x->stride, (*kn)++, x->z, x->rot_bits, x->motion, dst, i);
+            for (int c = 0; c < 3; c++)
+                dst->scale[3 * i + c] = expf(dst->ls[3 * i + c]);
+            bad |= !gauss_finite(dst, i);
+        }
+    return bad;
+}
+
+/* Intra key Gaussians [i0, i0 + t): intra_recon's values and their scales
+ * (expf of the log-scales, as finish_scales), a channel at a time with no
+ * branch per Gaussian (rot_unpack in SoA through fsel: the same operations,
+ * so the same bits). Returns nonzero where one may fail gauss_finite. */
+__attribute__((noinline)) static int intra_tile(struct dtile *w, const uint32_t *rec, size_t stride, size_t i0,
+                                                size_t t, const struct qz *z, int rot_bits, int motion,
+                                                struct keystate *k)
+{
+    int bad = 0;
+    float *const out3[5] = { k->pos, k->ls, k->rgb, k->mb, k->mf };
+    static const int ch3[5] = { CH_POS, CH_LS, CH_RGB, CH_MB, CH_MF };
+    static const int qz3[5] = { 0, 3, 7, QZ_MB, QZ_MF };
+    for (int a = 0; a < 5; a++) {
+        float *restrict o = out3[a] + 3 * i0;
+        if (ch3[a] >= CH_MB && !motion) {
+            memset(o, 0, 3 * t * sizeof(float));
+            continue;
+        }
+        float *v[3] = { w->qd[0], w->qd[1], w->qd[2] }; /* the channels, then interleaved */
+        for (int c = 0; c < 3; c++) {
+            const uint32_t *restrict q = rec + (size_t)(ch3[a] + c) * stride + i0;
+            const struct qz zc = z[qz3[a] + c];
+            float *restrict vc = v[c];
+            uint32_t hi = 0;
+            for (size_t j = 0; j < t; j++)
+                hi |= q[j];
+            if (hi >> 31) /* (float) of an unsigned: slow without AVX-512 */
+                for (size_t j = 0; j < t; j++)
+                    vc[j] = deq(zc, q[j]);
+            else /* the same value through a signed int */
+                for (size_t j = 0; j < t; j++)
+                    vc[j] = zc.lo + (float)(int32_t)q[j] * zc.step;
+            for (size_t j = 0; j < t; j++)
+                bad |= NOT_FINITE(vc[j]);
+            if (a == 1)
+                for (size_t j = 0; j < t; j++)
+                    bad |= !(vc[j] < 80.0f);
+        }
+        const float *restrict v0 = v[0], *restrict v1 = v[1], *restrict v2 = v[2];
+        for (size_t j = 0; j < t; j++) {
+            o[3 * j] = v0[j];
+            o[3 * j + 1] = v1[j];
+            o[3 * j + 2] = v2[j];
+        }
+    }
+    float *restrict sc = k->scale + 3 * i0;
+    const float *restrict ls = k->ls + 3 * i0;
+    for (size_t j = 0; j < 3 * t; j++)
+        sc[j] = expf(ls[j]);
+    {
+        const uint32_t *restrict q = rec + (size_t)CH_OP * stride + i0;
+        float *restrict o = k->op + i0;
+        uint32_t hi = 0;
+        for (size_t j = 0; j < t; j++)
+            hi |= q[j];
+        for (size_t j = 0; j < t; j++) {
+            const float v = hi >> 31 ? deq(z[6], q[j]) : z[6].lo + (float)(int32_t)q[j] * z[6].step;
+            o[j] = fsel(0u - (uint32_t)(v < 0.0f), 0.0f, fsel(0u - (uint32_t)(v > 1.0f), 1.0f, v)); /* clamp01 */
+        }
+    }
+    const uint32_t *restrict qb = rec + (size_t)CH_ROT * stride + i0, *restrict q1 = qb + stride,
+                             *restrict q2 = q1 + stride, *restrict q3 = q2 + stride;
+    const uint32_t um = (1u << rot_bits) - 1;
+    const float m = (float)um;
+    float *restrict a0 = w->qa[0], *restrict a1 = w->qa[1], *restrict a2 = w->qa[2], *restrict a3 = w->qa[3];
+    for (size_t j = 0; j < t; j++) {
+        const uint32_t big = qb[j] & 3;
+        const uint32_t u1 = q1[j] > um ? um : q1[j], u2 = q2[j] > um ? um : q2[j], u3 = q3[j] > um ? um : q3[j];
+        /* u <= 32767: (float) through a signed int is the same value */
+        const float v1 = ((float)(int32_t)u1 / m * 2.0f - 1.0f) * 0.70710678f;
+        const float v2 = ((float)(int32_t)u2 / m * 2.0f - 1.0f) * 0.70710678f;
+        const float v3 = ((float)(int32_t)u3 / m * 2.0f - 1.0f) * 0.70710678f;
+        float ss = 0;
+        ss += v1 * v1;
+        ss += v2 * v2;
+        ss += v3 * v3;
+        const float wq = sqrtf(fsel(0u - (uint32_t)(ss < 1.0f), 1.0f - ss, 0.0f));
+        /* component k: the largest (big) or the next of v1 v2 v3 */
+        const uint32_t b0 = 0u - (uint32_t)(big == 0), b1 = 0u - (uint32_t)(big == 1),
+                       b2 = 0u - (uint32_t)(big == 2), b3 = 0u - (uint32_t)(big == 3);
+        a0[j] = fsel(b0, wq, v1);
+        a1[j] = fsel(b1, wq, fsel(b0, v1, v2));
+        a2[j] = fsel(b2, wq, fsel(b3, v3, v2));
+        a3[j] = fsel(b3, wq, v3);
+    }
+    float *restrict r = k->rot + 4 * i0;
+    for (size_t j = 0; j < t; j++) {
+        r[4 * j] = a0[j];
+        r[4 * j + 1] = a1[j];
+        r[4 * j + 2] = a2[j];
+        r[4 * j + 3] = a3[j];
+    }
+    return bad;
+}
+
 /* Predicted key. One pass validates flags and references (rix: the
  * reference of each Gaussian, -1 new; ord: a changed one's ordinal), the
  * planes are read, then every matched Gaussian's predicted position is
@@ -2300,26 +2743,33 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
         any_mort |= mort[c];
     any_mort = any_mort && n_changed;
     float *pp = d->ppos;
-    for (size_t i = 0; i < n; i++)
-        if (d->rix[i] >= 0)
-            predict_pos(ref, (size_t)d->rix[i], cf, pp + 3 * i);
     struct morton *mo = &d->mo;
+    struct mgrid mg;
+    mgrid_of(z, &mg);
+    /* with blocks, every matched Gaussian's key as its prediction is made;
+     * the sort carries its index and, in the top bit, whether it changed
+     * (n <= CODEC_CAPACITY_MAX < 2^31) */
+    size_t k = 0;
+    for (size_t i = 0; i < n; i++)
+        if (d->rix[i] >= 0) {
+            predict_pos(ref, (size_t)d->rix[i], cf, pp + 3 * i);
+            if (block_motion) {
+                mo->key[k] = morton_key_grid(&mg, pp + 3 * i);
+                mo->perm[k++] = (uint32_t)i | (uint32_t)(d->flags[i] == 1) << 31;
+            }
+        } else {
+            pp[3 * i] = pp[3 * i + 1] = pp[3 * i + 2] = 0.0f; /* read by pred_tile, then overwritten */
+        }
     uint32_t *spos = d->spos; /* changed ordinal -> slot in the residual planes */
     if (block_motion) {
-        size_t k = 0;
-        for (size_t i = 0; i < n; i++)
-            if (d->rix[i] >= 0) {
-                mo->key[k] = morton_key(z, pp + 3 * i);
-                mo->tmp[k++] = (uint32_t)i;
-            }
-        morton_sort(mo, m);
+        morton_sort_with(mo, m);
         size_t kk = 0;
         for (k = 0; k < m; k++) {
-            uint32_t i = mo->tmp[mo->perm[k]];
+            const uint32_t u = mo->perm[k], i = u & 0x7fffffffu;
             bk->id[i] = (uint32_t)(k / BLK);
             if (k % BLK == 0)
                 memcpy(bk->org + 3 * (k / BLK), pp + 3 * (size_t)i, 3 * sizeof(float));
-            if (d->flags[i] == 1)
+            if (u >> 31)
                 spos[d->ord[i]] = (uint32_t)kk++;
         }
         /* t was sent against its prediction from the block before */
@@ -2350,10 +2800,10 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
             b->dq[0] = sqrtf(ss < 1.0f ? 1.0f - ss : 0.0f);
         }
     } else if (any_mort) {
-        size_t k = 0;
+        k = 0;
         for (size_t i = 0; i < n; i++)
             if (d->flags[i] == 1)
-                mo->key[k++] = morton_key(z, pp + 3 * i);
+                mo->key[k++] = morton_key_grid(&mg, pp + 3 * i);
         morton_sort(mo, n_changed);
         for (k = 0; k < n_changed; k++)
             spos[mo->perm[k]] = (uint32_t)k;
@@ -2366,121 +2816,44 @@ static int decode_pred(codec_dec *d, const uint8_t *in, size_t len, size_t *off,
                 continue;
             uint32_t *v = d->res + (size_t)c * stride, *tmp = mo->tmp;
             memcpy(tmp, v, n_changed * sizeof(uint32_t));
-            for (size_t k = 0; k < n_changed; k++)
+            for (k = 0; k < n_changed; k++)
                 v[k] = tmp[spos[k]];
         }
     struct qz zr[NQZ];
     residual_qz(z, block_mf_used, zr);
-    float st[NCH]; /* each residual channel's step */
-    for (int c = 0; c < 3; c++) {
-        st[CH_POS + c] = zr[c].step;
-        st[CH_LS + c] = zr[3 + c].step;
-        st[CH_RGB + c] = zr[7 + c].step;
-        st[CH_MB + c] = zr[QZ_MB + c].step;
-        st[CH_MF + c] = zr[QZ_MF + c].step;
-    }
-    st[CH_OP] = zr[6].step;
-    const float rs = rot_step(rot_bits);
-    const int rmot = ref->motion, bmf = block_motion && block_mf_used, brot = block_motion && block_rot_used;
-    const uint32_t *rp[NCH];
+    struct pctx x = { .ref = ref, .dst = dst, .rix = d->rix, .fl = d->flags, .bid = bk->id, .ppos = d->ppos,
+                      .org = bk->org, .bf = d->bf, .rec = d->rec, .z = z, .rs = rot_step(rot_bits),
+                      .stride = stride, .nch = nch, .motion = motion, .rmot = ref->motion,
+                      .bmf = block_motion && block_mf_used, .brot = block_motion && block_rot_used,
+                      .bm = block_motion, .rot_bits = rot_bits };
+    memcpy(x.cf, cf, sizeof x.cf);
     for (int c = 0; c < NCH; c++)
-        rp[c] = d->res + (size_t)c * stride;
-    /* locals: the stores below then do not make the compiler reload the
-     * structs' pointers */
-    const float *Rpos = ref->pos, *Rls = ref->ls, *Rsc = ref->scale, *Rrgb = ref->rgb, *Rop = ref->op,
-                *Rrot = ref->rot, *Rmf = ref->mf, *Rmb = ref->mb, *Pp = d->ppos, *Org = bk->org;
-    float *Dpos = dst->pos, *Dls = dst->ls, *Dsc = dst->scale, *Drgb = dst->rgb, *Dop = dst->op, *Drot = dst->rot,
-          *Dmf = dst->mf, *Dmb = dst->mb;
-    const int32_t *Rix = d->rix;
-    const uint32_t *Fl = d->flags, *Bid = bk->id;
-    const struct dblk *Bf = d->bf;
-    const float c2 = cf[2], c3 = cf[3], c4 = cf[4], c5 = cf[5], c6 = cf[6];
+        x.rp[c] = d->res + (size_t)c * stride;
+    for (int c = 0; c < 3; c++) {
+        x.st[CH_POS + c] = zr[c].step;
+        x.st[CH_LS + c] = zr[3 + c].step;
+        x.st[CH_RGB + c] = zr[7 + c].step;
+        x.st[CH_MB + c] = zr[QZ_MB + c].step;
+        x.st[CH_MF + c] = zr[QZ_MF + c].step;
+    }
+    x.st[CH_OP] = zr[6].step;
+    for (int c = 0; c < 4; c++)
+        x.st[CH_ROT + c] = x.rs;
     kc = 0;
     kn = 0;
-    size_t i;
-    for (i = 0; i < n; i++) {
-        const int32_t r = Rix[i];
-        if (r < 0) {
-            intra_recon(d->rec, stride, kn++, z, rot_bits, motion, dst, i);
-            for (int c = 0; c < 3; c++)
-                Dsc[3 * i + c] = expf(Dls[3 * i + c]);
-            if (!gauss_finite(dst, i))
+    size_t i = 0;
+    while (i < n) {
+        const size_t t = n - i < DT ? n - i : DT;
+        if (pred_tile(&x, d->tile, i, t, &kc, &kn)) {
+            size_t j = i;
+            while (j < i + t && gauss_finite(dst, j))
+                j++;
+            if (j < i + t) {
+                i = j; /* key_finite names it */
                 break;
-            continue;
-        }
-        int32_t res[NCH] = { 0 };
-        const int chg = Fl[i] == 1;
-        if (chg) {
-            for (int c = 0; c < nch; c++)
-                res[c] = unzig(rp[c][kc]);
-            kc++;
-        }
-        const size_t ri = (size_t)r;
-        float f[3], b[3], pos[3], mf[3], mb[3];
-        for (int c = 0; c < 3; c++) {
-            f[c] = rmot ? Rmf[3 * ri + c] : 0.0f;
-            b[c] = rmot ? Rmb[3 * ri + c] : 0.0f;
-            pos[c] = Pp[3 * i + c] + (float)res[CH_POS + c] * st[CH_POS + c];
-            mf[c] = c2 * f[c] + c3 * b[c];
-            mb[c] = c4 * f[c] + c5 * b[c];
-            Dpos[3 * i + c] = pos[c];
-        }
-        const struct dblk *bl = block_motion ? &Bf[Bid[i]] : NULL;
-        if (bmf) {
-            const float *o = Org + 3 * (size_t)Bid[i];
-            float dd[3] = { pos[0] - o[0], pos[1] - o[1], pos[2] - o[2] };
-            for (int c = 0; c < 3; c++) {
-                float v = bl->t[c];
-                for (int k = 0; k < 3; k++)
-                    v += bl->m[3 * c + k] * dd[k];
-                mf[c] = v;
             }
         }
-        if (c6 != 0.0f)
-            for (int c = 0; c < 3; c++)
-                mb[c] += c6 * (Rpos[3 * ri + c] - pos[c]);
-        for (int c = 0; c < 3; c++) {
-            const float rl = Rls[3 * ri + c];
-            const float ls = rl + (float)res[CH_LS + c] * st[CH_LS + c];
-            Dls[3 * i + c] = ls;
-            Dsc[3 * i + c] = ls == rl ? Rsc[3 * ri + c] : expf(ls);
-            Drgb[3 * i + c] = Rrgb[3 * ri + c] + (float)res[CH_RGB + c] * st[CH_RGB + c];
-            Dmb[3 * i + c] = motion ? mb[c] + (float)res[CH_MB + c] * st[CH_MB + c] : 0.0f;
-            Dmf[3 * i + c] = motion ? mf[c] + (float)res[CH_MF + c] * st[CH_MF + c] : 0.0f;
-        }
-        Dop[i] = clamp01(Rop[ri] + (float)res[CH_OP] * st[CH_OP]);
-        float rot[4];
-        memcpy(rot, Rrot + 4 * ri, sizeof rot);
-        if (brot && bl->rot) {
-            float q[4], nn = 0;
-            qmul(bl->dq, rot, q);
-            for (int c = 0; c < 4; c++)
-                nn += q[c] * q[c];
-            nn = nn > 1e-30f ? 1.0f / sqrtf(nn) : 0.0f;
-            if (nn != 0.0f)
-                for (int c = 0; c < 4; c++)
-                    rot[c] = q[c] * nn;
-        }
-        float *o = Drot + 4 * i;
-        if (res[CH_ROT] | res[CH_ROT + 1] | res[CH_ROT + 2] | res[CH_ROT + 3]) {
-            float q[4], nn = 0;
-            for (int c = 0; c < 4; c++) {
-                q[c] = rot[c] + (float)res[CH_ROT + c] * rs;
-                nn += q[c] * q[c];
-            }
-            if (nn > 1e-30f) {
-                nn = 1.0f / sqrtf(nn);
-                for (int c = 0; c < 4; c++)
-                    o[c] = q[c] * nn;
-            } else {
-                o[0] = 1.0f;
-                o[1] = o[2] = o[3] = 0.0f;
-            }
-        } else {
-            memcpy(o, rot, sizeof rot);
-        }
-        if (!gauss_finite(dst, i))
-            break; /* key_finite names it */
+        i += t;
     }
     d->checked = i;
     return F4D_OK;
@@ -2534,7 +2907,7 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     const int nch = motion ? NCH : CH_MB;
     const size_t stride = d->cap ? d->cap : 1;
-    int rc;
+    int rc, intra_bad = 0;
     char what[16];
     dst->count = n;
     dst->motion = motion;
@@ -2544,8 +2917,8 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
             if ((rc = get_plane(d, in, len, &off, n, d->rec + (size_t)c * stride, what, NULL)) < 0)
                 return rc;
         }
-        for (size_t i = 0; i < n; i++)
-            intra_recon(d->rec, stride, i, z, rot_bits, motion, dst, i);
+        for (size_t i = 0; i < n; i += DT)
+            intra_bad |= intra_tile(d->tile, d->rec, stride, i, n - i < DT ? n - i : DT, z, rot_bits, motion, dst);
     } else {
         if ((rc = decode_pred(d, in, len, &off, n, nref, n_new, n_changed, explicit_match, block_motion,
                               block_mf_used, block_rot_used, rot_bits, motion, cf, z, ref, dst)) < 0)
@@ -2553,10 +2926,9 @@ static int decode_key(codec_dec *d, const struct codec_packet *p, int intra)
     }
     if (off != len)
         return f4d_fail(&d->err, F4D_EFORMAT, "frame: %zu trailing bytes", len - off);
-    if ((rc = key_finite(d, dst, intra ? 0 : d->checked)) < 0)
+    /* intra: every Gaussian was found finite as decoded unless intra_bad */
+    if ((rc = key_finite(d, dst, intra ? (intra_bad ? 0 : n) : d->checked)) < 0)
         return rc;
-    if (intra)
-        finish_scales(dst); /* a predicted key's scales were set as it was decoded */
     return F4D_OK;
 }
 
