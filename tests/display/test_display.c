@@ -483,8 +483,11 @@ static void ahead_matches_serial(void **state)
     struct display_stats st[2];
     int n = run_two(&s, c, &worst, st);
     const struct display_stats *x = &st[0], *y = &st[1];
-    printf("  %d refreshes identical, %llu keys, %llu redraws skipped\n", n, (unsigned long long)x->player.keys,
-           (unsigned long long)x->redraws_skipped);
+    printf("  %d refreshes identical, %llu keys (%llu / %llu decoded ahead, %llu / %llu lookups built ahead), "
+           "%llu redraws skipped\n",
+           n, (unsigned long long)x->player.keys, (unsigned long long)x->player.keys_ahead,
+           (unsigned long long)y->player.keys_ahead, (unsigned long long)x->player.lookups_ahead,
+           (unsigned long long)y->player.lookups_ahead, (unsigned long long)x->redraws_skipped);
     assert_true(n >= 10);
     assert_true(isinf(worst)); /* every refresh byte for byte */
     assert_int_equal(x->frames, y->frames);
@@ -493,6 +496,12 @@ static void ahead_matches_serial(void **state)
     assert_int_equal(x->redraws_skipped, y->redraws_skipped);
     assert_int_equal(x->drawn, y->drawn);
     assert_int_equal(x->pairs, y->pairs);
+    /* both read ahead: every key after the first two pairs' is decoded and
+     * looked up a refresh or two before the refresh that shows it */
+    for (int m = 0; m < 2; m++) {
+        assert_true(st[m].player.keys_ahead + 2 >= st[m].player.keys);
+        assert_true(st[m].player.lookups_ahead + 3 >= st[m].player.keys);
+    }
     free(s.buf);
 }
 
