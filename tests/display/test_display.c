@@ -143,6 +143,8 @@ static void ref_open(struct ref *R, fk_ctx *ctx, const struct stream *s)
 {
     struct f4d_err err;
     assert_int_equal(display_player_new(ctx, &s->rig, INTERP_FUSED, 0, &R->p, &err), 0);
+    /* the display's lookup; the player pushes every packet as it comes (no read-ahead) */
+    assert_int_equal(display_player_set_lookup(R->p, display_config_default().lookup, &err), 0);
     assert_int_equal(display_source_memory(s->buf, s->len, &R->src, &err), 0);
     assert_int_equal(splat_renderer_new(ctx, W, H, &R->r, &err), 0);
     R->rgb = malloc(3 * W * H * sizeof(float));

@@ -164,7 +164,7 @@ struct display_config display_config_default(void)
     c.fps = 30.0;
     c.status_line = 1;
     c.interp = INTERP_FUSED;
-    c.lookup = INTERP_LOOKUP_RENDER;
+    c.lookup = INTERP_LOOKUP_ZBUFFER; /* README: Display, the cost and the pictures of each */
     c.kms_device = "/dev/dri/card0";
     c.live_lag_keys = -1.0;
     return c;

@@ -217,8 +217,9 @@ struct display_config {
                                        (display_player_clock) and every packet read as
                                        it comes                                      */
     enum interp_mode interp;        /* INTERP_FUSED                              */
-    enum interp_lookup lookup;      /* INTERP_LOOKUP_RENDER; ZBUFFER: a cheaper
-                                       lookup without the depth render         */
+    enum interp_lookup lookup;      /* INTERP_LOOKUP_ZBUFFER (no depth render:
+                                       2-3x cheaper per key, pictures within
+                                       44-54 dB); RENDER: interp's reference   */
     size_t      capacity;           /* 0: from the stream                        */
     const char *kms_device;         /* "/dev/dri/card0"                          */
     float       bg[3];              /* background, black                         */
