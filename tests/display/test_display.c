@@ -429,9 +429,6 @@ static void no_alloc_per_frame(void **state)
     }
 }
 
-/* The ahead thread (the next refresh pulled, decoded and interpolated while
- * this one is drawn) changes nothing: every refresh's picture, the end of the
- * stream and the counters are the serial display's. */
 /* Runs two displays with configurations c[0] and c[1] over the same stream
  * in step (both must end alike); returns the refreshes and the lowest PSNR
  * between their pictures (INFINITY: every refresh byte for byte equal). */
@@ -471,6 +468,10 @@ static int run_two(const struct stream *s, struct display_config c[2], double *w
     return n;
 }
 
+/* The ahead thread (the next refresh pulled, decoded and interpolated while
+ * this one is drawn, then a part of the key read ahead) changes nothing:
+ * every refresh's picture, the end of the stream and the counters are the
+ * serial display's. */
 static void ahead_matches_serial(void **state)
 {
     (void)state;
