@@ -143,6 +143,8 @@ static void ref_open(struct ref *R, fk_ctx *ctx, const struct stream *s)
 {
     struct f4d_err err;
     assert_int_equal(display_player_new(ctx, &s->rig, INTERP_FUSED, 0, &R->p, &err), 0);
+    /* the display's lookup; the player pushes every packet as it comes (no read-ahead) */
+    assert_int_equal(display_player_set_lookup(R->p, display_config_default().lookup, &err), 0);
     assert_int_equal(display_source_memory(s->buf, s->len, &R->src, &err), 0);
     assert_int_equal(splat_renderer_new(ctx, W, H, &R->r, &err), 0);
     R->rgb = malloc(3 * W * H * sizeof(float));
@@ -427,9 +429,6 @@ static void no_alloc_per_frame(void **state)
     }
 }
 
-/* The ahead thread (the next refresh pulled, decoded and interpolated while
- * this one is drawn) changes nothing: every refresh's picture, the end of the
- * stream and the counters are the serial display's. */
 /* Runs two displays with configurations c[0] and c[1] over the same stream
  * in step (both must end alike); returns the refreshes and the lowest PSNR
  * between their pictures (INFINITY: every refresh byte for byte equal). */
@@ -469,6 +468,10 @@ static int run_two(const struct stream *s, struct display_config c[2], double *w
     return n;
 }
 
+/* The ahead thread (the next refresh pulled, decoded and interpolated while
+ * this one is drawn, then a part of the key read ahead) changes nothing:
+ * every refresh's picture, the end of the stream and the counters are the
+ * serial display's. */
 static void ahead_matches_serial(void **state)
 {
     (void)state;
@@ -483,8 +486,11 @@ static void ahead_matches_serial(void **state)
     struct display_stats st[2];
     int n = run_two(&s, c, &worst, st);
     const struct display_stats *x = &st[0], *y = &st[1];
-    printf("  %d refreshes identical, %llu keys, %llu redraws skipped\n", n, (unsigned long long)x->player.keys,
-           (unsigned long long)x->redraws_skipped);
+    printf("  %d refreshes identical, %llu keys (%llu / %llu decoded ahead, %llu / %llu lookups built ahead), "
+           "%llu redraws skipped\n",
+           n, (unsigned long long)x->player.keys, (unsigned long long)x->player.keys_ahead,
+           (unsigned long long)y->player.keys_ahead, (unsigned long long)x->player.lookups_ahead,
+           (unsigned long long)y->player.lookups_ahead, (unsigned long long)x->redraws_skipped);
     assert_true(n >= 10);
     assert_true(isinf(worst)); /* every refresh byte for byte */
     assert_int_equal(x->frames, y->frames);
@@ -493,6 +499,12 @@ static void ahead_matches_serial(void **state)
     assert_int_equal(x->redraws_skipped, y->redraws_skipped);
     assert_int_equal(x->drawn, y->drawn);
     assert_int_equal(x->pairs, y->pairs);
+    /* both read ahead: every key after the first two pairs' is decoded and
+     * looked up a refresh or two before the refresh that shows it */
+    for (int m = 0; m < 2; m++) {
+        assert_true(st[m].player.keys_ahead + 2 >= st[m].player.keys);
+        assert_true(st[m].player.lookups_ahead + 3 >= st[m].player.keys);
+    }
     free(s.buf);
 }
 

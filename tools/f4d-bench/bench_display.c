@@ -183,7 +183,7 @@ int bench_display(int argc, char **argv)
     int sizes[2][2] = { { 960, 540 }, { 1280, 720 } }, nsizes = 2, r0 = DISPLAY_RENDER_CPU, r1 = DISPLAY_RENDER_GLES;
     size_t counts[2] = { 100000, 300000 };
     int ncounts = 2, serial = 0;
-    enum interp_lookup lookup = INTERP_LOOKUP_RENDER;
+    enum interp_lookup lookup = display_config_default().lookup;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json") && i + 1 < argc)
             json = argv[++i];
@@ -217,7 +217,7 @@ int bench_display(int argc, char **argv)
                             "  --serial: no ahead thread (the next refresh's decode and interpolation\n"
                             "  run after the drawing): the CPU time by stage is then exact, while with\n"
                             "  the ahead thread the stages' process CPU times include the other thread's work;\n"
-                            "  --lookup: the pair matches' pixel lookup (render, the default, or zbuffer)\n");
+                            "  --lookup: the pair matches' pixel lookup (zbuffer, the display's default, or render)\n");
             return 2;
         }
     }
@@ -259,7 +259,7 @@ int bench_display(int argc, char **argv)
                 printf("display %7zu Gaussians %4dx%-4d %-4s%s: %6.2f fps displayed (%llu frames, %llu keys, %.1f "
                        "Mbit/s); CPU %.1f ms per frame = %.1f fps on all cores  per key: decode %.1f lookup %.1f ms; "
                        "per frame: interp %.1f draw %.1f (raster %.1f) present %.1f ms\n",
-                       n, best.W, best.H, best.renderer, lookup == INTERP_LOOKUP_ZBUFFER ? " zbuffer" : "", best.fps,
+                       n, best.W, best.H, best.renderer, lookup == INTERP_LOOKUP_ZBUFFER ? " zbuffer" : " render", best.fps,
                        best.frames, best.keys, best.mbps, best.cpu_ms,
                        best.fps_cpu, best.decode_ms,
                        best.lookup_ms, best.interp_ms, best.render_ms, best.raster_ms, best.present_ms);

@@ -75,13 +75,13 @@ struct display {
 };
 
 static int pump(display *d, display_source *src, uint64_t until, int want_first, struct f4d_err *err);
+static int read_ahead(display *d, display_source *src, uint64_t tn_before, struct f4d_err *err);
 
 /* The ahead thread's work: what display_step does from the pump to the
- * interpolation for refresh a->refresh (unpaced: its time is known now). */
-static void ahead_run(display *d, struct ahead *a)
+ * interpolation for refresh a->refresh (unpaced: its time is known now),
+ * then a part of the next key's work. */
+static void ahead_frame(display *d, struct ahead *a)
 {
-    a->f = NULL;
-    a->err = (struct f4d_err){ 0 };
     if ((a->rc = pump(d, a->src, a->t_us, 0, &a->err)) < 0)
         return;
     uint64_t tp = 0, tn = 0;
@@ -94,6 +94,17 @@ static void ahead_run(display *d, struct ahead *a)
         return;
     if ((a->rc = display_player_frame(d->player, a->t_us, &a->cam, &a->f)) < 0)
         f4d_fail(&a->err, a->rc, "%s", display_player_error(d->player));
+}
+
+static void ahead_run(display *d, struct ahead *a)
+{
+    a->f = NULL;
+    a->err = (struct f4d_err){ 0 };
+    uint64_t tp = 0, tn = 0;
+    display_player_keys(d->player, &tp, &tn);
+    ahead_frame(d, a);
+    if (a->rc >= 0)
+        a->rc = read_ahead(d, a->src, tn, &a->err);
 }
 
 static void *ahead_main(void *arg)
@@ -153,7 +164,7 @@ struct display_config display_config_default(void)
     c.fps = 30.0;
     c.status_line = 1;
     c.interp = INTERP_FUSED;
-    c.lookup = INTERP_LOOKUP_RENDER;
+    c.lookup = INTERP_LOOKUP_ZBUFFER; /* README: Display, the cost and the pictures of each */
     c.kms_device = "/dev/dri/card0";
     c.live_lag_keys = -1.0;
     return c;
@@ -455,6 +466,8 @@ static int pump(display *d, display_source *src, uint64_t until, int want_first,
         int keys = display_player_keys(d->player, &tp, &tn);
         if (keys > 0 && (want_first || tn >= until))
             return F4D_OK;
+        if (display_player_advance(d->player))
+            continue; /* the key read ahead */
         if (d->eof)
             return F4D_OK;
         struct codec_packet p;
@@ -471,6 +484,37 @@ static int pump(display *d, display_source *src, uint64_t until, int want_first,
         if (rc < 0)
             return f4d_fail(err, rc, "%s", display_player_error(d->player));
     }
+}
+
+/* A stream that is not live is read one key ahead of the pair it shows, and
+ * each refresh that took no new key (that one builds the new pair's partners)
+ * does one part of that key's work: its decode, then, a refresh later, its
+ * pixel lookup; with 3 refreshes a key the parts land on 3 refreshes instead
+ * of one. tn_before: the newer key's time before this refresh's pump. */
+static int read_ahead(display *d, display_source *src, uint64_t tn_before, struct f4d_err *err)
+{
+    uint64_t tp, tn;
+    if (d->cfg.live_lag_keys >= 0.0 || display_player_keys(d->player, &tp, &tn) == 0 || tn != tn_before)
+        return F4D_OK;
+    if (display_player_pending(d->player, NULL)) {
+        int rc = display_player_build_ahead(d->player);
+        return rc < 0 ? f4d_fail(err, rc, "%s", display_player_error(d->player)) : F4D_OK;
+    }
+    while (!d->eof) {
+        struct codec_packet p;
+        int rc = display_source_next(src, &p, err);
+        if (rc == F4D_EEOF) {
+            d->eof = 1;
+            break;
+        }
+        if (rc <= 0)
+            return rc; /* an error, or a growing source with nothing yet */
+        if ((rc = display_player_push_ahead(d->player, &p)) < 0)
+            return f4d_fail(err, rc, "%s", display_player_error(d->player));
+        if (rc == 1)
+            break;
+    }
+    return F4D_OK;
 }
 
 /* Refresh slots every 1 / fps on absolute deadlines (clock_nanosleep on
@@ -531,6 +575,8 @@ static int step(display *d, display_source *src)
     apply_input(d, &in);
     if (!paced)
         pace(d);
+    uint64_t tp_before = 0, tn_before = 0;
+    display_player_keys(d->player, &tp_before, &tn_before);
     double t_start = display__now_ms();
     /* stream time: paced, the wall clock since the first refresh (a slow
      * refresh skips ahead, as a live display must); unpaced, refresh k shows
@@ -672,6 +718,9 @@ static int step(display *d, display_source *src)
     d->last_ms = t_end;
     d->st.frames++;
     d->refresh++;
+    /* serial: the next key's part after the present (a paced display's slack) */
+    if (!ahead && (rc = read_ahead(d, src, tn_before, &d->err)) < 0)
+        return rc;
     return 1;
 }
 

@@ -11,6 +11,7 @@ struct key_slot {
     uint64_t           t_us;
     int                motion;   /* the key carried both motions */
     int                built;    /* k holds f's pixel lookup      */
+    int                continuous; /* no loss between the newer key and this one */
 };
 
 struct display_player {
@@ -22,12 +23,16 @@ struct display_player {
     size_t           cap_cfg, cap;
     codec_dec       *dec;
     interp          *ip;
-    struct key_slot  slot[2];
+    /* the older and newer key of the pair, and a third slot for the key
+     * after them, decoded ahead (display_player_push_ahead) */
+    struct key_slot  slot[3];
     int              nkeys, newest;   /* slot[newest] is the newer key */
+    int              older;           /* slot[older] is the older key (nkeys == 2) */
+    int              pending;         /* slot[pending] holds the next key, -1 none */
     uint64_t         disc_mark;       /* decoder lost + skipped + refused at the last key */
     struct splat_frame out;
     struct interp_pair pair;          /* partners of the current key pair */
-    int              pair_ok;         /* pair holds (slot[newest ^ 1], slot[newest]) */
+    int              pair_ok;         /* pair holds (slot[older], slot[newest]) */
     int              warm;            /* interp sized for the capacity */
     uint64_t         clock_off_us;    /* display_player_clock's raise so far */
     int              live;            /* display_player_clock was called: hold the newest key */
@@ -76,6 +81,7 @@ int display_player_new(fk_ctx *ctx, const struct splat_rig *lookup_rig, enum int
             }
         }
     }
+    p->pending = -1;
     p->st.interp_mode = (int)mode;
     *out = p;
     return F4D_OK;
@@ -87,7 +93,7 @@ void display_player_free(display_player *p)
         return;
     codec_dec_free(p->dec);
     interp_free(p->ip);
-    for (int i = 0; i < 2; i++) {
+    for (int i = 0; i < 3; i++) {
         interp_key_free(&p->slot[i].k);
         splat_frame_free(&p->slot[i].f);
     }
@@ -123,7 +129,7 @@ static int plan(display_player *p, size_t cap)
     int rc = codec_dec_new(cap, &p->dec, &p->err);
     if (rc < 0)
         return rc;
-    for (int i = 0; i < 2; i++)
+    for (int i = 0; i < 3; i++)
         if ((rc = splat_frame_reserve(&p->slot[i].f, cap, 1, &p->err)) < 0)
             return rc;
     /* interp_at's output holds both keys' Gaussians at most */
@@ -139,10 +145,28 @@ static uint64_t disc_count(const display_player *p)
     return s->lost + s->skipped + s->refused;
 }
 
-int display_player_push(display_player *p, const struct codec_packet *pkt)
+/* The pending key becomes the newer key of the pair (the older one is dropped). */
+static void promote(display_player *p)
+{
+    struct key_slot *ks = &p->slot[p->pending];
+    p->older = p->newest;
+    p->newest = p->pending;
+    p->pending = -1;
+    /* across a loss the older key is not this one's neighbour: hold one key */
+    p->nkeys = ks->continuous ? 2 : 1;
+    p->pair_ok = 0;
+}
+
+/* staged: the key the packet completes waits as the pending key. */
+static int push(display_player *p, const struct codec_packet *pkt, int staged)
 {
     if (!p || !pkt)
         return F4D_EINVAL;
+    if (p->pending >= 0) {
+        if (staged)
+            return f4d_fail(&p->err, F4D_ESTATE, "display_player_push_ahead: a key is pending already");
+        promote(p); /* keys stay in stream order */
+    }
     if (!p->dec) {
         size_t n = 0;
         int first_key = pkt->type == CODEC_PKT_INTRA;
@@ -184,9 +208,11 @@ int display_player_push(display_player *p, const struct codec_packet *pkt)
             p->st.waited++;
         return 0;
     }
-    /* a new key: it replaces the older slot */
+    /* a new key: into the slot that holds neither key of the pair */
     const struct splat_frame *f = codec_dec_frame(p->dec);
-    int s = p->nkeys == 0 ? 0 : p->newest ^ 1;
+    int s = 0;
+    while (p->nkeys > 0 && (s == p->newest || (p->nkeys == 2 && s == p->older)))
+        s++;
     struct key_slot *ks = &p->slot[s];
     if (f->count > p->cap) { /* the decoder refuses these; kept as a guard */
         p->st.too_large++;
@@ -197,14 +223,35 @@ int display_player_push(display_player *p, const struct codec_packet *pkt)
     ks->motion = f->motion_bwd && f->motion_fwd;
     ks->t_us = codec_dec_time(p->dec);
     ks->built = 0;
-    p->pair_ok = 0;
     uint64_t mark = disc_count(p);
-    /* across a loss the older key is not this one's neighbour: hold one key */
-    int continuous = p->nkeys > 0 && mark == p->disc_mark && ks->t_us > p->slot[p->newest].t_us;
-    p->nkeys = continuous ? 2 : 1;
-    p->newest = s;
+    ks->continuous = p->nkeys > 0 && mark == p->disc_mark && ks->t_us > p->slot[p->newest].t_us;
     p->disc_mark = mark;
     p->st.keys++;
+    p->pending = s;
+    if (!staged)
+        promote(p);
+    else
+        p->st.keys_ahead++;
+    return 1;
+}
+
+int display_player_push(display_player *p, const struct codec_packet *pkt) { return push(p, pkt, 0); }
+int display_player_push_ahead(display_player *p, const struct codec_packet *pkt) { return push(p, pkt, 1); }
+
+int display_player_pending(const display_player *p, uint64_t *t_us)
+{
+    if (!p || p->pending < 0)
+        return 0;
+    if (t_us)
+        *t_us = p->slot[p->pending].t_us;
+    return 1;
+}
+
+int display_player_advance(display_player *p)
+{
+    if (!p || p->pending < 0)
+        return 0;
+    promote(p);
     return 1;
 }
 
@@ -215,7 +262,7 @@ int display_player_keys(const display_player *p, uint64_t *t_prev, uint64_t *t_n
     if (t_next)
         *t_next = p->slot[p->newest].t_us;
     if (t_prev)
-        *t_prev = p->slot[p->nkeys == 2 ? p->newest ^ 1 : p->newest].t_us;
+        *t_prev = p->slot[p->nkeys == 2 ? p->older : p->newest].t_us;
     return p->nkeys;
 }
 
@@ -256,17 +303,15 @@ static int warm_up(display_player *p)
         memcpy(tmp.rgb + 3 * i, k->rgb + 3 * j, 3 * sizeof(float));
         tmp.opacity[i] = k->opacity[j];
     }
-    if (rc == 0)
-        rc = interp_key_build(p->ip, &tmp, &p->slot[0].k, &p->err);
-    if (rc == 0)
-        rc = interp_key_build(p->ip, &tmp, &p->slot[1].k, &p->err);
+    for (int i = 0; rc == 0 && i < 3; i++) /* the pair and the key decoded ahead */
+        rc = interp_key_build(p->ip, &tmp, &p->slot[i].k, &p->err);
     struct interp_config cfg = interp_config_default();
     if (rc == 0)
         rc = interp_pair_build(p->ip, &p->slot[0].k, &p->slot[1].k, &cfg, &p->pair, &p->err);
     if (rc == 0) /* sizes the per-step buffers too */
         rc = interp_pair_prepare(p->ip, &p->pair, &cfg, &p->out, &p->err);
     splat_frame_free(&tmp);
-    p->slot[0].built = p->slot[1].built = 0;
+    p->slot[0].built = p->slot[1].built = p->slot[2].built = 0;
     p->pair_ok = 0;
     return rc;
 }
@@ -310,6 +355,20 @@ int display_player_prepare(display_player *p, const struct splat_camera *cam)
     return F4D_OK;
 }
 
+int display_player_build_ahead(display_player *p)
+{
+    if (!p || p->pending < 0 || !p->warm || p->mode != INTERP_FUSED)
+        return 0;
+    struct key_slot *ks = &p->slot[p->pending];
+    if (ks->built || !ks->motion) /* a key without motion is never fused */
+        return 0;
+    int rc = ensure_built(p, ks, p->mode);
+    if (rc < 0)
+        return rc;
+    p->st.lookups_ahead++;
+    return 1;
+}
+
 uint64_t display_player_clock(display_player *p, uint64_t t_us, double lag_keys)
 {
     if (!p)
@@ -319,7 +378,7 @@ uint64_t display_player_clock(display_player *p, uint64_t t_us, double lag_keys)
     if (p->nkeys == 0 || !(lag_keys >= 0.0))
         return t;
     uint64_t tn = p->slot[p->newest].t_us;
-    uint64_t span = p->nkeys == 2 ? tn - p->slot[p->newest ^ 1].t_us : 0;
+    uint64_t span = p->nkeys == 2 ? tn - p->slot[p->older].t_us : 0;
     double lag = lag_keys * (double)span;
     uint64_t floor_t = (double)tn > lag ? tn - (uint64_t)lag : 0;
     if (t < floor_t) { /* behind the newest key by more than the lag: catch up */
@@ -351,7 +410,7 @@ int display_player_frame(display_player *p, uint64_t t_us, const struct splat_ca
         p->st.held++;
         return F4D_OK;
     }
-    struct key_slot *prev = &p->slot[p->newest ^ 1];
+    struct key_slot *prev = &p->slot[p->older];
     double span = (double)(next->t_us - prev->t_us);
     double a = t_us <= prev->t_us ? 0.0 : t_us >= next->t_us ? 1.0 : (double)(t_us - prev->t_us) / span;
     enum interp_mode mode = p->mode;
