@@ -346,10 +346,7 @@ static float quantize_row(const float *x, int k, int8_t *q)
 }
 
 /* A run of row m of A: n floats at p, or n zeros (p NULL). */
-struct arun {
-    const float *p;
-    int          n;
-};
+#define arun fk__arun
 
 /* Most runs a convolution row may take: a zero run, the in-image taps of one
  * kernel row (adjacent pixels, so one run in channels-last), a zero run, per
@@ -384,15 +381,18 @@ static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
     return nr;
 }
 
-/* quantize_row over runs (zero runs add nothing to amax or to the poison
- * sum; max and a sum of zeros / NaN do not depend on the order), so the codes
- * and the scale are quantize_row's bit for bit, without copying the row. */
+/* quantize_row over runs (zero runs add nothing to amax; max does not depend
+ * on the order), so the codes and the scale are quantize_row's bit for bit,
+ * without copying the row. */
 static float quantize_runs(const struct arun *r, int nr, int8_t *q)
 {
-    __m256 amax = _mm256_setzero_ps(), poison = _mm256_setzero_ps();
-    const __m256 absmask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
-    const __m256 zero = _mm256_setzero_ps();
-    float am = 0, pz = 0;
+    /* |x| as integers: for non-negative floats the integer order is the
+     * float order and Inf / NaN sort above every finite value, so one
+     * integer max gives amax and the poison test (x * 0 summed: NaN exactly
+     * when some x is Inf or NaN) at once, one reduction instead of two */
+    __m256i amax = _mm256_setzero_si256();
+    const __m256i absmask = _mm256_set1_epi32(0x7fffffff);
+    uint32_t bits = 0;
     int k = 0;
     for (int s = 0; s < nr; s++) {
         const float *x = r[s].p;
@@ -400,24 +400,25 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
         k += n;
         if (!x)
             continue;
-        for (; i + 8 <= n; i += 8) {
-            __m256 v = _mm256_loadu_ps(x + i);
-            poison = _mm256_add_ps(poison, _mm256_mul_ps(v, zero));
-            amax = _mm256_max_ps(amax, _mm256_and_ps(v, absmask));
-        }
+        for (; i + 8 <= n; i += 8)
+            amax = _mm256_max_epu32(amax, _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(x + i)), absmask));
         for (; i < n; i++) {
-            pz += x[i] * 0.0f;
-            float a = fabsf(x[i]);
-            if (a > am)
-                am = a;
+            uint32_t b;
+            memcpy(&b, x + i, sizeof b);
+            b &= 0x7fffffffu;
+            bits = b > bits ? b : bits;
         }
     }
-    float vm = fk__hmax_avx2(amax);
-    am = vm > am ? vm : am;
-    pz += fk__hsum_avx2(poison);
-    if (am < FK_Q8_AMAX_MIN || pz != 0) {
+    __m128i m4 = _mm_max_epu32(_mm256_castsi256_si128(amax), _mm256_extracti128_si256(amax, 1));
+    m4 = _mm_max_epu32(m4, _mm_shuffle_epi32(m4, 0x4e));
+    m4 = _mm_max_epu32(m4, _mm_shuffle_epi32(m4, 0xb1));
+    uint32_t vb = (uint32_t)_mm_cvtsi128_si32(m4);
+    bits = vb > bits ? vb : bits;
+    float am;
+    memcpy(&am, &bits, sizeof am);
+    if (bits >= 0x7f800000u || am < FK_Q8_AMAX_MIN) {
         memset(q, 0, (size_t)k);
-        return pz == 0 ? 0.0f : NAN;
+        return bits >= 0x7f800000u ? NAN : 0.0f;
     }
     float invs = 127.0f / am;
     __m256 inv = _mm256_set1_ps(invs);
@@ -443,15 +444,19 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
 
 /* Row m's codes into q[k] and its scale: runs straight from A, or the
  * gathered row for kernels with more rows than ARUN_MAX covers. */
-static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q, float *rowbuf)
+static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q, float *rowbuf, int wide)
 {
     struct arun r[ARUN_MAX];
     int nr = row_runs(src, m, k, r);
     if (nr == 0) {
         fk__asrc_row(src, m, 0, k, rowbuf);
-        return quantize_row(rowbuf, k, q);
+        r[0] = (struct arun){ rowbuf, k };
+        nr = 1;
+        if (!wide)
+            return quantize_row(rowbuf, k, q);
     }
-    return quantize_runs(r, nr, q);
+    /* AVX-512: zmm with masked tails (1.0x-1.0x here, see README) */
+    return wide ? fk__q8_quantize_runs_avx512(r, nr, k, k, q) : quantize_runs(r, nr, q);
 }
 
 /* Quantizes rows [m0, m0 + rows) and packs them as micro-panels
@@ -461,7 +466,7 @@ static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q,
  * 32-bit groups as they are), instead of a scalar store per group; the
  * transpose writes 2 groups past the last one (the scratch has room). */
 static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int vnni,
-                      void *ap, float *sa, float *rowbuf, int8_t *q)
+                      int wide, void *ap, float *sa, float *rowbuf, int8_t *q)
 {
     int mp = (rows + MR - 1) / MR, k4n = k_pad / 4;
     size_t panel = (size_t)k_pad * MR;
@@ -472,7 +477,7 @@ static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k
                 int row = i * MR + rr;
                 int8_t *qr = q + (size_t)rr * (size_t)k_pad;
                 if (row < rows) {
-                    sa[row] = quantize_a_row(src, m0 + row, k, qr, rowbuf);
+                    sa[row] = quantize_a_row(src, m0 + row, k, qr, rowbuf, wide);
                     memset(qr + k, 0, (size_t)(k_pad - k));
                 } else {
                     sa[row] = 0;
@@ -501,7 +506,7 @@ static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k
     for (int row = 0; row < mp * MR; row++) {
         int i = row / MR, rr = row % MR;
         if (row < rows) {
-            sa[row] = quantize_a_row(src, m0 + row, k, q, rowbuf);
+            sa[row] = quantize_a_row(src, m0 + row, k, q, rowbuf, 0);
         } else {
             sa[row] = 0;
             memset(q, 0, (size_t)k);
@@ -778,7 +783,7 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
     float *sa = (float *)(s + j->off_sa);
     size_t esz = u8 ? 1 : 2, panel_a = (size_t)j->k_pad * MR * esz;
     /* whole rows: each is quantized with its own scale before any k block */
-    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, u8, s, sa, (float *)(s + j->off_tmp),
+    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, u8, j->wide, s, sa, (float *)(s + j->off_tmp),
               (int8_t *)(s + j->off_q));
     for (int jg = jp0; jg < jp1; jg += j->nc_panels) {
         int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
@@ -810,9 +815,18 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                     }
                     if (q0 + qn >= k4) { /* last k block: this tile is final */
                         int nr = rows - i * MR < MR ? rows - i * MR : MR;
-                        epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);
-                        if (pair)
-                            epi_q8(j, ci + MR * NR, sa + i * MR, m0 + i * MR, nr, jp + 1, u8);
+                        if (j->wide && !j->c->tconv_k) {
+                            int n0 = jp * NR, nn = L->n - n0 < (1 + pair) * NR ? L->n - n0 : (1 + pair) * NR;
+                            const struct fk_epilogue *ep = j->ep;
+                            fk__epi_q8_avx512(ci, sa + i * MR, nr, nn, L->bias + n0, L->scale + n0,
+                                              u8 ? L->colsum + n0 : NULL, ep, ep->gamma ? ep->gamma + n0 : NULL,
+                                              j->c->y + (size_t)(m0 + i * MR) * (size_t)j->c->ldy + (size_t)n0,
+                                              (size_t)j->c->ldy);
+                        } else {
+                            epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);
+                            if (pair)
+                                epi_q8(j, ci + MR * NR, sa + i * MR, m0 + i * MR, nr, jp + 1, u8);
+                        }
                     }
                 }
             }
