@@ -98,11 +98,12 @@ struct fk__arun {
     const float *p;
     int          n;
 };
-/* AVX-512 int8 row quantization over runs (k values in all), bit for bit the
- * reference's codes and scale: codes into q[0..k_pad) (zeros past k), the
- * row's scale returned (0 for an all-zero row, NaN with zero codes when the
- * row holds Inf or NaN). */
-float fk__q8_quantize_runs_avx512(const struct fk__arun *r, int nr, int k, int k_pad, int8_t *q);
+/* AVX-512 int8 quantization of `rows` <= 6 rows of A given as runs (row j:
+ * r[j][0 .. nr[j]), k values in all), bit for bit the reference's codes and
+ * scales: codes into q + j ldq, [0, k_pad) (zeros past k), scale into sa[j]
+ * (0 for an all-zero row, NaN with zero codes when the row holds Inf or NaN). */
+void fk__q8_quantize_rows_avx512(const struct fk__arun *const r[], const int nr[], int rows, int k,
+                                 int k_pad, int8_t *q, size_t ldq, float *sa);
 /* AVX-512 int8 epilogue of one 6-row tile of one or two adjacent panels
  * (ci: [np][6][16] int32) into nn <= 16 np dense columns at y (row stride
  * ldy): (acc - colsum) as fp32 times (sa[r] scale[n]) plus bias[n] (one

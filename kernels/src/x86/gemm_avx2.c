@@ -454,18 +454,34 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
 
 /* Row m's codes into q[k] and its scale: runs straight from A, or the
  * gathered row for kernels with more rows than ARUN_MAX covers. */
-static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q, float *rowbuf, int wide)
+static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q, float *rowbuf)
 {
     struct arun r[ARUN_MAX];
     int nr = row_runs(src, m, k, r);
     if (nr == 0) {
         fk__asrc_row(src, m, 0, k, rowbuf);
-        r[0] = (struct arun){ rowbuf, k };
-        nr = 1;
-        if (!wide)
-            return quantize_row(rowbuf, k, q);
+        return quantize_row(rowbuf, k, q);
     }
-    return wide ? fk__q8_quantize_runs_avx512(r, nr, k, k, q) : quantize_runs(r, nr, q);
+    return quantize_runs(r, nr, q);
+}
+
+/* AVX-512: the micro-panel's rows as runs, quantized together into
+ * q[6][k_pad] (fk__q8_quantize_rows_avx512); 0 when a row needs more runs
+ * than ARUN_MAX (the caller then goes row by row). */
+static int quantize_panel_avx512(const struct fk__asrc *src, int m0, int rows, int k, int k_pad,
+                                 int8_t *q, float *sa)
+{
+    struct arun runs[MR][ARUN_MAX];
+    const struct arun *rp[MR];
+    int nr[MR];
+    for (int rr = 0; rr < MR; rr++) {
+        rp[rr] = runs[rr];
+        nr[rr] = rr < rows ? row_runs(src, m0 + rr, k, runs[rr]) : 0; /* padding rows: zeros */
+        if (rr < rows && nr[rr] == 0)
+            return 0;
+    }
+    fk__q8_quantize_rows_avx512(rp, nr, MR, k, k_pad, q, (size_t)k_pad, sa);
+    return 1;
 }
 
 /* Quantizes rows [m0, m0 + rows) and packs them as micro-panels
@@ -482,11 +498,14 @@ static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k
     if (vnni) {
         const __m256i flip = _mm256_set1_epi8((char)0x80);
         for (int i = 0; i < mp; i++) {
-            for (int rr = 0; rr < MR; rr++) {
+            int left = rows - i * MR;
+            int done = wide && quantize_panel_avx512(src, m0 + i * MR, left < MR ? left : MR, k, k_pad, q,
+                                                     sa + i * MR);
+            for (int rr = 0; !done && rr < MR; rr++) {
                 int row = i * MR + rr;
                 int8_t *qr = q + (size_t)rr * (size_t)k_pad;
                 if (row < rows) {
-                    sa[row] = quantize_a_row(src, m0 + row, k, qr, rowbuf, wide);
+                    sa[row] = quantize_a_row(src, m0 + row, k, qr, rowbuf);
                     memset(qr + k, 0, (size_t)(k_pad - k));
                 } else {
                     sa[row] = 0;
@@ -515,7 +534,7 @@ static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k
     for (int row = 0; row < mp * MR; row++) {
         int i = row / MR, rr = row % MR;
         if (row < rows) {
-            sa[row] = quantize_a_row(src, m0 + row, k, q, rowbuf, 0);
+            sa[row] = quantize_a_row(src, m0 + row, k, q, rowbuf);
         } else {
             sa[row] = 0;
             memset(q, 0, (size_t)k);

@@ -138,20 +138,21 @@ void fk__gemm_prefetchw_rows(const float *y, size_t ldy, int rows, int cols)
 
 /* ------------------------------------------------------------ int8 rows */
 
-/* fk__q8_quantize_runs_avx512: quantize_runs of gemm_avx2.c (itself
- * fk_quantize_row_q8 bit for bit) in zmm with masked tails, no scalar loop:
- * the DPT heads' thin 3x3 convolutions quantize a 9 C row (C = 16-48) per
- * output pixel, where the ymm version's per-row setup, two reductions and
- * tail loops cost about as much as the row. The reference's poison sum
- * (x * 0: NaN for Inf / NaN) is replaced by the integer max below, which
- * flags the same rows; max does not depend on the order; the codes are
+/* fk__q8_quantize_rows_avx512: quantize_runs of gemm_avx2.c (itself
+ * fk_quantize_row_q8 bit for bit) in zmm with masked tails, no scalar loop,
+ * for the rows of a micro-panel together: the DPT heads' thin 3x3
+ * convolutions quantize a 9 C row (C = 16-48) per output pixel, short enough
+ * that one row at a time waits on its own chain (loads, the max reduction,
+ * the division for the scale) before its codes; the rows' chains are
+ * independent, so amax of every row comes first, then the scales, then the
+ * codes. The reference's poison sum (x * 0: NaN for Inf / NaN) is replaced
+ * by an integer max of |x| (for non-negative floats the integer order is the
+ * float order, Inf / NaN sort above every finite value), which gives amax
+ * and flags the same rows; max does not depend on the order; the codes are
  * vcvtps2dq of x * (127 / amax) under the default rounding (to nearest even,
  * as nearbyintf), |code| <= 127 so the truncating vpmovdb keeps them. */
-float fk__q8_quantize_runs_avx512(const struct fk__arun *r, int nr, int k, int k_pad, int8_t *q)
+static inline uint32_t absmax_bits(const struct fk__arun *r, int nr)
 {
-    /* |x| as integers: for non-negative floats the integer order is the
-     * float order, and Inf / NaN (exponent all ones) sort above every finite
-     * value, so one integer max gives amax and the poison test at once */
     __m512i amax = _mm512_setzero_si512();
     const __m512i absmask = _mm512_set1_epi32(0x7fffffff);
     for (int s = 0; s < nr; s++) {
@@ -165,27 +166,25 @@ float fk__q8_quantize_runs_avx512(const struct fk__arun *r, int nr, int k, int k
             amax = _mm512_max_epu32(amax, _mm512_and_si512(
                        _mm512_maskz_loadu_epi32((__mmask16)((1u << (n - i)) - 1), x + i), absmask));
     }
-    uint32_t bits = _mm512_reduce_max_epu32(amax);
-    if (bits >= 0x7f800000u) { /* Inf or NaN: the reference's poisoned row */
-        memset(q, 0, (size_t)k_pad);
-        return NAN;
-    }
-    float am;
-    memcpy(&am, &bits, sizeof am);
-    if (am < FK_Q8_AMAX_MIN) {
-        memset(q, 0, (size_t)k_pad);
-        return 0.0f;
-    }
-    const __m512 inv = _mm512_set1_ps(127.0f / am);
-    int8_t *q0 = q;
+    return _mm512_reduce_max_epu32(amax);
+}
+
+static inline void zero_bytes(int8_t *q, int n)
+{
+    int i = 0;
+    for (; i + 64 <= n; i += 64)
+        _mm512_storeu_si512((void *)(q + i), _mm512_setzero_si512());
+    if (i < n)
+        _mm512_mask_storeu_epi8(q + i, ((__mmask64)1 << (n - i)) - 1, _mm512_setzero_si512());
+}
+
+static inline void codes(const struct fk__arun *r, int nr, __m512 inv, int8_t *q)
+{
     for (int s = 0; s < nr; s++) {
         const float *x = r[s].p;
         int n = r[s].n, i = 0;
-        if (!x) { /* padding taps: zero codes, no memset call for 16-144 bytes */
-            for (; i + 64 <= n; i += 64)
-                _mm512_storeu_si512((void *)(q + i), _mm512_setzero_si512());
-            if (i < n)
-                _mm512_mask_storeu_epi8(q + i, ((__mmask64)1 << (n - i)) - 1, _mm512_setzero_si512());
+        if (!x) { /* padding taps */
+            zero_bytes(q, n);
             q += n;
             continue;
         }
@@ -199,9 +198,39 @@ float fk__q8_quantize_runs_avx512(const struct fk__arun *r, int nr, int k, int k
         }
         q += n;
     }
-    if (k_pad > k)
-        memset(q0 + k, 0, (size_t)(k_pad - k));
-    return am / 127.0f;
+}
+
+void fk__q8_quantize_rows_avx512(const struct fk__arun *const r[], const int nr[], int rows, int k,
+                                 int k_pad, int8_t *q, size_t ldq, float *sa)
+{
+    uint32_t bits[FK_GEMM_MR];
+    float inv[FK_GEMM_MR];
+    for (int j = 0; j < rows; j++)
+        bits[j] = absmax_bits(r[j], nr[j]);
+    for (int j = 0; j < rows; j++) {
+        float am;
+        memcpy(&am, &bits[j], sizeof am);
+        if (bits[j] >= 0x7f800000u) { /* Inf or NaN: the reference's poisoned row */
+            sa[j] = NAN;
+            inv[j] = 0;
+        } else if (am < FK_Q8_AMAX_MIN) {
+            sa[j] = 0.0f;
+            inv[j] = 0;
+        } else {
+            sa[j] = am / 127.0f;
+            inv[j] = 127.0f / am;
+        }
+    }
+    for (int j = 0; j < rows; j++) {
+        int8_t *qj = q + (size_t)j * ldq;
+        if (inv[j] == 0) {
+            zero_bytes(qj, k_pad);
+            continue;
+        }
+        codes(r[j], nr[j], _mm512_set1_ps(inv[j]), qj);
+        if (k_pad > k)
+            zero_bytes(qj + k, k_pad - k);
+    }
 }
 
 /* ------------------------------------------------------- int8 epilogue */
