@@ -381,23 +381,19 @@ static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
     return nr;
 }
 
-/* quantize_row over runs (zero runs add nothing to amax; max does not depend
- * on the order), so the codes and the scale are quantize_row's bit for bit,
- * without copying the row. */
-static float quantize_runs(const struct arun *r, int nr, int8_t *q)
+/* |x| of the runs' values as integers, their max: for non-negative floats
+ * the integer order is the float order and Inf / NaN sort above every finite
+ * value, so this one max gives amax and the reference's poison test (x * 0
+ * summed: NaN exactly when some x is Inf or NaN) at once, one reduction
+ * instead of two; zero runs add nothing; max does not depend on the order. */
+static inline uint32_t runs_absmax_bits(const struct arun *r, int nr)
 {
-    /* |x| as integers: for non-negative floats the integer order is the
-     * float order and Inf / NaN sort above every finite value, so one
-     * integer max gives amax and the poison test (x * 0 summed: NaN exactly
-     * when some x is Inf or NaN) at once, one reduction instead of two */
     __m256i amax = _mm256_setzero_si256();
     const __m256i absmask = _mm256_set1_epi32(0x7fffffff);
     uint32_t bits = 0;
-    int k = 0;
     for (int s = 0; s < nr; s++) {
         const float *x = r[s].p;
         int n = r[s].n, i = 0;
-        k += n;
         if (!x)
             continue;
         for (; i + 8 <= n; i += 8)
@@ -413,14 +409,27 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
     m4 = _mm_max_epu32(m4, _mm_shuffle_epi32(m4, 0x4e));
     m4 = _mm_max_epu32(m4, _mm_shuffle_epi32(m4, 0xb1));
     uint32_t vb = (uint32_t)_mm_cvtsi128_si32(m4);
-    bits = vb > bits ? vb : bits;
+    return vb > bits ? vb : bits;
+}
+
+/* The scale of a row from its absmax bits, and 127 / amax into *inv (0 when
+ * the row's codes are all zero: amax under FK_Q8_AMAX_MIN, or Inf / NaN,
+ * whose scale is NaN), as quantize_row. */
+static inline float runs_scale(uint32_t bits, float *inv)
+{
     float am;
     memcpy(&am, &bits, sizeof am);
     if (bits >= 0x7f800000u || am < FK_Q8_AMAX_MIN) {
-        memset(q, 0, (size_t)k);
+        *inv = 0;
         return bits >= 0x7f800000u ? NAN : 0.0f;
     }
-    float invs = 127.0f / am;
+    *inv = 127.0f / am;
+    return am / 127.0f;
+}
+
+/* The runs' codes x * invs into q, rounded to nearest even like quantize_row. */
+static inline void runs_codes(const struct arun *r, int nr, float invs, int8_t *q)
+{
     __m256 inv = _mm256_set1_ps(invs);
     for (int s = 0; s < nr; s++) {
         const float *x = r[s].p;
@@ -449,7 +458,21 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
             q[i] = (int8_t)(int)nearbyintf(x[i] * invs);
         q += n;
     }
-    return am / 127.0f;
+}
+
+/* quantize_row over runs, so the codes and the scale are quantize_row's bit
+ * for bit, without copying the row. */
+static float quantize_runs(const struct arun *r, int nr, int8_t *q)
+{
+    int k = 0;
+    for (int s = 0; s < nr; s++)
+        k += r[s].n;
+    float inv, sc = runs_scale(runs_absmax_bits(r, nr), &inv);
+    if (inv == 0)
+        memset(q, 0, (size_t)k);
+    else
+        runs_codes(r, nr, inv, q);
+    return sc;
 }
 
 /* Row m's codes into q[k] and its scale: runs straight from A, or the
@@ -465,11 +488,16 @@ static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q,
     return quantize_runs(r, nr, q);
 }
 
-/* AVX-512: the micro-panel's rows as runs, quantized together into
- * q[6][k_pad] (fk__q8_quantize_rows_avx512); 0 when a row needs more runs
- * than ARUN_MAX (the caller then goes row by row). */
-static int quantize_panel_avx512(const struct fk__asrc *src, int m0, int rows, int k, int k_pad,
-                                 int8_t *q, float *sa)
+/* The rows of a micro-panel as runs, quantized together into q[6][k_pad]
+ * (padding rows as zeros): every row's absmax, then the scales, then the
+ * codes. Rows of a thin convolution (a 9 C row per output pixel, C = 16-48)
+ * are short enough that one row at a time waited on its own chain (loads,
+ * the max reduction, the division); the rows' chains are independent and
+ * now overlap. AVX-512: fk__q8_quantize_rows_avx512, the same steps in zmm.
+ * Returns 0 when a row needs more runs than ARUN_MAX (the caller then goes
+ * row by row). */
+static int quantize_panel(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int8_t *q,
+                          float *sa, int wide)
 {
     struct arun runs[MR][ARUN_MAX];
     const struct arun *rp[MR];
@@ -480,7 +508,25 @@ static int quantize_panel_avx512(const struct fk__asrc *src, int m0, int rows, i
         if (rr < rows && nr[rr] == 0)
             return 0;
     }
-    fk__q8_quantize_rows_avx512(rp, nr, MR, k, k_pad, q, (size_t)k_pad, sa);
+    if (wide) {
+        fk__q8_quantize_rows_avx512(rp, nr, MR, k, k_pad, q, (size_t)k_pad, sa);
+        return 1;
+    }
+    uint32_t bits[MR];
+    float inv[MR];
+    for (int rr = 0; rr < MR; rr++)
+        bits[rr] = runs_absmax_bits(runs[rr], nr[rr]);
+    for (int rr = 0; rr < MR; rr++)
+        sa[rr] = runs_scale(bits[rr], &inv[rr]);
+    for (int rr = 0; rr < MR; rr++) {
+        int8_t *qr = q + (size_t)rr * (size_t)k_pad;
+        if (inv[rr] == 0) {
+            memset(qr, 0, (size_t)k_pad);
+            continue;
+        }
+        runs_codes(runs[rr], nr[rr], inv[rr], qr);
+        memset(qr + k, 0, (size_t)(k_pad - k));
+    }
     return 1;
 }
 
@@ -499,8 +545,7 @@ static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k
         const __m256i flip = _mm256_set1_epi8((char)0x80);
         for (int i = 0; i < mp; i++) {
             int left = rows - i * MR;
-            int done = wide && quantize_panel_avx512(src, m0 + i * MR, left < MR ? left : MR, k, k_pad, q,
-                                                     sa + i * MR);
+            int done = quantize_panel(src, m0 + i * MR, left < MR ? left : MR, k, k_pad, q, sa + i * MR, wide);
             for (int rr = 0; !done && rr < MR; rr++) {
                 int row = i * MR + rr;
                 int8_t *qr = q + (size_t)rr * (size_t)k_pad;
