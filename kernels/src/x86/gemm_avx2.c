@@ -353,15 +353,16 @@ static float quantize_row(const float *x, int k, int8_t *q)
  * kernel row. Larger kernels gather the row with fk__asrc_row. */
 #define ARUN_MAX 48
 
-/* Row m of A as at most ARUN_MAX runs in k order (k = (ky kw + kx) cin + c);
- * returns their count, or 0 when the row needs more. */
-static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
+/* Row m of A (of a convolution: output pixel (py, px)) as at most ARUN_MAX
+ * runs in k order (k = (ky kw + kx) cin + c); returns their count, or 0 when
+ * the row needs more. */
+static int row_runs_at(const struct fk__asrc *a, int m, int py, int px, int k, struct arun *r)
 {
     if (!a->conv) {
         r[0] = (struct arun){ a->x + (size_t)m * (size_t)a->ldx, k };
         return 1;
     }
-    int oy = m / a->wo * a->stride - a->pad, ox = m % a->wo * a->stride - a->pad, nr = 0;
+    int oy = py * a->stride - a->pad, ox = px * a->stride - a->pad, nr = 0;
     int kx0 = ox < 0 ? -ox : 0, kx1 = a->w - ox < a->kw ? a->w - ox : a->kw; /* in-image taps */
     if (3 * a->kh > ARUN_MAX)
         return 0;
@@ -379,6 +380,13 @@ static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
             r[nr++] = (struct arun){ NULL, (a->kw - kx1) * a->cin };
     }
     return nr;
+}
+
+/* row_runs for output pixel (py, px) = (m / wo, m % wo) of a convolution,
+ * the division done by the caller (quantize_panel walks six pixels). */
+static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
+{
+    return a->conv ? row_runs_at(a, m, m / a->wo, m % a->wo, k, r) : row_runs_at(a, m, 0, 0, k, r);
 }
 
 /* |x| of the runs' values as integers, their max: for non-negative floats
@@ -502,11 +510,17 @@ static int quantize_panel(const struct fk__asrc *src, int m0, int rows, int k, i
     struct arun runs[MR][ARUN_MAX];
     const struct arun *rp[MR];
     int nr[MR];
+    /* output pixel of row m0, then stepped: no division per row */
+    int py = src->conv ? m0 / src->wo : 0, px = src->conv ? m0 % src->wo : 0;
     for (int rr = 0; rr < MR; rr++) {
         rp[rr] = runs[rr];
-        nr[rr] = rr < rows ? row_runs(src, m0 + rr, k, runs[rr]) : 0; /* padding rows: zeros */
+        nr[rr] = rr < rows ? row_runs_at(src, m0 + rr, py, px, k, runs[rr]) : 0; /* padding rows: zeros */
         if (rr < rows && nr[rr] == 0)
             return 0;
+        if (src->conv && ++px == src->wo) {
+            px = 0;
+            py++;
+        }
     }
     if (wide) {
         fk__q8_quantize_rows_avx512(rp, nr, MR, k, k_pad, q, (size_t)k_pad, sa);
