@@ -92,6 +92,26 @@ void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *
 void fk__gemm_prefetchw_rows(const float *y, size_t ldy, int rows, int cols);
 void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const int8_t *b1,
                             int32_t *c, int accumulate);
+/* A run of a row of A: n floats at p, or n zeros (p NULL); a convolution's
+ * im2col row is at most a few runs (gemm_avx2.c, row_runs). */
+struct fk__arun {
+    const float *p;
+    int          n;
+};
+/* AVX-512 int8 quantization of `rows` <= 6 rows of A given as runs (row j:
+ * r[j][0 .. nr[j]), k values in all), bit for bit the reference's codes and
+ * scales: codes into q + j ldq, [0, k_pad) (zeros past k), scale into sa[j]
+ * (0 for an all-zero row, NaN with zero codes when the row holds Inf or NaN). */
+void fk__q8_quantize_rows_avx512(const struct fk__arun *const r[], const int nr[], int rows, int k,
+                                 int k_pad, int8_t *q, size_t ldq, float *sa);
+/* AVX-512 int8 epilogue of one 6-row tile of one or two adjacent panels
+ * (ci: [np][6][16] int32) into nn <= 16 np dense columns at y (row stride
+ * ldy): (acc - colsum) as fp32 times (sa[r] scale[n]) plus bias[n] (one
+ * FMA, as the AVX2 epilogue), activation, LayerScale, residual; the same
+ * operations per element as epi_q8, so the same bits. colsum NULL: none. */
+void fk__epi_q8_avx512(const int32_t *ci, const float *sa, int nr, int nn, const float *bias,
+                       const float *scale, const int32_t *colsum, const struct fk_epilogue *ep,
+                       const float *gamma, float *y, size_t ldy);
 /* n fp16 weights (a multiple of 16, h 32-byte and d 64-byte aligned) widened
  * to fp32 16 at a time: the AVX-512 driver's per-sliver conversion. */
 void fk__f16_to_f32_avx512(const uint16_t *h, float *d, int n);

@@ -346,25 +346,23 @@ static float quantize_row(const float *x, int k, int8_t *q)
 }
 
 /* A run of row m of A: n floats at p, or n zeros (p NULL). */
-struct arun {
-    const float *p;
-    int          n;
-};
+#define arun fk__arun
 
 /* Most runs a convolution row may take: a zero run, the in-image taps of one
  * kernel row (adjacent pixels, so one run in channels-last), a zero run, per
  * kernel row. Larger kernels gather the row with fk__asrc_row. */
 #define ARUN_MAX 48
 
-/* Row m of A as at most ARUN_MAX runs in k order (k = (ky kw + kx) cin + c);
- * returns their count, or 0 when the row needs more. */
-static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
+/* Row m of A (of a convolution: output pixel (py, px)) as at most ARUN_MAX
+ * runs in k order (k = (ky kw + kx) cin + c); returns their count, or 0 when
+ * the row needs more. */
+static int row_runs_at(const struct fk__asrc *a, int m, int py, int px, int k, struct arun *r)
 {
     if (!a->conv) {
         r[0] = (struct arun){ a->x + (size_t)m * (size_t)a->ldx, k };
         return 1;
     }
-    int oy = m / a->wo * a->stride - a->pad, ox = m % a->wo * a->stride - a->pad, nr = 0;
+    int oy = py * a->stride - a->pad, ox = px * a->stride - a->pad, nr = 0;
     int kx0 = ox < 0 ? -ox : 0, kx1 = a->w - ox < a->kw ? a->w - ox : a->kw; /* in-image taps */
     if (3 * a->kh > ARUN_MAX)
         return 0;
@@ -384,42 +382,62 @@ static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
     return nr;
 }
 
-/* quantize_row over runs (zero runs add nothing to amax or to the poison
- * sum; max and a sum of zeros / NaN do not depend on the order), so the codes
- * and the scale are quantize_row's bit for bit, without copying the row. */
-static float quantize_runs(const struct arun *r, int nr, int8_t *q)
+/* row_runs for output pixel (py, px) = (m / wo, m % wo) of a convolution,
+ * the division done by the caller (quantize_panel walks six pixels). */
+static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
 {
-    __m256 amax = _mm256_setzero_ps(), poison = _mm256_setzero_ps();
-    const __m256 absmask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
-    const __m256 zero = _mm256_setzero_ps();
-    float am = 0, pz = 0;
-    int k = 0;
+    return a->conv ? row_runs_at(a, m, m / a->wo, m % a->wo, k, r) : row_runs_at(a, m, 0, 0, k, r);
+}
+
+/* |x| of the runs' values as integers, their max: for non-negative floats
+ * the integer order is the float order and Inf / NaN sort above every finite
+ * value, so this one max gives amax and the reference's poison test (x * 0
+ * summed: NaN exactly when some x is Inf or NaN) at once, one reduction
+ * instead of two; zero runs add nothing; max does not depend on the order. */
+static inline uint32_t runs_absmax_bits(const struct arun *r, int nr)
+{
+    __m256i amax = _mm256_setzero_si256();
+    const __m256i absmask = _mm256_set1_epi32(0x7fffffff);
+    uint32_t bits = 0;
     for (int s = 0; s < nr; s++) {
         const float *x = r[s].p;
         int n = r[s].n, i = 0;
-        k += n;
         if (!x)
             continue;
-        for (; i + 8 <= n; i += 8) {
-            __m256 v = _mm256_loadu_ps(x + i);
-            poison = _mm256_add_ps(poison, _mm256_mul_ps(v, zero));
-            amax = _mm256_max_ps(amax, _mm256_and_ps(v, absmask));
-        }
+        for (; i + 8 <= n; i += 8)
+            amax = _mm256_max_epu32(amax, _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(x + i)), absmask));
         for (; i < n; i++) {
-            pz += x[i] * 0.0f;
-            float a = fabsf(x[i]);
-            if (a > am)
-                am = a;
+            uint32_t b;
+            memcpy(&b, x + i, sizeof b);
+            b &= 0x7fffffffu;
+            bits = b > bits ? b : bits;
         }
     }
-    float vm = fk__hmax_avx2(amax);
-    am = vm > am ? vm : am;
-    pz += fk__hsum_avx2(poison);
-    if (am < FK_Q8_AMAX_MIN || pz != 0) {
-        memset(q, 0, (size_t)k);
-        return pz == 0 ? 0.0f : NAN;
+    __m128i m4 = _mm_max_epu32(_mm256_castsi256_si128(amax), _mm256_extracti128_si256(amax, 1));
+    m4 = _mm_max_epu32(m4, _mm_shuffle_epi32(m4, 0x4e));
+    m4 = _mm_max_epu32(m4, _mm_shuffle_epi32(m4, 0xb1));
+    uint32_t vb = (uint32_t)_mm_cvtsi128_si32(m4);
+    return vb > bits ? vb : bits;
+}
+
+/* The scale of a row from its absmax bits, and 127 / amax into *inv (0 when
+ * the row's codes are all zero: amax under FK_Q8_AMAX_MIN, or Inf / NaN,
+ * whose scale is NaN), as quantize_row. */
+static inline float runs_scale(uint32_t bits, float *inv)
+{
+    float am;
+    memcpy(&am, &bits, sizeof am);
+    if (bits >= 0x7f800000u || am < FK_Q8_AMAX_MIN) {
+        *inv = 0;
+        return bits >= 0x7f800000u ? NAN : 0.0f;
     }
-    float invs = 127.0f / am;
+    *inv = 127.0f / am;
+    return am / 127.0f;
+}
+
+/* The runs' codes x * invs into q, rounded to nearest even like quantize_row. */
+static inline void runs_codes(const struct arun *r, int nr, float invs, int8_t *q)
+{
     __m256 inv = _mm256_set1_ps(invs);
     for (int s = 0; s < nr; s++) {
         const float *x = r[s].p;
@@ -428,6 +446,16 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
             memset(q, 0, (size_t)n);
             q += n;
             continue;
+        }
+        /* 16 codes per store: the 8-byte stores were the hot spot of the
+         * row (a 9 C row per output pixel of a thin 3x3 convolution) */
+        for (; i + 16 <= n; i += 16) {
+            __m256i v0 = _mm256_cvtps_epi32(_mm256_mul_ps(_mm256_loadu_ps(x + i), inv));
+            __m256i v1 = _mm256_cvtps_epi32(_mm256_mul_ps(_mm256_loadu_ps(x + i + 8), inv));
+            /* int16 lanes v0[0-3] v1[0-3] | v0[4-7] v1[4-7] -> in order */
+            __m256i w = _mm256_permute4x64_epi64(_mm256_packs_epi32(v0, v1), 0xd8);
+            _mm_storeu_si128((__m128i *)(q + i),
+                             _mm_packs_epi16(_mm256_castsi256_si128(w), _mm256_extracti128_si256(w, 1)));
         }
         for (; i + 8 <= n; i += 8) {
             __m256i v = _mm256_cvtps_epi32(_mm256_mul_ps(_mm256_loadu_ps(x + i), inv));
@@ -438,7 +466,21 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
             q[i] = (int8_t)(int)nearbyintf(x[i] * invs);
         q += n;
     }
-    return am / 127.0f;
+}
+
+/* quantize_row over runs, so the codes and the scale are quantize_row's bit
+ * for bit, without copying the row. */
+static float quantize_runs(const struct arun *r, int nr, int8_t *q)
+{
+    int k = 0;
+    for (int s = 0; s < nr; s++)
+        k += r[s].n;
+    float inv, sc = runs_scale(runs_absmax_bits(r, nr), &inv);
+    if (inv == 0)
+        memset(q, 0, (size_t)k);
+    else
+        runs_codes(r, nr, inv, q);
+    return sc;
 }
 
 /* Row m's codes into q[k] and its scale: runs straight from A, or the
@@ -454,6 +496,54 @@ static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q,
     return quantize_runs(r, nr, q);
 }
 
+/* The rows of a micro-panel as runs, quantized together into q[6][k_pad]
+ * (padding rows as zeros): every row's absmax, then the scales, then the
+ * codes. Rows of a thin convolution (a 9 C row per output pixel, C = 16-48)
+ * are short enough that one row at a time waited on its own chain (loads,
+ * the max reduction, the division); the rows' chains are independent and
+ * now overlap. AVX-512: fk__q8_quantize_rows_avx512, the same steps in zmm.
+ * Returns 0 when a row needs more runs than ARUN_MAX (the caller then goes
+ * row by row). */
+static int quantize_panel(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int8_t *q,
+                          float *sa, int wide)
+{
+    struct arun runs[MR][ARUN_MAX];
+    const struct arun *rp[MR];
+    int nr[MR];
+    /* output pixel of row m0, then stepped: no division per row */
+    int py = src->conv ? m0 / src->wo : 0, px = src->conv ? m0 % src->wo : 0;
+    for (int rr = 0; rr < MR; rr++) {
+        rp[rr] = runs[rr];
+        nr[rr] = rr < rows ? row_runs_at(src, m0 + rr, py, px, k, runs[rr]) : 0; /* padding rows: zeros */
+        if (rr < rows && nr[rr] == 0)
+            return 0;
+        if (src->conv && ++px == src->wo) {
+            px = 0;
+            py++;
+        }
+    }
+    if (wide) {
+        fk__q8_quantize_rows_avx512(rp, nr, MR, k, k_pad, q, (size_t)k_pad, sa);
+        return 1;
+    }
+    uint32_t bits[MR];
+    float inv[MR];
+    for (int rr = 0; rr < MR; rr++)
+        bits[rr] = runs_absmax_bits(runs[rr], nr[rr]);
+    for (int rr = 0; rr < MR; rr++)
+        sa[rr] = runs_scale(bits[rr], &inv[rr]);
+    for (int rr = 0; rr < MR; rr++) {
+        int8_t *qr = q + (size_t)rr * (size_t)k_pad;
+        if (inv[rr] == 0) {
+            memset(qr, 0, (size_t)k_pad);
+            continue;
+        }
+        runs_codes(runs[rr], nr[rr], inv[rr], qr);
+        memset(qr + k, 0, (size_t)(k_pad - k));
+    }
+    return 1;
+}
+
 /* Quantizes rows [m0, m0 + rows) and packs them as micro-panels
  * [i][k4][6][4]: int16 for the AVX2 kernel, uint8 (+128) for VNNI and the
  * 7-bit kernel. u8: the six rows' codes are quantized into q[6][k_pad] and
@@ -461,14 +551,16 @@ static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q,
  * 32-bit groups as they are), instead of a scalar store per group; the
  * transpose writes 2 groups past the last one (the scratch has room). */
 static void pack_a_q8(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int vnni,
-                      void *ap, float *sa, float *rowbuf, int8_t *q)
+                      int wide, void *ap, float *sa, float *rowbuf, int8_t *q)
 {
     int mp = (rows + MR - 1) / MR, k4n = k_pad / 4;
     size_t panel = (size_t)k_pad * MR;
     if (vnni) {
         const __m256i flip = _mm256_set1_epi8((char)0x80);
         for (int i = 0; i < mp; i++) {
-            for (int rr = 0; rr < MR; rr++) {
+            int left = rows - i * MR;
+            int done = quantize_panel(src, m0 + i * MR, left < MR ? left : MR, k, k_pad, q, sa + i * MR, wide);
+            for (int rr = 0; !done && rr < MR; rr++) {
                 int row = i * MR + rr;
                 int8_t *qr = q + (size_t)rr * (size_t)k_pad;
                 if (row < rows) {
@@ -557,7 +649,9 @@ store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0,
         }
         return;
     }
-    float *d = fk__cdst_ptr(c, m, n0);
+    /* dense rows inline: the call per row and panel showed in the int8
+     * epilogue's profile (thin convolutions, 16-48 columns) */
+    float *d = c->tconv_k ? fk__cdst_ptr(c, m, n0) : c->y + (size_t)m * (size_t)c->ldy + (size_t)n0;
     if (nn == 16) {
         if (ep->gamma) {
             t0 = _mm256_mul_ps(t0, _mm256_loadu_ps(ep->gamma + n0));
@@ -778,7 +872,7 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
     float *sa = (float *)(s + j->off_sa);
     size_t esz = u8 ? 1 : 2, panel_a = (size_t)j->k_pad * MR * esz;
     /* whole rows: each is quantized with its own scale before any k block */
-    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, u8, s, sa, (float *)(s + j->off_tmp),
+    pack_a_q8(j->a, m0, rows, L->k, j->k_pad, u8, j->wide, s, sa, (float *)(s + j->off_tmp),
               (int8_t *)(s + j->off_q));
     for (int jg = jp0; jg < jp1; jg += j->nc_panels) {
         int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
@@ -810,9 +904,18 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                     }
                     if (q0 + qn >= k4) { /* last k block: this tile is final */
                         int nr = rows - i * MR < MR ? rows - i * MR : MR;
-                        epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);
-                        if (pair)
-                            epi_q8(j, ci + MR * NR, sa + i * MR, m0 + i * MR, nr, jp + 1, u8);
+                        if (j->wide && !j->c->tconv_k) {
+                            int n0 = jp * NR, nn = L->n - n0 < (1 + pair) * NR ? L->n - n0 : (1 + pair) * NR;
+                            const struct fk_epilogue *ep = j->ep;
+                            fk__epi_q8_avx512(ci, sa + i * MR, nr, nn, L->bias + n0, L->scale + n0,
+                                              u8 ? L->colsum + n0 : NULL, ep, ep->gamma ? ep->gamma + n0 : NULL,
+                                              j->c->y + (size_t)(m0 + i * MR) * (size_t)j->c->ldy + (size_t)n0,
+                                              (size_t)j->c->ldy);
+                        } else {
+                            epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);
+                            if (pair)
+                                epi_q8(j, ci + MR * NR, sa + i * MR, m0 + i * MR, nr, jp + 1, u8);
+                        }
                     }
                 }
             }

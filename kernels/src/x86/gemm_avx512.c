@@ -5,9 +5,12 @@
  * accumulators; each k step loads two zmm of weights and broadcasts six
  * values of A. */
 #include <immintrin.h>
+#include <math.h>
 #include <string.h>
 
+#include "../fk_internal.h"
 #include "../gemm.h"
+#include "vecmath_avx2.h"
 
 void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const float *b1, float *c,
                              int accumulate)
@@ -130,5 +133,166 @@ void fk__gemm_prefetchw_rows(const float *y, size_t ldy, int rows, int cols)
         for (int b = 0; b < cols * 4; b += 64)
             __builtin_prefetch(p + b, 1, 3); /* prefetchw */
         __builtin_prefetch(p + cols * 4 - 1, 1, 3);
+    }
+}
+
+/* ------------------------------------------------------------ int8 rows */
+
+/* fk__q8_quantize_rows_avx512: quantize_runs of gemm_avx2.c (itself
+ * fk_quantize_row_q8 bit for bit) in zmm with masked tails, no scalar loop,
+ * for the rows of a micro-panel together: the DPT heads' thin 3x3
+ * convolutions quantize a 9 C row (C = 16-48) per output pixel, short enough
+ * that one row at a time waits on its own chain (loads, the max reduction,
+ * the division for the scale) before its codes; the rows' chains are
+ * independent, so amax of every row comes first, then the scales, then the
+ * codes. The reference's poison sum (x * 0: NaN for Inf / NaN) is replaced
+ * by an integer max of |x| (for non-negative floats the integer order is the
+ * float order, Inf / NaN sort above every finite value), which gives amax
+ * and flags the same rows; max does not depend on the order; the codes are
+ * vcvtps2dq of x * (127 / amax) under the default rounding (to nearest even,
+ * as nearbyintf), |code| <= 127 so the truncating vpmovdb keeps them. */
+static inline uint32_t absmax_bits(const struct fk__arun *r, int nr)
+{
+    __m512i amax = _mm512_setzero_si512();
+    const __m512i absmask = _mm512_set1_epi32(0x7fffffff);
+    for (int s = 0; s < nr; s++) {
+        const float *x = r[s].p;
+        int n = r[s].n, i = 0;
+        if (!x)
+            continue;
+        for (; i + 16 <= n; i += 16)
+            amax = _mm512_max_epu32(amax, _mm512_and_si512(_mm512_loadu_si512((const void *)(x + i)), absmask));
+        if (i < n)
+            amax = _mm512_max_epu32(amax, _mm512_and_si512(
+                       _mm512_maskz_loadu_epi32((__mmask16)((1u << (n - i)) - 1), x + i), absmask));
+    }
+    return _mm512_reduce_max_epu32(amax);
+}
+
+static inline void zero_bytes(int8_t *q, int n)
+{
+    int i = 0;
+    for (; i + 64 <= n; i += 64)
+        _mm512_storeu_si512((void *)(q + i), _mm512_setzero_si512());
+    if (i < n)
+        _mm512_mask_storeu_epi8(q + i, ((__mmask64)1 << (n - i)) - 1, _mm512_setzero_si512());
+}
+
+static inline void codes(const struct fk__arun *r, int nr, __m512 inv, int8_t *q)
+{
+    for (int s = 0; s < nr; s++) {
+        const float *x = r[s].p;
+        int n = r[s].n, i = 0;
+        if (!x) { /* padding taps */
+            zero_bytes(q, n);
+            q += n;
+            continue;
+        }
+        for (; i + 16 <= n; i += 16)
+            _mm_storeu_si128((__m128i *)(q + i),
+                             _mm512_cvtepi32_epi8(_mm512_cvtps_epi32(_mm512_mul_ps(_mm512_loadu_ps(x + i), inv))));
+        if (i < n) {
+            __mmask16 mk = (__mmask16)((1u << (n - i)) - 1);
+            __m512i v = _mm512_cvtps_epi32(_mm512_mul_ps(_mm512_maskz_loadu_ps(mk, x + i), inv));
+            _mm_mask_storeu_epi8(q + i, mk, _mm512_cvtepi32_epi8(v));
+        }
+        q += n;
+    }
+}
+
+void fk__q8_quantize_rows_avx512(const struct fk__arun *const r[], const int nr[], int rows, int k,
+                                 int k_pad, int8_t *q, size_t ldq, float *sa)
+{
+    uint32_t bits[FK_GEMM_MR];
+    float inv[FK_GEMM_MR];
+    for (int j = 0; j < rows; j++)
+        bits[j] = absmax_bits(r[j], nr[j]);
+    for (int j = 0; j < rows; j++) {
+        float am;
+        memcpy(&am, &bits[j], sizeof am);
+        if (bits[j] >= 0x7f800000u) { /* Inf or NaN: the reference's poisoned row */
+            sa[j] = NAN;
+            inv[j] = 0;
+        } else if (am < FK_Q8_AMAX_MIN) {
+            sa[j] = 0.0f;
+            inv[j] = 0;
+        } else {
+            sa[j] = am / 127.0f;
+            inv[j] = 127.0f / am;
+        }
+    }
+    for (int j = 0; j < rows; j++) {
+        int8_t *qj = q + (size_t)j * ldq;
+        if (inv[j] == 0) {
+            zero_bytes(qj, k_pad);
+            continue;
+        }
+        codes(r[j], nr[j], _mm512_set1_ps(inv[j]), qj);
+        if (k_pad > k)
+            zero_bytes(qj + k, k_pad - k);
+    }
+}
+
+/* ------------------------------------------------------- int8 epilogue */
+
+static inline __m512 act16(enum fk_act act, __m512 v)
+{
+    switch (act) {
+    case FK_ACT_RELU:
+        return _mm512_max_ps(_mm512_setzero_ps(), v); /* NaN stays NaN, as vmaxps ymm */
+    case FK_ACT_GELU:
+    case FK_ACT_SILU: { /* the AVX2 code on each half: its bits */
+        __m256 lo = _mm512_castps512_ps256(v), hi = _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1));
+        lo = act == FK_ACT_GELU ? fk__gelu_avx2(lo) : fk__silu_avx2(lo);
+        hi = act == FK_ACT_GELU ? fk__gelu_avx2(hi) : fk__silu_avx2(hi);
+        return _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(lo)),
+                                                   _mm256_castps_pd(hi), 1));
+    }
+    default:
+        return v;
+    }
+}
+
+/* One panel's 16 columns of row r (mask k: the columns that exist). */
+static inline void epi_q8_16(const int32_t *cr, __m512i cs, __m512 s_w, __m512 b, enum fk_act act,
+                             const float *gamma, int accumulate, float *d, __mmask16 k)
+{
+    __m512i a = _mm512_sub_epi32(_mm512_load_si512((const void *)cr), cs);
+    __m512 t = act16(act, _mm512_fmadd_ps(_mm512_cvtepi32_ps(a), s_w, b));
+    if (gamma)
+        t = _mm512_mul_ps(t, _mm512_maskz_loadu_ps(k, gamma));
+    if (accumulate)
+        t = _mm512_add_ps(_mm512_maskz_loadu_ps(k, d), t);
+    _mm512_mask_storeu_ps(d, k, t);
+}
+
+/* A whole 16-32 column tile row per one or two zmm, masked at the edge
+ * (the ymm epilogue ran two halves per panel, a call and a masked
+ * maskload / maskstore sequence for each short panel). bias, scale and
+ * colsum are padded to whole panels at packing. */
+void fk__epi_q8_avx512(const int32_t *ci, const float *sa, int nr, int nn, const float *bias,
+                       const float *scale, const int32_t *colsum, const struct fk_epilogue *ep,
+                       const float *gamma, float *y, size_t ldy)
+{
+    __mmask16 k0 = nn >= 16 ? (__mmask16)0xffff : (__mmask16)((1u << nn) - 1);
+    __mmask16 k1 = nn >= 32 ? (__mmask16)0xffff : nn > 16 ? (__mmask16)((1u << (nn - 16)) - 1) : 0;
+    __m512 b0 = _mm512_load_ps(bias), w0 = _mm512_load_ps(scale);
+    __m512i cs0 = colsum ? _mm512_load_si512((const void *)colsum) : _mm512_setzero_si512();
+    __m512 b1 = b0, w1 = w0;
+    __m512i cs1 = cs0;
+    if (k1) {
+        b1 = _mm512_load_ps(bias + 16);
+        w1 = _mm512_load_ps(scale + 16);
+        cs1 = colsum ? _mm512_load_si512((const void *)(colsum + 16)) : _mm512_setzero_si512();
+    }
+    enum fk_act act = ep->act;
+    int acc = ep->accumulate;
+    for (int r = 0; r < nr; r++) {
+        __m512 s_r = _mm512_set1_ps(sa[r]);
+        float *d = y + (size_t)r * ldy;
+        epi_q8_16(ci + 16 * r, cs0, _mm512_mul_ps(s_r, w0), b0, act, gamma, acc, d, k0);
+        if (k1)
+            epi_q8_16(ci + 96 + 16 * r, cs1, _mm512_mul_ps(s_r, w1), b1, act, gamma ? gamma + 16 : NULL, acc,
+                      d + 16, k1);
     }
 }
