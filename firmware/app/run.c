@@ -792,8 +792,10 @@ static void *status_main(void *arg)
             next += 1000000000u;
         }
         /* RSS every 50 ms (a read of /proc, no allocation). The end: the last
-         * sample taken while capture still ran (it frees its buffers when it
-         * stops). The start: once every buffer was touched: the capture
+         * sample taken before the stop was asked for, while capture still ran
+         * (it frees its buffers on its way out: a 10-minute run's end sample,
+         * taken between the stop and capture's return, read 134 MB of a flat
+         * 168). The start: once every buffer was touched: the capture
          * buffers (pending_max + spares per camera, first written as they
          * cycle), the slots, and arena, codec and sink by the first key; a
          * run too short for that keeps its first sample after the first key. */
@@ -804,7 +806,7 @@ static void *status_main(void *arg)
             atomic_store(&r->cpu_first_taken, 1);
         }
         double rss = rss_mb();
-        if (atomic_load(&r->capturing))
+        if (atomic_load(&r->capturing) && (!*r->stop || isnan(r->rss_end)))
             r->rss_end = rss;
         bool warm = atomic_load(&r->sets_captured) >= r->board->sync.pending_max + HAL_CAPTURE_SPARE_BUFFERS &&
                     (!r->have_infer || atomic_load(&r->keys) > 0);
