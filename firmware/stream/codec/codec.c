@@ -395,8 +395,10 @@ static void pack(const uint32_t *v, size_t n, int bits, uint8_t *o)
  * a single neighbour's delta doubles and the median of three mostly drops. */
 static inline int32_t med3(int32_t a, int32_t b, int32_t c)
 {
+    /* c clamped to [lo, hi], as min and max (vectorizes) */
     int32_t lo = a < b ? a : b, hi = a < b ? b : a;
-    return c < lo ? lo : c > hi ? hi : c;
+    int32_t m = c < hi ? c : hi;
+    return m > lo ? m : lo;
 }
 
 #define BLK      64
@@ -462,36 +464,39 @@ struct codec_enc {
 
 /* The transform t of plane v[0..n) into pb.tmp: 1 delta of the values, 2
  * delta of the zigzagged signed values, 3 their median-of-three
- * prediction. Returns the largest transformed value. */
-static uint32_t plane_delta(codec_enc *e, const uint32_t *v, size_t n, int t)
+ * prediction. Returns the largest transformed value. Each output reads the
+ * inputs before it, not a carried state, so the loops vectorize (v is
+ * never pb.tmp). */
+static uint32_t plane_delta(codec_enc *e, const uint32_t *restrict v, size_t n, int t)
 {
-    uint32_t dm = 0, *d = e->pb.tmp;
+    uint32_t dm = 0, *restrict d = e->pb.tmp;
+    if (n == 0)
+        return 0;
     if (t == 1) {
-        uint32_t prev = 0;
-        for (size_t i = 0; i < n; i++) {
-            d[i] = zig((int32_t)(v[i] - prev));
-            prev = v[i];
-            dm = d[i] > dm ? d[i] : dm;
-        }
+        d[0] = zig((int32_t)v[0]);
+        for (size_t i = 1; i < n; i++)
+            d[i] = zig((int32_t)(v[i] - v[i - 1]));
     } else if (t == 2) {
-        int32_t a = 0;
-        for (size_t i = 0; i < n; i++) {
-            int32_t x = unzig(v[i]);
-            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)a));
-            a = x;
-            dm = d[i] > dm ? d[i] : dm;
-        }
+        d[0] = v[0]; /* zig(unzig(v) - 0) */
+        for (size_t i = 1; i < n; i++)
+            d[i] = zig((int32_t)((uint32_t)unzig(v[i]) - (uint32_t)unzig(v[i - 1])));
     } else {
         int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
-        for (size_t i = 0; i < n; i++) {
+        size_t i = 0;
+        for (; i < n && i < 3; i++) {
             int32_t x = unzig(v[i]);
             d[i] = zig((int32_t)((uint32_t)x - (uint32_t)med3(a, b, c)));
             c = b;
             b = a;
             a = x;
-            dm = d[i] > dm ? d[i] : dm;
+        }
+        for (; i < n; i++) {
+            int32_t x = unzig(v[i]);
+            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)med3(unzig(v[i - 1]), unzig(v[i - 2]), unzig(v[i - 3]))));
         }
     }
+    for (size_t i = 0; i < n; i++)
+        dm = d[i] > dm ? d[i] : dm;
     return dm;
 }
 
