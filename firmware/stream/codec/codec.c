@@ -116,6 +116,15 @@ static inline float dres(float p, struct qz z, int32_t r) { return p + (float)r 
 static inline uint32_t zig(int32_t v) { return ((uint32_t)v << 1) ^ (uint32_t)(v >> 31); }
 static inline int32_t unzig(uint32_t u) { return (int32_t)(u >> 1) ^ -(int32_t)(u & 1); }
 
+/* llround(t) for finite |t| < 2^31, inline: the truncation plus the
+ * fraction's rounding (t - trunc(t) is exact; ties away from zero). */
+static inline int32_t round_half_away(double t)
+{
+    int32_t k = (int32_t)t;
+    double f = t - (double)k;
+    return k + (f >= 0.5) - (f <= -0.5);
+}
+
 static inline uint32_t quant(struct qz z, float v)
 {
     double t = ((double)v - (double)z.lo) / (double)z.step;
@@ -123,7 +132,7 @@ static inline uint32_t quant(struct qz z, float v)
         return 0;
     if (t > (double)QMAX)
         return QMAX;
-    return (uint32_t)llround(t);
+    return (uint32_t)round_half_away(t);
 }
 
 static inline int32_t resid(struct qz z, float v, float p)
@@ -137,7 +146,9 @@ static inline int32_t resid(struct qz z, float v, float p)
         return RMAX;
     if (t < -RMAX)
         return -RMAX;
-    return (int32_t)llround(t);
+    if (t != t) /* NaN: as llround gave it */
+        return (int32_t)llround(t);
+    return round_half_away(t);
 }
 
 static inline float clamp01(float v) { return v < 0.0f ? 0.0f : v > 1.0f ? 1.0f : v; }
@@ -438,6 +449,7 @@ struct codec_enc {
     uint32_t *res;     /* [NCH * cap] residual records             */
     uint32_t *idx;     /* [cap] reference-index deltas             */
     uint32_t *flags;   /* [cap]                                    */
+    float *lsc;        /* [3 * cap] log scales of the key being coded (logf once) */
     struct morton mo;  /* order of the changed Gaussians' residuals */
     struct blocks bk;  /* block motion (version 3)                  */
     int32_t *rix;      /* [cap] reference index of each Gaussian     */
@@ -744,6 +756,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->res = malloc(NCH * c * sizeof(uint32_t));
     e->idx = malloc(c * sizeof(uint32_t));
     e->flags = malloc(c * sizeof(uint32_t));
+    e->lsc = malloc(3 * c * sizeof(float));
     e->pb.shuf = malloc(4 * c);
     e->pb.tmp = malloc(c * sizeof(uint32_t));
     e->pb.samp = malloc(c * sizeof(uint32_t));
@@ -758,7 +771,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->zws_size = zsz;
     e->effort = CODEC_EFFORT_DEFAULT;
     e->zest = e->zfin = ZLEVEL;
-    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->lsc || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -776,7 +789,7 @@ void codec_enc_free(codec_enc *e)
 {
     if (!e)
         return;
-    free(e->rec); free(e->res); free(e->idx); free(e->flags);
+    free(e->rec); free(e->res); free(e->idx); free(e->flags); free(e->lsc);
     morton_free(&e->mo);
     blocks_free(&e->bk);
     free(e->rix); free(e->bacc); free(e->est);
@@ -1012,11 +1025,6 @@ static struct qz fixed_qz(float lo, float hi, float step)
     return z;
 }
 
-static void log_scale(const float *s, float *ls)
-{
-    for (int k = 0; k < 3; k++)
-        ls[k] = logf(s[k] > SCALE_MIN ? s[k] : SCALE_MIN);
-}
 
 /* Dequantizes intra record i (column-major, stride cap) into key slot j. */
 static void intra_recon(const uint32_t *rec, size_t stride, size_t i, const struct qz *z, int rot_bits, int motion,
@@ -1342,11 +1350,10 @@ static void finish_scales(struct keystate *k)
 }
 
 /* Quantizes Gaussian i of f into intra record column position j. */
-static void intra_record(const struct splat_frame *f, size_t i, const struct qz *z, int rot_bits, int motion,
-                         uint32_t *rec, size_t stride, size_t j)
+static void intra_record(const struct splat_frame *f, const float *lsc, size_t i, const struct qz *z, int rot_bits,
+                         int motion, uint32_t *rec, size_t stride, size_t j)
 {
-    float ls[3];
-    log_scale(f->scale + 3 * i, ls);
+    const float *ls = lsc + 3 * i; /* logf of f's scales (SCALE_MIN at least) */
     for (int c = 0; c < 3; c++) {
         rec[(CH_POS + c) * stride + j] = quant(z[c], f->pos[3 * i + c]);
         rec[(CH_LS + c) * stride + j] = quant(z[3 + c], ls[c]);
@@ -1719,6 +1726,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         float llo = 0, lhi = 0;
         for (size_t i = 0; i < n; i++) {
             float s = logf(f->scale[3 * i + c] > SCALE_MIN ? f->scale[3 * i + c] : SCALE_MIN);
+            e->lsc[3 * i + c] = s;
             llo = i == 0 || s < llo ? s : llo;
             lhi = i == 0 || s > lhi ? s : lhi;
         }
@@ -1764,7 +1772,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
              * input order (a sparse take, or pixel-aligned Gaussians in
              * image order, may already have their neighbours beside them) */
             for (size_t i = 0; i < n; i++)
-                intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, i);
+                intra_record(f, e->lsc, i, z, qi->rot_bits, motion, e->rec, stride, i);
             double in_order = 0, in_morton = 0;
             for (int c = 0; c < nch; c++) {
                 in_order += plane_est(e, e->rec + (size_t)c * stride, NULL, n, 1);
@@ -1779,7 +1787,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         if (reorder)
             memcpy(ord_dst, e->mo.perm, n * sizeof(uint32_t));
         for (size_t j = 0; j < n; j++) {
-            intra_record(f, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
+            intra_record(f, e->lsc, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
             intra_recon(e->rec, stride, j, z, qi->rot_bits, motion, dst, j);
         }
         n_new = n;
@@ -1853,7 +1861,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             if (r < 0) {
                 e->flags[i] = 2;
                 e->idx[i] = 0;
-                intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, n_new);
+                intra_record(f, e->lsc, i, z, qi->rot_bits, motion, e->rec, stride, n_new);
                 intra_recon(e->rec, stride, n_new, z, qi->rot_bits, motion, dst, i);
                 n_new++;
                 continue;
@@ -1866,8 +1874,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             if (block_rot_used)
                 block_rot(&e->bk, e->bk.id[i], p.rot);
             int32_t res[NCH] = { 0 };
-            float ls[3], rpos[3];
-            log_scale(f->scale + 3 * i, ls);
+            float rpos[3];
+            const float *ls = e->lsc + 3 * i; /* from the ranges' pass */
             /* positions first: the backward motion's prediction needs them.
              * Dead zone: a prediction already within the level's bound is
              * kept (the reference's own quantization error would otherwise
