@@ -347,6 +347,7 @@ static void morton_sort(struct morton *m, size_t n)
 struct planebuf {
     uint8_t  *shuf;   /* [4 * cap] */
     uint32_t *tmp;    /* [cap]     */
+    uint32_t *tmp3;   /* [cap] transform 3, kept beside 2 while plane_pick sizes both */
     uint32_t *samp;   /* [cap] the part of a plane its candidates are sized on */
     uint8_t  *zalt;   /* [zbound]  */
     uint8_t  *zbest;  /* [zbound] the smallest candidate plane_pick compressed */
@@ -474,14 +475,14 @@ struct codec_enc {
     struct codec_enc_stats st;
 };
 
-/* The transform t of plane v[0..n) into pb.tmp: 1 delta of the values, 2
+/* The transform t of plane v[0..n) into d: 1 delta of the values, 2
  * delta of the zigzagged signed values, 3 their median-of-three
  * prediction. Returns the largest transformed value. Each output reads the
  * inputs before it, not a carried state, so the loops vectorize (v is
- * never pb.tmp). */
-static uint32_t plane_delta(codec_enc *e, const uint32_t *restrict v, size_t n, int t)
+ * never d). */
+static uint32_t plane_delta(const uint32_t *restrict v, size_t n, int t, uint32_t *restrict d)
 {
-    uint32_t dm = 0, *restrict d = e->pb.tmp;
+    uint32_t dm = 0;
     if (n == 0)
         return 0;
     if (t == 1) {
@@ -579,26 +580,22 @@ static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, i
     if (cand == 1)
         return;
     double proxy[4] = { INFINITY, INFINITY, INFINITY, INFINITY }, pbest = INFINITY;
-    int last = 0;
+    /* each transform computed once, kept for its compression (1 and 2 are
+     * never both candidates) */
+    uint32_t *dt[4] = { NULL, e->pb.tmp, e->pb.tmp, e->pb.tmp3 }, dmax[4] = { mx, 0, 0, 0 };
     for (int t = 0; t <= 3; t++) {
         if (t && (!allow_delta || (t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3)))
             continue;
-        if (t) {
-            plane_delta(e, v, n, t);
-            last = t;
-        }
-        proxy[t] = allow_delta == 2 ? plane_bits(t ? e->pb.tmp : v, n) : 0.0;
+        if (t)
+            dmax[t] = plane_delta(v, n, t, dt[t]);
+        proxy[t] = allow_delta == 2 ? plane_bits(t ? dt[t] : v, n) : 0.0;
         pbest = proxy[t] < pbest ? proxy[t] : pbest;
     }
     for (int t = 0; t <= 3; t++) {
         if (proxy[t] == INFINITY || (allow_delta == 2 && proxy[t] > PROXY_SLACK * pbest + 512.0))
             continue;
-        const uint32_t *src = v;
-        uint32_t m = mx;
-        if (t) {
-            m = t == last ? plane_max(e->pb.tmp, n) : plane_delta(e, v, n, t);
-            src = e->pb.tmp;
-        }
+        const uint32_t *src = t ? dt[t] : v;
+        uint32_t m = dmax[t];
         for (int form = 0; form < 2; form++) {
             int wcode;
             size_t nb = plane_bytes(e, src, n, m, form, &wcode);
@@ -695,7 +692,7 @@ static int put_plane_as(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, 
         return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small");
     uint8_t *tag = out + *off;
     if (t) {
-        mx = plane_delta(e, v, n, t);
+        mx = plane_delta(v, n, t, e->pb.tmp);
         v = e->pb.tmp;
     }
     int wcode;
@@ -759,6 +756,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->lsc = malloc(3 * c * sizeof(float));
     e->pb.shuf = malloc(4 * c);
     e->pb.tmp = malloc(c * sizeof(uint32_t));
+    e->pb.tmp3 = malloc(c * sizeof(uint32_t));
     e->pb.samp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
@@ -771,7 +769,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->zws_size = zsz;
     e->effort = CODEC_EFFORT_DEFAULT;
     e->zest = e->zfin = ZLEVEL;
-    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->lsc || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->lsc || !e->pb.shuf || !e->pb.tmp || !e->pb.tmp3 || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -796,7 +794,7 @@ void codec_enc_free(codec_enc *e)
     free(e->ord[0]); free(e->ord[1]); free(e->inv); free(e->slot); free(e->pmatch);
     free(e->pf.pos); free(e->pf.scale); free(e->pf.rot); free(e->pf.opacity); free(e->pf.rgb);
     free(e->pf.motion_bwd); free(e->pf.motion_fwd);
-    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
+    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.tmp3); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
     free(e);
