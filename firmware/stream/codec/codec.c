@@ -548,13 +548,24 @@ static uint32_t plane_max(const uint32_t *v, size_t n)
  * add their bit length): a cheap proxy of a transform's zstd size. */
 static double plane_bits(const uint32_t *v, size_t n)
 {
-    uint32_t h[256] = { 0 };
+    /* four histograms: runs of one value (zeros) would otherwise wait on
+     * the previous increment of the same counter */
+    uint32_t h4[4][256] = { { 0 } }, h[256];
     uint64_t extra = 0;
-    for (size_t i = 0; i < n; i++) {
+    size_t i = 0;
+    for (; i + 4 <= n; i += 4)
+        for (int k = 0; k < 4; k++) {
+            uint32_t x = v[i + k];
+            h4[k][x < 255 ? x : 255]++;
+            extra += x < 255 ? 0 : (uint64_t)(32 - __builtin_clz(x));
+        }
+    for (; i < n; i++) {
         uint32_t x = v[i];
-        h[x < 255 ? x : 255]++;
+        h4[0][x < 255 ? x : 255]++;
         extra += x < 255 ? 0 : (uint64_t)(32 - __builtin_clz(x));
     }
+    for (int b = 0; b < 256; b++)
+        h[b] = h4[0][b] + h4[1][b] + h4[2][b] + h4[3][b];
     double bits = (double)extra;
     for (int b = 0; b < 256; b++)
         if (h[b])
