@@ -602,9 +602,17 @@ static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, i
         proxy[t] = allow_delta == 2 ? plane_bits(t ? dt[t] : v, n) : 0.0;
         pbest = proxy[t] < pbest ? proxy[t] : pbest;
     }
+    int sized2 = 0;
     for (int t = 0; t <= 3; t++) {
         if (proxy[t] == INFINITY || (allow_delta == 2 && proxy[t] > PROXY_SLACK * pbest + 512.0))
             continue;
+        /* As the streams have been written: where transform 2 was sized,
+         * transform 3 was sized on 2's values again (one buffer), which is
+         * never smaller, so 3 is not tried then (kept for identical bytes;
+         * sizing 3 for real is a separate change: it alters streams). */
+        if (t == 3 && sized2)
+            continue;
+        sized2 |= t == 2;
         const uint32_t *src = t ? dt[t] : v;
         uint32_t m = dmax[t];
         for (int form = 0; form < 2; form++) {
