@@ -1780,7 +1780,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     dst->motion = motion;
 
     if (intra) {
-        int morton = (still || reorder) && n > 1;
+        int morton = (still || reorder) && n > 1, recorded = 0;
         if (morton) {
             /* Morton order of the positions: neighbours in space get
              * neighbouring indices, so every plane's deltas shrink */
@@ -1800,6 +1800,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
                 in_morton += plane_est(e, e->rec + (size_t)c * stride, e->mo.perm, n, 1);
             }
             morton = in_morton < in_order;
+            recorded = 1;
         }
         if (!morton) {
             for (size_t i = 0; i < n; i++)
@@ -1807,8 +1808,19 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         }
         if (reorder)
             memcpy(ord_dst, e->mo.perm, n * sizeof(uint32_t));
+        if (recorded && morton) {
+            /* the records of the input order, gathered into Morton order
+             * (res is free on an intra key), not quantized again */
+            for (int c = 0; c < nch; c++)
+                for (size_t j = 0; j < n; j++)
+                    e->res[(size_t)c * stride + j] = e->rec[(size_t)c * stride + e->mo.perm[j]];
+            uint32_t *sw = e->rec;
+            e->rec = e->res;
+            e->res = sw;
+        }
         for (size_t j = 0; j < n; j++) {
-            intra_record(f, e->lsc, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
+            if (!recorded)
+                intra_record(f, e->lsc, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
             intra_recon(e->rec, stride, j, z, qi->rot_bits, motion, dst, j);
         }
         n_new = n;
