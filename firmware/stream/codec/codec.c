@@ -116,6 +116,15 @@ static inline float dres(float p, struct qz z, int32_t r) { return p + (float)r 
 static inline uint32_t zig(int32_t v) { return ((uint32_t)v << 1) ^ (uint32_t)(v >> 31); }
 static inline int32_t unzig(uint32_t u) { return (int32_t)(u >> 1) ^ -(int32_t)(u & 1); }
 
+/* llround(t) for finite |t| < 2^31, inline: the truncation plus the
+ * fraction's rounding (t - trunc(t) is exact; ties away from zero). */
+static inline int32_t round_half_away(double t)
+{
+    int32_t k = (int32_t)t;
+    double f = t - (double)k;
+    return k + (f >= 0.5) - (f <= -0.5);
+}
+
 static inline uint32_t quant(struct qz z, float v)
 {
     double t = ((double)v - (double)z.lo) / (double)z.step;
@@ -123,7 +132,7 @@ static inline uint32_t quant(struct qz z, float v)
         return 0;
     if (t > (double)QMAX)
         return QMAX;
-    return (uint32_t)llround(t);
+    return (uint32_t)round_half_away(t);
 }
 
 static inline int32_t resid(struct qz z, float v, float p)
@@ -137,7 +146,9 @@ static inline int32_t resid(struct qz z, float v, float p)
         return RMAX;
     if (t < -RMAX)
         return -RMAX;
-    return (int32_t)llround(t);
+    if (t != t) /* NaN: as llround gave it */
+        return (int32_t)llround(t);
+    return round_half_away(t);
 }
 
 static inline float clamp01(float v) { return v < 0.0f ? 0.0f : v > 1.0f ? 1.0f : v; }
@@ -336,6 +347,7 @@ static void morton_sort(struct morton *m, size_t n)
 struct planebuf {
     uint8_t  *shuf;   /* [4 * cap] */
     uint32_t *tmp;    /* [cap]     */
+    uint32_t *tmp3;   /* [cap] transform 3, kept beside 2 while plane_pick sizes both */
     uint32_t *samp;   /* [cap] the part of a plane its candidates are sized on */
     uint8_t  *zalt;   /* [zbound]  */
     uint8_t  *zbest;  /* [zbound] the smallest candidate plane_pick compressed */
@@ -395,8 +407,10 @@ static void pack(const uint32_t *v, size_t n, int bits, uint8_t *o)
  * a single neighbour's delta doubles and the median of three mostly drops. */
 static inline int32_t med3(int32_t a, int32_t b, int32_t c)
 {
+    /* c clamped to [lo, hi], as min and max (vectorizes) */
     int32_t lo = a < b ? a : b, hi = a < b ? b : a;
-    return c < lo ? lo : c > hi ? hi : c;
+    int32_t m = c < hi ? c : hi;
+    return m > lo ? m : lo;
 }
 
 #define BLK      64
@@ -436,6 +450,7 @@ struct codec_enc {
     uint32_t *res;     /* [NCH * cap] residual records             */
     uint32_t *idx;     /* [cap] reference-index deltas             */
     uint32_t *flags;   /* [cap]                                    */
+    float *lsc;        /* [3 * cap] log scales of the key being coded (logf once) */
     struct morton mo;  /* order of the changed Gaussians' residuals */
     struct blocks bk;  /* block motion (version 3)                  */
     int32_t *rix;      /* [cap] reference index of each Gaussian     */
@@ -460,38 +475,41 @@ struct codec_enc {
     struct codec_enc_stats st;
 };
 
-/* The transform t of plane v[0..n) into pb.tmp: 1 delta of the values, 2
+/* The transform t of plane v[0..n) into d: 1 delta of the values, 2
  * delta of the zigzagged signed values, 3 their median-of-three
- * prediction. Returns the largest transformed value. */
-static uint32_t plane_delta(codec_enc *e, const uint32_t *v, size_t n, int t)
+ * prediction. Returns the largest transformed value. Each output reads the
+ * inputs before it, not a carried state, so the loops vectorize (v is
+ * never d). */
+static uint32_t plane_delta(const uint32_t *restrict v, size_t n, int t, uint32_t *restrict d)
 {
-    uint32_t dm = 0, *d = e->pb.tmp;
+    uint32_t dm = 0;
+    if (n == 0)
+        return 0;
     if (t == 1) {
-        uint32_t prev = 0;
-        for (size_t i = 0; i < n; i++) {
-            d[i] = zig((int32_t)(v[i] - prev));
-            prev = v[i];
-            dm = d[i] > dm ? d[i] : dm;
-        }
+        d[0] = zig((int32_t)v[0]);
+        for (size_t i = 1; i < n; i++)
+            d[i] = zig((int32_t)(v[i] - v[i - 1]));
     } else if (t == 2) {
-        int32_t a = 0;
-        for (size_t i = 0; i < n; i++) {
-            int32_t x = unzig(v[i]);
-            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)a));
-            a = x;
-            dm = d[i] > dm ? d[i] : dm;
-        }
+        d[0] = v[0]; /* zig(unzig(v) - 0) */
+        for (size_t i = 1; i < n; i++)
+            d[i] = zig((int32_t)((uint32_t)unzig(v[i]) - (uint32_t)unzig(v[i - 1])));
     } else {
         int32_t a = 0, b = 0, c = 0; /* the three signed values before i */
-        for (size_t i = 0; i < n; i++) {
+        size_t i = 0;
+        for (; i < n && i < 3; i++) {
             int32_t x = unzig(v[i]);
             d[i] = zig((int32_t)((uint32_t)x - (uint32_t)med3(a, b, c)));
             c = b;
             b = a;
             a = x;
-            dm = d[i] > dm ? d[i] : dm;
+        }
+        for (; i < n; i++) {
+            int32_t x = unzig(v[i]);
+            d[i] = zig((int32_t)((uint32_t)x - (uint32_t)med3(unzig(v[i - 1]), unzig(v[i - 2]), unzig(v[i - 3]))));
         }
     }
+    for (size_t i = 0; i < n; i++)
+        dm |= d[i]; /* as plane_max: the OR */
     return dm;
 }
 
@@ -518,11 +536,15 @@ static size_t plane_bytes(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx
  * Candidates are compressed at ZLEVEL; *est is the smallest, kept in
  * pb.zbest (tag pb.best_tag), SIZE_MAX when there was only one candidate
  * (not compressed). */
+/* Stands for the largest value: the OR of the values, which has the
+ * largest one's bit length, and every test of it (width_of, packing, < 16)
+ * is against a power of two; the OR reduces at one cycle a step where an
+ * unsigned max (SSE2) is a dependent chain of five. */
 static uint32_t plane_max(const uint32_t *v, size_t n)
 {
     uint32_t mx = 0;
     for (size_t i = 0; i < n; i++)
-        mx = v[i] > mx ? v[i] : mx;
+        mx |= v[i];
     return mx;
 }
 
@@ -530,13 +552,24 @@ static uint32_t plane_max(const uint32_t *v, size_t n)
  * add their bit length): a cheap proxy of a transform's zstd size. */
 static double plane_bits(const uint32_t *v, size_t n)
 {
-    uint32_t h[256] = { 0 };
+    /* four histograms: runs of one value (zeros) would otherwise wait on
+     * the previous increment of the same counter */
+    uint32_t h4[4][256] = { { 0 } }, h[256];
     uint64_t extra = 0;
-    for (size_t i = 0; i < n; i++) {
+    size_t i = 0;
+    for (; i + 4 <= n; i += 4)
+        for (int k = 0; k < 4; k++) {
+            uint32_t x = v[i + k];
+            h4[k][x < 255 ? x : 255]++;
+            extra += x < 255 ? 0 : (uint64_t)(32 - __builtin_clz(x));
+        }
+    for (; i < n; i++) {
         uint32_t x = v[i];
-        h[x < 255 ? x : 255]++;
+        h4[0][x < 255 ? x : 255]++;
         extra += x < 255 ? 0 : (uint64_t)(32 - __builtin_clz(x));
     }
+    for (int b = 0; b < 256; b++)
+        h[b] = h4[0][b] + h4[1][b] + h4[2][b] + h4[3][b];
     double bits = (double)extra;
     for (int b = 0; b < 256; b++)
         if (h[b])
@@ -562,26 +595,30 @@ static void plane_pick(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, i
     if (cand == 1)
         return;
     double proxy[4] = { INFINITY, INFINITY, INFINITY, INFINITY }, pbest = INFINITY;
-    int last = 0;
+    /* each transform computed once, kept for its compression (1 and 2 are
+     * never both candidates) */
+    uint32_t *dt[4] = { NULL, e->pb.tmp, e->pb.tmp, e->pb.tmp3 }, dmax[4] = { mx, 0, 0, 0 };
     for (int t = 0; t <= 3; t++) {
         if (t && (!allow_delta || (t == 1) != (allow_delta == 1) || (t == 3 && e->ver < 3)))
             continue;
-        if (t) {
-            plane_delta(e, v, n, t);
-            last = t;
-        }
-        proxy[t] = allow_delta == 2 ? plane_bits(t ? e->pb.tmp : v, n) : 0.0;
+        if (t)
+            dmax[t] = plane_delta(v, n, t, dt[t]);
+        proxy[t] = allow_delta == 2 ? plane_bits(t ? dt[t] : v, n) : 0.0;
         pbest = proxy[t] < pbest ? proxy[t] : pbest;
     }
+    int sized2 = 0;
     for (int t = 0; t <= 3; t++) {
         if (proxy[t] == INFINITY || (allow_delta == 2 && proxy[t] > PROXY_SLACK * pbest + 512.0))
             continue;
-        const uint32_t *src = v;
-        uint32_t m = mx;
-        if (t) {
-            m = t == last ? plane_max(e->pb.tmp, n) : plane_delta(e, v, n, t);
-            src = e->pb.tmp;
-        }
+        /* As the streams have been written: where transform 2 was sized,
+         * transform 3 was sized on 2's values again (one buffer), which is
+         * never smaller, so 3 is not tried then (kept for identical bytes;
+         * sizing 3 for real is a separate change: it alters streams). */
+        if (t == 3 && sized2)
+            continue;
+        sized2 |= t == 2;
+        const uint32_t *src = t ? dt[t] : v;
+        uint32_t m = dmax[t];
         for (int form = 0; form < 2; form++) {
             int wcode;
             size_t nb = plane_bytes(e, src, n, m, form, &wcode);
@@ -678,7 +715,7 @@ static int put_plane_as(codec_enc *e, const uint32_t *v, size_t n, uint32_t mx, 
         return f4d_fail(&e->err, F4D_ERANGE, "encode: output buffer too small");
     uint8_t *tag = out + *off;
     if (t) {
-        mx = plane_delta(e, v, n, t);
+        mx = plane_delta(v, n, t, e->pb.tmp);
         v = e->pb.tmp;
     }
     int wcode;
@@ -739,8 +776,10 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->res = malloc(NCH * c * sizeof(uint32_t));
     e->idx = malloc(c * sizeof(uint32_t));
     e->flags = malloc(c * sizeof(uint32_t));
+    e->lsc = malloc(3 * c * sizeof(float));
     e->pb.shuf = malloc(4 * c);
     e->pb.tmp = malloc(c * sizeof(uint32_t));
+    e->pb.tmp3 = malloc(c * sizeof(uint32_t));
     e->pb.samp = malloc(c * sizeof(uint32_t));
     e->pb.zbound = ZSTD_compressBound(4 * c);
     e->pb.zalt = malloc(e->pb.zbound);
@@ -753,7 +792,7 @@ int codec_enc_new(size_t capacity, enum codec_quality q, codec_enc **out, struct
     e->zws_size = zsz;
     e->effort = CODEC_EFFORT_DEFAULT;
     e->zest = e->zfin = ZLEVEL;
-    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->pb.shuf || !e->pb.tmp || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
+    int bad = !e->est || !e->rec || !e->res || !e->idx || !e->flags || !e->lsc || !e->pb.shuf || !e->pb.tmp || !e->pb.tmp3 || !e->pb.samp || !e->pb.zalt || !e->pb.zbest || !e->pb.zkeep || !e->zws ||
               morton_alloc(&e->mo, c) || blocks_alloc(&e->bk, c) ||
               !(e->rix = malloc(c * sizeof(int32_t))) || !(e->bacc = malloc((c / BLK + 1) * 32 * sizeof(double))) ||
               key_alloc(&e->key[0], capacity) || key_alloc(&e->key[1], capacity);
@@ -771,14 +810,14 @@ void codec_enc_free(codec_enc *e)
 {
     if (!e)
         return;
-    free(e->rec); free(e->res); free(e->idx); free(e->flags);
+    free(e->rec); free(e->res); free(e->idx); free(e->flags); free(e->lsc);
     morton_free(&e->mo);
     blocks_free(&e->bk);
     free(e->rix); free(e->bacc); free(e->est);
     free(e->ord[0]); free(e->ord[1]); free(e->inv); free(e->slot); free(e->pmatch);
     free(e->pf.pos); free(e->pf.scale); free(e->pf.rot); free(e->pf.opacity); free(e->pf.rgb);
     free(e->pf.motion_bwd); free(e->pf.motion_fwd);
-    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
+    free(e->pb.shuf); free(e->pb.tmp); free(e->pb.tmp3); free(e->pb.samp); free(e->pb.zalt); free(e->pb.zbest); free(e->pb.zkeep); free(e->zws);
     key_free(&e->key[0]);
     key_free(&e->key[1]);
     free(e);
@@ -1007,11 +1046,6 @@ static struct qz fixed_qz(float lo, float hi, float step)
     return z;
 }
 
-static void log_scale(const float *s, float *ls)
-{
-    for (int k = 0; k < 3; k++)
-        ls[k] = logf(s[k] > SCALE_MIN ? s[k] : SCALE_MIN);
-}
 
 /* Dequantizes intra record i (column-major, stride cap) into key slot j. */
 static void intra_recon(const uint32_t *rec, size_t stride, size_t i, const struct qz *z, int rot_bits, int motion,
@@ -1337,11 +1371,10 @@ static void finish_scales(struct keystate *k)
 }
 
 /* Quantizes Gaussian i of f into intra record column position j. */
-static void intra_record(const struct splat_frame *f, size_t i, const struct qz *z, int rot_bits, int motion,
-                         uint32_t *rec, size_t stride, size_t j)
+static void intra_record(const struct splat_frame *f, const float *lsc, size_t i, const struct qz *z, int rot_bits,
+                         int motion, uint32_t *rec, size_t stride, size_t j)
 {
-    float ls[3];
-    log_scale(f->scale + 3 * i, ls);
+    const float *ls = lsc + 3 * i; /* logf of f's scales (SCALE_MIN at least) */
     for (int c = 0; c < 3; c++) {
         rec[(CH_POS + c) * stride + j] = quant(z[c], f->pos[3 * i + c]);
         rec[(CH_LS + c) * stride + j] = quant(z[3 + c], ls[c]);
@@ -1714,6 +1747,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         float llo = 0, lhi = 0;
         for (size_t i = 0; i < n; i++) {
             float s = logf(f->scale[3 * i + c] > SCALE_MIN ? f->scale[3 * i + c] : SCALE_MIN);
+            e->lsc[3 * i + c] = s;
             llo = i == 0 || s < llo ? s : llo;
             lhi = i == 0 || s > lhi ? s : lhi;
         }
@@ -1746,7 +1780,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
     dst->motion = motion;
 
     if (intra) {
-        int morton = (still || reorder) && n > 1;
+        int morton = (still || reorder) && n > 1, recorded = 0;
         if (morton) {
             /* Morton order of the positions: neighbours in space get
              * neighbouring indices, so every plane's deltas shrink */
@@ -1759,13 +1793,14 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
              * input order (a sparse take, or pixel-aligned Gaussians in
              * image order, may already have their neighbours beside them) */
             for (size_t i = 0; i < n; i++)
-                intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, i);
+                intra_record(f, e->lsc, i, z, qi->rot_bits, motion, e->rec, stride, i);
             double in_order = 0, in_morton = 0;
             for (int c = 0; c < nch; c++) {
                 in_order += plane_est(e, e->rec + (size_t)c * stride, NULL, n, 1);
                 in_morton += plane_est(e, e->rec + (size_t)c * stride, e->mo.perm, n, 1);
             }
             morton = in_morton < in_order;
+            recorded = 1;
         }
         if (!morton) {
             for (size_t i = 0; i < n; i++)
@@ -1773,8 +1808,19 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
         }
         if (reorder)
             memcpy(ord_dst, e->mo.perm, n * sizeof(uint32_t));
+        if (recorded && morton) {
+            /* the records of the input order, gathered into Morton order
+             * (res is free on an intra key), not quantized again */
+            for (int c = 0; c < nch; c++)
+                for (size_t j = 0; j < n; j++)
+                    e->res[(size_t)c * stride + j] = e->rec[(size_t)c * stride + e->mo.perm[j]];
+            uint32_t *sw = e->rec;
+            e->rec = e->res;
+            e->res = sw;
+        }
         for (size_t j = 0; j < n; j++) {
-            intra_record(f, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
+            if (!recorded)
+                intra_record(f, e->lsc, e->mo.perm[j], z, qi->rot_bits, motion, e->rec, stride, j);
             intra_recon(e->rec, stride, j, z, qi->rot_bits, motion, dst, j);
         }
         n_new = n;
@@ -1848,7 +1894,7 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             if (r < 0) {
                 e->flags[i] = 2;
                 e->idx[i] = 0;
-                intra_record(f, i, z, qi->rot_bits, motion, e->rec, stride, n_new);
+                intra_record(f, e->lsc, i, z, qi->rot_bits, motion, e->rec, stride, n_new);
                 intra_recon(e->rec, stride, n_new, z, qi->rot_bits, motion, dst, i);
                 n_new++;
                 continue;
@@ -1861,8 +1907,8 @@ int codec_enc_key(codec_enc *e, const struct splat_frame *f, uint64_t t_us, enum
             if (block_rot_used)
                 block_rot(&e->bk, e->bk.id[i], p.rot);
             int32_t res[NCH] = { 0 };
-            float ls[3], rpos[3];
-            log_scale(f->scale + 3 * i, ls);
+            float rpos[3];
+            const float *ls = e->lsc + 3 * i; /* from the ranges' pass */
             /* positions first: the backward motion's prediction needs them.
              * Dead zone: a prediction already within the level's bound is
              * kept (the reference's own quantization error would otherwise
