@@ -13,6 +13,10 @@
 #ifndef FK_GEMM_H
 #define FK_GEMM_H
 
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
 #include "../fk_linear.h"
 
 #define FK_GEMM_NR 16  /* output channels per packed panel        */
@@ -98,6 +102,22 @@ struct fk__arun {
     const float *p;
     int          n;
 };
+/* An int8 activation row's scale from the bits of its largest |x| (the
+ * integer max of |x| as bits: Inf / NaN sort above every finite value), and
+ * 127 / amax into *inv (0 when the row's codes are all zero: amax under
+ * FK_Q8_AMAX_MIN, scale 0; or Inf / NaN in the row, scale NaN), as
+ * fk_quantize_row_q8. Shared by the AVX2 and AVX-512 row quantizers. */
+static inline float fk__q8_row_scale(uint32_t absmax_bits, float *inv)
+{
+    float am;
+    memcpy(&am, &absmax_bits, sizeof am);
+    if (absmax_bits >= 0x7f800000u || am < FK_Q8_AMAX_MIN) {
+        *inv = 0;
+        return absmax_bits >= 0x7f800000u ? NAN : 0.0f;
+    }
+    *inv = 127.0f / am;
+    return am / 127.0f;
+}
 /* AVX-512 int8 quantization of `rows` <= 6 rows of A given as runs (row j:
  * r[j][0 .. nr[j]), k values in all), bit for bit the reference's codes and
  * scales: codes into q + j ldq, [0, k_pad) (zeros past k), scale into sa[j]

@@ -345,9 +345,6 @@ static float quantize_row(const float *x, int k, int8_t *q)
     return am / 127.0f;
 }
 
-/* A run of row m of A: n floats at p, or n zeros (p NULL). */
-#define arun fk__arun
-
 /* Most runs a convolution row may take: a zero run, the in-image taps of one
  * kernel row (adjacent pixels, so one run in channels-last), a zero run, per
  * kernel row. Larger kernels gather the row with fk__asrc_row. */
@@ -356,10 +353,10 @@ static float quantize_row(const float *x, int k, int8_t *q)
 /* Row m of A (of a convolution: output pixel (py, px)) as at most ARUN_MAX
  * runs in k order (k = (ky kw + kx) cin + c); returns their count, or 0 when
  * the row needs more. */
-static int row_runs_at(const struct fk__asrc *a, int m, int py, int px, int k, struct arun *r)
+static int row_runs_at(const struct fk__asrc *a, int m, int py, int px, int k, struct fk__arun *r)
 {
     if (!a->conv) {
-        r[0] = (struct arun){ a->x + (size_t)m * (size_t)a->ldx, k };
+        r[0] = (struct fk__arun){ a->x + (size_t)m * (size_t)a->ldx, k };
         return 1;
     }
     int oy = py * a->stride - a->pad, ox = px * a->stride - a->pad, nr = 0;
@@ -369,22 +366,22 @@ static int row_runs_at(const struct fk__asrc *a, int m, int py, int px, int k, s
     for (int ky = 0; ky < a->kh; ky++) {
         int iy = oy + ky;
         if (iy < 0 || iy >= a->h || kx1 <= kx0) {
-            r[nr++] = (struct arun){ NULL, a->kw * a->cin };
+            r[nr++] = (struct fk__arun){ NULL, a->kw * a->cin };
             continue;
         }
         if (kx0 > 0)
-            r[nr++] = (struct arun){ NULL, kx0 * a->cin };
-        r[nr++] = (struct arun){ a->x + ((size_t)iy * (size_t)a->w + (size_t)(ox + kx0)) * (size_t)a->cin,
+            r[nr++] = (struct fk__arun){ NULL, kx0 * a->cin };
+        r[nr++] = (struct fk__arun){ a->x + ((size_t)iy * (size_t)a->w + (size_t)(ox + kx0)) * (size_t)a->cin,
                                  (kx1 - kx0) * a->cin };
         if (kx1 < a->kw)
-            r[nr++] = (struct arun){ NULL, (a->kw - kx1) * a->cin };
+            r[nr++] = (struct fk__arun){ NULL, (a->kw - kx1) * a->cin };
     }
     return nr;
 }
 
 /* row_runs for output pixel (py, px) = (m / wo, m % wo) of a convolution,
  * the division done by the caller (quantize_panel walks six pixels). */
-static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
+static int row_runs(const struct fk__asrc *a, int m, int k, struct fk__arun *r)
 {
     return a->conv ? row_runs_at(a, m, m / a->wo, m % a->wo, k, r) : row_runs_at(a, m, 0, 0, k, r);
 }
@@ -394,7 +391,7 @@ static int row_runs(const struct fk__asrc *a, int m, int k, struct arun *r)
  * value, so this one max gives amax and the reference's poison test (x * 0
  * summed: NaN exactly when some x is Inf or NaN) at once, one reduction
  * instead of two; zero runs add nothing; max does not depend on the order. */
-static inline uint32_t runs_absmax_bits(const struct arun *r, int nr)
+static inline uint32_t runs_absmax_bits(const struct fk__arun *r, int nr)
 {
     __m256i amax = _mm256_setzero_si256();
     const __m256i absmask = _mm256_set1_epi32(0x7fffffff);
@@ -420,23 +417,8 @@ static inline uint32_t runs_absmax_bits(const struct arun *r, int nr)
     return vb > bits ? vb : bits;
 }
 
-/* The scale of a row from its absmax bits, and 127 / amax into *inv (0 when
- * the row's codes are all zero: amax under FK_Q8_AMAX_MIN, or Inf / NaN,
- * whose scale is NaN), as quantize_row. */
-static inline float runs_scale(uint32_t bits, float *inv)
-{
-    float am;
-    memcpy(&am, &bits, sizeof am);
-    if (bits >= 0x7f800000u || am < FK_Q8_AMAX_MIN) {
-        *inv = 0;
-        return bits >= 0x7f800000u ? NAN : 0.0f;
-    }
-    *inv = 127.0f / am;
-    return am / 127.0f;
-}
-
 /* The runs' codes x * invs into q, rounded to nearest even like quantize_row. */
-static inline void runs_codes(const struct arun *r, int nr, float invs, int8_t *q)
+static inline void runs_codes(const struct fk__arun *r, int nr, float invs, int8_t *q)
 {
     __m256 inv = _mm256_set1_ps(invs);
     for (int s = 0; s < nr; s++) {
@@ -470,12 +452,12 @@ static inline void runs_codes(const struct arun *r, int nr, float invs, int8_t *
 
 /* quantize_row over runs, so the codes and the scale are quantize_row's bit
  * for bit, without copying the row. */
-static float quantize_runs(const struct arun *r, int nr, int8_t *q)
+static float quantize_runs(const struct fk__arun *r, int nr, int8_t *q)
 {
     int k = 0;
     for (int s = 0; s < nr; s++)
         k += r[s].n;
-    float inv, sc = runs_scale(runs_absmax_bits(r, nr), &inv);
+    float inv, sc = fk__q8_row_scale(runs_absmax_bits(r, nr), &inv);
     if (inv == 0)
         memset(q, 0, (size_t)k);
     else
@@ -487,7 +469,7 @@ static float quantize_runs(const struct arun *r, int nr, int8_t *q)
  * gathered row for kernels with more rows than ARUN_MAX covers. */
 static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q, float *rowbuf)
 {
-    struct arun r[ARUN_MAX];
+    struct fk__arun r[ARUN_MAX];
     int nr = row_runs(src, m, k, r);
     if (nr == 0) {
         fk__asrc_row(src, m, 0, k, rowbuf);
@@ -507,8 +489,8 @@ static float quantize_a_row(const struct fk__asrc *src, int m, int k, int8_t *q,
 static int quantize_panel(const struct fk__asrc *src, int m0, int rows, int k, int k_pad, int8_t *q,
                           float *sa, int wide)
 {
-    struct arun runs[MR][ARUN_MAX];
-    const struct arun *rp[MR];
+    struct fk__arun runs[MR][ARUN_MAX];
+    const struct fk__arun *rp[MR];
     int nr[MR];
     /* output pixel of row m0, then stepped: no division per row */
     int py = src->conv ? m0 / src->wo : 0, px = src->conv ? m0 % src->wo : 0;
@@ -531,7 +513,7 @@ static int quantize_panel(const struct fk__asrc *src, int m0, int rows, int k, i
     for (int rr = 0; rr < MR; rr++)
         bits[rr] = runs_absmax_bits(runs[rr], nr[rr]);
     for (int rr = 0; rr < MR; rr++)
-        sa[rr] = runs_scale(bits[rr], &inv[rr]);
+        sa[rr] = fk__q8_row_scale(bits[rr], &inv[rr]);
     for (int rr = 0; rr < MR; rr++) {
         int8_t *qr = q + (size_t)rr * (size_t)k_pad;
         if (inv[rr] == 0) {

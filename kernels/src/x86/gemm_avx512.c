@@ -5,7 +5,6 @@
  * accumulators; each k step loads two zmm of weights and broadcasts six
  * values of A. */
 #include <immintrin.h>
-#include <math.h>
 #include <string.h>
 
 #include "../fk_internal.h"
@@ -207,20 +206,8 @@ void fk__q8_quantize_rows_avx512(const struct fk__arun *const r[], const int nr[
     float inv[FK_GEMM_MR];
     for (int j = 0; j < rows; j++)
         bits[j] = absmax_bits(r[j], nr[j]);
-    for (int j = 0; j < rows; j++) {
-        float am;
-        memcpy(&am, &bits[j], sizeof am);
-        if (bits[j] >= 0x7f800000u) { /* Inf or NaN: the reference's poisoned row */
-            sa[j] = NAN;
-            inv[j] = 0;
-        } else if (am < FK_Q8_AMAX_MIN) {
-            sa[j] = 0.0f;
-            inv[j] = 0;
-        } else {
-            sa[j] = am / 127.0f;
-            inv[j] = 127.0f / am;
-        }
-    }
+    for (int j = 0; j < rows; j++)
+        sa[j] = fk__q8_row_scale(bits[j], &inv[j]);
     for (int j = 0; j < rows; j++) {
         int8_t *qj = q + (size_t)j * ldq;
         if (inv[j] == 0) {
