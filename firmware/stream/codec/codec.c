@@ -2362,6 +2362,18 @@ static inline float fsel(uint32_t m, float a, float b)
     return a;
 }
 
+/* q0^2 + q1^2 + q2^2 + q3^2 summed in that order (block_rot's and
+ * resid_recon's loops over a quaternion: the same bits). */
+static inline float sumsq4(float q0, float q1, float q2, float q3)
+{
+    float nn = 0.0f;
+    nn += q0 * q0;
+    nn += q1 * q1;
+    nn += q2 * q2;
+    nn += q3 * q3;
+    return nn;
+}
+
 /* dst[3j + c] = R[3 ri[j] + c] over the tile; R + 3 i0 itself when the
  * tile's references are its own slots (no copy). */
 static const float *gather3(const float *restrict R, const uint32_t *ri, size_t t, int ident, size_t i0,
@@ -2560,11 +2572,7 @@ __attribute__((noinline)) static int pred_tile(const struct pctx *x, struct dtil
             const float q1 = e0[j] * a1[j] + e1[j] * a0[j] + e2[j] * a3[j] - e3[j] * a2[j];
             const float q2 = e0[j] * a2[j] - e1[j] * a3[j] + e2[j] * a0[j] + e3[j] * a1[j];
             const float q3 = e0[j] * a3[j] + e1[j] * a2[j] - e2[j] * a1[j] + e3[j] * a0[j];
-            float nn = 0.0f;
-            nn += q0 * q0;
-            nn += q1 * q1;
-            nn += q2 * q2;
-            nn += q3 * q3;
+            const float nn = sumsq4(q0, q1, q2, q3);
             const float inv = 1.0f / sqrtf(nn);
             /* block_rot: n = nn > 1e-30 ? inv : 0, used where n != 0 */
             const uint32_t use = 0u - (uint32_t)((bq[j] != 0.0f) & (nn > 1e-30f) & (inv != 0.0f));
@@ -2580,11 +2588,7 @@ __attribute__((noinline)) static int pred_tile(const struct pctx *x, struct dtil
         const uint32_t *restrict rr = w->rr;
         for (size_t j = 0; j < t; j++) {
             const float q0 = a0[j] + r0[j], q1 = a1[j] + r1[j], q2 = a2[j] + r2[j], q3 = a3[j] + r3[j];
-            float nn = 0.0f;
-            nn += q0 * q0;
-            nn += q1 * q1;
-            nn += q2 * q2;
-            nn += q3 * q3;
+            const float nn = sumsq4(q0, q1, q2, q3);
             const float inv = 1.0f / sqrtf(nn);
             const uint32_t has = 0u - (uint32_t)(rr[j] != 0), ok = 0u - (uint32_t)(nn > 1e-30f);
             a0[j] = fsel(has, fsel(ok, q0 * inv, 1.0f), a0[j]);
