@@ -148,6 +148,17 @@ static int cmp_double(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
+/* Before each timed call with threads > 1: a millisecond for the idle
+ * threads of whichever library ran last to fall asleep (ours spin 4000
+ * pauses, OpenBLAS's 2^OPENBLAS_THREAD_TIMEOUT cycles, set below), so
+ * that neither is timed beside the other's spinning worker on a 2-core
+ * machine, and every timed call pays the same one wake-up. */
+static void settle(int threads)
+{
+    if (threads > 1)
+        nanosleep(&(struct timespec){ 0, 1000000 }, NULL);
+}
+
 /* Median of num[r] / den[r] over the reps: the ratio of two kernels timed in
  * turn (A B A B ...), so a slow phase of a shared machine hits both sides of
  * a pair instead of one side's best. */
@@ -192,7 +203,7 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         fprintf(stderr, "f4d-bench: out of memory\n");
         exit(1);
     }
-    int count = 0, reps = o->reps < 64 ? o->reps : 64;
+    int count = 0, reps_min = o->reps < 63 ? o->reps : 63;
     double flops = 2.0 * m * (double)n * k;
     for (int threads = o->quick ? o->threads_max : 1; threads <= o->threads_max; threads++) {
         fk_ctx *ctxs[4];
@@ -232,7 +243,9 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         }
         /* one untimed call each (also the outputs the errors come from) */
         double blas_max = NAN, blas_mean = NAN;
+        double t_first = bench_now();
         run_linear(ctxs[0], &L[0], x, m, y32);
+        t_first = bench_now() - t_first;
 #ifdef F4D_HAVE_OPENBLAS
         openblas_set_num_threads(threads);
         run_openblas(x, w, b, yb, m, n, k);
@@ -250,9 +263,21 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
                 errors_vs(y, y32, (size_t)m * n, &emax[v], &emean[v]);
             }
         }
+        /* at least --reps pairs, more while a shape's turns stay short (about
+         * 1 s in all), at least 5 with 2 threads: a median of 3 pairs swung
+         * from 0.38x to 1.3x between runs on the tiny shapes, and this VM's
+         * 2 cores slow down together for ~0.3 s at a time (1.75x, every
+         * variant: sibling hyperthreads of one host core, it seems), which a
+         * median of 3 cannot outvote */
+        int reps = (int)(1.0 / ((nv + 1) * (t_first > 1e-6 ? t_first : 1e-6)));
+        if (threads > 1 && reps_min < 5)
+            reps_min = 5;
+        reps = reps < reps_min ? reps_min : reps > 63 ? 63 : reps;
+        reps |= 1; /* odd: the median is one pair's ratio */
         for (int r = 0; r < reps; r++) {
             tb[r] = NAN;
 #ifdef F4D_HAVE_OPENBLAS
+            settle(threads);
             double t0 = now_for(o, threads);
             run_openblas(x, w, b, yb, m, n, k);
             tb[r] = now_for(o, threads) - t0;
@@ -260,6 +285,7 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
             for (int v = 0; v < nv; v++) {
                 if (skip[v])
                     continue;
+                settle(threads);
                 double t1 = now_for(o, threads);
                 run_linear(ctxs[v / 3], &L[v], x, m, y);
                 t[v][r] = now_for(o, threads) - t1;
@@ -334,6 +360,7 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
             fk_ctx *ctx = ctxs[c];
             double best = 1e30;
             for (int r = 0; r < o->reps; r++) {
+                settle(threads);
                 double t0 = now_for(o, threads);
                 if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
                                  out, C) != F4D_OK) {
@@ -510,23 +537,32 @@ int bench_kernels(int argc, char **argv)
      * OPENBLAS_CORETYPE inherited from the environment is replaced (this
      * machine's shell had Haswell set, which made --isa avx512 and
      * --openblas-native compare with Haswell); F4D_BENCH_OPENBLAS_SET marks
-     * the restarted process. */
+     * the restarted process.
+     * Also read at load: how long OpenBLAS's idle workers spin before they
+     * sleep, 2^28 TSC cycles by default (0.1 s). On a 2-core machine that
+     * spin took a core from whatever ran next: after each OpenBLAS call it
+     * slowed our f32 GEMM timed next (2 threads, Zen 5: medians of pairs
+     * 0.60-0.92x on shapes where best times gave 1.01-1.06x). 2^18 cycles is
+     * about our pool's spin (4000 pauses); the user's own setting is kept. */
     const char *inherited = getenv("OPENBLAS_CORETYPE");
-    if (!getenv("F4D_BENCH_OPENBLAS_SET") && fk_isa_supported(FK_ISA_AVX2) &&
-        (!o.openblas_native || inherited)) {
+    int set_timeout = !getenv("OPENBLAS_THREAD_TIMEOUT");
+    if (!getenv("F4D_BENCH_OPENBLAS_SET") &&
+        ((fk_isa_supported(FK_ISA_AVX2) && (!o.openblas_native || inherited)) || set_timeout)) {
         const char *core = NULL;
-        if (!o.openblas_native) {
+        if (!o.openblas_native && fk_isa_supported(FK_ISA_AVX2)) {
             fk_ctx *p0 = make_ctx(o.isa, 1);
             core = fk_ctx_isa(p0) == FK_ISA_AVX512 && !o.all_isas ? "SkylakeX" : "Haswell";
             fk_ctx_free(p0);
         }
-        if (inherited)
+        if (inherited && (!core || strcmp(inherited, core)))
             fprintf(stderr, "f4d-bench kernels: OPENBLAS_CORETYPE=%s from the environment replaced by %s\n",
                     inherited, core ? core : "OpenBLAS's own choice");
         if (core)
             setenv("OPENBLAS_CORETYPE", core, 1);
-        else
+        else if (o.openblas_native)
             unsetenv("OPENBLAS_CORETYPE");
+        if (set_timeout)
+            setenv("OPENBLAS_THREAD_TIMEOUT", "18", 1);
         setenv("F4D_BENCH_OPENBLAS_SET", "1", 1);
         execv("/proc/self/exe", argv - 1);
         fprintf(stderr, "f4d-bench kernels: cannot restart with OPENBLAS_CORETYPE=%s; "
@@ -558,8 +594,10 @@ int bench_kernels(int argc, char **argv)
         printf("; %.1f / %.1f with zmm (the AVX-512 rows' peak)", zpeak1, zpeak);
     printf("\n");
 #ifdef F4D_HAVE_OPENBLAS
-    printf("peer: OpenBLAS sgemm, %s kernels%s\n", openblas_get_corename(),
-           getenv("OPENBLAS_CORETYPE") ? " (OPENBLAS_CORETYPE)" : "");
+    printf("peer: OpenBLAS sgemm, %s kernels%s, idle workers spin 2^%s cycles (OPENBLAS_THREAD_TIMEOUT)%s\n",
+           openblas_get_corename(), getenv("OPENBLAS_CORETYPE") ? " (OPENBLAS_CORETYPE)" : "",
+           getenv("OPENBLAS_THREAD_TIMEOUT") ? getenv("OPENBLAS_THREAD_TIMEOUT") : "28",
+           o.threads_max > 1 ? "; 1 ms settle before each timed multi-thread call" : "");
 #else
     printf("peer: OpenBLAS not built in (F4D_BENCH_OPENBLAS=OFF)\n");
 #endif
@@ -596,9 +634,9 @@ int bench_kernels(int argc, char **argv)
                r->peer_ratio, r->vs_f32, r->gflops / pk, r->max_rel_err, r->mean_rel_err);
     }
     printf("\nerrors are relative to the RMS of the fp32 output: f32 vs OpenBLAS, f16/int8 vs our f32,\n"
-           "attention vs the scalar reference on 48 query rows. GFLOP/s: best of %d runs.\n"
-           "GEMM: every variant of a shape (each ISA's f32 / f16 / int8, and OpenBLAS) runs in turn,\n"
-           "rep after rep; xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 =\n"
+           "attention vs the scalar reference on 48 query rows. GFLOP/s: best of %d runs (GEMM: at\n"
+           "least (5 with threads), up to 63 while a shape's reps take under 1 s, odd). GEMM: every variant of a shape\n"
+           "(each ISA's f32 / f16 / int8, and OpenBLAS) runs in turn, rep after rep; xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 =\n"
            "median of the same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our\n"
            "f32 GEMM (same ISA, tokens, 1024 -> 1024), best of runs. xpeak = ours / the FMA peak for\n"
            "those threads (zmm for avx512 rows, ymm otherwise). Clock: %s.\n", o.reps,
