@@ -7,9 +7,11 @@
  *   keys   [nk_pad/16][dp/2][16] pairs (k[2i], k[2i+1]) of 16 keys: a zmm;
  *   values [nk_pad/2][dp] pairs (v of keys 2j, 2j+1) per column;
  *   queries per task [panels][dp/2][6] pairs, broadcast one per row;
- *   p     [6][BK/2] pairs of adjacent keys, rounded after the fp32 softmax.
- * S = Q K^T is dp/2 steps of 24 vdpbf16ps, O = alpha O + P V is BK/2 steps
- * of 6 x dp/16: half the instructions of the fp32 tiles. The online softmax
+ *   p     [6][SB/2] pairs of adjacent keys, rounded after the fp32 softmax.
+ * S = Q K^T is dp/2 steps of 24 vdpbf16ps per 64 keys, O = alpha O + P V is
+ * a step of 6 x dp/16 per key pair: half the instructions of the fp32 tiles.
+ * The softmax runs on SB = 128 keys (two of the plan's 64-key blocks) at a
+ * time, which halves its per-block work (row maxima and sums, rescaling O). The online softmax
  * (max, exp2, alpha) is the fp32 one; the row sum l adds the bf16-rounded p
  * that multiply v, so the normalisation matches the weights used. */
 #include <immintrin.h>
@@ -22,10 +24,11 @@
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
 #define BK FK_ATTN_BK
+#define SB (2 * BK) /* keys per softmax block */
 #define QB FK_ATTN_QB
 #define PACK_CHUNK 256 /* keys per pack task */
 
-/* local scratch: s [MR][BK] f32, p [MR][BK/2] pairs, o [QB][dp] f32,
+/* local scratch: s [MR][SB] f32, p [MR][SB/2] pairs, o [QB][dp] f32,
  * m l [QB] + alpha [16], q pairs [QB/MR][dp/2][MR] */
 struct bf16_local {
     size_t off_p, off_o, off_ml, off_q, bytes;
@@ -34,8 +37,8 @@ struct bf16_local {
 static struct bf16_local local_layout(int dp)
 {
     struct bf16_local L;
-    L.off_p = fk__round_up((size_t)MR * BK * sizeof(float), FK_ALIGN);
-    L.off_o = L.off_p + fk__round_up((size_t)MR * (BK / 2) * sizeof(uint32_t), FK_ALIGN);
+    L.off_p = fk__round_up((size_t)MR * SB * sizeof(float), FK_ALIGN);
+    L.off_o = L.off_p + fk__round_up((size_t)MR * (SB / 2) * sizeof(uint32_t), FK_ALIGN);
     L.off_ml = L.off_o + fk__round_up((size_t)QB * (size_t)dp * sizeof(float), FK_ALIGN);
     L.off_q = L.off_ml + fk__round_up((2 * QB + 16) * sizeof(float), FK_ALIGN);
     L.bytes = L.off_q + (size_t)QB * (size_t)dp * sizeof(uint16_t) + FK_ALIGN;
@@ -94,7 +97,7 @@ static void pack_q(int dp, const float *q, uint32_t *dst)
 
 /* ------------------------------------------------------------------ tiles */
 
-/* s[6][BK] = q pairs [dp/2][6] . the 4 key panels [dp/2][16] at kb */
+/* s[6][64] (row stride SB) = q pairs [dp/2][6] . the 4 key panels [dp/2][16] at kb */
 __attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const uint32_t *kb, float *s)
 {
     __m512 c[MR][4];
@@ -117,7 +120,7 @@ __attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const u
     } while (++i < dp / 2);
     for (int r = 0; r < MR; r++)
         for (int p = 0; p < 4; p++)
-            _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
+            _mm512_storeu_ps(s + r * SB + p * NR, c[r][p]);
 }
 
 /* 2^x for x = s - max <= 0: the fp32 path's (attention_avx512.c) clamp at
@@ -155,18 +158,22 @@ static inline __m512 exp2_p(__m512 x)
     return _mm512_scalef_ps(p, n);
 }
 
-/* The online softmax over one 6 x BK block (as fk__attn_softmax_block_avx512),
- * p rounded to bf16 pairs into pb[6][BK/2]; l adds the rounded p (by
- * vdpbf16ps with ones: the same products, denormals flushed alike). */
-static void softmax_block(float *s, int valid, float *m, float *l, float *alpha, uint32_t *pb)
+/* The online softmax over one 6 x nk block (nk 64 or 128, row stride SB),
+ * as fk__attn_softmax_block_avx512; p rounded to bf16 pairs into
+ * pb[6][SB/2]; l adds the rounded p (by vdpbf16ps with ones: the same
+ * products, denormals flushed alike). */
+static void softmax_block(float *s, int nk, int valid, float *m, float *l, float *alpha, uint32_t *pb)
 {
     float m_new[16] __attribute__((aligned(64))) = { 0 }, m_old[16] __attribute__((aligned(64))) = { 0 };
     for (int r = 0; r < MR; r++) {
-        float *sr = s + r * BK;
-        for (int jj = valid; jj < BK; jj++)
+        float *sr = s + r * SB;
+        for (int jj = valid; jj < nk; jj++)
             sr[jj] = -INFINITY;
         __m512 mx = _mm512_max_ps(_mm512_max_ps(_mm512_loadu_ps(sr), _mm512_loadu_ps(sr + 16)),
                                   _mm512_max_ps(_mm512_loadu_ps(sr + 32), _mm512_loadu_ps(sr + 48)));
+        for (int jj = 64; jj < nk; jj += 64)
+            mx = _mm512_max_ps(mx, _mm512_max_ps(_mm512_max_ps(_mm512_loadu_ps(sr + jj), _mm512_loadu_ps(sr + jj + 16)),
+                                                 _mm512_max_ps(_mm512_loadu_ps(sr + jj + 32), _mm512_loadu_ps(sr + jj + 48))));
         float bm = _mm512_reduce_max_ps(mx);
         m_old[r] = m[r];
         m_new[r] = bm > m[r] ? bm : m[r];
@@ -175,13 +182,13 @@ static void softmax_block(float *s, int valid, float *m, float *l, float *alpha,
     _mm512_mask_storeu_ps(alpha, (__mmask16)0xff, al);
     const __m512bh ones = (__m512bh)_mm512_set1_epi32(0x3f803f80); /* bf16 1.0 pairs */
     for (int r = 0; r < MR; r++) {
-        const float *sr = s + r * BK;
+        const float *sr = s + r * SB;
         __m512 mv = _mm512_set1_ps(m_new[r]), sum = _mm512_setzero_ps();
-        for (int jj = 0; jj < BK; jj += 32) {
+        for (int jj = 0; jj < nk; jj += 32) {
             __m512 p0 = exp2_p(_mm512_sub_ps(_mm512_loadu_ps(sr + jj), mv));
             __m512 p1 = exp2_p(_mm512_sub_ps(_mm512_loadu_ps(sr + jj + 16), mv));
             __m512bh h = _mm512_cvtne2ps_pbh(p1, p0); /* pairs (p[2w], p[2w+1]) */
-            _mm512_storeu_si512(pb + r * (BK / 2) + jj / 2, (__m512i)h);
+            _mm512_storeu_si512(pb + r * (SB / 2) + jj / 2, (__m512i)h);
             sum = _mm512_dpbf16_ps(sum, h, ones);
         }
         l[r] = l[r] * alpha[r] + _mm512_reduce_add_ps(sum);
@@ -190,7 +197,7 @@ static void softmax_block(float *s, int valid, float *m, float *l, float *alpha,
 }
 
 /* o[6][dp] columns c0 .. c0 + 16 NC: alpha[r] o[r] + p pairs . v pairs */
-static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const uint32_t *p,
+static inline __attribute__((always_inline)) void pv_cols(int dp, int np, int c0, const uint32_t *p,
                                                            const uint32_t *v, float *o,
                                                            const float *alpha, const int NC)
 {
@@ -201,12 +208,12 @@ static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const 
             c[r][x] = _mm512_mul_ps(a, _mm512_loadu_ps(o + (size_t)r * dp + c0 + 16 * x));
     }
     const uint32_t *vr = v + c0;
-    for (int jp = 0; jp < BK / 2; jp++) {
+    for (int jp = 0; jp < np; jp++) {
         __m512bh b[4];
         for (int x = 0; x < NC; x++)
             b[x] = (__m512bh)_mm512_loadu_si512(vr + 16 * x);
         for (int r = 0; r < MR; r++) {
-            __m512bh t = (__m512bh)_mm512_set1_epi32((int)p[r * (BK / 2) + jp]);
+            __m512bh t = (__m512bh)_mm512_set1_epi32((int)p[r * (SB / 2) + jp]);
             for (int x = 0; x < NC; x++)
                 c[r][x] = _mm512_dpbf16_ps(c[r][x], t, b[x]);
         }
@@ -217,18 +224,18 @@ static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const 
             _mm512_storeu_ps(o + (size_t)r * dp + c0 + 16 * x, c[r][x]);
 }
 
-/* o[6][dp] = alpha[r] o[r] + p[6][BK/2] . v[BK/2][dp]: 64 columns (24 zmm)
- * at a time, then the 16-48 column tail */
-__attribute__((noinline)) static void pv_tile(int dp, const uint32_t *p, const uint32_t *v, float *o,
-                                              const float *alpha)
+/* o[6][dp] = alpha[r] o[r] + p[6][np] . v[np][dp] (np key pairs, p row
+ * stride SB/2): 64 columns (24 zmm) at a time, then the 16-48 column tail */
+__attribute__((noinline)) static void pv_tile(int dp, int np, const uint32_t *p, const uint32_t *v,
+                                              float *o, const float *alpha)
 {
     int c0 = 0;
     for (; c0 + 64 <= dp; c0 += 64)
-        pv_cols(dp, c0, p, v, o, alpha, 4);
+        pv_cols(dp, np, c0, p, v, o, alpha, 4);
     switch ((dp - c0) / 16) {
-    case 3: pv_cols(dp, c0, p, v, o, alpha, 3); break;
-    case 2: pv_cols(dp, c0, p, v, o, alpha, 2); break;
-    case 1: pv_cols(dp, c0, p, v, o, alpha, 1); break;
+    case 3: pv_cols(dp, np, c0, p, v, o, alpha, 3); break;
+    case 2: pv_cols(dp, np, c0, p, v, o, alpha, 2); break;
+    case 1: pv_cols(dp, np, c0, p, v, o, alpha, 1); break;
     default: break;
     }
 }
@@ -256,14 +263,18 @@ static void attn_task(void *arg, int task, int thread)
         mrow[r] = -INFINITY;
         lrow[r] = 0;
     }
-    for (int kblk = 0; kblk < j->nk_pad / BK; kblk++) {
-        int valid = j->nk - kblk * BK < BK ? j->nk - kblk * BK : BK;
-        const uint32_t *kbb = kb + (size_t)kblk * BK * (size_t)dp / 2;
-        const uint32_t *vbb = vb + (size_t)kblk * (BK / 2) * (size_t)dp;
+    for (int k0 = 0; k0 < j->nk_pad; k0 += SB) { /* nk_pad is a multiple of BK = SB / 2 */
+        int nk = j->nk_pad - k0 < SB ? BK : SB;
+        int valid = j->nk - k0 < nk ? j->nk - k0 : nk;
+        const uint32_t *kbb = kb + (size_t)k0 * (size_t)dp / 2;
+        const uint32_t *vbb = vb + (size_t)k0 / 2 * (size_t)dp;
         for (int i = 0; i < panels; i++) {
-            s_block(dp, qb2 + (size_t)i * qstride, kbb, s);
-            softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha, pb);
-            pv_tile(dp, pb, vbb, o + (size_t)i * MR * (size_t)dp, alpha);
+            const uint32_t *qi = qb2 + (size_t)i * qstride;
+            s_block(dp, qi, kbb, s);
+            if (nk == SB)
+                s_block(dp, qi, kbb + (size_t)BK * (size_t)dp / 2, s + BK);
+            softmax_block(s, nk, valid, mrow + i * MR, lrow + i * MR, alpha, pb);
+            pv_tile(dp, nk / 2, pb, vbb, o + (size_t)i * MR * (size_t)dp, alpha);
         }
     }
     for (int r = 0; r < rows; r++) {
