@@ -10,8 +10,8 @@
  *   p     [6][SB/2] pairs of adjacent keys, rounded after the fp32 softmax.
  * S = Q K^T is dp/2 steps of 24 vdpbf16ps per 64 keys, O = alpha O + P V is
  * a step of 6 x dp/16 per key pair: half the instructions of the fp32 tiles.
- * The softmax runs on SB = 128 keys (two of the plan's 64-key blocks) at a
- * time, which halves its per-block work (row maxima and sums, rescaling O). The online softmax
+ * The softmax runs on SB = 256 keys (four of the plan's 64-key blocks) at a
+ * time, which quarters its per-block work (row maxima and sums, rescaling O). The online softmax
  * (max, exp2, alpha) is the fp32 one; the row sum l adds the bf16-rounded p
  * that multiply v, so the normalisation matches the weights used. */
 #include <immintrin.h>
@@ -24,7 +24,7 @@
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
 #define BK FK_ATTN_BK
-#define SB (2 * BK) /* keys per softmax block */
+#define SB (4 * BK) /* keys per softmax block */
 #define QB FK_ATTN_QB
 #define PACK_CHUNK 256 /* keys per pack task */
 
@@ -158,7 +158,7 @@ static inline __m512 exp2_p(__m512 x)
     return _mm512_scalef_ps(p, n);
 }
 
-/* The online softmax over one 6 x nk block (nk 64 or 128, row stride SB),
+/* The online softmax over one 6 x nk block (nk a multiple of 64 up to SB, row stride SB),
  * as fk__attn_softmax_block_avx512; p rounded to bf16 pairs into
  * pb[6][SB/2]; l adds the rounded p (by vdpbf16ps with ones: the same
  * products, denormals flushed alike). */
@@ -263,16 +263,15 @@ static void attn_task(void *arg, int task, int thread)
         mrow[r] = -INFINITY;
         lrow[r] = 0;
     }
-    for (int k0 = 0; k0 < j->nk_pad; k0 += SB) { /* nk_pad is a multiple of BK = SB / 2 */
-        int nk = j->nk_pad - k0 < SB ? BK : SB;
+    for (int k0 = 0; k0 < j->nk_pad; k0 += SB) { /* nk_pad is a multiple of BK */
+        int nk = j->nk_pad - k0 < SB ? j->nk_pad - k0 : SB;
         int valid = j->nk - k0 < nk ? j->nk - k0 : nk;
         const uint32_t *kbb = kb + (size_t)k0 * (size_t)dp / 2;
         const uint32_t *vbb = vb + (size_t)k0 / 2 * (size_t)dp;
         for (int i = 0; i < panels; i++) {
             const uint32_t *qi = qb2 + (size_t)i * qstride;
-            s_block(dp, qi, kbb, s);
-            if (nk == SB)
-                s_block(dp, qi, kbb + (size_t)BK * (size_t)dp / 2, s + BK);
+            for (int kk = 0; kk < nk; kk += BK)
+                s_block(dp, qi, kbb + (size_t)kk * (size_t)dp / 2, s + kk);
             softmax_block(s, nk, valid, mrow + i * MR, lrow + i * MR, alpha, pb);
             pv_tile(dp, nk / 2, pb, vbb, o + (size_t)i * MR * (size_t)dp, alpha);
         }
