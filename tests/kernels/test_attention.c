@@ -256,11 +256,16 @@ static void test_rope_reference(void **state)
  *   - q and k rounded: each logit moves by up to 2^-8 sum_i |q_i k_i| scale
  *     (log2 e in the exp2 domain), which moves the weights by a factor
  *     within 2^(+-2 delta), so about 1.4 delta max|v| for delta <= 0.1.
- * The budget is |out - ref| <= (2^-7 + 2 delta_max) max|v| per element, with
- * delta_max the largest logit bound over the head's rows (computed below
- * from q and k as the kernel sees them: after LayerNorm and RoPE). Contexts
- * without AVX512_BF16 (and every other ISA, and the reference) ignore the
- * field: the same bits as bf16 = 0. */
+ * The worst-case budget is |out - ref| <= (2^-7 + 2 delta_max) max|v| per
+ * element, with delta_max the largest logit bound over the head's rows
+ * (computed below from q and k as the kernel sees them: after LayerNorm and
+ * RoPE). It is loose (measured 0-5 % of it), so a statistical one holds the
+ * kernel too: the roundings are independent, each within 2^-9 relative, so
+ * the RMS error stays a few 2^-9 of the output's RMS: within 2^-7 for unit
+ * logits (measured 1.4e-3 to 4.5e-3), 2^-6 for std-3 logits (7.9e-3); a 1 %
+ * drift of the rescaling per 256-key block fails it (1.0e-2 to 3.2e-2).
+ * Contexts without AVX512_BF16 (and every other ISA, and the reference)
+ * ignore the field: the same bits as bf16 = 0. */
 struct bf16_err {
     double ratio, max_abs, bound;
 };
@@ -324,14 +329,10 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
     fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
     assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), F4D_OK);
     fk_ctx_free(ref);
-    double vmax = 0, vrms = 0;
+    double vmax = 0;
     for (int t = 0; t < nkv; t++)
-        for (int e = 0; e < C; e++) {
-            double x = v[(size_t)t * ldk + e];
-            vmax = fmax(vmax, fabs(x));
-            vrms += x * x;
-        }
-    vrms = sqrt(vrms / ((double)nkv * C));
+        for (int e = 0; e < C; e++)
+            vmax = fmax(vmax, fabs((double)v[(size_t)t * ldk + e]));
     double delta = logit_bound(&a, q, ld, c->nq, k, ldk, nkv);
     double bound = (1.0 / 128 + 2 * delta) * vmax;
     enum fk_isa all[5] = { FK_ISA_REF };
@@ -349,12 +350,14 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
                 assert_memory_equal(got, f32, sizeof(float) * n_out);
             } else {
                 double e = max_abs_diff(got, want, n_out), e32 = max_abs_diff(f32, want, n_out);
-                double se = 0;
-                for (size_t x = 0; x < n_out; x++)
+                double se = 0, so = 0;
+                for (size_t x = 0; x < n_out; x++) {
                     se += ((double)got[x] - want[x]) * ((double)got[x] - want[x]);
-                double rms = sqrt(se / (double)n_out) / vrms;
+                    so += (double)want[x] * want[x];
+                }
+                double rms = sqrt(se / so);
                 if (rms_budget > 0 && !(rms <= rms_budget))
-                    fail_msg("bf16 threads %d heads %d d %d nq %d nk %d: RMS error %.3g of RMS(v) > %.3g",
+                    fail_msg("bf16 threads %d heads %d d %d nq %d nk %d: RMS error %.3g of the output's > %.3g",
                              threads, c->heads, c->d, c->nq, nkv, rms, rms_budget);
                 if (!(e <= bound))
                     fail_msg("bf16 threads %d heads %d d %d nq %d nk %d scale %g: max |err| %.3g > "
@@ -362,7 +365,7 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
                              threads, c->heads, c->d, c->nq, nkv, logit_scale, e, bound, vmax, delta);
                 if (threads == 1)
                     print_message("bf16 heads %d d %d nq %d nk %d scale %g: max |err| %.3g (fp32 %.3g), "
-                                  "budget %.3g = %.2f of it; RMS err / RMS(v) %.3g\n", c->heads, c->d,
+                                  "budget %.3g = %.2f of it; RMS err / RMS(out) %.3g\n", c->heads, c->d,
                                   c->nq, nkv, logit_scale, e, e32, bound, e / bound, rms);
                 ran++;
             }
@@ -384,10 +387,10 @@ static void test_bf16(void **state)
     };
     int ran = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
-        ran += run_bf16_case(&cases[i], 70 + i, 1.0f, 1.0 / 256);
+        ran += run_bf16_case(&cases[i], 70 + i, 1.0f, 1.0 / 128);
     /* large logits: raw q, k of std 3 (no LayerNorm) */
     static const struct attn_case big = { 2, 64, 50, 300, 0, 0, 1 };
-    ran += run_bf16_case(&big, 9, 3.0f, 0);
+    ran += run_bf16_case(&big, 9, 3.0f, 1.0 / 64);
     /* +-1e4 logits: one-hot rows, where bf16 logits keep the winner */
     static const struct attn_case huge = { 2, 16, 23, 23, 0, 0, 0 };
     ran += run_bf16_case(&huge, 7, 50.0f, 0);
