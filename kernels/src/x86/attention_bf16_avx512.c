@@ -10,10 +10,11 @@
  *   p     [6][SB/2] pairs of adjacent keys, rounded after the fp32 softmax.
  * S = Q K^T is dp/2 steps of 24 vdpbf16ps per 64 keys, O = alpha O + P V is
  * a step of 6 x dp/16 per key pair: half the instructions of the fp32 tiles.
- * The softmax runs on SB = 256 keys (four of the plan's 64-key blocks) at a
- * time, which quarters its per-block work (row maxima and sums, rescaling O). The online softmax
- * (max, exp2, alpha) is the fp32 one; the row sum l adds the bf16-rounded p
- * that multiply v, so the normalisation matches the weights used. */
+ * The online softmax (max, exp2, alpha) is the fp32 one, run on SB = 256
+ * keys (four of the plan's 64-key blocks) at a time, which quarters its
+ * per-key work (row maxima and sums, rescaling O); the row sum l adds the
+ * bf16-rounded p that multiply v, so the normalisation matches the weights
+ * used. */
 #include <immintrin.h>
 #include <math.h>
 #include <string.h>
