@@ -55,6 +55,7 @@ enum {
     FK_CPU_NEON     = 1u << 4,
     FK_CPU_ASIMDDP  = 1u << 5, /* AArch64 dot product (sdot/udot), ARMv8.2+ */
     FK_CPU_AVX512   = 1u << 6, /* F + BW + VL + VNNI, ZMM state enabled by the OS */
+    FK_CPU_AVX512_BF16 = 1u << 7, /* AVX512_BF16 (vdpbf16ps) beside FK_CPU_AVX512 */
 };
 
 /* Data caches as read at context creation (cpuid leaf 4 on Intel, 0x8000001D
@@ -111,6 +112,9 @@ enum fk_q8_bits       fk_ctx_q8_bits    (const fk_ctx *ctx); /* 7 or 8 (never AU
 /* Name of the int8 GEMM path the context runs: "ref", "vnni-8bit",
  * "avx2-7bit", "avx2-8bit". */
 const char * fk_ctx_q8_path  (const fk_ctx *ctx);
+/* Nonzero where a desc's bf16 attention runs in bf16: the context's ISA is
+ * FK_ISA_AVX512 and the CPU has AVX512_BF16. */
+int          fk_ctx_has_bf16 (const fk_ctx *ctx);
 
 /* The cache model (pure; unknown sizes take 32K / 512K / 2M defaults), with
  * MR = 6 rows by NR = 16 columns per register tile of fp32:

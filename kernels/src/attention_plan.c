@@ -233,6 +233,14 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
     size_t grp_bytes = per_head > GROUP_BYTES ? per_head : GROUP_BYTES;
     if (grp_bytes > per_head * (size_t)a->heads)
         grp_bytes = per_head * (size_t)a->heads;
+    /* bf16 products: the bf16 packs take at most half of the fp32 ones */
+    int bf16 = a->bf16 && ctx->bf16;
+    size_t bf_local = 0, bf_head = 0;
+    if (bf16) {
+        fk__attn_bf16_bytes(j.dp, j.nk_pad, &bf_local, &bf_head);
+        local = local > bf_local ? local : bf_local;
+        grp_bytes += grp_bytes / 2 + 2 * FK_ALIGN;
+    }
     int st = fk__scratch_reserve(ctx, local, table + grp_bytes + 3 * FK_ALIGN);
     if (st || fk__measuring(ctx))
         return st;
@@ -252,6 +260,16 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
         j.vp = (float *)fk__round_up((uintptr_t)(j.kp + j.head_k * (size_t)j.hn), FK_ALIGN);
         j.qp = (float *)fk__round_up((uintptr_t)(j.vp + j.head_v * (size_t)j.hn), FK_ALIGN);
         fk_parallel_for(ctx, j.k_chunks + j.q_chunks, 20.0 * d * j.hn * (double)(nq + nk), prep_task, &j);
+        if (bf16) {
+            uint32_t *kb = (uint32_t *)fk__round_up((uintptr_t)(j.qp + j.head_q * (size_t)j.hn), FK_ALIGN);
+            struct fk__attn_bf16_job b = {
+                ctx, j.kp, j.vp, j.qp, j.head_k, j.head_v, j.head_q,
+                kb, kb + bf_head / 8 * (size_t)j.hn, bf_head / 8,
+                nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
+            };
+            fk__attn_bf16_run(&b);
+            continue;
+        }
         fk_parallel_for(ctx, j.hn * j.q_blocks, att_work * j.hn, attn_task, &j);
     }
     return F4D_OK;

@@ -62,6 +62,31 @@ void fk__attn_softmax_block_avx512(float *s, int valid, float *m, float *l, floa
 void fk__attn_pv_tile_avx512(int d, const float *p, const float *v, float *o, const float *alpha);
 #endif
 
+/* bf16 products (x86/attention_bf16_avx512.c), for a desc with bf16 set
+ * where ctx->bf16: after phase 1 the group's fp32 packs are rounded once to
+ * bf16 pairs (kb, vb), then phase 2 runs S and P V with vdpbf16ps. */
+struct fk__attn_bf16_job {
+    fk_ctx      *ctx;
+    const float *kp, *vp, *qp;         /* the group's fp32 packs (phase 1)  */
+    size_t       head_k, head_v, head_q; /* their floats per head          */
+    uint32_t    *kb, *vb;              /* bf16 pair packs of the group      */
+    size_t       head_kb;              /* pairs per head in kb and in vb    */
+    int          nq, nk, nk_pad, d, dp, h0, hn, q_blocks, ldo;
+    float       *out;
+};
+#if defined(__x86_64__)
+/* per-thread scratch and shared bytes per head (kb + vb) of the bf16 path */
+void fk__attn_bf16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head);
+void fk__attn_bf16_run(const struct fk__attn_bf16_job *j);
+#else /* never called: ctx->bf16 is 0 off x86-64 */
+static inline void fk__attn_bf16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head)
+{
+    (void)dp; (void)nk_pad;
+    *local = *per_head = 0;
+}
+static inline void fk__attn_bf16_run(const struct fk__attn_bf16_job *j) { (void)j; }
+#endif
+
 /* fk__attention_avx2 / _neon: validated arguments, the ISA's pieces. */
 int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
                            const struct fk_attention_desc *a, const float *q, int ldq, int nq,

@@ -49,6 +49,7 @@ static unsigned detect_x86(void)
             f |= FK_CPU_AVX512;
         __cpuid_count(7, 1, a, b, c, d);
         if ((a >> 4) & 1) f |= FK_CPU_AVX_VNNI;
+        if (((a >> 5) & 1) && (f & FK_CPU_AVX512)) f |= FK_CPU_AVX512_BF16;
     }
     return f;
 }
@@ -460,6 +461,7 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     ctx->blocks = blocks_override(blocks_override(fk_gemm_blocks_for(&ctx->caches), blocks_env()),
                                   cfg->blocks);
     ctx->q8_bits = qbits;
+    ctx->bf16 = isa == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16);
     ctx->local = calloc((size_t)threads, sizeof *ctx->local);
     if (!ctx->local) {
         free(ctx);
@@ -496,6 +498,7 @@ int fk_ctx_status(const fk_ctx *ctx) { return ctx ? ctx->err.code : F4D_EINVAL; 
 struct fk_cache_info fk_ctx_caches(const fk_ctx *ctx) { return ctx->caches; }
 struct fk_gemm_blocks fk_ctx_gemm_blocks(const fk_ctx *ctx) { return ctx->blocks; }
 enum fk_q8_bits fk_ctx_q8_bits(const fk_ctx *ctx) { return (enum fk_q8_bits)ctx->q8_bits; }
+int fk_ctx_has_bf16(const fk_ctx *ctx) { return ctx->bf16; }
 
 const char *fk_ctx_q8_path(const fk_ctx *ctx)
 {

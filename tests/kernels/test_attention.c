@@ -11,6 +11,7 @@
 
 #include "fk_attention.h"
 #include "test_util.h"
+#include "../../kernels/src/attention.h" /* fk__attn_prep_ref: q', k' for the bf16 budget */
 
 struct attn_case {
     int heads, d, nq, nk, rope, norm, cross;
@@ -134,9 +135,10 @@ static void test_onehot_and_uniform(void **state)
         q[d + c] = 0;
         q[2 * d + c] = c == 1 ? 1e4f : 0;
     }
-    for (int a = 0; a < n_isa; a++) {
-        fk_ctx *ctx = test_ctx(all[a], 2);
-        struct fk_attention_desc desc = { .heads = 1, .head_dim = d };
+    /* bf16 too: v (integers < 256), the one-hot and the equal p are exact */
+    for (int a = 0; a < 2 * n_isa; a++) {
+        fk_ctx *ctx = test_ctx(all[a / 2], 2);
+        struct fk_attention_desc desc = { .heads = 1, .head_dim = d, .bf16 = a % 2 };
         assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, o, d), F4D_OK);
         for (int c = 0; c < d; c++) {
             assert_float_equal(o[c], v[20 * d + c], 1e-4);
@@ -165,9 +167,9 @@ static void test_nonfinite(void **state)
     rng_fill_normal(&r, v, (size_t)n * C, 1);
     q[3 * C + 2] = NAN;             /* query 3, head 0 */
     q[7 * C + d + 1] = INFINITY;    /* query 7, head 1 */
-    for (int a = 0; a < n_isa; a++) {
-        fk_ctx *ctx = test_ctx(all[a], 1);
-        struct fk_attention_desc desc = { .heads = heads, .head_dim = d };
+    for (int a = 0; a < 2 * n_isa; a++) { /* fp32, then bf16 (NaN and Inf survive rounding) */
+        fk_ctx *ctx = test_ctx(all[a / 2], 1);
+        struct fk_attention_desc desc = { .heads = heads, .head_dim = d, .bf16 = a % 2 };
         assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), F4D_OK);
         for (int i = 0; i < n; i++)
             for (int h = 0; h < heads; h++) {
@@ -177,7 +179,7 @@ static void test_nonfinite(void **state)
                     if (bad && i == 3)
                         assert_true(isnan(x));
                     else if (!bad && !isfinite(x))
-                        fail_msg("%s: finite query %d head %d became %g", fk_isa_name(all[a]), i, h, x);
+                        fail_msg("%s bf16 %d: finite query %d head %d became %g", fk_isa_name(all[a / 2]), a % 2, i, h, x);
                 }
             }
         /* a NaN value row poisons every query that attends to it */
@@ -243,6 +245,165 @@ static void test_rope_reference(void **state)
     assert_float_equal(u[0], t[0] * cosf(3.0f) - t[4] * sinf(3.0f), 1e-5);
 }
 
+/* ---- bf16 products (desc.bf16) ----
+ *
+ * Where the context has AVX512_BF16 the q.k and p.v products take bf16
+ * inputs (8-bit significands: each rounding is within 2^-9 relative) with
+ * fp32 sums. The error budget follows from those roundings:
+ *   - v rounded: at most 2^-9 |v| per term, so 2^-9 max|v| on the output;
+ *   - p rounded (and l summed from the rounded p): the weights move by at
+ *     most 2^-8 relative, so 2^-8 max|v| on the output;
+ *   - q and k rounded: each logit moves by up to 2^-8 sum_i |q_i k_i| scale
+ *     (log2 e in the exp2 domain), which moves the weights by a factor
+ *     within 2^(+-2 delta), so about 1.4 delta max|v| for delta <= 0.1.
+ * The worst-case budget is |out - ref| <= (2^-7 + 2 delta_max) max|v| per
+ * element, with delta_max the largest logit bound over the head's rows
+ * (computed below from q and k as the kernel sees them: after LayerNorm and
+ * RoPE). It is loose (measured 0-5 % of it), so a statistical one holds the
+ * kernel too: the roundings are independent, each within 2^-9 relative, so
+ * the RMS error stays a few 2^-9 of the output's RMS: within 2^-7 for unit
+ * logits (measured 1.4e-3 to 4.5e-3), 2^-6 for std-3 logits (7.9e-3); a 1 %
+ * drift of the rescaling per 256-key block fails it (1.0e-2 to 3.2e-2).
+ * Contexts without AVX512_BF16 (and every other ISA, and the reference)
+ * ignore the field: the same bits as bf16 = 0. */
+struct bf16_err {
+    double ratio, max_abs, bound;
+};
+
+/* max over rows and heads of 2^-8 scale log2(e) sum_i |q'_i k'_i| for the
+ * worst key, with q', k' as the kernel sees them */
+static double logit_bound(const struct fk_attention_desc *a, const float *q, int ldq, int nq,
+                          const float *k, int ldk, int nk)
+{
+    int d = a->head_dim;
+    float qs[1024], ks[1024];
+    double worst = 0, scale = a->scale > 0 ? a->scale : 1.0 / sqrt((double)d);
+    for (int h = 0; h < a->heads; h++)
+        for (int i = 0; i < nq; i++) {
+            fk__attn_prep_ref(a, 0, q + (size_t)i * ldq + h * d, a->pos_q ? a->pos_q + 2 * i : NULL, 1.0f, qs);
+            for (int jj = 0; jj < nk; jj++) {
+                fk__attn_prep_ref(a, 1, k + (size_t)jj * ldk + h * d, a->pos_k ? a->pos_k + 2 * jj : NULL, 1.0f, ks);
+                double s = 0;
+                for (int c = 0; c < d; c++)
+                    s += fabs((double)qs[c] * ks[c]);
+                worst = s > worst ? s : worst;
+            }
+        }
+    return worst * scale * 1.4426950408889634 / 256.0;
+}
+
+/* One case with desc.bf16 = 1 on every ISA under test: within the budget
+ * where the context runs bf16, the fp32 bits elsewhere. Returns how many
+ * contexts ran bf16. */
+static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_scale, double rms_budget)
+{
+    struct rng r;
+    rng_seed(&r, seed);
+    int C = c->heads * c->d, ld = 3 * C + 5;
+    int nkv = c->cross ? c->nk : c->nq, nmax = c->nq > nkv ? c->nq : nkv;
+    float *qkv = xmalloc(sizeof(float) * (size_t)nmax * ld);
+    rng_fill_normal(&r, qkv, (size_t)nmax * ld, logit_scale);
+    float *kv = c->cross ? xmalloc(sizeof(float) * (size_t)nkv * 2 * C) : NULL;
+    if (kv)
+        rng_fill_normal(&r, kv, (size_t)nkv * 2 * C, logit_scale);
+    float *nw = xmalloc(sizeof(float) * c->d), *nb = xmalloc(sizeof(float) * c->d);
+    for (int i = 0; i < c->d; i++) {
+        nw[i] = 1.0f + 0.3f * rng_normal(&r);
+        nb[i] = 0.1f * rng_normal(&r);
+    }
+    int32_t *pq = xmalloc(sizeof(int32_t) * 2 * c->nq), *pk = xmalloc(sizeof(int32_t) * 2 * nkv);
+    make_pos(pq, c->nq, 37);
+    make_pos(pk, nkv, 37);
+    struct fk_attention_desc a = { .heads = c->heads, .head_dim = c->d };
+    if (c->norm) {
+        a.q_norm_w = nw; a.q_norm_b = nb; a.k_norm_w = nw; a.k_norm_b = nb; a.norm_eps = 1e-5f;
+    }
+    if (c->rope) {
+        a.pos_q = pq; a.pos_k = pk; a.rope_base = 100.0f;
+    }
+    const float *q = qkv, *k = kv ? kv : qkv + C, *v = kv ? kv + C : qkv + 2 * C;
+    int ldk = kv ? 2 * C : ld;
+    size_t n_out = (size_t)c->nq * C;
+    float *want = xmalloc(sizeof(float) * n_out), *f32 = xmalloc(sizeof(float) * n_out);
+    float *got = xmalloc(sizeof(float) * n_out);
+    fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
+    assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), F4D_OK);
+    fk_ctx_free(ref);
+    double vmax = 0;
+    for (int t = 0; t < nkv; t++)
+        for (int e = 0; e < C; e++)
+            vmax = fmax(vmax, fabs((double)v[(size_t)t * ldk + e]));
+    double delta = logit_bound(&a, q, ld, c->nq, k, ldk, nkv);
+    double bound = (1.0 / 128 + 2 * delta) * vmax;
+    enum fk_isa all[5] = { FK_ISA_REF };
+    int n_isa = 1 + test_isas(all + 1), ran = 0;
+    for (int i = 0; i < n_isa; i++)
+        for (int threads = 1; threads <= 2; threads++) {
+            fk_ctx *ctx = test_ctx(all[i], threads);
+            a.bf16 = 0;
+            assert_int_equal(fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, f32, C), F4D_OK);
+            a.bf16 = 1;
+            memset(got, 0xff, sizeof(float) * n_out);
+            if (fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C) != F4D_OK)
+                fail_msg("%s", fk_ctx_error(ctx));
+            if (!fk_ctx_has_bf16(ctx)) {
+                assert_memory_equal(got, f32, sizeof(float) * n_out);
+            } else {
+                double e = max_abs_diff(got, want, n_out), e32 = max_abs_diff(f32, want, n_out);
+                double se = 0, so = 0;
+                for (size_t x = 0; x < n_out; x++) {
+                    se += ((double)got[x] - want[x]) * ((double)got[x] - want[x]);
+                    so += (double)want[x] * want[x];
+                }
+                double rms = sqrt(se / so);
+                if (rms_budget > 0 && !(rms <= rms_budget))
+                    fail_msg("bf16 threads %d heads %d d %d nq %d nk %d: RMS error %.3g of the output's > %.3g",
+                             threads, c->heads, c->d, c->nq, nkv, rms, rms_budget);
+                if (!(e <= bound))
+                    fail_msg("bf16 threads %d heads %d d %d nq %d nk %d scale %g: max |err| %.3g > "
+                             "budget %.3g (max|v| %.3g, logit bound %.3g)",
+                             threads, c->heads, c->d, c->nq, nkv, logit_scale, e, bound, vmax, delta);
+                if (threads == 1)
+                    print_message("bf16 heads %d d %d nq %d nk %d scale %g: max |err| %.3g (fp32 %.3g), "
+                                  "budget %.3g = %.2f of it; RMS err / RMS(out) %.3g\n", c->heads, c->d,
+                                  c->nq, nkv, logit_scale, e, e32, bound, e / bound, rms);
+                ran++;
+            }
+            fk_ctx_free(ctx);
+        }
+    free(qkv); free(kv); free(nw); free(nb); free(pq); free(pk); free(want); free(f32); free(got);
+    return ran;
+}
+
+static void test_bf16(void **state)
+{
+    (void)state;
+    static const struct attn_case cases[] = {
+        { 2, 64, 131, 131, 1, 1, 0 }, { 4, 24, 276, 276, 1, 1, 0 }, { 2, 48, 70, 70, 1, 1, 0 },
+        { 1, 80, 29, 130, 0, 1, 0 }, { 2, 32, 16, 301, 0, 0, 1 },  { 1, 16, 1, 1, 0, 0, 0 },
+        { 2, 40, 37, 130, 0, 1, 1 },
+        /* long rows: one global block's 5496 keys */
+        { 1, 64, 13, 5496, 1, 1, 1 },
+    };
+    int ran = 0;
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+        ran += run_bf16_case(&cases[i], 70 + i, 1.0f, 1.0 / 128);
+    /* large logits: raw q, k of std 3 (no LayerNorm) */
+    static const struct attn_case big = { 2, 64, 50, 300, 0, 0, 1 };
+    ran += run_bf16_case(&big, 9, 3.0f, 1.0 / 64);
+    /* +-1e4 logits: one-hot rows, where bf16 logits keep the winner */
+    static const struct attn_case huge = { 2, 16, 23, 23, 0, 0, 0 };
+    ran += run_bf16_case(&huge, 7, 50.0f, 0);
+    /* the AVX-512 run is where bf16 runs: without AVX512_BF16 it checked
+     * only the fp32 fallback, so it says so; other ISAs never run bf16 */
+    enum fk_isa isas[4];
+    int n_isa = test_isas(isas), avx512 = 0;
+    for (int i = 0; i < n_isa; i++)
+        avx512 |= isas[i] == FK_ISA_AVX512;
+    if (avx512 && !ran)
+        f4d_skip("the CPU has AVX-512 but no AVX512_BF16: only bf16 = 1 giving the fp32 bits was checked");
+}
+
 int main(int argc, char **argv)
 {
     const struct CMUnitTest tests[] = {
@@ -252,6 +413,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_nonfinite),
         cmocka_unit_test(test_rope_reference),
         cmocka_unit_test(test_bad_arguments),
+        cmocka_unit_test(test_bf16),
     };
     return KERNEL_TEST_MAIN(argc, argv, "kernels/attention", tests);
 }

@@ -44,6 +44,18 @@ static void test_isa_selection(void **state)
     if (fk_cpu_features() & FK_CPU_AVX2)
         assert_true(fk_isa_supported(FK_ISA_AVX2) == ((fk_cpu_features() & (FK_CPU_FMA | FK_CPU_F16C)) ==
                                                      (FK_CPU_FMA | FK_CPU_F16C)));
+    /* bf16 attention: only an AVX-512 context on a CPU with AVX512_BF16 */
+    if (fk_cpu_features() & FK_CPU_AVX512_BF16)
+        assert_true(fk_cpu_features() & FK_CPU_AVX512);
+    for (int i = FK_ISA_REF; i <= FK_ISA_AVX512; i++) {
+        cfg = (struct fk_ctx_config){ .isa = (enum fk_isa)i, .threads = 1 };
+        if (!fk_isa_supported((enum fk_isa)i))
+            continue;
+        assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+        assert_int_equal(fk_ctx_has_bf16(ctx),
+                         i == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16) != 0);
+        fk_ctx_free(ctx);
+    }
 }
 
 struct count_arg {

@@ -83,8 +83,7 @@ static void attention_ratios(struct row *rows, int n)
         struct row *r = &rows[i];
         if (strcmp(r->kernel, "attention") != 0)
             continue;
-        r->vs_f32 = NAN;
-        r->peer_ratio = NAN;
+        r->peer_ratio = NAN; /* vs_f32: bench_attention_shape's (bf16 rows) */
         for (int j = 0; j < n; j++)
             if (!strcmp(rows[j].kernel, "gemm") && !strcmp(rows[j].precision, "f32") &&
                 rows[j].m == r->m && rows[j].n == 1024 && rows[j].k == 1024 &&
@@ -319,14 +318,16 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
     return count;
 }
 
-/* Attention with the aggregator's settings: qk-norm, 2-D RoPE, 16 heads of 64. */
+/* Attention with the aggregator's settings: qk-norm, 2-D RoPE, 16 heads of 64;
+ * f32, and bf16 products (desc.bf16) where the context has AVX512_BF16. */
 static int bench_attention_shape(const struct opts *o, int ntok, int heads, int d, struct row *rows)
 {
     int C = heads * d, side = (int)sqrt((double)ntok);
     float *qkv = rand_buf((size_t)ntok * 3 * C, 1.0f), *out = malloc((size_t)ntok * C * sizeof *out);
+    float *out16 = malloc((size_t)ntok * C * sizeof *out16);
     float *nw = rand_buf((size_t)d, 0.5f), *nb = rand_buf((size_t)d, 0.1f);
     int32_t *pos = malloc((size_t)ntok * 2 * sizeof *pos);
-    if (!out || !pos)
+    if (!out || !out16 || !pos)
         exit(1);
     for (int i = 0; i < d; i++)
         nw[i] += 1.0f;
@@ -358,28 +359,38 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
             ctxs[n_ctx++] = make_ctx(FK_ISA_AVX2, threads);
         for (int c = 0; c < n_ctx; c++) {
             fk_ctx *ctx = ctxs[c];
-            double best = 1e30;
-            for (int r = 0; r < o->reps; r++) {
-                settle(threads);
-                double t0 = now_for(o, threads);
-                if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
-                                 out, C) != F4D_OK) {
-                    fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
-                    exit(1);
+            /* f32, and bf16 products where the context has AVX512_BF16, in
+             * turn rep after rep (xf32 of a bf16 row: the median pair ratio) */
+            int nv = fk_ctx_has_bf16(ctx) ? 2 : 1, reps = o->reps < 63 ? o->reps : 63;
+            double t[2][63];
+            for (int r = 0; r < reps; r++)
+                for (int vr = 0; vr < nv; vr++) {
+                    a.bf16 = vr;
+                    settle(threads);
+                    double t0 = now_for(o, threads);
+                    if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
+                                     vr ? out16 : out, C) != F4D_OK) {
+                        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
+                        exit(1);
+                    }
+                    t[vr][r] = now_for(o, threads) - t0;
                 }
-                double dt = now_for(o, threads) - t0;
-                if (dt < best)
-                    best = dt;
+            for (int vr = 0; vr < nv; vr++) {
+                double best = 1e30;
+                for (int r = 0; r < reps; r++)
+                    best = t[vr][r] < best ? t[vr][r] : best;
+                struct row *r = &rows[count++];
+                *r = (struct row){ "attention", vr ? "bf16" : "f32", threads, ntok, ntok, d,
+                                   4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
+                                   vr ? paired_ratio(t[0], t[1], reps) : NAN,
+                                   vr ? "avx512-bf16" : fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_isa(ctx) };
+                errors_vs(vr ? out16 : out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
             }
-            struct row *r = &rows[count++];
-            *r = (struct row){ "attention", "f32", threads, ntok, ntok, d,
-                               4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
-                               NAN, fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_isa(ctx) };
-            errors_vs(out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
+            a.bf16 = 0;
             fk_ctx_free(ctx);
         }
     }
-    free(qkv); free(out); free(nw); free(nb); free(pos); free(ref);
+    free(qkv); free(out); free(out16); free(nw); free(nb); free(pos); free(ref);
     return count;
 }
 
@@ -410,7 +421,7 @@ static int write_json(const char *path, double peak, const struct row *rows, int
         cJSON_AddItemToObject(o, "isa", cJSON_CreateString(fk_isa_name(r->isa)));
         if (!strcmp(r->kernel, "gemm")) /* median of paired reps: ours vs OpenBLAS */
             cJSON_AddItemToObject(o, "vs_openblas", num_or_null(r->peer_ratio));
-        if (!strcmp(r->kernel, "gemm") && strcmp(r->precision, "f32")) /* extra: vs our f32 */
+        if (strcmp(r->precision, "f32")) /* extra: vs our f32 (GEMM f16/int8, attention bf16) */
             cJSON_AddItemToObject(o, "vs_f32", num_or_null(r->vs_f32));
         if (!strcmp(r->kernel, "attention")) /* extra: the goal is stated against our f32 GEMM */
             cJSON_AddItemToObject(o, "vs_f32_gemm", num_or_null(r->peer_ratio));
@@ -638,7 +649,8 @@ int bench_kernels(int argc, char **argv)
            "least (5 with threads), up to 63 while a shape's reps take under 1 s, odd). GEMM: every variant of a shape\n"
            "(each ISA's f32 / f16 / int8, and OpenBLAS) runs in turn, rep after rep; xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 =\n"
            "median of the same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our\n"
-           "f32 GEMM (same ISA, tokens, 1024 -> 1024), best of runs. xpeak = ours / the FMA peak for\n"
+           "f32 GEMM (same ISA, tokens, 1024 -> 1024), best of runs; bf16 rows (q.k and p.v in bf16, where\n"
+           "the CPU has AVX512_BF16) run in turn with f32, xf32 = median of f32 time / bf16's. xpeak = ours / the FMA peak for\n"
            "those threads (zmm for avx512 rows, ymm otherwise). Clock: %s.\n", o.reps,
            o.cpu_clock ? "the thread's CPU time for 1-thread rows (--clock cpu), wall otherwise" : "wall");
     return o.json ? write_json(o.json, peak, rows, n, isa) : 0;

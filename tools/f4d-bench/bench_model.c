@@ -19,7 +19,8 @@
  *       convolution layer but the patchify), the error against the f32 run of
  *       the same weights: max |x - x_f32| / max |x_f32| over the aggregator
  *       output and the depth map. Also the arena of the full 4 x 518^2 plan.
- *       int8 names the kernel path that ran (vnni-8bit, avx2-7bit, ...);
+ *       int8 names the kernel path that ran (vnni-8bit, avx2-7bit, ...)
+ *       and its attention (bf16 products where AVX512_BF16, else f32);
  *       --isa forces one ISA, --isa all runs f16 on the best ISA and f32
  *       and int8 on every ISA this CPU has, side by side; each int8 speed is
  *       over its own ISA's f32, each forward's GFLOP/s over the FMA peak of
@@ -464,9 +465,13 @@ int bench_model(int argc, char **argv)
         fk_ctx_free(ctx);
         return wrc;
     }
-    printf("model: isa %s, int8 path %s", fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_q8_path(ctx));
+    /* int8 models run attention's products in bf16 where the context has
+     * AVX512_BF16 (model_block.c), fp32 elsewhere */
+    printf("model: isa %s, int8 path %s, int8 attention %s", fk_isa_name(fk_ctx_isa(ctx)),
+           fk_ctx_q8_path(ctx), fk_ctx_has_bf16(ctx) ? "bf16" : "f32");
     for (int i = 0; i < n_x; i++)
-        printf(", also int8 on %s (%s)", fk_isa_name(fk_ctx_isa(xctx[i])), fk_ctx_q8_path(xctx[i]));
+        printf(", also int8 on %s (%s, attention %s)", fk_isa_name(fk_ctx_isa(xctx[i])),
+               fk_ctx_q8_path(xctx[i]), fk_ctx_has_bf16(xctx[i]) ? "bf16" : "f32");
     printf("\n");
     int nthr = fk_ctx_threads(ctx);
     double peak = bench_fma_peak_gflops(nthr, 3);
@@ -569,7 +574,8 @@ int bench_model(int argc, char **argv)
         char wn[9][48];
         for (int p = 0; p < nrun; p++) {
             if (wts[p] == FK_W_Q8)
-                snprintf(wn[p], sizeof wn[p], "int8 %s", fk_ctx_q8_path(rctx[p]));
+                snprintf(wn[p], sizeof wn[p], "int8 %s attention %s", fk_ctx_q8_path(rctx[p]),
+                         fk_ctx_has_bf16(rctx[p]) ? "bf16" : "f32");
             else
                 snprintf(wn[p], sizeof wn[p], "%s %s", wts[p] == FK_W_F32 ? "f32" : "f16",
                          fk_isa_name(fk_ctx_isa(rctx[p])));
