@@ -49,17 +49,19 @@ struct fk__attn_isa {
     void (*softmax_block)(float *s, int valid, float *m, float *l, float *alpha);
     /* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
     void (*pv_tile)(int d, const float *p, const float *v, float *o, const float *alpha);
-    /* optional: s[6][BK] = a[d][6] panel . the BK / 16 key panels [d][16] at
-     * kp (adjacent); NULL: ukr_6x16 once per panel */
-    void (*s_block)(int d, const float *a, const float *kp, float *s);
+    /* optional: the whole step for one panel and one key block, in place of
+     * ukr_6x16, softmax_block and pv_tile: s[6][BK] (scratch) = the a panel
+     * . the BK / 16 key panels [d][16] at kp (adjacent), the online softmax
+     * (m, l as above), o[6][d] = alpha o + p . v[BK][d]; NULL: the pieces */
+    void (*block)(int d, const float *a, const float *kp, const float *v, int valid, float *s,
+                  float *o, float *m, float *l);
 };
 
 #if defined(__x86_64__)
-/* The AVX-512 pieces (x86/attention_avx512.c, called only where the context's
- * ISA is FK_ISA_AVX512): the whole-block S, the softmax block, the P V tile. */
-void fk__attn_s_block_avx512(int d, const float *q, const float *kp, float *s);
-void fk__attn_softmax_block_avx512(float *s, int valid, float *m, float *l, float *alpha);
-void fk__attn_pv_tile_avx512(int d, const float *p, const float *v, float *o, const float *alpha);
+/* The AVX-512 step (x86/attention_avx512.c, called only where the context's
+ * ISA is FK_ISA_AVX512): struct fk__attn_isa's block. */
+void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *v, int valid,
+                           float *s, float *o, float *m, float *l);
 #endif
 
 /* fk__attention_avx2 / _neon: validated arguments, the ISA's pieces. */
