@@ -112,8 +112,9 @@ static inline __attribute__((always_inline)) void pv_cols(int G, int d, const fl
  * keys for 24 FMAs); m_new = max(m, row max), p = 2^(s - m_new) into s,
  * alpha = 2^(m - m_new), l = alpha l + row sum of p; then
  * o = alpha o + p . v, 64 columns (24 accumulators) at a time. */
-void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *v, int valid,
-                           float *s, float *o, float *m, float *l)
+static inline __attribute__((always_inline)) void block(int d, const float *q, const float *kp,
+                                                        const float *v, int valid, float *s,
+                                                        float *o, float *m, float *l, int padded)
 {
     __m512 c[MR][4];
     for (int r = 0; r < MR; r++)
@@ -140,7 +141,7 @@ void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *
     }
     /* the loops over rows and panels below are unrolled so that c stays in
      * registers (a loop left rolled would keep it in memory) */
-    if (valid < BK) /* padding keys: -inf */
+    if (padded) /* padding keys: -inf */
 #pragma GCC unroll 4
         for (int p = 0; p < 4; p++) {
             int n = valid - p * NR;
@@ -182,4 +183,15 @@ void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *
     }
     if (c0 < d)
         pv_cols(1, d, s, v + c0, o + c0, al, rescale);
+}
+
+/* Two copies: only the last key block has padding keys, and without the
+ * padding code the S accumulators stay in registers. */
+void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *v, int valid,
+                           float *s, float *o, float *m, float *l)
+{
+    if (valid < BK)
+        block(d, q, kp, v, valid, s, o, m, l, 1);
+    else
+        block(d, q, kp, v, valid, s, o, m, l, 0);
 }
