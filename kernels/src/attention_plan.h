@@ -9,7 +9,8 @@
  * values and queries fit a few MB of shared scratch:
  *   phase 1 (parallel over token chunks): q/k LayerNorm and RoPE, q scaled by
  *     scale * log2(e) (so the softmax uses exp2), keys packed as 16-wide
- *     panels [d][16], values as rows [nk_pad][d], queries as 6-row panels;
+ *     panels [d][16] (64-wide [d][64] for an ISA's block), values as rows
+ *     [nk_pad][d], queries as 6-row panels;
  *   phase 2 (parallel over head x 96-query blocks): for each 64-key block,
  *     S = Q K^T by the GEMM's 6x16 register tile, the running max / sum
  *     update, and O = alpha O + P V by a 6x16 tile, all in L1. Nothing
@@ -51,8 +52,9 @@ struct fk__attn_isa {
     void (*pv_tile)(int d, const float *p, const float *v, float *o, const float *alpha);
     /* optional: the whole step for one panel and one key block, in place of
      * ukr_6x16, softmax_block and pv_tile: s[6][BK] (scratch) = the a panel
-     * . the BK / 16 key panels [d][16] at kp (adjacent), the online softmax
-     * (m, l as above), o[6][d] = alpha o + p . v[BK][d]; NULL: the pieces */
+     * . the key block kp, then packed [d][BK] (not [d][16]), the online
+     * softmax (m, l as above), o[6][d] = alpha o + p . v[BK][d]; NULL: the
+     * pieces */
     void (*block)(int d, const float *a, const float *kp, const float *v, int valid, float *s,
                   float *o, float *m, float *l);
 };

@@ -77,6 +77,17 @@ static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale
             else if (memcmp(one, got, sizeof(float) * (size_t)c->nq * C) != 0)
                 fail_msg("%s heads %d d %d nq %d nk %d: 2 threads differ from 1", fk_isa_name(isas[i]),
                          c->heads, c->d, c->nq, nkv);
+            if (isas[i] == FK_ISA_AVX512) { /* the zmm block keeps the AVX2 pieces' bits */
+                fk_ctx *x2 = test_ctx(FK_ISA_AVX2, threads);
+                float *alt = xmalloc(sizeof(float) * (size_t)c->nq * C);
+                assert_int_equal(fk_attention(x2, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, alt, C), F4D_OK);
+                for (size_t e2 = 0; e2 < (size_t)c->nq * C; e2++)
+                    if (memcmp(&alt[e2], &got[e2], sizeof(float)) != 0)
+                        fail_msg("avx512 vs avx2, heads %d d %d nq %d nk %d: element %zu %.9g vs %.9g",
+                                 c->heads, c->d, c->nq, nkv, e2, got[e2], alt[e2]);
+                free(alt);
+                fk_ctx_free(x2);
+            }
             fk_ctx_free(ctx);
         }
     free(one);

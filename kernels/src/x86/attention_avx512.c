@@ -2,80 +2,70 @@
  * against one 64-key block (S = Q K^T, the online softmax, O = alpha O + P V)
  * in one call, used by fk__attention_avx2 when the context's ISA is
  * FK_ISA_AVX512; q/k LayerNorm and RoPE (per token, not per pair) stay AVX2.
- * Same packed layouts as the AVX2 pieces: a 6-row query panel [d][6], key
- * panels [d][16] (the four of a block adjacent), values [BK][d].
+ * Layouts: a 6-row query panel [d][6] as for AVX2, keys [d][64] per block
+ * (the driver packs them so for struct fk__attn_isa's block), values [BK][d].
  *
  * The FMAs of S and P V are the work; everything else per block is
  * overhead paid per 6 x 64 logits, so it is kept in registers and short: S
  * stays in its 24 accumulators for the row max and the exponentials, the six
- * row maxima and row sums come out of one transposed reduction each, the
- * exponential is a 16-entry table and a cubic, and P is stored once, for the
- * P V broadcasts. The results differ from the AVX2 pieces' in the last bits
- * (another exp2, another order of the row sums); test_attention holds both to
- * the scalar reference. Every order is fixed, so the bits do not depend on
- * the run or the thread count. */
+ * row maxima come out of one transposed reduction, alpha for the six rows is
+ * one exp2, and P is stored once, for the P V broadcasts. Every output
+ * element is computed with the AVX2 pieces' operations in their order (S and
+ * O along k / keys one FMA at a time, the same exp2, the row sums in 8 lanes),
+ * so AVX-512 attention gives the AVX2 bits (test_attention checks it): the
+ * model's fixtures hold for either ISA. */
 #include <immintrin.h>
 #include <math.h>
 
 #include "../attention_plan.h"
+#include "vecmath_avx2.h"
 
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
 #define BK FK_ATTN_BK
 
-/* 2^x for x = s - max <= 0 (or NaN, which stays NaN): x = k / 16 + f with
- * |f| <= 1/32, 2^(k / 16) = 2^floor(k / 16) * table[k mod 16] (the table
- * lookup is a permute of one register, the power of two a scalef), 2^f by a
- * cubic (relative error 1e-8 before rounding). x is clamped at -125, whose
- * 2^x is still normal: what it stands for only needs to be tiny next to a
- * row sum >= 1 (padding keys have zero values), and subnormal results would
- * cost microcode assists. */
+/* 2^x for x = s - max <= 0, as the AVX2 piece (same clamp at -127, same
+ * degree-6 polynomial on [-0.5, 0.5], exponent add; NaN stays NaN), so
+ * both give the same bits. */
 static inline __m512 exp2_softmax(__m512 x)
 {
-    const __m512 table = _mm512_setr_ps(
-        1.000000000e+00f, 1.044273734e+00f, 1.090507746e+00f, 1.138788581e+00f,
-        1.189207077e+00f, 1.241857767e+00f, 1.296839595e+00f, 1.354255557e+00f,
-        1.414213538e+00f, 1.476826191e+00f, 1.542210817e+00f, 1.610490322e+00f,
-        1.681792855e+00f, 1.756252170e+00f, 1.834008098e+00f, 1.915206552e+00f);
-    const __m512 magic = _mm512_set1_ps(786432.0f); /* 1.5 2^19: its ulp is 1/16 */
-    x = _mm512_max_ps(_mm512_set1_ps(-125.0f), x);  /* NaN x stays x */
-    __m512 y = _mm512_add_ps(x, magic);             /* k in the low mantissa bits */
-    __m512 n = _mm512_sub_ps(y, magic);             /* k / 16, exact */
-    __m512 f = _mm512_sub_ps(x, n);                 /* exact */
-    __m512 p = _mm512_fmadd_ps(_mm512_set1_ps(5.5504108665e-2f), f, _mm512_set1_ps(2.4022650696e-1f));
+    x = _mm512_max_ps(_mm512_set1_ps(-127.0f), x);
+    __m512 n = _mm512_roundscale_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    __m512 f = _mm512_sub_ps(x, n);
+    __m512 p = _mm512_set1_ps(1.5403530393e-4f);
+    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.3333558146e-3f));
+    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(9.6181291076e-3f));
+    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(5.5504108665e-2f));
+    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(2.4022650696e-1f));
     p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(6.9314718056e-1f));
     p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.0f));
-    __m512 t = _mm512_permutexvar_ps(_mm512_castps_si512(y), table); /* k mod 16 */
-    return _mm512_scalef_ps(_mm512_mul_ps(p, t), n);                  /* 2^floor(k / 16) */
+    __m512i e = _mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23);
+    return _mm512_mul_ps(p, _mm512_castsi512_ps(e));
 }
 
-/* Six rows' horizontal reductions at once: lane r of the result is row r's
- * max (MAX) or sum (else), lanes 6-15 are unspecified. The order of the
- * operations is fixed (a tree), so a sum's bits depend only on the rows. */
-#define REDUCE6(name, op)                                                                   \
-    static inline __m512 name(const __m512 *v)                                              \
-    {                                                                                       \
-        __m512 a01 = op(_mm512_shuffle_f32x4(v[0], v[1], _MM_SHUFFLE(1, 0, 1, 0)),         \
-                        _mm512_shuffle_f32x4(v[0], v[1], _MM_SHUFFLE(3, 2, 3, 2)));        \
-        __m512 a23 = op(_mm512_shuffle_f32x4(v[2], v[3], _MM_SHUFFLE(1, 0, 1, 0)),         \
-                        _mm512_shuffle_f32x4(v[2], v[3], _MM_SHUFFLE(3, 2, 3, 2)));        \
-        __m512 a45 = op(_mm512_shuffle_f32x4(v[4], v[5], _MM_SHUFFLE(1, 0, 1, 0)),         \
-                        _mm512_shuffle_f32x4(v[4], v[5], _MM_SHUFFLE(3, 2, 3, 2)));        \
-        /* 128-bit chunks: rows 0 1 2 3 and rows 4 5 4 5 */                                 \
-        __m512 b = op(_mm512_shuffle_f32x4(a01, a23, _MM_SHUFFLE(2, 0, 2, 0)),             \
-                      _mm512_shuffle_f32x4(a01, a23, _MM_SHUFFLE(3, 1, 3, 1)));            \
-        __m512 c = op(_mm512_shuffle_f32x4(a45, a45, _MM_SHUFFLE(2, 0, 2, 0)),             \
-                      _mm512_shuffle_f32x4(a45, a45, _MM_SHUFFLE(3, 1, 3, 1)));            \
-        /* per chunk: b's row in lanes 0 1, c's in lanes 2 3 */                             \
-        __m512 e = op(_mm512_shuffle_ps(b, c, _MM_SHUFFLE(1, 0, 1, 0)),                    \
-                      _mm512_shuffle_ps(b, c, _MM_SHUFFLE(3, 2, 3, 2)));                   \
-        e = op(e, _mm512_permute_ps(e, _MM_SHUFFLE(2, 3, 0, 1)));                          \
-        return _mm512_permutexvar_ps(_mm512_setr_epi32(0, 4, 8, 12, 2, 6, 0, 0, 0, 0, 0, 0, \
-                                                       0, 0, 0, 0), e);                    \
-    }
-REDUCE6(reduce6_max, _mm512_max_ps)
-REDUCE6(reduce6_sum, _mm512_add_ps)
-#undef REDUCE6
+/* The six rows' maxima at once: lane r of the result is max(v[r]) (exact in
+ * any order; NaN may be dropped, as by fk__hmax_avx2), lanes 6-15 are
+ * unspecified. A tree of 128-bit and in-lane shuffles instead of six serial
+ * horizontal reductions. */
+static inline __m512 reduce6_max(const __m512 *v)
+{
+    __m512 a01 = _mm512_max_ps(_mm512_shuffle_f32x4(v[0], v[1], _MM_SHUFFLE(1, 0, 1, 0)),
+                               _mm512_shuffle_f32x4(v[0], v[1], _MM_SHUFFLE(3, 2, 3, 2)));
+    __m512 a23 = _mm512_max_ps(_mm512_shuffle_f32x4(v[2], v[3], _MM_SHUFFLE(1, 0, 1, 0)),
+                               _mm512_shuffle_f32x4(v[2], v[3], _MM_SHUFFLE(3, 2, 3, 2)));
+    __m512 a45 = _mm512_max_ps(_mm512_shuffle_f32x4(v[4], v[5], _MM_SHUFFLE(1, 0, 1, 0)),
+                               _mm512_shuffle_f32x4(v[4], v[5], _MM_SHUFFLE(3, 2, 3, 2)));
+    /* 128-bit chunks: rows 0 1 2 3 and rows 4 5 4 5 */
+    __m512 b = _mm512_max_ps(_mm512_shuffle_f32x4(a01, a23, _MM_SHUFFLE(2, 0, 2, 0)),
+                             _mm512_shuffle_f32x4(a01, a23, _MM_SHUFFLE(3, 1, 3, 1)));
+    __m512 c = _mm512_max_ps(_mm512_shuffle_f32x4(a45, a45, _MM_SHUFFLE(2, 0, 2, 0)),
+                             _mm512_shuffle_f32x4(a45, a45, _MM_SHUFFLE(3, 1, 3, 1)));
+    /* per chunk: b's row in lanes 0 1, c's in lanes 2 3 */
+    __m512 e = _mm512_max_ps(_mm512_shuffle_ps(b, c, _MM_SHUFFLE(1, 0, 1, 0)),
+                             _mm512_shuffle_ps(b, c, _MM_SHUFFLE(3, 2, 3, 2)));
+    e = _mm512_max_ps(e, _mm512_permute_ps(e, _MM_SHUFFLE(2, 3, 0, 1)));
+    return _mm512_permutexvar_ps(_mm512_setr_epi32(0, 4, 8, 12, 2, 6, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), e);
+}
 
 /* o[6][g * 16 ..] (ld d) = alpha o + p[6][BK] . v[BK][16 G columns]: 6 G
  * accumulators, each P value broadcast once for the G column vectors. G is
@@ -164,14 +154,17 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
         __m512i lane = _mm512_set1_epi32(r);
         __m512 mv = _mm512_permutexvar_ps(lane, m_new);
         al[r] = _mm512_permutexvar_ps(lane, al_v);
+        /* the row sum in 8 lanes, added in the AVX2 piece's order and reduced
+         * by the same hsum, l updated by the same expression: the same bits */
+        __m256 sum = _mm256_setzero_ps();
         for (int p = 0; p < 4; p++) {
             c[r][p] = exp2_softmax(_mm512_sub_ps(c[r][p], mv));
             _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
+            sum = _mm256_add_ps(sum, _mm512_castps512_ps256(c[r][p]));
+            sum = _mm256_add_ps(sum, _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(c[r][p]), 1)));
         }
-        red[r] = _mm512_add_ps(_mm512_add_ps(c[r][0], c[r][1]), _mm512_add_ps(c[r][2], c[r][3]));
+        l[r] = l[r] * _mm512_cvtss_f32(al[r]) + fk__hsum_avx2(sum);
     }
-    __m512 l_new = _mm512_add_ps(_mm512_mul_ps(_mm512_maskz_loadu_ps(rows, l), al_v), reduce6_sum(red));
-    _mm512_mask_storeu_ps(l, rows, l_new);
     /* alpha is exactly 1 in every row whose max did not grow: no rescale */
     int rescale = _mm512_mask_cmp_ps_mask(rows, al_v, _mm512_set1_ps(1.0f), _CMP_NEQ_UQ) != 0;
     int c0 = 0;
