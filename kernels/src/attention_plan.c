@@ -33,6 +33,22 @@ struct attn_job {
 
 /* ------------------------------------------------------------------- prep */
 
+/* Token t's slice of the group's heads in a row of src (ld floats), fetched
+ * ahead: the rows are far apart, so the hardware prefetchers do not follow.
+ * Inlined: GCC finds an out-of-line copy free of side effects and drops
+ * its calls. */
+#define PREP_AHEAD 4
+
+static inline __attribute__((always_inline)) void prefetch_slice(const struct attn_job *j, const float *src, int ld, int t, int n)
+{
+    if (t >= n)
+        return;
+    const char *p = (const char *)(src + (size_t)t * (size_t)ld + (size_t)j->h0 * (size_t)j->d);
+    size_t bytes = (size_t)j->hn * (size_t)j->d * sizeof(float);
+    for (size_t b = 0; b < bytes; b += 64)
+        __builtin_prefetch(p + b);
+}
+
 static void prep_vec(const struct attn_job *j, int which, const float *src, const int32_t *pos,
                      float *dst)
 {
@@ -59,27 +75,32 @@ static void prep_task(void *arg, int task, int thread)
 {
     const struct attn_job *j = arg;
     int d = j->d, dp = j->dp;
+    int kw = j->isa->block ? BK : NR; /* keys per packed panel (see attention_plan.h) */
     float buf[1024] __attribute__((aligned(32)));
     (void)thread;
     if (task < j->k_chunks) { /* keys and values */
         int t0 = task * j->chunk, t1 = t0 + j->chunk < j->nk_pad ? t0 + j->chunk : j->nk_pad;
-        for (int h = j->h0; h < j->h0 + j->hn; h++) {
-            float *kp = j->kp + (size_t)(h - j->h0) * j->head_k;
-            float *vp = j->vp + (size_t)(h - j->h0) * j->head_v;
-            for (int t = t0; t < t1; t++) {
-                float *kd = kp + (size_t)(t / NR) * (size_t)dp * NR + (size_t)(t % NR);
+        /* tokens outer: the group's heads of a token are adjacent in k / v,
+         * so the reads stream instead of striding a whole row per head */
+        for (int t = t0; t < t1; t++) {
+            prefetch_slice(j, j->k, j->ldk, t + PREP_AHEAD, j->nk);
+            prefetch_slice(j, j->v, j->ldv, t + PREP_AHEAD, j->nk);
+            for (int h = j->h0; h < j->h0 + j->hn; h++) {
+                float *kp = j->kp + (size_t)(h - j->h0) * j->head_k;
+                float *vp = j->vp + (size_t)(h - j->h0) * j->head_v;
+                float *kd = kp + (size_t)(t / kw) * (size_t)dp * kw + (size_t)(t % kw);
                 float *vd = vp + (size_t)t * (size_t)dp;
                 int c0 = 0;
                 if (t < j->nk) {
                     prep_vec(j, 1, j->k + (size_t)t * (size_t)j->ldk + (size_t)h * (size_t)d,
                              j->a->pos_k ? j->a->pos_k + 2 * t : NULL, buf);
                     for (int c = 0; c < d; c++)
-                        kd[(size_t)c * NR] = buf[c];
+                        kd[(size_t)c * kw] = buf[c];
                     memcpy(vd, j->v + (size_t)t * (size_t)j->ldv + (size_t)h * (size_t)d, (size_t)d * sizeof(float));
                     c0 = d;
                 }
                 for (int c = c0; c < dp; c++) { /* padding keys and padding columns: zeros */
-                    kd[(size_t)c * NR] = 0;
+                    kd[(size_t)c * kw] = 0;
                     vd[c] = 0;
                 }
             }
@@ -88,9 +109,10 @@ static void prep_task(void *arg, int task, int thread)
     }
     task -= j->k_chunks; /* queries */
     int t0 = task * j->chunk, t1 = t0 + j->chunk < j->nq_pad ? t0 + j->chunk : j->nq_pad;
-    for (int h = j->h0; h < j->h0 + j->hn; h++) {
-        float *qp = j->qp + (size_t)(h - j->h0) * j->head_q;
-        for (int t = t0; t < t1; t++) {
+    for (int t = t0; t < t1; t++) {
+        prefetch_slice(j, j->q, j->ldq, t + PREP_AHEAD, j->nq);
+        for (int h = j->h0; h < j->h0 + j->hn; h++) {
+            float *qp = j->qp + (size_t)(h - j->h0) * j->head_q;
             float *qd = qp + (size_t)(t / MR) * (size_t)dp * MR + (size_t)(t % MR);
             int c0 = 0;
             if (t < j->nq) {
@@ -133,11 +155,13 @@ static void attn_task(void *arg, int task, int thread)
         for (int i = 0; i < panels; i++) {
             const float *qi = qp + (size_t)(q0 / MR + i) * (size_t)dp * MR;
             const float *kb_p = kp + (size_t)kb * (BK / NR) * (size_t)dp * NR;
-            if (isa->s_block)
-                isa->s_block(dp, qi, kb_p, s);
-            else
-                for (int p = 0; p < BK / NR; p++)
-                    isa->ukr_6x16(dp, qi, kb_p + (size_t)p * (size_t)dp * NR, s + p * NR, BK, 0);
+            if (isa->block) {
+                isa->block(dp, qi, kb_p, vp + (size_t)kb * BK * (size_t)dp, valid, s,
+                           o + (size_t)i * MR * (size_t)dp, mrow + i * MR, lrow + i * MR);
+                continue;
+            }
+            for (int p = 0; p < BK / NR; p++)
+                isa->ukr_6x16(dp, qi, kb_p + (size_t)p * (size_t)dp * NR, s + p * NR, BK, 0);
             isa->softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha);
             isa->pv_tile(dp, s, vp + (size_t)kb * BK * (size_t)dp, o + (size_t)i * MR * (size_t)dp, alpha);
         }

@@ -9,7 +9,8 @@
  * values and queries fit a few MB of shared scratch:
  *   phase 1 (parallel over token chunks): q/k LayerNorm and RoPE, q scaled by
  *     scale * log2(e) (so the softmax uses exp2), keys packed as 16-wide
- *     panels [d][16], values as rows [nk_pad][d], queries as 6-row panels;
+ *     panels [d][16] (64-wide [d][64] for an ISA's block), values as rows
+ *     [nk_pad][d], queries as 6-row panels;
  *   phase 2 (parallel over head x 96-query blocks): for each 64-key block,
  *     S = Q K^T by the GEMM's 6x16 register tile, the running max / sum
  *     update, and O = alpha O + P V by a 6x16 tile, all in L1. Nothing
@@ -49,17 +50,20 @@ struct fk__attn_isa {
     void (*softmax_block)(float *s, int valid, float *m, float *l, float *alpha);
     /* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
     void (*pv_tile)(int d, const float *p, const float *v, float *o, const float *alpha);
-    /* optional: s[6][BK] = a[d][6] panel . the BK / 16 key panels [d][16] at
-     * kp (adjacent); NULL: ukr_6x16 once per panel */
-    void (*s_block)(int d, const float *a, const float *kp, float *s);
+    /* optional: the whole step for one panel and one key block, in place of
+     * ukr_6x16, softmax_block and pv_tile: s[6][BK] (scratch) = the a panel
+     * . the key block kp, then packed [d][BK] (not [d][16]), the online
+     * softmax (m, l as above), o[6][d] = alpha o + p . v[BK][d]; NULL: the
+     * pieces */
+    void (*block)(int d, const float *a, const float *kp, const float *v, int valid, float *s,
+                  float *o, float *m, float *l);
 };
 
 #if defined(__x86_64__)
-/* The AVX-512 pieces (x86/attention_avx512.c, called only where the context's
- * ISA is FK_ISA_AVX512): the whole-block S, the softmax block, the P V tile. */
-void fk__attn_s_block_avx512(int d, const float *q, const float *kp, float *s);
-void fk__attn_softmax_block_avx512(float *s, int valid, float *m, float *l, float *alpha);
-void fk__attn_pv_tile_avx512(int d, const float *p, const float *v, float *o, const float *alpha);
+/* The AVX-512 step (x86/attention_avx512.c, called only where the context's
+ * ISA is FK_ISA_AVX512): struct fk__attn_isa's block. */
+void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *v, int valid,
+                           float *s, float *o, float *m, float *l);
 #endif
 
 /* bf16 products (x86/attention_bf16_avx512.c), for a desc with bf16 set

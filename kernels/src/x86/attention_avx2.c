@@ -153,11 +153,10 @@ static const struct fk__attn_isa attn_avx2 = {
     head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, NULL,
 };
 
-/* AVX-512: the per-pair work in zmm (attention_avx512.c), the per-token prep
- * as above. */
+/* AVX-512: the per-pair work in zmm, one call per panel and key block
+ * (attention_avx512.c), the per-token prep as above. */
 static const struct fk__attn_isa attn_avx512 = {
-    head_norm, rope_apply, fk__ukr_f32_6x16, fk__attn_softmax_block_avx512, fk__attn_pv_tile_avx512,
-    fk__attn_s_block_avx512,
+    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, fk__attn_block_avx512,
 };
 
 int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,

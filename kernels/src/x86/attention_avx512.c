@@ -1,12 +1,19 @@
-/* attention_avx512.c - the AVX-512 pieces of attention's inner loop (S = Q K^T
- * over a whole 64-key block, the online softmax, O = alpha O + P V), used by
- * fk__attention_avx2 when the context's ISA is FK_ISA_AVX512; q/k LayerNorm
- * and RoPE (per token, not per pair) stay AVX2. Same packed layouts as the
- * AVX2 pieces: a 6-row query panel [d][6], key panels [d][16] (the four of a
- * block adjacent), values [BK][d]. Every output element is computed with the
- * AVX2 pieces' operations in their order (S and O along k / keys one FMA at a
- * time, the same exp2, the row sums in 8 lanes), so AVX-512 attention gives
- * the AVX2 bits (test_attention checks it): only the width differs. */
+/* attention_avx512.c - the AVX-512 inner loop of attention: one 6-query panel
+ * against one 64-key block (S = Q K^T, the online softmax, O = alpha O + P V)
+ * in one call, used by fk__attention_avx2 when the context's ISA is
+ * FK_ISA_AVX512; q/k LayerNorm and RoPE (per token, not per pair) stay AVX2.
+ * Layouts: a 6-row query panel [d][6] as for AVX2, keys [d][64] per block
+ * (the driver packs them so for struct fk__attn_isa's block), values [BK][d].
+ *
+ * The FMAs of S and P V are the work; everything else per block is
+ * overhead paid per 6 x 64 logits, so it is kept in registers and short: S
+ * stays in its 24 accumulators for the row max and the exponentials, the six
+ * row maxima come out of one transposed reduction, alpha for the six rows is
+ * one exp2, and P is stored once, for the P V broadcasts. Every output
+ * element is computed with the AVX2 pieces' operations in their order (S and
+ * O along k / keys one FMA at a time, the same exp2, the row sums in 8 lanes),
+ * so AVX-512 attention gives the AVX2 bits (test_attention checks it): the
+ * model's fixtures hold for either ISA. */
 #include <immintrin.h>
 #include <math.h>
 
@@ -17,35 +24,9 @@
 #define NR FK_ATTN_NR
 #define BK FK_ATTN_BK
 
-/* s[6][BK] = q[d][6] . kp (4 panels [d][16]): 24 zmm accumulators, so each k
- * step loads 4 vectors of keys for 24 FMAs (the 6x16 AVX2 tile loads 2 for
- * 12 FMAs of half the width). */
-void fk__attn_s_block_avx512(int d, const float *q, const float *kp, float *s)
-{
-    __m512 c[MR][4];
-    for (int r = 0; r < MR; r++)
-        for (int p = 0; p < 4; p++)
-            c[r][p] = _mm512_setzero_ps();
-    const size_t ps = (size_t)d * NR;
-    for (int k = 0; k < d; k++) {
-        const float *b = kp + (size_t)k * NR;
-        __m512 b0 = _mm512_loadu_ps(b), b1 = _mm512_loadu_ps(b + ps);
-        __m512 b2 = _mm512_loadu_ps(b + 2 * ps), b3 = _mm512_loadu_ps(b + 3 * ps);
-        for (int r = 0; r < MR; r++) {
-            __m512 t = _mm512_set1_ps(q[k * MR + r]);
-            c[r][0] = _mm512_fmadd_ps(t, b0, c[r][0]);
-            c[r][1] = _mm512_fmadd_ps(t, b1, c[r][1]);
-            c[r][2] = _mm512_fmadd_ps(t, b2, c[r][2]);
-            c[r][3] = _mm512_fmadd_ps(t, b3, c[r][3]);
-        }
-    }
-    for (int r = 0; r < MR; r++)
-        for (int p = 0; p < 4; p++)
-            _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
-}
-
 /* 2^x for x = s - max <= 0, as the AVX2 piece (same clamp at -127, same
- * degree-6 polynomial on [-0.5, 0.5], exponent add; NaN stays NaN). */
+ * degree-6 polynomial on [-0.5, 0.5], exponent add; NaN stays NaN), so
+ * both give the same bits. */
 static inline __m512 exp2_softmax(__m512 x)
 {
     x = _mm512_max_ps(_mm512_set1_ps(-127.0f), x);
@@ -62,81 +43,148 @@ static inline __m512 exp2_softmax(__m512 x)
     return _mm512_mul_ps(p, _mm512_castsi512_ps(e));
 }
 
-/* The online softmax over one 6 x BK block (see struct fk__attn_isa). */
-void fk__attn_softmax_block_avx512(float *s, int valid, float *m, float *l, float *alpha)
+/* The six rows' maxima at once: lane r of the result is max(v[r]) (exact in
+ * any order; NaN may be dropped, as by fk__hmax_avx2), lanes 6-15 are
+ * unspecified. A tree of 128-bit and in-lane shuffles instead of six serial
+ * horizontal reductions. */
+static inline __m512 reduce6_max(const __m512 *v)
 {
-    float m_new[16] __attribute__((aligned(64))) = { 0 }, m_old[16] __attribute__((aligned(64))) = { 0 };
-    for (int r = 0; r < MR; r++) {
-        float *sr = s + r * BK;
-        for (int jj = valid; jj < BK; jj++)
-            sr[jj] = -INFINITY;
-        __m512 mx = _mm512_max_ps(_mm512_max_ps(_mm512_loadu_ps(sr), _mm512_loadu_ps(sr + 16)),
-                                  _mm512_max_ps(_mm512_loadu_ps(sr + 32), _mm512_loadu_ps(sr + 48)));
-        float bm = _mm512_reduce_max_ps(mx);
-        m_old[r] = m[r];
-        m_new[r] = bm > m[r] ? bm : m[r];
-    }
-    /* the six rescale factors in one vector (lanes 6-15 are 2^0, unused) */
-    __m512 al = exp2_softmax(_mm512_sub_ps(_mm512_load_ps(m_old), _mm512_load_ps(m_new)));
-    _mm512_mask_storeu_ps(alpha, (__mmask16)0xff, al);
-    for (int r = 0; r < MR; r++) {
-        float *sr = s + r * BK;
-        /* the row sum in 8 lanes, added in the AVX2 piece's order (and
-         * reduced by the same hsum), so both give the same bits */
-        __m512 mv = _mm512_set1_ps(m_new[r]);
-        __m256 sum = _mm256_setzero_ps();
-        for (int jj = 0; jj < BK; jj += 16) {
-            __m512 p = exp2_softmax(_mm512_sub_ps(_mm512_loadu_ps(sr + jj), mv));
-            _mm512_storeu_ps(sr + jj, p);
-            sum = _mm256_add_ps(sum, _mm512_castps512_ps256(p));
-            sum = _mm256_add_ps(sum, _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(p), 1)));
-        }
-        l[r] = l[r] * alpha[r] + fk__hsum_avx2(sum);
-        m[r] = m_new[r];
-    }
+    __m512 a01 = _mm512_max_ps(_mm512_shuffle_f32x4(v[0], v[1], _MM_SHUFFLE(1, 0, 1, 0)),
+                               _mm512_shuffle_f32x4(v[0], v[1], _MM_SHUFFLE(3, 2, 3, 2)));
+    __m512 a23 = _mm512_max_ps(_mm512_shuffle_f32x4(v[2], v[3], _MM_SHUFFLE(1, 0, 1, 0)),
+                               _mm512_shuffle_f32x4(v[2], v[3], _MM_SHUFFLE(3, 2, 3, 2)));
+    __m512 a45 = _mm512_max_ps(_mm512_shuffle_f32x4(v[4], v[5], _MM_SHUFFLE(1, 0, 1, 0)),
+                               _mm512_shuffle_f32x4(v[4], v[5], _MM_SHUFFLE(3, 2, 3, 2)));
+    /* 128-bit chunks: rows 0 1 2 3 and rows 4 5 4 5 */
+    __m512 b = _mm512_max_ps(_mm512_shuffle_f32x4(a01, a23, _MM_SHUFFLE(2, 0, 2, 0)),
+                             _mm512_shuffle_f32x4(a01, a23, _MM_SHUFFLE(3, 1, 3, 1)));
+    __m512 c = _mm512_max_ps(_mm512_shuffle_f32x4(a45, a45, _MM_SHUFFLE(2, 0, 2, 0)),
+                             _mm512_shuffle_f32x4(a45, a45, _MM_SHUFFLE(3, 1, 3, 1)));
+    /* per chunk: b's row in lanes 0 1, c's in lanes 2 3 */
+    __m512 e = _mm512_max_ps(_mm512_shuffle_ps(b, c, _MM_SHUFFLE(1, 0, 1, 0)),
+                             _mm512_shuffle_ps(b, c, _MM_SHUFFLE(3, 2, 3, 2)));
+    e = _mm512_max_ps(e, _mm512_permute_ps(e, _MM_SHUFFLE(2, 3, 0, 1)));
+    return _mm512_permutexvar_ps(_mm512_setr_epi32(0, 4, 8, 12, 2, 6, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), e);
 }
 
-/* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] (d a multiple of 16): 32
- * columns at a time in 12 zmm accumulators, a 16-column tail in 6. */
-void fk__attn_pv_tile_avx512(int d, const float *p, const float *v, float *o, const float *alpha)
+/* o[6][g * 16 ..] (ld d) = alpha o + p[6][BK] . v[BK][16 G columns]: 6 G
+ * accumulators, each P value broadcast once for the G column vectors. G is
+ * a constant where this is inlined, so the arrays live in registers. */
+static inline __attribute__((always_inline)) void pv_cols(int G, int d, const float *p,
+                                                          const float *v, float *o,
+                                                          const __m512 *al, int rescale)
 {
-    int c0 = 0;
-    for (; c0 + 32 <= d; c0 += 32) {
-        float *oc = o + c0;
-        __m512 c[MR][2];
-        for (int r = 0; r < MR; r++) {
-            __m512 a = _mm512_set1_ps(alpha[r]);
-            c[r][0] = _mm512_mul_ps(a, _mm512_loadu_ps(oc + r * d));
-            c[r][1] = _mm512_mul_ps(a, _mm512_loadu_ps(oc + r * d + 16));
+    __m512 c[MR][4];
+    for (int r = 0; r < MR; r++)
+        for (int g = 0; g < G; g++) {
+            c[r][g] = _mm512_loadu_ps(o + r * d + g * 16);
+            if (rescale)
+                c[r][g] = _mm512_mul_ps(al[r], c[r][g]);
         }
-        const float *vr = v + c0;
-        for (int jj = 0; jj < BK; jj++) {
-            __m512 b0 = _mm512_loadu_ps(vr), b1 = _mm512_loadu_ps(vr + 16);
-            for (int r = 0; r < MR; r++) {
-                __m512 t = _mm512_set1_ps(p[r * BK + jj]);
-                c[r][0] = _mm512_fmadd_ps(t, b0, c[r][0]);
-                c[r][1] = _mm512_fmadd_ps(t, b1, c[r][1]);
-            }
-            vr += d;
-        }
+    for (int jj = 0; jj < BK; jj++) {
+        __m512 b[4];
+        for (int g = 0; g < G; g++)
+            b[g] = _mm512_loadu_ps(v + g * 16);
         for (int r = 0; r < MR; r++) {
-            _mm512_storeu_ps(oc + r * d, c[r][0]);
-            _mm512_storeu_ps(oc + r * d + 16, c[r][1]);
+            __m512 t = _mm512_set1_ps(p[r * BK + jj]);
+            for (int g = 0; g < G; g++)
+                c[r][g] = _mm512_fmadd_ps(t, b[g], c[r][g]);
+        }
+        v += d;
+    }
+    for (int r = 0; r < MR; r++)
+        for (int g = 0; g < G; g++)
+            _mm512_storeu_ps(o + r * d + g * 16, c[r][g]);
+}
+
+/* One 6-query panel against one BK-key block (struct fk__attn_isa's block):
+ * s[6][BK] = q[d][6] . kp in 24 accumulators (each k step loads 4 vectors of
+ * keys for 24 FMAs); m_new = max(m, row max), p = 2^(s - m_new) into s,
+ * alpha = 2^(m - m_new), l = alpha l + row sum of p; then
+ * o = alpha o + p . v, 64 columns (24 accumulators) at a time. */
+static inline __attribute__((always_inline)) void block(int d, const float *q, const float *kp,
+                                                        const float *v, int valid, float *s,
+                                                        float *o, float *m, float *l, int padded)
+{
+    __m512 c[MR][4];
+    for (int r = 0; r < MR; r++)
+        for (int p = 0; p < 4; p++)
+            c[r][p] = _mm512_setzero_ps();
+    /* the next panel's q and o follow this one's (the driver's layouts); with
+     * the K / V block, the 16 panels' q and o overflow L1: fetch them early */
+    const char *qn = (const char *)(q + (size_t)d * MR), *on = (const char *)(o + (size_t)d * MR);
+    for (int k = 0; k < d; k++) {
+        const float *b = kp + (size_t)k * BK;
+        if (k * 64 < MR * d * (int)sizeof(float)) { /* a line per step */
+            _mm_prefetch(qn + k * 64, _MM_HINT_T0);
+            _mm_prefetch(on + k * 64, _MM_HINT_T0);
+        }
+        __m512 b0 = _mm512_loadu_ps(b), b1 = _mm512_loadu_ps(b + NR);
+        __m512 b2 = _mm512_loadu_ps(b + 2 * NR), b3 = _mm512_loadu_ps(b + 3 * NR);
+        for (int r = 0; r < MR; r++) {
+            __m512 t = _mm512_set1_ps(q[k * MR + r]);
+            c[r][0] = _mm512_fmadd_ps(t, b0, c[r][0]);
+            c[r][1] = _mm512_fmadd_ps(t, b1, c[r][1]);
+            c[r][2] = _mm512_fmadd_ps(t, b2, c[r][2]);
+            c[r][3] = _mm512_fmadd_ps(t, b3, c[r][3]);
         }
     }
-    if (c0 < d) { /* d % 32 == 16 */
-        float *oc = o + c0;
-        __m512 c[MR];
-        for (int r = 0; r < MR; r++)
-            c[r] = _mm512_mul_ps(_mm512_set1_ps(alpha[r]), _mm512_loadu_ps(oc + r * d));
-        const float *vr = v + c0;
-        for (int jj = 0; jj < BK; jj++) {
-            __m512 b0 = _mm512_loadu_ps(vr);
+    /* the loops over rows and panels below are unrolled so that c stays in
+     * registers (a loop left rolled would keep it in memory) */
+    if (padded) /* padding keys: -inf */
+#pragma GCC unroll 4
+        for (int p = 0; p < 4; p++) {
+            int n = valid - p * NR;
+            __mmask16 pad = n <= 0 ? (__mmask16)0xffff : n >= NR ? 0 : (__mmask16)(0xffffu << n);
             for (int r = 0; r < MR; r++)
-                c[r] = _mm512_fmadd_ps(_mm512_set1_ps(p[r * BK + jj]), b0, c[r]);
-            vr += d;
+                c[r][p] = _mm512_mask_mov_ps(c[r][p], pad, _mm512_set1_ps(-INFINITY));
         }
-        for (int r = 0; r < MR; r++)
-            _mm512_storeu_ps(oc + r * d, c[r]);
+    /* the six row maxima, then m_new = bm > m ? bm : m in lanes 0-5 */
+    __m512 red[MR];
+    for (int r = 0; r < MR; r++)
+        red[r] = _mm512_max_ps(_mm512_max_ps(c[r][0], c[r][1]), _mm512_max_ps(c[r][2], c[r][3]));
+    const __mmask16 rows = (__mmask16)((1u << MR) - 1);
+    __m512 m_old = _mm512_maskz_loadu_ps(rows, m);
+    __m512 m_new = _mm512_max_ps(reduce6_max(red), m_old);
+    __m512 al_v = exp2_softmax(_mm512_sub_ps(m_old, m_new));
+    _mm512_mask_storeu_ps(m, rows, m_new);
+    __m512 al[MR];
+#pragma GCC unroll 6
+    for (int r = 0; r < MR; r++) {
+        __m512i lane = _mm512_set1_epi32(r);
+        __m512 mv = _mm512_permutexvar_ps(lane, m_new);
+        al[r] = _mm512_permutexvar_ps(lane, al_v);
+        /* the row sum in 8 lanes, added in the AVX2 piece's order and reduced
+         * by the same hsum, l updated by the same expression: the same bits */
+        __m256 sum = _mm256_setzero_ps();
+        for (int p = 0; p < 4; p++) {
+            c[r][p] = exp2_softmax(_mm512_sub_ps(c[r][p], mv));
+            _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
+            sum = _mm256_add_ps(sum, _mm512_castps512_ps256(c[r][p]));
+            sum = _mm256_add_ps(sum, _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(c[r][p]), 1)));
+        }
+        l[r] = l[r] * _mm512_cvtss_f32(al[r]) + fk__hsum_avx2(sum);
     }
+    /* alpha is exactly 1 in every row whose max did not grow: no rescale */
+    int rescale = _mm512_mask_cmp_ps_mask(rows, al_v, _mm512_set1_ps(1.0f), _CMP_NEQ_UQ) != 0;
+    int c0 = 0;
+    for (; c0 + 64 <= d; c0 += 64)
+        pv_cols(4, d, s, v + c0, o + c0, al, rescale);
+    if (d - c0 >= 32) {
+        pv_cols(2, d, s, v + c0, o + c0, al, rescale);
+        c0 += 32;
+    }
+    if (c0 < d)
+        pv_cols(1, d, s, v + c0, o + c0, al, rescale);
+}
+
+/* Two copies: only the last key block has padding keys, and without the
+ * padding code the S accumulators stay in registers. */
+void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *v, int valid,
+                           float *s, float *o, float *m, float *l)
+{
+    if (valid < BK)
+        block(d, q, kp, v, valid, s, o, m, l, 1);
+    else
+        block(d, q, kp, v, valid, s, o, m, l, 0);
 }
