@@ -287,7 +287,7 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
         if (bf16) {
             uint32_t *kb = (uint32_t *)fk__round_up((uintptr_t)(j.qp + j.head_q * (size_t)j.hn), FK_ALIGN);
             struct fk__attn_bf16_job b = {
-                ctx, j.kp, j.vp, j.qp, j.head_k, j.head_v, j.head_q,
+                ctx, j.kp, j.vp, j.qp, isa->block ? BK : NR, j.head_k, j.head_v, j.head_q,
                 kb, kb + bf_head / 8 * (size_t)j.hn, bf_head / 8,
                 nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
             };

@@ -72,6 +72,7 @@ void fk__attn_block_avx512(int d, const float *q, const float *kp, const float *
 struct fk__attn_bf16_job {
     fk_ctx      *ctx;
     const float *kp, *vp, *qp;         /* the group's fp32 packs (phase 1)  */
+    int          kw;                   /* keys per fp32 key panel: NR, or BK for isa->block */
     size_t       head_k, head_v, head_q; /* their floats per head          */
     uint32_t    *kb, *vb;              /* bf16 pair packs of the group      */
     size_t       head_kb;              /* pairs per head in kb and in vb    */

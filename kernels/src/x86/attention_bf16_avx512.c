@@ -71,11 +71,12 @@ static void pack_task(void *arg, int task, int thread)
     const float *kp = j->kp + (size_t)hh * j->head_k, *vp = j->vp + (size_t)hh * j->head_v;
     uint32_t *kb = j->kb + (size_t)hh * j->head_kb, *vb = j->vb + (size_t)hh * j->head_kb;
     (void)thread;
-    for (int t = t0; t < t1; t += NR) { /* one fp32 panel [dp][16] -> [dp/2][16] pairs */
-        const float *src = kp + (size_t)t * (size_t)dp;
+    for (int t = t0; t < t1; t += NR) { /* 16 keys of an fp32 panel [dp][kw] -> [dp/2][16] pairs */
+        size_t kw = (size_t)j->kw;
+        const float *src = kp + (size_t)t / kw * (size_t)dp * kw + (size_t)t % kw;
         uint32_t *dst = kb + (size_t)t * (size_t)dp / 2;
         for (int i = 0; i < dp / 2; i++)
-            _mm512_storeu_si512(dst + (size_t)i * NR, pairs16(src + (size_t)(2 * i) * NR, src + (size_t)(2 * i + 1) * NR));
+            _mm512_storeu_si512(dst + (size_t)i * NR, pairs16(src + (size_t)(2 * i) * kw, src + (size_t)(2 * i + 1) * kw));
     }
     for (int t = t0; t < t1; t += 2) { /* rows t, t+1 [dp] -> [dp] pairs */
         const float *r0 = vp + (size_t)t * (size_t)dp, *r1 = r0 + dp;
