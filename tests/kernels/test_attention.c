@@ -26,14 +26,26 @@ static void make_pos(int32_t *pos, int n, int side)
     }
 }
 
-static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale)
+/* The inputs of one case: q, k, v as strided views of one qkv buffer (or
+ * k, v of a separate kv buffer for cross-attention), random normals of std
+ * logit_scale, per-head LayerNorm weights and RoPE positions when asked. */
+struct attn_inputs {
+    float  *qkv, *kv, *nw, *nb;
+    int32_t *pq, *pk;
+    struct fk_attention_desc a;
+    const float *q, *k, *v;
+    int     C, ld, ldk, nkv;
+};
+
+static void make_inputs(const struct attn_case *c, uint64_t seed, float logit_scale, int pos_side,
+                        int swap_k_norm, struct attn_inputs *in)
 {
     struct rng r;
     rng_seed(&r, seed);
     int C = c->heads * c->d, ld = 3 * C + 5; /* strided views of a qkv buffer */
-    int nkv = c->cross ? c->nk : c->nq;
-    float *qkv = xmalloc(sizeof(float) * (size_t)(c->nq > nkv ? c->nq : nkv) * ld);
-    rng_fill_normal(&r, qkv, (size_t)(c->nq > nkv ? c->nq : nkv) * ld, logit_scale);
+    int nkv = c->cross ? c->nk : c->nq, nmax = c->nq > nkv ? c->nq : nkv;
+    float *qkv = xmalloc(sizeof(float) * (size_t)nmax * ld);
+    rng_fill_normal(&r, qkv, (size_t)nmax * ld, logit_scale);
     float *kv = c->cross ? xmalloc(sizeof(float) * (size_t)nkv * 2 * C) : NULL;
     if (kv)
         rng_fill_normal(&r, kv, (size_t)nkv * 2 * C, logit_scale);
@@ -43,17 +55,32 @@ static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale
         nb[i] = 0.1f * rng_normal(&r);
     }
     int32_t *pq = xmalloc(sizeof(int32_t) * 2 * c->nq), *pk = xmalloc(sizeof(int32_t) * 2 * nkv);
-    make_pos(pq, c->nq, 7);
-    make_pos(pk, nkv, 7);
+    make_pos(pq, c->nq, pos_side);
+    make_pos(pk, nkv, pos_side);
     struct fk_attention_desc a = { .heads = c->heads, .head_dim = c->d };
     if (c->norm) {
-        a.q_norm_w = nw; a.q_norm_b = nb; a.k_norm_w = nb; a.k_norm_b = nw; a.norm_eps = 1e-5f;
+        a.q_norm_w = nw; a.q_norm_b = nb; a.norm_eps = 1e-5f;
+        a.k_norm_w = swap_k_norm ? nb : nw; a.k_norm_b = swap_k_norm ? nw : nb;
     }
     if (c->rope) {
         a.pos_q = pq; a.pos_k = pk; a.rope_base = 100.0f;
     }
-    const float *q = qkv, *k = kv ? kv : qkv + C, *v = kv ? kv + C : qkv + 2 * C;
-    int ldk = kv ? 2 * C : ld;
+    *in = (struct attn_inputs){ qkv, kv, nw, nb, pq, pk, a, qkv, kv ? kv : qkv + C,
+                                kv ? kv + C : qkv + 2 * C, C, ld, kv ? 2 * C : ld, nkv };
+}
+
+static void free_inputs(struct attn_inputs *in)
+{
+    free(in->qkv); free(in->kv); free(in->nw); free(in->nb); free(in->pq); free(in->pk);
+}
+
+static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale)
+{
+    struct attn_inputs in;
+    make_inputs(c, seed, logit_scale, 7, 1, &in);
+    struct fk_attention_desc a = in.a;
+    const float *q = in.q, *k = in.k, *v = in.v;
+    int C = in.C, ld = in.ld, ldk = in.ldk, nkv = in.nkv;
     float *want = xmalloc(sizeof(float) * (size_t)c->nq * C), *got = xmalloc(sizeof(float) * (size_t)c->nq * C);
     fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
     assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), F4D_OK);
@@ -92,7 +119,8 @@ static void run_case(const struct attn_case *c, uint64_t seed, float logit_scale
             fk_ctx_free(ctx);
         }
     free(one);
-    free(qkv); free(kv); free(nw); free(nb); free(pq); free(pk); free(want); free(got);
+    free_inputs(&in);
+    free(want); free(got);
 }
 
 static void test_vs_reference(void **state)
@@ -305,32 +333,11 @@ static double logit_bound(const struct fk_attention_desc *a, const float *q, int
  * contexts ran bf16. */
 static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_scale, double rms_budget)
 {
-    struct rng r;
-    rng_seed(&r, seed);
-    int C = c->heads * c->d, ld = 3 * C + 5;
-    int nkv = c->cross ? c->nk : c->nq, nmax = c->nq > nkv ? c->nq : nkv;
-    float *qkv = xmalloc(sizeof(float) * (size_t)nmax * ld);
-    rng_fill_normal(&r, qkv, (size_t)nmax * ld, logit_scale);
-    float *kv = c->cross ? xmalloc(sizeof(float) * (size_t)nkv * 2 * C) : NULL;
-    if (kv)
-        rng_fill_normal(&r, kv, (size_t)nkv * 2 * C, logit_scale);
-    float *nw = xmalloc(sizeof(float) * c->d), *nb = xmalloc(sizeof(float) * c->d);
-    for (int i = 0; i < c->d; i++) {
-        nw[i] = 1.0f + 0.3f * rng_normal(&r);
-        nb[i] = 0.1f * rng_normal(&r);
-    }
-    int32_t *pq = xmalloc(sizeof(int32_t) * 2 * c->nq), *pk = xmalloc(sizeof(int32_t) * 2 * nkv);
-    make_pos(pq, c->nq, 37);
-    make_pos(pk, nkv, 37);
-    struct fk_attention_desc a = { .heads = c->heads, .head_dim = c->d };
-    if (c->norm) {
-        a.q_norm_w = nw; a.q_norm_b = nb; a.k_norm_w = nw; a.k_norm_b = nb; a.norm_eps = 1e-5f;
-    }
-    if (c->rope) {
-        a.pos_q = pq; a.pos_k = pk; a.rope_base = 100.0f;
-    }
-    const float *q = qkv, *k = kv ? kv : qkv + C, *v = kv ? kv + C : qkv + 2 * C;
-    int ldk = kv ? 2 * C : ld;
+    struct attn_inputs in;
+    make_inputs(c, seed, logit_scale, 37, 0, &in);
+    struct fk_attention_desc a = in.a;
+    const float *q = in.q, *k = in.k, *v = in.v;
+    int C = in.C, ld = in.ld, ldk = in.ldk, nkv = in.nkv;
     size_t n_out = (size_t)c->nq * C;
     float *want = xmalloc(sizeof(float) * n_out), *f32 = xmalloc(sizeof(float) * n_out);
     float *got = xmalloc(sizeof(float) * n_out);
@@ -379,7 +386,8 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
             }
             fk_ctx_free(ctx);
         }
-    free(qkv); free(kv); free(nw); free(nb); free(pq); free(pk); free(want); free(f32); free(got);
+    free_inputs(&in);
+    free(want); free(f32); free(got);
     return ran;
 }
 

@@ -19,29 +19,11 @@
 
 #include "../attention_plan.h"
 #include "vecmath_avx2.h"
+#include "vecmath_avx512.h"
 
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
 #define BK FK_ATTN_BK
-
-/* 2^x for x = s - max <= 0, as the AVX2 piece (same clamp at -127, same
- * degree-6 polynomial on [-0.5, 0.5], exponent add; NaN stays NaN), so
- * both give the same bits. */
-static inline __m512 exp2_softmax(__m512 x)
-{
-    x = _mm512_max_ps(_mm512_set1_ps(-127.0f), x);
-    __m512 n = _mm512_roundscale_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    __m512 f = _mm512_sub_ps(x, n);
-    __m512 p = _mm512_set1_ps(1.5403530393e-4f);
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.3333558146e-3f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(9.6181291076e-3f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(5.5504108665e-2f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(2.4022650696e-1f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(6.9314718056e-1f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.0f));
-    __m512i e = _mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23);
-    return _mm512_mul_ps(p, _mm512_castsi512_ps(e));
-}
 
 /* The six rows' maxima at once: lane r of the result is max(v[r]) (exact in
  * any order; NaN may be dropped, as by fk__hmax_avx2), lanes 6-15 are
@@ -146,7 +128,7 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
     const __mmask16 rows = (__mmask16)((1u << MR) - 1);
     __m512 m_old = _mm512_maskz_loadu_ps(rows, m);
     __m512 m_new = _mm512_max_ps(reduce6_max(red), m_old);
-    __m512 al_v = exp2_softmax(_mm512_sub_ps(m_old, m_new));
+    __m512 al_v = fk__exp2_softmax512(_mm512_sub_ps(m_old, m_new));
     _mm512_mask_storeu_ps(m, rows, m_new);
     __m512 al[MR];
 #pragma GCC unroll 6
@@ -158,7 +140,7 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
          * by the same hsum, l updated by the same expression: the same bits */
         __m256 sum = _mm256_setzero_ps();
         for (int p = 0; p < 4; p++) {
-            c[r][p] = exp2_softmax(_mm512_sub_ps(c[r][p], mv));
+            c[r][p] = fk__exp2_softmax512(_mm512_sub_ps(c[r][p], mv));
             _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
             sum = _mm256_add_ps(sum, _mm512_castps512_ps256(c[r][p]));
             sum = _mm256_add_ps(sum, _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(c[r][p]), 1)));

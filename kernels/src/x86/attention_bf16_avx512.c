@@ -21,6 +21,7 @@
 
 #include "../attention_plan.h"
 #include "../fk_internal.h"
+#include "vecmath_avx512.h"
 
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
@@ -125,24 +126,6 @@ __attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const u
             _mm512_storeu_ps(s + r * SB + p * NR, c[r][p]);
 }
 
-/* 2^x for x = s - max <= 0: the fp32 path's (attention_avx512.c) clamp at
- * -127, degree-6 polynomial and exponent add; NaN stays NaN. */
-static inline __m512 exp2_softmax(__m512 x)
-{
-    x = _mm512_max_ps(_mm512_set1_ps(-127.0f), x);
-    __m512 n = _mm512_roundscale_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    __m512 f = _mm512_sub_ps(x, n);
-    __m512 p = _mm512_set1_ps(1.5403530393e-4f);
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.3333558146e-3f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(9.6181291076e-3f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(5.5504108665e-2f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(2.4022650696e-1f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(6.9314718056e-1f));
-    p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(1.0f));
-    __m512i e = _mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23);
-    return _mm512_mul_ps(p, _mm512_castsi512_ps(e));
-}
-
 /* 2^x for the weights p, which are rounded to bf16 (2^-9 relative) right
  * after: a degree-3 polynomial on [-0.5, 0.5] (relative error 7.5e-5, a
  * 26th of that rounding; 2^0 still rounds to 1 exactly) and vscalefps.
@@ -180,7 +163,7 @@ static void softmax_block(float *s, int nk, int valid, float *m, float *l, float
         m_old[r] = m[r];
         m_new[r] = bm > m[r] ? bm : m[r];
     }
-    __m512 al = exp2_softmax(_mm512_sub_ps(_mm512_load_ps(m_old), _mm512_load_ps(m_new)));
+    __m512 al = fk__exp2_softmax512(_mm512_sub_ps(_mm512_load_ps(m_old), _mm512_load_ps(m_new)));
     _mm512_mask_storeu_ps(alpha, (__mmask16)0xff, al);
     const __m512bh ones = (__m512bh)_mm512_set1_epi32(0x3f803f80); /* bf16 1.0 pairs */
     for (int r = 0; r < MR; r++) {
