@@ -49,6 +49,8 @@ struct opts {
     int         openblas_native;
     int         cpu_clock; /* --clock cpu: time 1-thread rows on the thread's CPU clock */
     int         shape[3];  /* --shape M,N,K: only this GEMM shape (0: every model shape) */
+    int         no_avx512; /* --isa all with the AVX-512 GEMM rows in a second process */
+    int         rows_out;  /* --rows-out: also print each row as a "ROW ..." line (that process) */
 };
 
 /* Seconds on the clock the rows are timed with. --clock cpu, one thread: the
@@ -208,10 +210,15 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
         fk_ctx *ctxs[4];
         int n_ctx = 0;
         ctxs[n_ctx++] = make_ctx(o->isa, threads);
+        if (o->no_avx512 && fk_ctx_isa(ctxs[0]) == FK_ISA_AVX512) { /* timed in the other process */
+            fk_ctx_free(ctxs[0]);
+            ctxs[0] = make_ctx(FK_ISA_AVX2, threads);
+        }
         /* --isa all: every other optimized ISA this CPU has, each with its own paths */
         static const enum fk_isa others[3] = { FK_ISA_AVX2, FK_ISA_AVX2_VNNI, FK_ISA_AVX512 };
         for (int i = 0; o->all_isas && i < 3; i++)
-            if (others[i] != fk_ctx_isa(ctxs[0]) && fk_isa_supported(others[i]))
+            if (others[i] != fk_ctx_isa(ctxs[0]) && fk_isa_supported(others[i]) &&
+                !(o->no_avx512 && others[i] == FK_ISA_AVX512))
                 ctxs[n_ctx++] = make_ctx(others[i], threads);
         static const enum fk_wtype types[3] = { FK_W_F32, FK_W_F16, FK_W_Q8 };
         static const char *names[3] = { "f32", "f16", "int8" };
@@ -482,7 +489,7 @@ static void print_cpu(void)
 
 static int parse(int argc, char **argv, struct opts *o)
 {
-    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0, 0, { 0, 0, 0 } };
+    *o = (struct opts){ 0, 3, 2, NULL, FK_ISA_AUTO, 0, NULL, 0, 0, { 0, 0, 0 }, 0, 0 };
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--quick")) {
@@ -492,6 +499,8 @@ static int parse(int argc, char **argv, struct opts *o)
         } else if (!strcmp(a, "--clock") && i + 1 < argc &&
                    (!strcmp(argv[i + 1], "cpu") || !strcmp(argv[i + 1], "wall"))) {
             o->cpu_clock = !strcmp(argv[++i], "cpu");
+        } else if (!strcmp(a, "--rows-out")) {
+            o->rows_out = 1;
         } else if (!strcmp(a, "--openblas-native")) {
             o->openblas_native = 1;
         } else if (!strcmp(a, "--only") && i + 1 < argc) {
@@ -533,6 +542,56 @@ static int parse(int argc, char **argv, struct opts *o)
     return 0;
 }
 
+#ifdef F4D_HAVE_OPENBLAS
+/* --isa all on an AVX-512 CPU: one process has one OpenBLAS kernel set, so
+ * the AVX-512 GEMM rows run in a second process of this program with
+ * OPENBLAS_CORETYPE=SkylakeX (`--isa avx512 --only gemm --rows-out`, the same
+ * shapes, threads, reps and clock), and its "ROW" lines join the table: every
+ * row's xpeer is then against OpenBLAS on the same vectors. path[] keeps the
+ * rows' path names. Returns the rows added, or -1 (with a message). */
+static int avx512_rows_from_child(const struct opts *o, struct row *rows, int room, char (*path)[32])
+{
+    char exe[4096], cmd[8192];
+    ssize_t len = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    if (len <= 0) {
+        fprintf(stderr, "f4d-bench kernels: cannot find this program for the AVX-512 rows\n");
+        return -1;
+    }
+    exe[len] = 0;
+    char shape[64] = "";
+    if (o->shape[0])
+        snprintf(shape, sizeof shape, " --shape %d,%d,%d", o->shape[0], o->shape[1], o->shape[2]);
+    snprintf(cmd, sizeof cmd,
+             "OPENBLAS_CORETYPE=SkylakeX F4D_BENCH_OPENBLAS_SET=1 '%s' kernels --isa avx512 --only gemm "
+             "--threads %d --reps %d --clock %s%s%s --rows-out",
+             exe, o->threads_max, o->reps, o->cpu_clock ? "cpu" : "wall", o->quick ? " --quick" : "", shape);
+    FILE *f = popen(cmd, "r");
+    if (!f) {
+        fprintf(stderr, "f4d-bench kernels: cannot start the AVX-512 rows' process\n");
+        return -1;
+    }
+    char line[512];
+    int n = 0;
+    while (fgets(line, sizeof line, f)) {
+        struct row r = { "gemm", NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, NULL, FK_ISA_AVX512 };
+        char prec[8];
+        if (n >= room || sscanf(line, "ROW gemm %7s %31s %d %d %d %d %lf %lf %lf %lf %lf %lf", prec, path[n],
+                                &r.threads, &r.m, &r.n, &r.k, &r.gflops, &r.openblas_gflops, &r.peer_ratio,
+                                &r.vs_f32, &r.max_rel_err, &r.mean_rel_err) != 12)
+            continue;
+        r.precision = !strcmp(prec, "f32") ? "f32" : !strcmp(prec, "f16") ? "f16" : "int8";
+        r.path = path[n];
+        rows[n++] = r;
+    }
+    int st = pclose(f);
+    if (st != 0 || n == 0) {
+        fprintf(stderr, "f4d-bench kernels: the AVX-512 rows' process failed (status %d, %d rows)\n", st, n);
+        return -1;
+    }
+    return n;
+}
+#endif
+
 /* argv is main's argv + 1 (the subcommand first). */
 int bench_kernels(int argc, char **argv)
 {
@@ -544,7 +603,7 @@ int bench_kernels(int argc, char **argv)
     /* OpenBLAS picks its kernels at load time; unless asked for its native
      * choice, restart once with the kernels of our ISA so that both sides use
      * the same vectors: SkylakeX (AVX-512) when the run's ISA is AVX-512 alone,
-     * else Haswell (AVX2; --isa all compares every ISA with that one). An
+     * else Haswell (AVX2; --isa all: its AVX-512 GEMM rows in a SkylakeX child). An
      * OPENBLAS_CORETYPE inherited from the environment is replaced (this
      * machine's shell had Haswell set, which made --isa avx512 and
      * --openblas-native compare with Haswell); F4D_BENCH_OPENBLAS_SET marks
@@ -604,11 +663,15 @@ int bench_kernels(int argc, char **argv)
     if (zmm)
         printf("; %.1f / %.1f with zmm (the AVX-512 rows' peak)", zpeak1, zpeak);
     printf("\n");
+    int gemm = !o.only || !strcmp(o.only, "gemm"), attn = !o.only || !strcmp(o.only, "attention");
 #ifdef F4D_HAVE_OPENBLAS
-    printf("peer: OpenBLAS sgemm, %s kernels%s, idle workers spin 2^%s cycles (OPENBLAS_THREAD_TIMEOUT)%s\n",
+    o.no_avx512 = o.all_isas && !o.openblas_native && gemm && fk_isa_supported(FK_ISA_AVX512) &&
+                  getenv("OPENBLAS_CORETYPE") && !strcmp(getenv("OPENBLAS_CORETYPE"), "Haswell");
+    printf("peer: OpenBLAS sgemm, %s kernels%s, idle workers spin 2^%s cycles (OPENBLAS_THREAD_TIMEOUT)%s%s\n",
            openblas_get_corename(), getenv("OPENBLAS_CORETYPE") ? " (OPENBLAS_CORETYPE)" : "",
            getenv("OPENBLAS_THREAD_TIMEOUT") ? getenv("OPENBLAS_THREAD_TIMEOUT") : "28",
-           o.threads_max > 1 ? "; 1 ms settle before each timed multi-thread call" : "");
+           o.threads_max > 1 ? "; 1 ms settle before each timed multi-thread call" : "",
+           o.no_avx512 ? "; the avx512 GEMM rows: SkylakeX kernels, in a second process" : "");
 #else
     printf("peer: OpenBLAS not built in (F4D_BENCH_OPENBLAS=OFF)\n");
 #endif
@@ -616,9 +679,8 @@ int bench_kernels(int argc, char **argv)
     static const int real_nk[][2] = { { 1024, 1024 }, { 3072, 1024 }, { 4096, 1024 }, { 1024, 4096 } };
     static const int tiny_nk[][2] = { { 64, 64 }, { 192, 64 }, { 256, 64 }, { 64, 256 } };
     struct row rows[256];
-    int n = 0;
+    int n = 0, failed = 0;
     int tok_real[2] = { 1374, 5496 };
-    int gemm = !o.only || !strcmp(o.only, "gemm"), attn = !o.only || !strcmp(o.only, "attention");
     if (o.shape[0]) /* one GEMM shape, for a focused measurement */
         n += bench_gemm_shape(&o, o.shape[0], o.shape[1], o.shape[2], rows + n, 256 - n);
     for (int t = 0; gemm && !o.shape[0] && t < (o.quick ? 1 : 2); t++)
@@ -626,6 +688,14 @@ int bench_kernels(int argc, char **argv)
             n += bench_gemm_shape(&o, tok_real[t], real_nk[s][0], real_nk[s][1], rows + n, 256 - n);
     for (int s = 0; gemm && !o.shape[0] && s < 4; s++) /* tiny test model: 2 views of 5 + 12x9 patches */
         n += bench_gemm_shape(&o, 226, tiny_nk[s][0], tiny_nk[s][1], rows + n, 256 - n);
+#ifdef F4D_HAVE_OPENBLAS
+    char child_paths[128][32];
+    if (o.no_avx512) {
+        int c = avx512_rows_from_child(&o, rows + n, 256 - n < 128 ? 256 - n : 128, child_paths);
+        n += c > 0 ? c : 0;
+        failed = c < 0;
+    }
+#endif
     attn = attn && !o.shape[0];
     for (int t = 0; attn && t < (o.quick ? 1 : 2); t++)
         n += bench_attention_shape(&o, tok_real[t], 16, 64, rows + n);
@@ -644,14 +714,23 @@ int bench_kernels(int argc, char **argv)
                r->precision, r->path, r->threads, r->m, r->n, r->k, r->gflops, r->openblas_gflops,
                r->peer_ratio, r->vs_f32, r->gflops / pk, r->max_rel_err, r->mean_rel_err);
     }
+    for (int i = 0; o.rows_out && i < n; i++) { /* for the process that asked (avx512_rows_from_child) */
+        const struct row *r = &rows[i];
+        if (!strcmp(r->kernel, "gemm"))
+            printf("ROW gemm %s %s %d %d %d %d %.17g %.17g %.17g %.17g %.17g %.17g\n", r->precision, r->path,
+                   r->threads, r->m, r->n, r->k, r->gflops, r->openblas_gflops, r->peer_ratio, r->vs_f32,
+                   r->max_rel_err, r->mean_rel_err);
+    }
     printf("\nerrors are relative to the RMS of the fp32 output: f32 vs OpenBLAS, f16/int8 vs our f32,\n"
            "attention vs the scalar reference on 48 query rows. GFLOP/s: best of %d runs (GEMM: at\n"
-           "least (5 with threads), up to 63 while a shape's reps take under 1 s, odd). GEMM: every variant of a shape\n"
-           "(each ISA's f32 / f16 / int8, and OpenBLAS) runs in turn, rep after rep; xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 =\n"
-           "median of the same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our\n"
-           "f32 GEMM (same ISA, tokens, 1024 -> 1024), best of runs; bf16 rows (q.k and p.v in bf16, where\n"
-           "the CPU has AVX512_BF16) run in turn with f32, xf32 = median of f32 time / bf16's. xpeak = ours / the FMA peak for\n"
-           "those threads (zmm for avx512 rows, ymm otherwise). Clock: %s.\n", o.reps,
+           "least, 5 with threads, up to 63 while a shape's reps take under 1 s, odd). GEMM: every\n"
+           "variant of a shape (each ISA's f32 / f16 / int8, and OpenBLAS) runs in turn, rep after rep;\n"
+           "xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 = median of the\n"
+           "same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our f32 GEMM (same\n"
+           "ISA, tokens, 1024 -> 1024), best of runs; bf16 rows (q.k and p.v in bf16, where the CPU\n"
+           "has AVX512_BF16) run in turn with f32, xf32 = median of f32 time / bf16's. xpeak = ours /\n"
+           "the FMA peak for those threads (zmm for avx512 rows, ymm otherwise). Clock: %s.\n", o.reps,
            o.cpu_clock ? "the thread's CPU time for 1-thread rows (--clock cpu), wall otherwise" : "wall");
-    return o.json ? write_json(o.json, peak, rows, n, isa) : 0;
+    int jst = o.json ? write_json(o.json, peak, rows, n, isa) : 0;
+    return jst ? jst : failed;
 }
