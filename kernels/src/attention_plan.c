@@ -21,6 +21,7 @@ struct attn_job {
     const float *q, *k, *v;
     int    ldq, ldk, ldv, nq, nk, ldo, d, nk_pad, nq_pad;
     int    dp;                           /* d rounded up to 16: the tiles' width, zero-padded */
+    int    kw;                           /* keys per packed key panel: BK with isa->block, else NR */
     int    h0, hn;                       /* heads of this group           */
     float  qscale;
     float *out;
@@ -75,7 +76,7 @@ static void prep_task(void *arg, int task, int thread)
 {
     const struct attn_job *j = arg;
     int d = j->d, dp = j->dp;
-    int kw = j->isa->block ? BK : NR; /* keys per packed panel (see attention_plan.h) */
+    int kw = j->kw;
     float buf[1024] __attribute__((aligned(32)));
     (void)thread;
     if (task < j->k_chunks) { /* keys and values */
@@ -227,6 +228,7 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
     /* Head dims off the 16-wide tiles (the shipped model's 24) run on tiles
      * padded with zero columns: they add nothing to q.k or to P V. */
     j.dp = (int)fk__round_up((size_t)d, 16);
+    j.kw = isa->block ? BK : NR; /* see attention_plan.h */
     j.nk_pad = (int)fk__round_up((size_t)nk, BK);
     j.nq_pad = (int)fk__round_up((size_t)nq, MR);
     j.qscale = (a->scale > 0 ? a->scale : 1.0f / sqrtf((float)d)) * LOG2E;
@@ -287,7 +289,7 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
         if (bf16) {
             uint32_t *kb = (uint32_t *)fk__round_up((uintptr_t)(j.qp + j.head_q * (size_t)j.hn), FK_ALIGN);
             struct fk__attn_bf16_job b = {
-                ctx, j.kp, j.vp, j.qp, isa->block ? BK : NR, j.head_k, j.head_v, j.head_q,
+                ctx, j.kp, j.vp, j.qp, j.kw, j.head_k, j.head_v, j.head_q,
                 kb, kb + bf_head / 8 * (size_t)j.hn, bf_head / 8,
                 nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
             };
