@@ -372,6 +372,9 @@ static int arena_grow(fk_ctx *ctx, struct fk_arena *a, size_t bytes)
     void *p = fk__alloc(bytes);
     if (!p)
         return fk__fail(ctx, F4D_ENOMEM, "fk_scratch", "cannot allocate %zu bytes", bytes);
+    /* touched now, at reserve time: not page-faulted in by the first frame
+     * (2 % of the first full-size forward's samples on Zen 5) */
+    memset(p, 0, fk__round_up(bytes, FK_ALIGN));
     free(a->ptr);
     a->ptr = p;
     a->bytes = fk__round_up(bytes, FK_ALIGN);

@@ -132,6 +132,11 @@ void fk__q8_quantize_rows_avx512(const struct fk__arun *const r[], const int nr[
 void fk__epi_q8_avx512(const int32_t *ci, const float *sa, int nr, int nn, const float *bias,
                        const float *scale, const int32_t *colsum, const struct fk_epilogue *ep,
                        const float *gamma, float *y, size_t ldy);
+/* The fp32 epilogue of the same tile shape (ci: [np][6][16] fp32 sums):
+ * + bias, activation, LayerScale, residual, as the AVX2 epilogue (same
+ * bits); bias padded to whole panels at packing. */
+void fk__epi_f32_avx512(const float *ci, int nr, int nn, const float *bias,
+                        const struct fk_epilogue *ep, const float *gamma, float *y, size_t ldy);
 /* n fp16 weights (a multiple of 16, h 32-byte and d 64-byte aligned) widened
  * to fp32 16 at a time: the AVX-512 driver's per-sliver conversion. */
 void fk__f16_to_f32_avx512(const uint16_t *h, float *d, int n);

@@ -345,6 +345,59 @@ static void test_horizontal(void **state)
     assert_true(max == INFINITY && sum == INFINITY);
 }
 
+#if defined(__x86_64__)
+#include "../../kernels/src/x86/vecmath_avx512.h"
+
+/* The zmm GELU and SiLU of the AVX-512 GEMM epilogues against the ymm ones,
+ * bit for bit (NaN: NaN), 16 floats at a time: every 97th float bit
+ * pattern (both signs, subnormals, Inf, NaN) and the specials. */
+__attribute__((target("avx2,fma,f16c,avx512f")))
+static int zmm_mismatch(const float *x, int silu, float *got, float *want)
+{
+    __m512 v = _mm512_loadu_ps(x);
+    _mm512_storeu_ps(got, silu ? fk__silu512(v) : fk__gelu512(v));
+    for (int h = 0; h < 2; h++) {
+        __m256 w = _mm256_loadu_ps(x + 8 * h);
+        _mm256_storeu_ps(want + 8 * h, silu ? fk__silu_avx2(w) : fk__gelu_avx2(w));
+    }
+    for (int i = 0; i < 16; i++)
+        if (memcmp(&got[i], &want[i], sizeof(float)) != 0 && !(isnan(got[i]) && isnan(want[i])))
+            return i + 1;
+    return 0;
+}
+
+static void test_zmm_same_bits(void **state)
+{
+    (void)state;
+    if (!fk_isa_supported(FK_ISA_AVX512))
+        f4d_skip("%s: this CPU has no AVX-512 (the zmm GELU / SiLU are not run)", __func__);
+    static const float specials[16] = { 0.0f, -0.0f, INFINITY, -INFINITY, NAN, 1e-45f, -1e-45f, 17.0f,
+                                        -17.0f, 0.70710677f, -0.70710677f, 10.1f, -170.0f, -171.0f,
+                                        88.7f, -88.7f };
+    float x[16], got[16], want[16];
+    long checked = 0;
+    for (int silu = 0; silu < 2; silu++) {
+        int bad = zmm_mismatch(specials, silu, got, want);
+        if (bad)
+            fail_msg("%s(%g): zmm %a, ymm %a", silu ? "silu" : "gelu", (double)specials[bad - 1],
+                     (double)got[bad - 1], (double)want[bad - 1]);
+        uint64_t u = 0;
+        while (u <= 0xffffffffu) {
+            for (int i = 0; i < 16; i++, u += 97) {
+                uint32_t b = (uint32_t)u;
+                memcpy(&x[i], &b, sizeof b);
+            }
+            bad = zmm_mismatch(x, silu, got, want);
+            if (bad)
+                fail_msg("%s(%a): zmm %a, ymm %a", silu ? "silu" : "gelu", (double)x[bad - 1],
+                         (double)got[bad - 1], (double)want[bad - 1]);
+            checked += 16;
+        }
+    }
+    assert_true(checked > 80000000);
+}
+#endif
+
 #else /* neither x86-64 nor AArch64: nothing to test */
 static void test_no_simd(void **state)
 {
@@ -363,6 +416,9 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_sigmoid_silu_sweep),
         cmocka_unit_test(test_special_values),
         cmocka_unit_test(test_horizontal),
+#if defined(__x86_64__)
+        cmocka_unit_test(test_zmm_same_bits),
+#endif
 #else
         cmocka_unit_test(test_no_simd),
 #endif

@@ -2,7 +2,7 @@
  *
  *   f4d-bench model [--json FILE] [--threads N] [--views S] [--size HxW]
  *                   [--reps R] [--skip-full] [--stream-only | --skip-stream] [--tmp DIR]
- *                   [--isa NAME|all] [--clock wall|cpu]
+ *                   [--isa NAME|all] [--clock wall|cpu] [--precision f32|f16|int8]
  *
  * --clock cpu (with --threads 1): every Eval's time and stage times are scaled
  * by its thread CPU time over its wall time, and the FMA peak is timed on the
@@ -12,7 +12,9 @@
  *       R runs: ms and GFLOP/s per stage.
  * full: the VGGT-1B dimensions on random weights, built with ONE DINO block,
  *       ONE frame and ONE global block and ONE DPT head, run on S views of
- *       HxW (default 4 x 518x518); the full forward is extrapolated as
+ *       HxW (default 4 x 518x518), R runs, each stage's best of them
+ *       (stages only, 1-2 s each: a shared machine's slow spells hit
+ *       some runs of a stage and not others); the full forward is extrapolated as
  *       patch + 24 (dino + frame + global) + 2 DPT heads + camera head, the
  *       camera head (6.9 GFLOP, 0.04 %) counted at the measured frame-block
  *       rate. Per precision (f32, f16, int8 weights in every linear and
@@ -24,7 +26,8 @@
  *       --isa forces one ISA, --isa all runs f16 on the best ISA and f32
  *       and int8 on every ISA this CPU has, side by side; each int8 speed is
  *       over its own ISA's f32, each forward's GFLOP/s over the FMA peak of
- *       its vector width (zmm for AVX-512, ymm else) measured beside it.
+ *       its vector width (zmm for AVX-512, ymm else) measured beside it;
+ *       --precision f32|f16|int8 runs f32 and that one only.
  * Forge4D streaming (forge4d-arch.md 4-5): the tiny model carries state,
  *       motion and fusion too and is timed on a motion step (the second and
  *       later Evals); full: VGGT-1B dims with one state block, one motion
@@ -217,6 +220,7 @@ static void random_images(float *img, size_t n, uint64_t seed)
 struct result {
     struct model_stage st[16];
     int    n_st;
+    struct model_stage st_best[16]; /* each stage's least time over the runs */
     double total;
     double cpu;             /* least process CPU time of one run (all threads, spinning included) */
     float *layer, *depth;   /* copies for the error columns */
@@ -235,7 +239,8 @@ static double thread_cpu_s(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-/* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run. */
+/* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run
+ * (st) and each stage's best (st_best). */
 /* CPU seconds of this process: under load from other jobs (this 2-core box
  * often runs at load 8-10) wall times vary 3x between runs, CPU time much less */
 static double cpu_now(void)
@@ -292,11 +297,19 @@ static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int
             rc = -1;
             break;
         }
-        if (i >= warm && t < r->total) {
-            r->total = t;
-            r->n_st = model_stages(m, r->st, 16);
-            for (int q = 0; q < r->n_st; q++)
-                r->st[q].seconds *= scale;
+        if (i >= warm) {
+            struct model_stage st[16];
+            int n = model_stages(m, st, 16);
+            for (int q = 0; q < n; q++) {
+                st[q].seconds *= scale;
+                if (i == warm || st[q].seconds < r->st_best[q].seconds)
+                    r->st_best[q] = st[q];
+            }
+            if (t < r->total) {
+                r->total = t;
+                r->n_st = n;
+                memcpy(r->st, st, sizeof st);
+            }
         }
         if (i == 0) {
             const struct model_config *c = model_get_config(m);
@@ -430,7 +443,7 @@ int bench_model(int argc, char **argv)
         } else {
             fprintf(stderr, "usage: f4d-bench model [--json FILE] [--threads N] [--views S] "
                             "[--size HxW] [--reps R] [--skip-full] [--stream-only | --skip-stream] [--clock wall|cpu] [--tmp DIR] "
-                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all]\n"
+                            "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--precision f32|f16|int8]\n"
                             "       f4d-bench model --weights W.gguf [--views S] [--size HxW] [--reps R] "
                             "[--threads N] [--isa NAME] [--skip-head PREFIX] [--precision f32|f16|int8]\n"
                             "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid]\n");
@@ -563,13 +576,22 @@ int bench_model(int argc, char **argv)
         enum fk_wtype wts[9];
         fk_ctx *rctx[9];
         int nrun = 0;
+        /* --precision f16 / int8: that one beside f32 (the reference of the
+         * errors and speed-ups); f32: f32 alone */
+        const int want_f32 = 1;
+        const int want_f16 = !only_prec || !strcmp(only_prec, "f16");
+        const int want_q8 = !only_prec || !strcmp(only_prec, "int8");
         for (int c = 0; c <= n_x; c++) {
             fk_ctx *cx = c ? xctx[c - 1] : ctx;
-            wts[nrun] = FK_W_F32; rctx[nrun++] = cx;
-            if (!c) {
+            if (want_f32) {
+                wts[nrun] = FK_W_F32; rctx[nrun++] = cx;
+            }
+            if (!c && want_f16) {
                 wts[nrun] = FK_W_F16; rctx[nrun++] = cx;
             }
-            wts[nrun] = FK_W_Q8; rctx[nrun++] = cx;
+            if (want_q8) {
+                wts[nrun] = FK_W_Q8; rctx[nrun++] = cx;
+            }
         }
         char wn[9][48];
         for (int p = 0; p < nrun; p++) {
@@ -587,10 +609,15 @@ int bench_model(int argc, char **argv)
             /* the machine may be shared: the peak of this run's vector width
              * (zmm for AVX-512, else ymm) is re-measured beside each run */
             peak_run[p] = bench_fma_peak_gflops_isa(nthr, 3, fk_ctx_isa(rctx[p]));
-            ok = run_model(rctx[p], path, wts[p], S, H, W, 1, 0, cpu_clock, NULL, &fr[p]) == 0;
+            ok = run_model(rctx[p], path, wts[p], S, H, W, reps, 0, cpu_clock, NULL, &fr[p]) == 0;
             if (ok) {
+                /* each stage's best of the runs: the forward is extrapolated
+                 * stage by stage, and one run of a stage on a shared machine
+                 * swung 0.72-0.83x of the peak (AVX-512 f32, Zen 5) */
+                memcpy(fr[p].st, fr[p].st_best, sizeof fr[p].st);
                 printf("full dims, one block each, %d views %dx%d, %s weights (%zu bytes "
-                       "packed, arena %zu bytes):\n", S, W, H, wn[p], fr[p].weights, fr[p].arena);
+                       "packed, arena %zu bytes), best of %d per stage:\n", S, W, H, wn[p],
+                       fr[p].weights, fr[p].arena, reps);
                 for (int i = 0; i < fr[p].n_st; i++)
                     printf("  %-14s %9.3f s %8.2f GFLOP/s\n", fr[p].st[i].name, fr[p].st[i].seconds,
                            fr[p].st[i].seconds > 0 ? 1e-9 * fr[p].st[i].flops / fr[p].st[i].seconds : 0.0);

@@ -851,9 +851,17 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     }
                     if (k0 + kc >= k) { /* last k block: this tile is final */
                         int nr = rows - i * MR < MR ? rows - i * MR : MR;
-                        epi_f32(j, ci, m0 + i * MR, nr, jp);
-                        if (pair)
-                            epi_f32(j, ci + MR * NR, m0 + i * MR, nr, jp + 1);
+                        if (j->wide && !j->c->tconv_k) {
+                            int n0 = jp * NR, nn = L->n - n0 < (1 + pair) * NR ? L->n - n0 : (1 + pair) * NR;
+                            const struct fk_epilogue *ep = j->ep;
+                            fk__epi_f32_avx512(ci, nr, nn, L->bias + n0, ep, ep->gamma ? ep->gamma + n0 : NULL,
+                                               j->c->y + (size_t)(m0 + i * MR) * (size_t)j->c->ldy + (size_t)n0,
+                                               (size_t)j->c->ldy);
+                        } else {
+                            epi_f32(j, ci, m0 + i * MR, nr, jp);
+                            if (pair)
+                                epi_f32(j, ci + MR * NR, m0 + i * MR, nr, jp + 1);
+                        }
                     }
                 }
             }

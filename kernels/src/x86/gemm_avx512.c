@@ -10,6 +10,7 @@
 #include "../fk_internal.h"
 #include "../gemm.h"
 #include "vecmath_avx2.h"
+#include "vecmath_avx512.h"
 
 void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const float *b1, float *c,
                              int accumulate)
@@ -227,17 +228,23 @@ static inline __m512 act16(enum fk_act act, __m512 v)
     switch (act) {
     case FK_ACT_RELU:
         return _mm512_max_ps(_mm512_setzero_ps(), v); /* NaN stays NaN, as vmaxps ymm */
-    case FK_ACT_GELU:
-    case FK_ACT_SILU: { /* the AVX2 code on each half: its bits */
-        __m256 lo = _mm512_castps512_ps256(v), hi = _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1));
-        lo = act == FK_ACT_GELU ? fk__gelu_avx2(lo) : fk__silu_avx2(lo);
-        hi = act == FK_ACT_GELU ? fk__gelu_avx2(hi) : fk__silu_avx2(hi);
-        return _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(lo)),
-                                                   _mm256_castps_pd(hi), 1));
+    case FK_ACT_GELU: return fk__gelu512(v); /* the AVX2 operations: their bits */
+    case FK_ACT_SILU: return fk__silu512(v);
+    default:          return v;
     }
-    default:
-        return v;
-    }
+}
+
+/* The tail of both epilogues: activation, LayerScale, residual, store of
+ * row r's 16 columns of one panel (mask k: the columns that exist). */
+static inline void finish16(__m512 t, enum fk_act act, const float *gamma, int accumulate, float *d,
+                            __mmask16 k)
+{
+    t = act16(act, t);
+    if (gamma)
+        t = _mm512_mul_ps(t, _mm512_maskz_loadu_ps(k, gamma));
+    if (accumulate)
+        t = _mm512_add_ps(_mm512_maskz_loadu_ps(k, d), t);
+    _mm512_mask_storeu_ps(d, k, t);
 }
 
 /* One panel's 16 columns of row r (mask k: the columns that exist). */
@@ -245,12 +252,7 @@ static inline void epi_q8_16(const int32_t *cr, __m512i cs, __m512 s_w, __m512 b
                              const float *gamma, int accumulate, float *d, __mmask16 k)
 {
     __m512i a = _mm512_sub_epi32(_mm512_load_si512((const void *)cr), cs);
-    __m512 t = act16(act, _mm512_fmadd_ps(_mm512_cvtepi32_ps(a), s_w, b));
-    if (gamma)
-        t = _mm512_mul_ps(t, _mm512_maskz_loadu_ps(k, gamma));
-    if (accumulate)
-        t = _mm512_add_ps(_mm512_maskz_loadu_ps(k, d), t);
-    _mm512_mask_storeu_ps(d, k, t);
+    finish16(_mm512_fmadd_ps(_mm512_cvtepi32_ps(a), s_w, b), act, gamma, accumulate, d, k);
 }
 
 /* A whole 16-32 column tile row per one or two zmm, masked at the edge
@@ -281,5 +283,26 @@ void fk__epi_q8_avx512(const int32_t *ci, const float *sa, int nr, int nn, const
         if (k1)
             epi_q8_16(ci + 96 + 16 * r, cs1, _mm512_mul_ps(s_r, w1), b1, act, gamma ? gamma + 16 : NULL, acc,
                       d + 16, k1);
+    }
+}
+
+/* The fp32 epilogue of one 6-row tile of one or two adjacent panels (ci:
+ * [np][6][16]) into nn <= 16 np dense columns at y: + bias[n], activation,
+ * LayerScale, residual, the AVX2 epilogue's operations per element (its
+ * bits), a zmm per panel row (the ymm one ran each row as two halves). */
+void fk__epi_f32_avx512(const float *ci, int nr, int nn, const float *bias,
+                        const struct fk_epilogue *ep, const float *gamma, float *y, size_t ldy)
+{
+    __mmask16 k0 = nn >= 16 ? (__mmask16)0xffff : (__mmask16)((1u << nn) - 1);
+    __mmask16 k1 = nn >= 32 ? (__mmask16)0xffff : nn > 16 ? (__mmask16)((1u << (nn - 16)) - 1) : 0;
+    __m512 b0 = _mm512_load_ps(bias), b1 = k1 ? _mm512_load_ps(bias + 16) : b0;
+    enum fk_act act = ep->act;
+    int acc = ep->accumulate;
+    for (int r = 0; r < nr; r++) {
+        float *d = y + (size_t)r * ldy;
+        finish16(_mm512_add_ps(_mm512_load_ps(ci + 16 * r), b0), act, gamma, acc, d, k0);
+        if (k1)
+            finish16(_mm512_add_ps(_mm512_load_ps(ci + 96 + 16 * r), b1), act, gamma ? gamma + 16 : NULL,
+                     acc, d + 16, k1);
     }
 }
