@@ -214,36 +214,58 @@ static void dpt_plan(const void *hp, int S, int H, int W, size_t *persist, size_
 /* x[nh, nw, cx] += 0.1 * PE(cx, nh, nw) for an input image of W x H (vggt.md 6):
  * channels [sin(u w_k), cos(u w_k), sin(v w_k), cos(v w_k)], w_k = 100^(-k/K).
  * The tables (nw + nh rows of cx/2) are computed in double, then rounded. */
-static void add_uv_pe(float *x, int nh, int nw, int cx, int H, int W, float *tab)
+struct uv_job {
+    float       *x;
+    const float *tu, *tv;
+    int          nh, nw, cx, K, rows_per_task;
+};
+
+/* Rows [task * rows_per_task, ..) of the image: px += 0.1 pu, 0.1 pv. */
+static void uv_task(void *arg, int task, int thread)
 {
-    const int K = cx / 4;
-    const double a = (double)W / H, sx = a / sqrt(a * a + 1), sy = 1 / sqrt(a * a + 1);
-    float *tu = tab, *tv = tab + (size_t)nw * 2 * K;
-    for (int j = 0; j < nw; j++) {
-        double lo = -sx * (nw - 1) / nw, u = nw > 1 ? lo + (-2 * lo) * j / (nw - 1) : lo;
-        for (int k = 0; k < K; k++) {
-            double om = 1.0 / pow(100.0, (double)k / K);
-            tu[(size_t)j * 2 * K + k] = (float)sin(u * om);
-            tu[(size_t)j * 2 * K + K + k] = (float)cos(u * om);
-        }
-    }
-    for (int i = 0; i < nh; i++) {
-        double lo = -sy * (nh - 1) / nh, v = nh > 1 ? lo + (-2 * lo) * i / (nh - 1) : lo;
-        for (int k = 0; k < K; k++) {
-            double om = 1.0 / pow(100.0, (double)k / K);
-            tv[(size_t)i * 2 * K + k] = (float)sin(v * om);
-            tv[(size_t)i * 2 * K + K + k] = (float)cos(v * om);
-        }
-    }
-    for (int i = 0; i < nh; i++)
-        for (int j = 0; j < nw; j++) {
-            float *px = x + ((size_t)i * nw + j) * cx;
-            const float *pu = tu + (size_t)j * 2 * K, *pv = tv + (size_t)i * 2 * K;
+    const struct uv_job *j = arg;
+    const int K = j->K, i1 = (task + 1) * j->rows_per_task < j->nh ? (task + 1) * j->rows_per_task : j->nh;
+    (void)thread;
+    for (int i = task * j->rows_per_task; i < i1; i++)
+        for (int jj = 0; jj < j->nw; jj++) {
+            float *px = j->x + ((size_t)i * j->nw + jj) * j->cx;
+            const float *pu = j->tu + (size_t)jj * 2 * K, *pv = j->tv + (size_t)i * 2 * K;
             for (int k = 0; k < 2 * K; k++)
                 px[k] += 0.1f * pu[k];
             for (int k = 0; k < 2 * K; k++)
                 px[2 * K + k] += 0.1f * pv[k];
         }
+}
+
+static void add_uv_pe(fk_ctx *ctx, float *x, int nh, int nw, int cx, int H, int W, float *tab)
+{
+    const int K = cx / 4;
+    const double a = (double)W / H, sx = a / sqrt(a * a + 1), sy = 1 / sqrt(a * a + 1);
+    float *tu = tab, *tv = tab + (size_t)nw * 2 * K;
+    double om[256]; /* w_k once per k, not per pixel and k (the pow was most of the tables' time) */
+    const int kn = K < 256 ? K : 256;
+    for (int k = 0; k < kn; k++)
+        om[k] = 1.0 / pow(100.0, (double)k / K);
+    for (int j = 0; j < nw; j++) {
+        double lo = -sx * (nw - 1) / nw, u = nw > 1 ? lo + (-2 * lo) * j / (nw - 1) : lo;
+        for (int k = 0; k < K; k++) {
+            double w = k < kn ? om[k] : 1.0 / pow(100.0, (double)k / K);
+            tu[(size_t)j * 2 * K + k] = (float)sin(u * w);
+            tu[(size_t)j * 2 * K + K + k] = (float)cos(u * w);
+        }
+    }
+    for (int i = 0; i < nh; i++) {
+        double lo = -sy * (nh - 1) / nh, v = nh > 1 ? lo + (-2 * lo) * i / (nh - 1) : lo;
+        for (int k = 0; k < K; k++) {
+            double w = k < kn ? om[k] : 1.0 / pow(100.0, (double)k / K);
+            tv[(size_t)i * 2 * K + k] = (float)sin(v * w);
+            tv[(size_t)i * 2 * K + K + k] = (float)cos(v * w);
+        }
+    }
+    /* the adds on every core: on one, the full-resolution map (518 x 518 x
+     * 128) kept the other core idle for ~2.5 % of the DPT head (Zen 5) */
+    struct uv_job jb = { x, tu, tv, nh, nw, cx, K, 8 };
+    fk_parallel_for(ctx, (nh + jb.rows_per_task - 1) / jb.rows_per_task, (double)nh * nw * cx, uv_task, &jb);
 }
 
 /* RCU (vggt.md 6): x <- relu(x) in place, y = relu(x) + conv2(relu(conv1(relu(x)))). */
@@ -278,7 +300,7 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
             return model_kfail(m, "dpt norm");
         if ((rc = model_conv(m, &h->proj[l], a->tok, hh, ww, a->proj, FK_ACT_NONE)) < 0)
             return rc;
-        add_uv_pe(a->proj, hh, ww, ocl, H, W, a->pe);
+        add_uv_pe(ctx, a->proj, hh, ww, ocl, H, W, a->pe);
         level_size(l, hh, ww, &lh[l], &lw[l]);
         const float *lv = a->lvl;
         if (l == 0)
@@ -325,7 +347,7 @@ static int dpt_frame(struct model *m, struct dpt_head *h, const struct model_run
         return rc;
     if (fk_resize_bilinear(ctx, a->up, fh, fw, F / 2, a->big1, H, W, 1) != F4D_OK)
         return model_kfail(m, "dpt output upsample");
-    add_uv_pe(a->big1, H, W, F / 2, H, W, a->pe);
+    add_uv_pe(ctx, a->big1, H, W, F / 2, H, W, a->pe);
     if ((rc = model_conv(m, &h->oc2a, a->big1, H, W, a->big2, FK_ACT_RELU)) < 0 ||
         (rc = model_conv(m, &h->oc2b, a->big2, H, W, a->logit, FK_ACT_NONE)) < 0)
         return rc;
