@@ -691,20 +691,33 @@ struct gemm_job {
     const struct fk_epilogue *ep;
     int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct;
     int    wide; /* AVX-512: two panels per micro-kernel call */
-    size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero;
+    size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero, off_pix;
 };
 
+/* The top-left input pixel (oy - pad, ox - pad) of each output row of the
+ * task (rows m0 ..), as pix[2 row], pix[2 row + 1]; INT_MIN past the last
+ * row. Once per task: per micro-kernel call, the two divisions per row (12
+ * a call) were most of the driver's 8 % of the DPT heads' samples. */
+static void direct_pix(const struct fk__asrc *a, int m0, int rows, int mp, int *pix)
+{
+    for (int row = 0; row < mp * MR; row++) {
+        int m = m0 + row;
+        pix[2 * row] = row < rows ? m / a->wo - a->pad : INT_MIN;
+        pix[2 * row + 1] = row < rows ? m % a->wo - a->pad : INT_MIN;
+    }
+}
+
 /* Row pointers of micro-panel i for the k block starting at k0 of a stride-1
- * convolution: output pixel (oy, ox), tap (ky, kx), channels from k0 % cin;
- * padding and rows past the end read zeros. */
-static void direct_rows(const struct fk__asrc *a, int m0, int rows, int i, int k0,
+ * convolution: output pixel (oy, ox) (from direct_pix), tap (ky, kx),
+ * channels from k0 % cin; padding and rows past the end read zeros. */
+static void direct_rows(const struct fk__asrc *a, const int *pix, int i, int k0,
                         const float *zeros, const float *ar[MR])
 {
     int tap = k0 / a->cin, c0 = k0 % a->cin, ky = tap / a->kw, kx = tap % a->kw;
     for (int r = 0; r < MR; r++) {
-        int row = i * MR + r, m = m0 + row;
-        int iy = m / a->wo - a->pad + ky, ix = m % a->wo - a->pad + kx;
-        if (row >= rows || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w)
+        const int *p = pix + 2 * (i * MR + r);
+        int iy = p[0] + ky, ix = p[1] + kx;
+        if (p[0] == INT_MIN || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w)
             ar[r] = zeros;
         else
             ar[r] = a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin + (size_t)c0;
@@ -785,6 +798,9 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
     float *ap = (float *)s, *ct = (float *)(s + j->off_c), *bconv = (float *)(s + j->off_b);
     const float *zeros = (const float *)(s + j->off_zero);
     const struct fk__asrc *src = j->a;
+    int *pix = (int *)(void *)(s + j->off_pix);
+    if (j->direct)
+        direct_pix(src, m0, rows, mp, pix);
     for (int jg = jp0; jg < jp1; jg += j->nc_panels) {
         int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
         for (int k0 = 0, kc; k0 < k; k0 += kc) {
@@ -839,7 +855,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                         prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
                     if (j->direct) {
                         const float *ar[MR];
-                        direct_rows(src, m0, rows, i, k0, zeros, ar);
+                        direct_rows(src, pix, i, k0, zeros, ar);
                         if (pair)
                             fk__gemm_f32_ukr_avx512_rows(kc, ar, bp, bp1, ci, k0 > 0);
                         else
@@ -1024,7 +1040,8 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.off_sa = j.off_q + (q8 ? fk__round_up((size_t)MR * (size_t)j.k_pad, FK_ALIGN) : 0); /* q[6][k_pad] */
     /* a row of zeros stands in for the padding rows of the last micro-panel */
     j.off_zero = j.off_sa + fk__round_up(q8 ? mcp * 4 : 0, FK_ALIGN);
-    size_t need = j.off_zero + (q8 ? 0 : (size_t)kcb * 4) + FK_ALIGN;
+    j.off_pix = j.off_zero + fk__round_up(q8 ? 0 : (size_t)kcb * 4, FK_ALIGN);
+    size_t need = j.off_pix + (j.direct ? mcp * 2 * sizeof(int) : 0) + FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
     if (st || fk__measuring(ctx))
         return st;
