@@ -153,6 +153,8 @@ static void attn_task(void *arg, int task, int thread)
     }
     for (int kb = 0; kb < j->nk_pad / BK; kb++) {
         int valid = j->nk - kb * BK < BK ? j->nk - kb * BK : BK;
+        if (kb == j->nk_pad / BK - 1)
+            fk__attn_prefetch_out(j->out, j->ldo, q0, rows, h * d, d);
         for (int i = 0; i < panels; i++) {
             const float *qi = qp + (size_t)(q0 / MR + i) * (size_t)dp * MR;
             const float *kb_p = kp + (size_t)kb * (BK / NR) * (size_t)dp * NR;

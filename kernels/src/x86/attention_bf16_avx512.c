@@ -251,6 +251,8 @@ static void attn_task(void *arg, int task, int thread)
     for (int k0 = 0; k0 < j->nk_pad; k0 += SB) { /* nk_pad is a multiple of BK */
         int nk = j->nk_pad - k0 < SB ? j->nk_pad - k0 : SB;
         int valid = j->nk - k0 < nk ? j->nk - k0 : nk;
+        if (k0 + SB >= j->nk_pad)
+            fk__attn_prefetch_out(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d);
         const uint32_t *kbb = kb + (size_t)k0 * (size_t)dp / 2;
         const uint32_t *vbb = vb + (size_t)k0 / 2 * (size_t)dp;
         for (int i = 0; i < panels; i++) {
