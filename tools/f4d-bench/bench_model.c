@@ -52,12 +52,14 @@
  * weights, motion steps), and exits; --skip-head depth_head times what the
  * streaming path (forge4d run, f4d_sequence_open) runs.
  *
- *   f4d-bench model --write-random OUT.gguf [--preset tiny|mid]
+ *   f4d-bench model --write-random OUT.gguf [--preset tiny|mid|full1]
  *
  * writes a random-weight model with every head (Forge4D's Gaussian and scale
  * heads included) and exits: for timing `forge4d run` and the like without
  * trained weights. tiny: the config above (img 126); mid: embed 384, depth 8,
- * 6 heads, 4 DINO blocks, img 224 (about ViT-S width).
+ * 6 heads, 4 DINO blocks, img 224 (about ViT-S width); full1: the full rows'
+ * model (VGGT-1B dims, one block of each kind, the depth head), e.g. for
+ * `--weights F --skip-head depth_head --precision f32` under a profiler.
  */
 #include <math.h>
 #include <stdio.h>
@@ -194,19 +196,27 @@ static int write_preset(const char *path, const char *preset)
         bench_preset_tiny(&c);
     else if (!strcmp(preset, "mid"))
         preset_mid(&c);
-    else {
-        fprintf(stderr, "f4d-bench model: --preset must be tiny or mid (got '%s')\n", preset);
+    else if (!strcmp(preset, "full1")) { /* the full rows' model: for profiling one stage */
+        model_config_default(&c);
+        c.depth = 1;
+        c.dino_depth = 1;
+        for (int i = 0; i < 4; i++)
+            c.dpt_layer_idx[i] = 0;
+        c.motion_layers = 1;
+    } else {
+        fprintf(stderr, "f4d-bench model: --preset must be tiny, mid or full1 (got '%s')\n", preset);
         return 2;
     }
+    unsigned groups = strcmp(preset, "full1") ? MODEL_G_ALL : MODEL_G_AGGREGATOR | MODEL_G_DEPTH;
     struct f4d_err err = {0};
     if (model_config_check(&c, &err) < 0) {
         fprintf(stderr, "f4d-bench model: preset %s: %s\n", preset, err.msg);
         return 1;
     }
-    if (bench_write_random_model(path, &c, MODEL_G_ALL) < 0)
+    if (bench_write_random_model(path, &c, groups) < 0)
         return 1;
-    printf("f4d-bench model: random %s model (embed %d, depth %d, img %d, every head) -> %s\n", preset,
-           c.embed_dim, c.depth, c.img_size, path);
+    printf("f4d-bench model: random %s model (embed %d, depth %d, img %d, %s) -> %s\n", preset,
+           c.embed_dim, c.depth, c.img_size, groups == MODEL_G_ALL ? "every head" : "depth head", path);
     return 0;
 }
 
@@ -446,7 +456,7 @@ int bench_model(int argc, char **argv)
                             "[--isa auto|ref|avx2|avx2-vnni|avx512|all] [--precision f32|f16|int8]\n"
                             "       f4d-bench model --weights W.gguf [--views S] [--size HxW] [--reps R] "
                             "[--threads N] [--isa NAME] [--skip-head PREFIX] [--precision f32|f16|int8]\n"
-                            "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid]\n");
+                            "       f4d-bench model --write-random OUT.gguf [--preset tiny|mid|full1]\n");
             return 2;
         }
     }
