@@ -52,14 +52,22 @@ FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n, int kmin)
 }
 
 /* e^r for |r| <= ln2/2 (Cephes expf minimax polynomial, ~1 ulp). */
+/* The polynomials' coefficients, highest degree first, shared with the zmm
+ * copies in vecmath_avx512.h (which must give these functions' bits). */
+static const float fk__exp_core_c[6] = { 1.9875691500e-4f, 1.3981999507e-3f, 8.3334519073e-3f,
+                                         4.1665795894e-2f, 1.6666665459e-1f, 5.0000001201e-1f };
+static const float fk__erf_small_c[5] = { 4.719082732e-03f, -2.675773203e-02f, 1.128283143e-01f,
+                                          -3.761260808e-01f, 1.128379107e+00f };
+static const float fk__erfc_tail_c[10] = { 1.509543217e-04f, 6.107941590e-05f, -9.750566678e-04f,
+                                           -8.517430979e-04f, 6.996694952e-03f, 3.733400023e-03f,
+                                           -7.897856086e-02f, 2.416581810e-01f, -4.271858335e-01f,
+                                           2.553956807e-01f };
+
 FK_AVX2_FN __m256 fk__exp_core_avx2(__m256 r)
 {
-    __m256 p = _mm256_set1_ps(1.9875691500e-4f);
-    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(1.3981999507e-3f));
-    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(8.3334519073e-3f));
-    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(4.1665795894e-2f));
-    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(1.6666665459e-1f));
-    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(5.0000001201e-1f));
+    __m256 p = _mm256_set1_ps(fk__exp_core_c[0]);
+    for (int i = 1; i < 6; i++)
+        p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(fk__exp_core_c[i]));
     p = _mm256_fmadd_ps(p, _mm256_mul_ps(r, r), r);
     return _mm256_add_ps(p, _mm256_set1_ps(1.0f));   /* exp(0) == 1 exactly */
 }
@@ -102,11 +110,10 @@ FK_AVX2_FN __m256 fk__exp2_avx2(__m256 x)
 /* erf(a) / a as a polynomial in a^2, for |a| <= 0.5 (relative error 1.4e-9). */
 FK_AVX2_FN __m256 fk__erf_small_avx2(__m256 a2)
 {
-    __m256 p = _mm256_set1_ps(4.719082732e-03f);
-    p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(-2.675773203e-02f));
-    p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(1.128283143e-01f));
-    p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(-3.761260808e-01f));
-    return _mm256_fmadd_ps(p, a2, _mm256_set1_ps(1.128379107e+00f));
+    __m256 p = _mm256_set1_ps(fk__erf_small_c[0]);
+    for (int i = 1; i < 5; i++)
+        p = _mm256_fmadd_ps(p, a2, _mm256_set1_ps(fk__erf_small_c[i]));
+    return p;
 }
 
 /* m erfc(a) for a >= 0.5 with relative accuracy, given a^2 = s + t as an
@@ -121,16 +128,9 @@ FK_AVX2_FN __m256 fk__erfc_tail_avx2(__m256 a, __m256 s, __m256 t, __m256 m)
     const __m256 two = _mm256_set1_ps(2.0f);
     a = _mm256_min_ps(_mm256_set1_ps(10.1f), a);
     __m256 q = _mm256_div_ps(_mm256_sub_ps(a, two), _mm256_add_ps(a, two));
-    __m256 p = _mm256_set1_ps(1.509543217e-04f);
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(6.107941590e-05f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-9.750566678e-04f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-8.517430979e-04f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(6.996694952e-03f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(3.733400023e-03f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-7.897856086e-02f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(2.416581810e-01f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(-4.271858335e-01f));
-    p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(2.553956807e-01f));
+    __m256 p = _mm256_set1_ps(fk__erfc_tail_c[0]);
+    for (int i = 1; i < 10; i++)
+        p = _mm256_fmadd_ps(p, q, _mm256_set1_ps(fk__erfc_tail_c[i]));
     __m256 n;
     __m256 e = fk__exp_split_avx2(_mm256_sub_ps(_mm256_setzero_ps(), s), &n);
     __m256 r = _mm256_mul_ps(m, p);

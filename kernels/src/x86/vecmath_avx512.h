@@ -11,6 +11,8 @@
 
 #include <immintrin.h>
 
+#include "vecmath_avx2.h" /* the coefficients */
+
 #define FK_AVX512_FN __attribute__((target("avx512f,fma"))) static inline
 
 /* 2^x for x = s - max <= 0, as the AVX2 piece (same clamp at -127, same
@@ -49,12 +51,9 @@ FK_AVX512_FN __m512 fk__scale2n512(__m512 p, __m512 n, int kmin)
 /* fk__exp_core_avx2: e^r for |r| <= ln2/2. */
 FK_AVX512_FN __m512 fk__exp_core512(__m512 r)
 {
-    __m512 p = _mm512_set1_ps(1.9875691500e-4f);
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.3981999507e-3f));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(8.3334519073e-3f));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(4.1665795894e-2f));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(1.6666665459e-1f));
-    p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(5.0000001201e-1f));
+    __m512 p = _mm512_set1_ps(fk__exp_core_c[0]);
+    for (int i = 1; i < 6; i++)
+        p = _mm512_fmadd_ps(p, r, _mm512_set1_ps(fk__exp_core_c[i]));
     p = _mm512_fmadd_ps(p, _mm512_mul_ps(r, r), r);
     return _mm512_add_ps(p, _mm512_set1_ps(1.0f));
 }
@@ -73,11 +72,10 @@ FK_AVX512_FN __m512 fk__exp_split512(__m512 x, __m512 *n)
 /* fk__erf_small_avx2: erf(a) / a in a^2, |a| <= 0.5. */
 FK_AVX512_FN __m512 fk__erf_small512(__m512 a2)
 {
-    __m512 p = _mm512_set1_ps(4.719082732e-03f);
-    p = _mm512_fmadd_ps(p, a2, _mm512_set1_ps(-2.675773203e-02f));
-    p = _mm512_fmadd_ps(p, a2, _mm512_set1_ps(1.128283143e-01f));
-    p = _mm512_fmadd_ps(p, a2, _mm512_set1_ps(-3.761260808e-01f));
-    return _mm512_fmadd_ps(p, a2, _mm512_set1_ps(1.128379107e+00f));
+    __m512 p = _mm512_set1_ps(fk__erf_small_c[0]);
+    for (int i = 1; i < 5; i++)
+        p = _mm512_fmadd_ps(p, a2, _mm512_set1_ps(fk__erf_small_c[i]));
+    return p;
 }
 
 /* fk__erfc_tail_avx2: m erfc(a), a >= 0.5, a^2 = s + t. */
@@ -86,16 +84,9 @@ FK_AVX512_FN __m512 fk__erfc_tail512(__m512 a, __m512 s, __m512 t, __m512 m)
     const __m512 two = _mm512_set1_ps(2.0f);
     a = _mm512_min_ps(_mm512_set1_ps(10.1f), a);
     __m512 q = _mm512_div_ps(_mm512_sub_ps(a, two), _mm512_add_ps(a, two));
-    __m512 p = _mm512_set1_ps(1.509543217e-04f);
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(6.107941590e-05f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(-9.750566678e-04f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(-8.517430979e-04f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(6.996694952e-03f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(3.733400023e-03f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(-7.897856086e-02f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(2.416581810e-01f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(-4.271858335e-01f));
-    p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(2.553956807e-01f));
+    __m512 p = _mm512_set1_ps(fk__erfc_tail_c[0]);
+    for (int i = 1; i < 10; i++)
+        p = _mm512_fmadd_ps(p, q, _mm512_set1_ps(fk__erfc_tail_c[i]));
     __m512 n;
     __m512 e = fk__exp_split512(_mm512_sub_ps(_mm512_setzero_ps(), s), &n);
     __m512 r = _mm512_mul_ps(m, p);
