@@ -177,6 +177,20 @@ void bench_preset_tiny(struct model_config *c)
     c->dpt_layer_idx[2] = 2; c->dpt_layer_idx[3] = 3;
 }
 
+/* The full rows' model: VGGT-1B dimensions with one DINO, one frame and one
+ * global block, the DPT head reading layer 0, one motion layer; written
+ * with the aggregator and the depth head (PRESET_FULL1_GROUPS). */
+#define PRESET_FULL1_GROUPS (MODEL_G_AGGREGATOR | MODEL_G_DEPTH)
+static void preset_full1(struct model_config *c)
+{
+    model_config_default(c);
+    c->depth = 1;
+    c->dino_depth = 1;
+    for (int i = 0; i < 4; i++)
+        c->dpt_layer_idx[i] = 0;
+    c->motion_layers = 1;
+}
+
 static void preset_mid(struct model_config *c)
 {
     model_config_default(c);
@@ -197,18 +211,13 @@ static int write_preset(const char *path, const char *preset)
         bench_preset_tiny(&c);
     else if (!strcmp(preset, "mid"))
         preset_mid(&c);
-    else if (!strcmp(preset, "full1")) { /* the full rows' model: for profiling one stage */
-        model_config_default(&c);
-        c.depth = 1;
-        c.dino_depth = 1;
-        for (int i = 0; i < 4; i++)
-            c.dpt_layer_idx[i] = 0;
-        c.motion_layers = 1;
-    } else {
+    else if (!strcmp(preset, "full1")) /* for profiling one stage */
+        preset_full1(&c);
+    else {
         fprintf(stderr, "f4d-bench model: --preset must be tiny, mid or full1 (got '%s')\n", preset);
         return 2;
     }
-    unsigned groups = strcmp(preset, "full1") ? MODEL_G_ALL : MODEL_G_AGGREGATOR | MODEL_G_DEPTH;
+    unsigned groups = strcmp(preset, "full1") ? MODEL_G_ALL : PRESET_FULL1_GROUPS;
     struct f4d_err err = {0};
     if (model_config_check(&c, &err) < 0) {
         fprintf(stderr, "f4d-bench model: preset %s: %s\n", preset, err.msg);
@@ -571,15 +580,11 @@ int bench_model(int argc, char **argv)
 
     if (!skip_full) {
         /* ---- full dims, one block of each kind, one DPT head ---- */
-        struct model_config one = full;
-        one.depth = 1;
-        one.dino_depth = 1;
-        for (int i = 0; i < 4; i++)
-            one.dpt_layer_idx[i] = 0;
-        one.motion_layers = 1;
+        struct model_config one;
+        preset_full1(&one);
         if (stream_only)
             goto stream;
-        if (bench_write_random_model(path, &one, MODEL_G_AGGREGATOR | MODEL_G_DEPTH) < 0)
+        if (bench_write_random_model(path, &one, PRESET_FULL1_GROUPS) < 0)
             goto done;
         /* the best ISA: f32, f16, int8; --isa all: f32 and int8 on every other
          * ISA too, so each int8 path is compared with its own ISA's f32 and
@@ -588,15 +593,12 @@ int bench_model(int argc, char **argv)
         fk_ctx *rctx[9];
         int nrun = 0;
         /* --precision f16 / int8: that one beside f32 (the reference of the
-         * errors and speed-ups); f32: f32 alone */
-        const int want_f32 = 1;
+         * errors and speed-ups, always run); f32: f32 alone */
         const int want_f16 = !only_prec || !strcmp(only_prec, "f16");
         const int want_q8 = !only_prec || !strcmp(only_prec, "int8");
         for (int c = 0; c <= n_x; c++) {
             fk_ctx *cx = c ? xctx[c - 1] : ctx;
-            if (want_f32) {
-                wts[nrun] = FK_W_F32; rctx[nrun++] = cx;
-            }
+            wts[nrun] = FK_W_F32; rctx[nrun++] = cx;
             if (!c && want_f16) {
                 wts[nrun] = FK_W_F16; rctx[nrun++] = cx;
             }

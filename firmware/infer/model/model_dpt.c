@@ -242,22 +242,15 @@ static void add_uv_pe(fk_ctx *ctx, float *x, int nh, int nw, int cx, int H, int 
     const int K = cx / 4;
     const double a = (double)W / H, sx = a / sqrt(a * a + 1), sy = 1 / sqrt(a * a + 1);
     float *tu = tab, *tv = tab + (size_t)nw * 2 * K;
-    double om[256]; /* w_k once per k, not per pixel and k (the pow was most of the tables' time) */
-    const int kn = K < 256 ? K : 256;
-    for (int k = 0; k < kn; k++)
-        om[k] = 1.0 / pow(100.0, (double)k / K);
-    for (int j = 0; j < nw; j++) {
-        double lo = -sx * (nw - 1) / nw, u = nw > 1 ? lo + (-2 * lo) * j / (nw - 1) : lo;
-        for (int k = 0; k < K; k++) {
-            double w = k < kn ? om[k] : 1.0 / pow(100.0, (double)k / K);
+    for (int k = 0; k < K; k++) { /* channel outer: w_k once, not per pixel */
+        const double w = 1.0 / pow(100.0, (double)k / K);
+        for (int j = 0; j < nw; j++) {
+            double lo = -sx * (nw - 1) / nw, u = nw > 1 ? lo + (-2 * lo) * j / (nw - 1) : lo;
             tu[(size_t)j * 2 * K + k] = (float)sin(u * w);
             tu[(size_t)j * 2 * K + K + k] = (float)cos(u * w);
         }
-    }
-    for (int i = 0; i < nh; i++) {
-        double lo = -sy * (nh - 1) / nh, v = nh > 1 ? lo + (-2 * lo) * i / (nh - 1) : lo;
-        for (int k = 0; k < K; k++) {
-            double w = k < kn ? om[k] : 1.0 / pow(100.0, (double)k / K);
+        for (int i = 0; i < nh; i++) {
+            double lo = -sy * (nh - 1) / nh, v = nh > 1 ? lo + (-2 * lo) * i / (nh - 1) : lo;
             tv[(size_t)i * 2 * K + k] = (float)sin(v * w);
             tv[(size_t)i * 2 * K + K + k] = (float)cos(v * w);
         }

@@ -739,12 +739,30 @@ static inline void prefetch_share(const char *p, size_t lines, int i, int mp)
  * their lines in L1, owned. Without it the epilogue, mostly those stores
  * (write misses), took 4.2-4.9 % of the f32 GEMM's samples on Zen 5 (1374 x
  * 1024 <- 1024, one thread); with it 2.4 %. */
+/* A wide tile's place in a dense destination (the AVX-512 path; not a
+ * transposed convolution's scatter): rows from m, `pw` panels from jp. */
+struct wide_out {
+    int          n0, nn;  /* first column, columns that exist        */
+    float       *y;       /* element (m, n0)                         */
+    const float *gamma;   /* LayerScale from n0, or NULL             */
+};
+
+static inline struct wide_out wide_out(const struct gemm_job *j, int m, int jp, int pw)
+{
+    struct wide_out w;
+    w.n0 = jp * NR;
+    w.nn = j->L->n - w.n0 < pw * NR ? j->L->n - w.n0 : pw * NR;
+    w.y = j->c->y + (size_t)m * (size_t)j->c->ldy + (size_t)w.n0;
+    w.gamma = j->ep->gamma ? j->ep->gamma + w.n0 : NULL;
+    return w;
+}
+
 static inline void prefetch_out(const struct gemm_job *j, int m, int rows, int jp, int pw)
 {
     if (!j->wide || j->c->tconv_k)
         return;
-    int nr = rows < MR ? rows : MR, n0 = jp * NR, nn = j->L->n - n0 < pw * NR ? j->L->n - n0 : pw * NR;
-    fk__gemm_prefetchw_rows(j->c->y + (size_t)m * (size_t)j->c->ldy + (size_t)n0, (size_t)j->c->ldy, nr, nn);
+    struct wide_out w = wide_out(j, m, jp, pw);
+    fk__gemm_prefetchw_rows(w.y, (size_t)j->c->ldy, rows < MR ? rows : MR, w.nn);
 }
 
 /* The C tile is [mp][np][6][16]: micro-tile (i, p) at ((i * np + p) * 6) * 16. */
@@ -868,10 +886,8 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (k0 + kc >= k) { /* last k block: this tile is final */
                         int nr = rows - i * MR < MR ? rows - i * MR : MR;
                         if (j->wide && !j->c->tconv_k) {
-                            int n0 = jp * NR, nn = L->n - n0 < (1 + pair) * NR ? L->n - n0 : (1 + pair) * NR;
-                            const struct fk_epilogue *ep = j->ep;
-                            fk__epi_f32_avx512(ci, nr, nn, L->bias + n0, ep, ep->gamma ? ep->gamma + n0 : NULL,
-                                               j->c->y + (size_t)(m0 + i * MR) * (size_t)j->c->ldy + (size_t)n0,
+                            struct wide_out w = wide_out(j, m0 + i * MR, jp, 1 + pair);
+                            fk__epi_f32_avx512(ci, nr, w.nn, L->bias + w.n0, j->ep, w.gamma, w.y,
                                                (size_t)j->c->ldy);
                         } else {
                             epi_f32(j, ci, m0 + i * MR, nr, jp);
@@ -926,11 +942,9 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                     if (q0 + qn >= k4) { /* last k block: this tile is final */
                         int nr = rows - i * MR < MR ? rows - i * MR : MR;
                         if (j->wide && !j->c->tconv_k) {
-                            int n0 = jp * NR, nn = L->n - n0 < (1 + pair) * NR ? L->n - n0 : (1 + pair) * NR;
-                            const struct fk_epilogue *ep = j->ep;
-                            fk__epi_q8_avx512(ci, sa + i * MR, nr, nn, L->bias + n0, L->scale + n0,
-                                              u8 ? L->colsum + n0 : NULL, ep, ep->gamma ? ep->gamma + n0 : NULL,
-                                              j->c->y + (size_t)(m0 + i * MR) * (size_t)j->c->ldy + (size_t)n0,
+                            struct wide_out w = wide_out(j, m0 + i * MR, jp, 1 + pair);
+                            fk__epi_q8_avx512(ci, sa + i * MR, nr, w.nn, L->bias + w.n0, L->scale + w.n0,
+                                              u8 ? L->colsum + w.n0 : NULL, j->ep, w.gamma, w.y,
                                               (size_t)j->c->ldy);
                         } else {
                             epi_q8(j, ci, sa + i * MR, m0 + i * MR, nr, jp, u8);

@@ -51,7 +51,6 @@ FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n, int kmin)
     return _mm256_mul_ps(_mm256_mul_ps(p, s1), s2);
 }
 
-/* e^r for |r| <= ln2/2 (Cephes expf minimax polynomial, ~1 ulp). */
 /* The polynomials' coefficients, highest degree first, shared with the zmm
  * copies in vecmath_avx512.h (which must give these functions' bits). */
 static const float fk__exp_core_c[6] = { 1.9875691500e-4f, 1.3981999507e-3f, 8.3334519073e-3f,
@@ -63,6 +62,7 @@ static const float fk__erfc_tail_c[10] = { 1.509543217e-04f, 6.107941590e-05f, -
                                            -7.897856086e-02f, 2.416581810e-01f, -4.271858335e-01f,
                                            2.553956807e-01f };
 
+/* e^r for |r| <= ln2/2 (Cephes expf minimax polynomial, ~1 ulp). */
 FK_AVX2_FN __m256 fk__exp_core_avx2(__m256 r)
 {
     __m256 p = _mm256_set1_ps(fk__exp_core_c[0]);
