@@ -55,6 +55,14 @@ struct fk_attention_desc {
      * row sum adds the rounded p that multiply v. Error: see README
      * (kernels, attention). 0 = fp32 throughout. */
     int            bf16;
+    /* Nonzero: the q.k and p.v products in int16 with exact int32 sums where
+     * the context runs int16 attention (fk_ctx_has_int16; fp32 elsewhere, and
+     * bf16 wins where both are set and the context has both). q and k are
+     * 12-bit codes (at head dim 64; 11 at 128, 13 at 16) scaled per query /
+     * key, v 12-bit per column and 64-key block, p 12-bit (4096 = each
+     * block's largest weight) with l summing the codes; LayerNorm, RoPE and
+     * the softmax stay fp32. Error: see README (kernels, attention). */
+    int            int16;
 };
 
 int fk_attention(fk_ctx *ctx, const struct fk_attention_desc *desc,

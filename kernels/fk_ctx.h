@@ -115,6 +115,10 @@ const char * fk_ctx_q8_path  (const fk_ctx *ctx);
 /* Nonzero where a desc's bf16 attention runs in bf16: the context's ISA is
  * FK_ISA_AVX512 and the CPU has AVX512_BF16. */
 int          fk_ctx_has_bf16 (const fk_ctx *ctx);
+/* Nonzero where a desc's int16 attention runs in int16: the context's ISA
+ * is FK_ISA_AVX2 (AVX2 without VNNI or AVX-512, where int8 weights take the
+ * 7-bit path and fp32 attention would hold the forward to the FMA rate). */
+int          fk_ctx_has_int16(const fk_ctx *ctx);
 
 /* The cache model (pure; unknown sizes take 32K / 512K / 2M defaults), with
  * MR = 6 rows by NR = 16 columns per register tile of fp32:

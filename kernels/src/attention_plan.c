@@ -269,6 +269,16 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
         local = local > bf_local ? local : bf_local;
         grp_bytes += grp_bytes / 2 + 2 * FK_ALIGN;
     }
+    /* int16 products: packs as bf16's plus their scales, which take at
+     * most (1 + dp / 64) / (2 dp) <= 1/25 of the fp32 packs (dp >= 16) */
+    int i16 = !bf16 && a->int16 && ctx->int16;
+    size_t i16_local = 0, i16_head = 0;
+    if (i16) {
+        fk__attn_i16_bytes(j.dp, j.nk_pad, &i16_local, &i16_head);
+        (void)i16_head; /* bounded by the fraction below, as bf16's */
+        local = local > i16_local ? local : i16_local;
+        grp_bytes += grp_bytes / 2 + grp_bytes / 16 + 6 * FK_ALIGN;
+    }
     int st = fk__scratch_reserve(ctx, local, table + grp_bytes + 3 * FK_ALIGN);
     if (st || fk__measuring(ctx))
         return st;
@@ -296,6 +306,19 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
                 nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
             };
             fk__attn_bf16_run(&b);
+            continue;
+        }
+        if (i16) {
+            size_t pairs = (size_t)j.nk_pad * (size_t)j.dp / 2;
+            uint32_t *kq = (uint32_t *)fk__round_up((uintptr_t)(j.qp + j.head_q * (size_t)j.hn), FK_ALIGN);
+            uint32_t *vq = (uint32_t *)fk__round_up((uintptr_t)(kq + pairs * (size_t)j.hn), FK_ALIGN);
+            float *sk = (float *)fk__round_up((uintptr_t)(vq + pairs * (size_t)j.hn), FK_ALIGN);
+            float *sv = (float *)fk__round_up((uintptr_t)(sk + (size_t)j.nk_pad * (size_t)j.hn), FK_ALIGN);
+            struct fk__attn_i16_job b = {
+                ctx, j.kp, j.vp, j.qp, j.head_k, j.head_v, j.head_q, kq, vq, pairs, sk, sv,
+                nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
+            };
+            fk__attn_i16_run(&b);
             continue;
         }
         fk_parallel_for(ctx, j.hn * j.q_blocks, att_work * j.hn, attn_task, &j);

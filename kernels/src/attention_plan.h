@@ -107,6 +107,33 @@ static inline void fk__attn_bf16_bytes(int dp, int nk_pad, size_t *local, size_t
 static inline void fk__attn_bf16_run(const struct fk__attn_bf16_job *j) { (void)j; }
 #endif
 
+/* int16 products (x86/attention_i16_avx2.c), for a desc with int16 set
+ * where ctx->int16 (and not bf16): after phase 1 the group's fp32 packs are
+ * quantized once to int16 pairs with their scales, then phase 2 runs S and
+ * P V with vpmaddwd into exact int32 sums. */
+struct fk__attn_i16_job {
+    fk_ctx      *ctx;
+    const float *kp, *vp, *qp;         /* the group's fp32 packs (phase 1), kw = NR */
+    size_t       head_k, head_v, head_q; /* their floats per head          */
+    uint32_t    *kq, *vq;              /* int16 pair packs of the group     */
+    size_t       head_pairs;           /* pairs per head in kq and in vq    */
+    float       *sk, *sv;              /* key scales [nk_pad], value scales [nk_pad/BK][dp] per head */
+    int          nq, nk, nk_pad, d, dp, h0, hn, q_blocks, ldo;
+    float       *out;
+};
+#if defined(__x86_64__)
+/* per-thread scratch and shared bytes per head (packs and scales) of the int16 path */
+void fk__attn_i16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head);
+void fk__attn_i16_run(const struct fk__attn_i16_job *j);
+#else /* never called: ctx->int16 is 0 off x86-64 */
+static inline void fk__attn_i16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head)
+{
+    (void)dp; (void)nk_pad;
+    *local = *per_head = 0;
+}
+static inline void fk__attn_i16_run(const struct fk__attn_i16_job *j) { (void)j; }
+#endif
+
 /* fk__attention_avx2 / _neon: validated arguments, the ISA's pieces. */
 int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
                            const struct fk_attention_desc *a, const float *q, int ldq, int nq,

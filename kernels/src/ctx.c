@@ -465,6 +465,7 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
                                   cfg->blocks);
     ctx->q8_bits = qbits;
     ctx->bf16 = isa == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16);
+    ctx->int16 = isa == FK_ISA_AVX2;
     ctx->local = calloc((size_t)threads, sizeof *ctx->local);
     if (!ctx->local) {
         free(ctx);
@@ -502,6 +503,7 @@ struct fk_cache_info fk_ctx_caches(const fk_ctx *ctx) { return ctx->caches; }
 struct fk_gemm_blocks fk_ctx_gemm_blocks(const fk_ctx *ctx) { return ctx->blocks; }
 enum fk_q8_bits fk_ctx_q8_bits(const fk_ctx *ctx) { return (enum fk_q8_bits)ctx->q8_bits; }
 int fk_ctx_has_bf16(const fk_ctx *ctx) { return ctx->bf16; }
+int fk_ctx_has_int16(const fk_ctx *ctx) { return ctx->int16; }
 
 const char *fk_ctx_q8_path(const fk_ctx *ctx)
 {

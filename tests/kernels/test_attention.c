@@ -171,16 +171,19 @@ static void test_onehot_and_uniform(void **state)
         q[d + c] = 0;
         q[2 * d + c] = c == 1 ? 1e4f : 0;
     }
-    /* bf16 too: v (integers < 256), the one-hot and the equal p are exact */
-    for (int a = 0; a < 2 * n_isa; a++) {
-        fk_ctx *ctx = test_ctx(all[a / 2], 2);
-        struct fk_attention_desc desc = { .heads = 1, .head_dim = d, .bf16 = a % 2 };
+    /* bf16 too: v (integers < 256), the one-hot and the equal p are exact;
+     * int16: so are the q, k and p codes, v is within half a 12-bit code of
+     * its column's largest |v| (126) */
+    for (int a = 0; a < 3 * n_isa; a++) {
+        fk_ctx *ctx = test_ctx(all[a / 3], 2);
+        struct fk_attention_desc desc = { .heads = 1, .head_dim = d, .bf16 = a % 3 == 1, .int16 = a % 3 == 2 };
+        double tol = fk_ctx_has_int16(ctx) && desc.int16 ? 126.0 / 8190 : 0;
         assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, o, d), F4D_OK);
         for (int c = 0; c < d; c++) {
-            assert_float_equal(o[c], v[20 * d + c], 1e-4);
+            assert_float_equal(o[c], v[20 * d + c], 1e-4 + tol);
             float mean = (float)((nk - 1) * 3) / 2.0f + (float)c;
-            assert_float_equal(o[d + c], mean, 1e-3);
-            assert_float_equal(o[2 * d + c], mean, 1e-3);
+            assert_float_equal(o[d + c], mean, 1e-3 + tol);
+            assert_float_equal(o[2 * d + c], mean, 1e-3 + tol);
             assert_true(isfinite(o[c]) && isfinite(o[2 * d + c]));
         }
         fk_ctx_free(ctx);
@@ -203,9 +206,10 @@ static void test_nonfinite(void **state)
     rng_fill_normal(&r, v, (size_t)n * C, 1);
     q[3 * C + 2] = NAN;             /* query 3, head 0 */
     q[7 * C + d + 1] = INFINITY;    /* query 7, head 1 */
-    for (int a = 0; a < 2 * n_isa; a++) { /* fp32, then bf16 (NaN and Inf survive rounding) */
-        fk_ctx *ctx = test_ctx(all[a / 2], 1);
-        struct fk_attention_desc desc = { .heads = heads, .head_dim = d, .bf16 = a % 2 };
+    /* fp32, bf16 (NaN and Inf survive rounding), int16 (the scales and l carry them) */
+    for (int a = 0; a < 3 * n_isa; a++) {
+        fk_ctx *ctx = test_ctx(all[a / 3], 1);
+        struct fk_attention_desc desc = { .heads = heads, .head_dim = d, .bf16 = a % 3 == 1, .int16 = a % 3 == 2 };
         assert_int_equal(fk_attention(ctx, &desc, q, C, n, k, C, v, C, n, o, C), F4D_OK);
         for (int i = 0; i < n; i++)
             for (int h = 0; h < heads; h++) {
@@ -215,7 +219,7 @@ static void test_nonfinite(void **state)
                     if (bad && i == 3)
                         assert_true(isnan(x));
                     else if (!bad && !isfinite(x))
-                        fail_msg("%s bf16 %d: finite query %d head %d became %g", fk_isa_name(all[a / 2]), a % 2, i, h, x);
+                        fail_msg("%s mode %d: finite query %d head %d became %g", fk_isa_name(all[a / 3]), a % 3, i, h, x);
                 }
             }
         /* a NaN value row poisons every query that attends to it */
@@ -328,11 +332,69 @@ static double logit_bound(const struct fk_attention_desc *a, const float *q, int
     return worst * scale * 1.4426950408889634 / 256.0;
 }
 
-/* One case with desc.bf16 = 1 on every ISA under test: within the budget
- * where the context runs bf16, the fp32 bits elsewhere. Returns how many
- * contexts ran bf16. */
-static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_scale, double rms_budget)
+/* ---- int16 products (desc.int16) ----
+ *
+ * Where the context runs int16 attention (AVX2 without VNNI) q, k, v and p
+ * are integer codes with exact int32 sums. The worst-case budget follows
+ * from the codes, as bf16's from its roundings:
+ *   - v: 12-bit codes of each column and 64-key block, within half a code
+ *     (2^-13 of the column's max |v|): 2^-12 max|v| on the output;
+ *   - p: codes round(4096 p / block max), l summing the codes: each block's
+ *     64 weights move by at most 32 codes against its >= 4096, so the
+ *     weights move by at most 2^-7 of their sum: 2^-6 max|v|;
+ *   - q, k: b-bit codes per query / key (qmax = 2^b - 1, b = 12 at d 64),
+ *     within half a code of the row's max |x|: a logit moves by at most
+ *     delta = scale log2(e) (Mq sum|k| + Mk sum|q|) / (2 qmax) + d Mq Mk /
+ *     (4 qmax^2), the weights by a factor within 2^(+-2 delta): 2 delta
+ *     max|v| (delta <= 0.1), with the max over the head's rows and keys.
+ * Statistically the codes' errors are independent and far below bf16's
+ * 2^-9 relative (measured in test_int16), so the same RMS budgets hold. */
+static double qk_code_max(int d)
 {
+    int dp = (d + 15) / 16 * 16, lg = 0;
+    while ((1 << lg) < dp)
+        lg++;
+    int b = (30 - lg) / 2;
+    return (double)((1 << (b > 14 ? 14 : b)) - 1);
+}
+
+static double logit_bound_i16(const struct fk_attention_desc *a, const float *q, int ldq, int nq,
+                              const float *k, int ldk, int nk)
+{
+    int d = a->head_dim;
+    float qs[1024], ks[1024];
+    double worst = 0, scale = a->scale > 0 ? a->scale : 1.0 / sqrt((double)d), qmax = qk_code_max(d);
+    for (int h = 0; h < a->heads; h++)
+        for (int i = 0; i < nq; i++) {
+            fk__attn_prep_ref(a, 0, q + (size_t)i * ldq + h * d, a->pos_q ? a->pos_q + 2 * i : NULL, 1.0f, qs);
+            double mq = 0, sq = 0;
+            for (int c = 0; c < d; c++) {
+                mq = fmax(mq, fabs((double)qs[c]));
+                sq += fabs((double)qs[c]);
+            }
+            for (int jj = 0; jj < nk; jj++) {
+                fk__attn_prep_ref(a, 1, k + (size_t)jj * ldk + h * d, a->pos_k ? a->pos_k + 2 * jj : NULL, 1.0f, ks);
+                double mk = 0, sk = 0;
+                for (int c = 0; c < d; c++) {
+                    mk = fmax(mk, fabs((double)ks[c]));
+                    sk += fabs((double)ks[c]);
+                }
+                double e = (mq * sk + mk * sq) / (2 * qmax) + d * mq * mk / (4 * qmax * qmax);
+                worst = e > worst ? e : worst;
+            }
+        }
+    return worst * scale * 1.4426950408889634;
+}
+
+enum lowp { LOWP_BF16, LOWP_INT16 };
+
+/* One case with desc.bf16 or desc.int16 = 1 on every ISA under test: within
+ * the budget where the context runs that mode, the fp32 bits elsewhere.
+ * Returns how many contexts ran it. */
+static int run_lowp_case(enum lowp mode, const struct attn_case *c, uint64_t seed, float logit_scale,
+                         double rms_budget)
+{
+    const char *name = mode == LOWP_BF16 ? "bf16" : "int16";
     struct attn_inputs in;
     make_inputs(c, seed, logit_scale, 37, 0, &in);
     struct fk_attention_desc a = in.a;
@@ -340,7 +402,7 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
     int C = in.C, ld = in.ld, ldk = in.ldk, nkv = in.nkv;
     size_t n_out = (size_t)c->nq * C;
     float *want = xmalloc(sizeof(float) * n_out), *f32 = xmalloc(sizeof(float) * n_out);
-    float *got = xmalloc(sizeof(float) * n_out);
+    float *got = xmalloc(sizeof(float) * n_out), *one = xmalloc(sizeof(float) * n_out);
     fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
     assert_int_equal(fk_attention(ref, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, want, C), F4D_OK);
     fk_ctx_free(ref);
@@ -348,20 +410,22 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
     for (int t = 0; t < nkv; t++)
         for (int e = 0; e < C; e++)
             vmax = fmax(vmax, fabs((double)v[(size_t)t * ldk + e]));
-    double delta = logit_bound(&a, q, ld, c->nq, k, ldk, nkv);
-    double bound = (1.0 / 128 + 2 * delta) * vmax;
+    double delta = mode == LOWP_BF16 ? logit_bound(&a, q, ld, c->nq, k, ldk, nkv)
+                                     : logit_bound_i16(&a, q, ld, c->nq, k, ldk, nkv);
+    double bound = (mode == LOWP_BF16 ? 1.0 / 128 : 1.0 / 64 + 1.0 / 4096) * vmax + 2 * delta * vmax;
     enum fk_isa all[5] = { FK_ISA_REF };
     int n_isa = 1 + test_isas(all + 1), ran = 0;
     for (int i = 0; i < n_isa; i++)
         for (int threads = 1; threads <= 2; threads++) {
             fk_ctx *ctx = test_ctx(all[i], threads);
-            a.bf16 = 0;
+            a.bf16 = a.int16 = 0;
             assert_int_equal(fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, f32, C), F4D_OK);
-            a.bf16 = 1;
+            a.bf16 = mode == LOWP_BF16;
+            a.int16 = mode == LOWP_INT16;
             memset(got, 0xff, sizeof(float) * n_out);
             if (fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C) != F4D_OK)
                 fail_msg("%s", fk_ctx_error(ctx));
-            if (!fk_ctx_has_bf16(ctx)) {
+            if (!(mode == LOWP_BF16 ? fk_ctx_has_bf16(ctx) : fk_ctx_has_int16(ctx) && !fk_ctx_has_bf16(ctx))) {
                 assert_memory_equal(got, f32, sizeof(float) * n_out);
             } else {
                 double e = max_abs_diff(got, want, n_out), e32 = max_abs_diff(f32, want, n_out);
@@ -372,22 +436,27 @@ static int run_bf16_case(const struct attn_case *c, uint64_t seed, float logit_s
                 }
                 double rms = sqrt(se / so);
                 if (rms_budget > 0 && !(rms <= rms_budget))
-                    fail_msg("bf16 threads %d heads %d d %d nq %d nk %d: RMS error %.3g of the output's > %.3g",
-                             threads, c->heads, c->d, c->nq, nkv, rms, rms_budget);
+                    fail_msg("%s threads %d heads %d d %d nq %d nk %d: RMS error %.3g of the output's > %.3g",
+                             name, threads, c->heads, c->d, c->nq, nkv, rms, rms_budget);
                 if (!(e <= bound))
-                    fail_msg("bf16 threads %d heads %d d %d nq %d nk %d scale %g: max |err| %.3g > "
+                    fail_msg("%s threads %d heads %d d %d nq %d nk %d scale %g: max |err| %.3g > "
                              "budget %.3g (max|v| %.3g, logit bound %.3g)",
-                             threads, c->heads, c->d, c->nq, nkv, logit_scale, e, bound, vmax, delta);
-                if (threads == 1)
-                    print_message("bf16 heads %d d %d nq %d nk %d scale %g: max |err| %.3g (fp32 %.3g), "
-                                  "budget %.3g = %.2f of it; RMS err / RMS(out) %.3g\n", c->heads, c->d,
+                             name, threads, c->heads, c->d, c->nq, nkv, logit_scale, e, bound, vmax, delta);
+                if (threads == 1) {
+                    print_message("%s heads %d d %d nq %d nk %d scale %g: max |err| %.3g (fp32 %.3g), "
+                                  "budget %.3g = %.2f of it; RMS err / RMS(out) %.3g\n", name, c->heads, c->d,
                                   c->nq, nkv, logit_scale, e, e32, bound, e / bound, rms);
+                    memcpy(one, got, sizeof(float) * n_out);
+                } else if (memcmp(one, got, sizeof(float) * n_out) != 0) {
+                    fail_msg("%s heads %d d %d nq %d nk %d: 2 threads differ from 1", name, c->heads, c->d,
+                             c->nq, nkv);
+                }
                 ran++;
             }
             fk_ctx_free(ctx);
         }
     free_inputs(&in);
-    free(want); free(f32); free(got);
+    free(want); free(f32); free(got); free(one);
     return ran;
 }
 
@@ -403,13 +472,13 @@ static void test_bf16(void **state)
     };
     int ran = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
-        ran += run_bf16_case(&cases[i], 70 + i, 1.0f, 1.0 / 128);
+        ran += run_lowp_case(LOWP_BF16, &cases[i], 70 + i, 1.0f, 1.0 / 128);
     /* large logits: raw q, k of std 3 (no LayerNorm) */
     static const struct attn_case big = { 2, 64, 50, 300, 0, 0, 1 };
-    ran += run_bf16_case(&big, 9, 3.0f, 1.0 / 64);
+    ran += run_lowp_case(LOWP_BF16, &big, 9, 3.0f, 1.0 / 64);
     /* +-1e4 logits: one-hot rows, where bf16 logits keep the winner */
     static const struct attn_case huge = { 2, 16, 23, 23, 0, 0, 0 };
-    ran += run_bf16_case(&huge, 7, 50.0f, 0);
+    ran += run_lowp_case(LOWP_BF16, &huge, 7, 50.0f, 0);
     /* the AVX-512 run is where bf16 runs: without AVX512_BF16 it checked
      * only the fp32 fallback, so it says so; other ISAs never run bf16 */
     enum fk_isa isas[4];
@@ -418,6 +487,39 @@ static void test_bf16(void **state)
         avx512 |= isas[i] == FK_ISA_AVX512;
     if (avx512 && !ran)
         f4d_skip("the CPU has AVX-512 but no AVX512_BF16: only bf16 = 1 giving the fp32 bits was checked");
+}
+
+/* RMS budgets a quarter of bf16's: measured 4.6e-4 to 6.2e-4 of the
+ * output's RMS for unit logits, 8.8e-4 for std-3 logits (bf16: 1.4e-3 to
+ * 7.9e-3) */
+static void test_int16(void **state)
+{
+    (void)state;
+    static const struct attn_case cases[] = {
+        { 2, 64, 131, 131, 1, 1, 0 }, { 4, 24, 276, 276, 1, 1, 0 }, { 2, 48, 70, 70, 1, 1, 0 },
+        { 1, 80, 29, 130, 0, 1, 0 }, { 2, 32, 16, 301, 0, 0, 1 },  { 1, 16, 1, 1, 0, 0, 0 },
+        { 2, 40, 37, 130, 0, 1, 1 },
+        /* long rows: one global block's 5496 keys */
+        { 1, 64, 13, 5496, 1, 1, 1 },
+    };
+    int ran = 0;
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
+        ran += run_lowp_case(LOWP_INT16, &cases[i], 70 + i, 1.0f, 1.0 / 512);
+    /* large logits: raw q, k of std 3 (no LayerNorm) */
+    static const struct attn_case big = { 2, 64, 50, 300, 0, 0, 1 };
+    ran += run_lowp_case(LOWP_INT16, &big, 9, 3.0f, 1.0 / 256);
+    /* +-1e4 logits: one-hot rows, where the codes keep the winner */
+    static const struct attn_case huge = { 2, 16, 23, 23, 0, 0, 0 };
+    ran += run_lowp_case(LOWP_INT16, &huge, 7, 50.0f, 0);
+    /* int16 runs on the AVX2 context, which every x86 CPU here has */
+    enum fk_isa isas[4];
+    int n_isa = test_isas(isas), avx2 = 0;
+    for (int i = 0; i < n_isa; i++)
+        avx2 |= isas[i] == FK_ISA_AVX2;
+    if (avx2 && !ran)
+        fail_msg("the AVX2 context ran no int16 case");
+    if (!avx2)
+        f4d_skip("no AVX2 context (not x86-64): only int16 = 1 giving the fp32 bits was checked");
 }
 
 int main(int argc, char **argv)
@@ -430,6 +532,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_rope_reference),
         cmocka_unit_test(test_bad_arguments),
         cmocka_unit_test(test_bf16),
+        cmocka_unit_test(test_int16),
     };
     return KERNEL_TEST_MAIN(argc, argv, "kernels/attention", tests);
 }

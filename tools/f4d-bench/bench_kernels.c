@@ -326,7 +326,8 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
 }
 
 /* Attention with the aggregator's settings: qk-norm, 2-D RoPE, 16 heads of 64;
- * f32, and bf16 products (desc.bf16) where the context has AVX512_BF16. */
+ * f32, and bf16 products (desc.bf16) where the context has AVX512_BF16,
+ * int16 products (desc.int16) where it runs them (AVX2 without VNNI). */
 static int bench_attention_shape(const struct opts *o, int ntok, int heads, int d, struct row *rows)
 {
     int C = heads * d, side = (int)sqrt((double)ntok);
@@ -366,13 +367,16 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
             ctxs[n_ctx++] = make_ctx(FK_ISA_AVX2, threads);
         for (int c = 0; c < n_ctx; c++) {
             fk_ctx *ctx = ctxs[c];
-            /* f32, and bf16 products where the context has AVX512_BF16, in
-             * turn rep after rep (xf32 of a bf16 row: the median pair ratio) */
-            int nv = fk_ctx_has_bf16(ctx) ? 2 : 1, reps = o->reps < 63 ? o->reps : 63;
+            /* f32, and bf16 products where the context has AVX512_BF16 (or
+             * int16 ones where it runs them), in turn rep after rep (xf32 of
+             * such a row: the median pair ratio) */
+            int bf = fk_ctx_has_bf16(ctx), i16 = !bf && fk_ctx_has_int16(ctx);
+            int nv = bf || i16 ? 2 : 1, reps = o->reps < 63 ? o->reps : 63;
             double t[2][63];
             for (int r = 0; r < reps; r++)
                 for (int vr = 0; vr < nv; vr++) {
-                    a.bf16 = vr;
+                    a.bf16 = vr && bf;
+                    a.int16 = vr && i16;
                     settle(threads);
                     double t0 = now_for(o, threads);
                     if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
@@ -387,13 +391,14 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
                 for (int r = 0; r < reps; r++)
                     best = t[vr][r] < best ? t[vr][r] : best;
                 struct row *r = &rows[count++];
-                *r = (struct row){ "attention", vr ? "bf16" : "f32", threads, ntok, ntok, d,
+                *r = (struct row){ "attention", !vr ? "f32" : bf ? "bf16" : "int16", threads, ntok, ntok, d,
                                    4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
                                    vr ? paired_ratio(t[0], t[1], reps) : NAN,
-                                   vr ? "avx512-bf16" : fk_isa_name(fk_ctx_isa(ctx)), fk_ctx_isa(ctx) };
+                                   !vr ? fk_isa_name(fk_ctx_isa(ctx)) : bf ? "avx512-bf16" : "avx2-int16",
+                                   fk_ctx_isa(ctx) };
                 errors_vs(vr ? out16 : out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
             }
-            a.bf16 = 0;
+            a.bf16 = a.int16 = 0;
             fk_ctx_free(ctx);
         }
     }
@@ -755,7 +760,8 @@ int bench_kernels(int argc, char **argv)
            "xpeer = median over reps of OpenBLAS's time / ours in the same rep; xf32 = median of the\n"
            "same ISA's f32 time / this row's (f16, int8). Attention: xpeer = ours / our f32 GEMM (same\n"
            "ISA, tokens, 1024 -> 1024), best of runs; bf16 rows (q.k and p.v in bf16, where the CPU\n"
-           "has AVX512_BF16) run in turn with f32, xf32 = median of f32 time / bf16's. xpeak = ours /\n"
+           "has AVX512_BF16) and int16 rows (in int16, on the AVX2 context) run in turn with f32,\n"
+           "xf32 = median of f32 time / theirs. xpeak = ours /\n"
            "the FMA peak for those threads (zmm for avx512 rows, ymm otherwise; the higher of the\n"
            "readings before and after the rows). Clock: %s.\n", o.reps,
            o.cpu_clock ? "the thread's CPU time for 1-thread rows (--clock cpu), wall otherwise" : "wall");

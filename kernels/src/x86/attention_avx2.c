@@ -99,27 +99,6 @@ __attribute__((noinline)) static void pv_tile(int d, const float *p, const float
 
 /* Online softmax over one 6 x BK block of log2-domain logits, in place:
  * s becomes p = 2^(s - m_new); alpha = 2^(m_old - m_new); l = alpha l + sum p. */
-/* 2^x for the softmax, where x = s - max <= 0: results below 2^-126 only
- * need to be tiny, not exact (they are added to a sum >= 1), so inputs are
- * clamped at -127 and the scale is a plain exponent add. NaN stays NaN.
- * Degree-6 Taylor polynomial of 2^f on [-0.5, 0.5]: relative error <= 1e-7
- * above 2^-126. */
-static inline __m256 exp2_softmax(__m256 x)
-{
-    x = _mm256_max_ps(_mm256_set1_ps(-127.0f), x);
-    __m256 n = _mm256_round_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    __m256 f = _mm256_sub_ps(x, n); /* [-0.5, 0.5] */
-    __m256 p = _mm256_set1_ps(1.5403530393e-4f);
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(1.3333558146e-3f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(9.6181291076e-3f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(5.5504108665e-2f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(2.4022650696e-1f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(6.9314718056e-1f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(1.0f));
-    __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
-    return _mm256_mul_ps(p, _mm256_castsi256_ps(e));
-}
-
 __attribute__((noinline)) static void softmax_block(float *s, int valid, float *m, float *l, float *alpha)
 {
     float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
@@ -135,12 +114,12 @@ __attribute__((noinline)) static void softmax_block(float *s, int valid, float *
         m_new[r] = bm > m[r] ? bm : m[r];
     }
     /* all six rescale factors in one vector */
-    _mm256_store_ps(alpha, exp2_softmax(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new))));
+    _mm256_store_ps(alpha, fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new))));
     for (int r = 0; r < MR; r++) {
         float *sr = s + r * BK;
         __m256 mv = _mm256_set1_ps(m_new[r]), sum = _mm256_setzero_ps();
         for (int jj = 0; jj < BK; jj += 8) {
-            __m256 p = exp2_softmax(_mm256_sub_ps(_mm256_load_ps(sr + jj), mv));
+            __m256 p = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(sr + jj), mv));
             _mm256_store_ps(sr + jj, p);
             sum = _mm256_add_ps(sum, p);
         }

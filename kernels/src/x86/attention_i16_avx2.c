@@ -1,0 +1,401 @@
+/* attention_i16_avx2.c - attention's two products in int16 with exact int32
+ * sums (AVX2 vpmaddwd: two multiply-adds per 32-bit lane), run by
+ * attention_plan.c for a desc with int16 set where the context's ISA is
+ * FK_ISA_AVX2 (no VNNI, no AVX-512: the 7-bit int8 path, whose attention was
+ * fp32 FMAs at the ymm peak's rate while its GEMMs ran at twice it). The
+ * plan's phase 1 (LayerNorm, RoPE, q scaled by scale * log2 e, fp32 packs)
+ * is reused; this file quantizes the packs once per head group and runs the
+ * blocks:
+ *   keys    [nk_pad/16][dp/2][16] pairs (k[2i], k[2i+1]) of 16 keys, one
+ *           scale per key (its max |k| over the head's channels);
+ *   values  [nk_pad/2][dp] pairs (v of keys 2j, 2j+1) per column, one scale
+ *           per column and 64-key block;
+ *   queries per task [panels][dp/2][6] pairs, one scale per query;
+ *   p       [6][BK/2] pairs, after the fp32 softmax: 2^(s - the block row's
+ *           max) in [0, 1] times 4096, so each block's largest weight is
+ *           4096 and the row's scale 2^(block max - running max) is one
+ *           float per row and block (a code relative to the running max
+ *           would round a diffuse block's weights to 0-2 codes each).
+ * Codes are symmetric, |c| <= 2^b - 1 with b chosen from the head dim so
+ * that no int32 sum can overflow: q.k sums dp products of two b-bit codes
+ * (dp 2^2b < 2^31: b = 12 at dp 64, 13 at 16, 11 at 128), p.v sums the 64
+ * products of one block (64 * 4096 * 4095 < 2^30) before it is converted
+ * and scaled into the fp32 output. The softmax (max, exp2, alpha) stays
+ * fp32, and the row sum l adds the quantized p that multiply v, so the
+ * normalisation matches the weights used. Error: 12-bit codes relative to
+ * each row's / column's largest value (README, kernels, attention; the
+ * budget in tests/kernels/test_attention.c). NaN in q, k or v gives NaN
+ * outputs as the fp32 kernel does (the codes cannot carry it: the scales
+ * and l do). */
+#include <immintrin.h>
+#include <math.h>
+#include <string.h>
+
+#include "../attention_plan.h"
+#include "../fk_internal.h"
+#include "vecmath_avx2.h"
+
+#define MR FK_ATTN_MR
+#define NR FK_ATTN_NR
+#define BK FK_ATTN_BK
+#define QB FK_ATTN_QB
+#define PACK_CHUNK 256 /* keys per pack task, a multiple of BK */
+#define P_ONE 4096.0f  /* p = 1 as a code                      */
+#define V_MAX 4095.0f  /* largest |v| code                     */
+
+/* local scratch: s [MR][BK] f32, p [MR][BK/2] pairs, o [QB][dp] f32,
+ * m l [QB] + alpha [8] + ps [8], q pairs [QB/MR][dp/2][MR], q scales [QB],
+ * q codes of one panel [dp][MR] */
+struct i16_local {
+    size_t off_p, off_o, off_ml, off_q, off_sq, off_cb, bytes;
+};
+
+static struct i16_local local_layout(int dp)
+{
+    struct i16_local L;
+    L.off_p = fk__round_up((size_t)MR * BK * sizeof(float), FK_ALIGN);
+    L.off_o = L.off_p + fk__round_up((size_t)MR * (BK / 2) * sizeof(uint32_t), FK_ALIGN);
+    L.off_ml = L.off_o + fk__round_up((size_t)QB * (size_t)dp * sizeof(float), FK_ALIGN);
+    L.off_q = L.off_ml + fk__round_up((2 * QB + 16) * sizeof(float), FK_ALIGN);
+    L.off_sq = L.off_q + fk__round_up((size_t)QB * (size_t)dp * sizeof(uint16_t), FK_ALIGN);
+    L.off_cb = L.off_sq + fk__round_up(QB * sizeof(float), FK_ALIGN);
+    L.bytes = L.off_cb + (size_t)MR * (size_t)dp * sizeof(int32_t) + FK_ALIGN;
+    return L;
+}
+
+/* per head: key pairs, value pairs, key scales, value scales */
+static size_t head_bytes(int dp, int nk_pad)
+{
+    return 2 * fk__round_up((size_t)nk_pad * (size_t)dp * sizeof(uint16_t), FK_ALIGN) +
+           fk__round_up((size_t)nk_pad * sizeof(float), FK_ALIGN) +
+           fk__round_up((size_t)(nk_pad / BK) * (size_t)dp * sizeof(float), FK_ALIGN);
+}
+
+void fk__attn_i16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head)
+{
+    *local = local_layout(dp).bytes;
+    *per_head = head_bytes(dp, nk_pad);
+}
+
+/* The q / k code bound: dp products of two codes below 2^b each must sum
+ * below 2^31 in int32 (and a vpmaddwd pair below 2^31: b <= 15). */
+static float qk_max(int dp)
+{
+    int lg = 0;
+    while ((1 << lg) < dp)
+        lg++;
+    int b = (30 - lg) / 2;
+    b = b > 14 ? 14 : b;
+    return (float)((1 << b) - 1);
+}
+
+/* 8 pairs (lo[i], hi[i]) of int32 codes in 16 bits each, lo in the low half */
+static inline __m256i pairs8(__m256i lo, __m256i hi)
+{
+    return _mm256_or_si256(_mm256_and_si256(lo, _mm256_set1_epi32(0xffff)), _mm256_slli_epi32(hi, 16));
+}
+
+/* ------------------------------------------------------------------ packs */
+
+struct i16_head {
+    uint32_t *kq, *vq;
+    float    *sk, *sv;
+};
+
+static struct i16_head head_of(const struct fk__attn_i16_job *j, int hh)
+{
+    struct i16_head h;
+    h.kq = j->kq + (size_t)hh * j->head_pairs;
+    h.vq = j->vq + (size_t)hh * j->head_pairs;
+    h.sk = j->sk + (size_t)hh * (size_t)j->nk_pad;
+    h.sv = j->sv + (size_t)hh * (size_t)(j->nk_pad / BK) * (size_t)j->dp;
+    return h;
+}
+
+static void pack_task(void *arg, int task, int thread)
+{
+    const struct fk__attn_i16_job *j = arg;
+    int chunks = (j->nk_pad + PACK_CHUNK - 1) / PACK_CHUNK, dp = j->dp;
+    int hh = task / chunks, t0 = task % chunks * PACK_CHUNK;
+    int t1 = t0 + PACK_CHUNK < j->nk_pad ? t0 + PACK_CHUNK : j->nk_pad;
+    const float *kp = j->kp + (size_t)hh * j->head_k, *vp = j->vp + (size_t)hh * j->head_v;
+    struct i16_head h = head_of(j, hh);
+    const __m256 absmask = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+    const __m256 kmax = _mm256_set1_ps(qk_max(dp));
+    (void)thread;
+    /* keys, 8 at a time from an fp32 panel [dp][16]: each key's max |k|,
+     * then codes k * (kmax / max) to [dp/2][16] pairs */
+    for (int t = t0; t < t1; t += 8) {
+        const float *src = kp + (size_t)(t / NR) * (size_t)dp * NR + (size_t)(t % NR);
+        __m256 mx = _mm256_setzero_ps(), nan = _mm256_setzero_ps();
+        for (int c = 0; c < dp; c++) {
+            __m256 x = _mm256_loadu_ps(src + (size_t)c * NR);
+            mx = _mm256_max_ps(mx, _mm256_and_ps(absmask, x));
+            nan = _mm256_or_ps(nan, _mm256_cmp_ps(x, x, _CMP_UNORD_Q));
+        }
+        __m256 nz = _mm256_cmp_ps(mx, _mm256_setzero_ps(), _CMP_GT_OQ);
+        __m256 mul = _mm256_and_ps(nz, _mm256_div_ps(kmax, mx));
+        __m256 sc = _mm256_and_ps(nz, _mm256_div_ps(mx, kmax));
+        _mm256_storeu_ps(h.sk + t, _mm256_blendv_ps(sc, _mm256_set1_ps(NAN), nan));
+        uint32_t *dst = h.kq + (size_t)(t / NR) * (size_t)dp / 2 * NR + (size_t)(t % NR);
+        for (int i = 0; i < dp / 2; i++) {
+            __m256i lo = _mm256_cvtps_epi32(_mm256_mul_ps(mul, _mm256_loadu_ps(src + (size_t)(2 * i) * NR)));
+            __m256i hi = _mm256_cvtps_epi32(_mm256_mul_ps(mul, _mm256_loadu_ps(src + (size_t)(2 * i + 1) * NR)));
+            _mm256_storeu_si256((__m256i *)(dst + (size_t)i * NR), pairs8(lo, hi));
+        }
+    }
+    /* values per 64-key block: each column's max |v| over the block, then
+     * codes of rows t, t+1 as [dp] pairs */
+    for (int b0 = t0; b0 < t1; b0 += BK) {
+        float *sv = h.sv + (size_t)(b0 / BK) * (size_t)dp;
+        for (int c = 0; c < dp; c += 8) {
+            __m256 mx = _mm256_setzero_ps(), nan = _mm256_setzero_ps();
+            for (int t = b0; t < b0 + BK; t++) {
+                __m256 x = _mm256_loadu_ps(vp + (size_t)t * (size_t)dp + c);
+                mx = _mm256_max_ps(mx, _mm256_and_ps(absmask, x));
+                nan = _mm256_or_ps(nan, _mm256_cmp_ps(x, x, _CMP_UNORD_Q));
+            }
+            __m256 nz = _mm256_cmp_ps(mx, _mm256_setzero_ps(), _CMP_GT_OQ);
+            __m256 mul = _mm256_and_ps(nz, _mm256_div_ps(_mm256_set1_ps(V_MAX), mx));
+            /* the output's factor: v = code * max / V_MAX, p = code / P_ONE */
+            __m256 sc = _mm256_and_ps(nz, _mm256_div_ps(mx, _mm256_set1_ps(V_MAX * P_ONE)));
+            _mm256_storeu_ps(sv + c, _mm256_blendv_ps(sc, _mm256_set1_ps(NAN), nan));
+            for (int t = b0; t < b0 + BK; t += 2) {
+                const float *r0 = vp + (size_t)t * (size_t)dp + c;
+                __m256i lo = _mm256_cvtps_epi32(_mm256_mul_ps(mul, _mm256_loadu_ps(r0)));
+                __m256i hi = _mm256_cvtps_epi32(_mm256_mul_ps(mul, _mm256_loadu_ps(r0 + dp)));
+                _mm256_storeu_si256((__m256i *)(h.vq + (size_t)t / 2 * (size_t)dp + c), pairs8(lo, hi));
+            }
+        }
+    }
+}
+
+/* q panel [dp][6] f32 -> [dp/2][6] pairs (q[2i][r], q[2i+1][r]) and the six
+ * rows' scales (a row's max |q| / qmax); codes rounded to nearest by
+ * vcvtps2dq in a scratch row of dp * 6 ints (cb) */
+static void pack_q(int dp, const float *q, uint32_t *dst, float *sq, int32_t *cb)
+{
+    float qmax = qk_max(dp), mul[24] __attribute__((aligned(32)));
+    for (int r = 0; r < MR; r++) {
+        float mx = 0.0f;
+        int nan = 0;
+        for (int c = 0; c < dp; c++) {
+            mx = fmaxf(mx, fabsf(q[c * MR + r]));
+            nan |= isnan(q[c * MR + r]);
+        }
+        float m = mx > 0.0f && !isinf(mx) ? qmax / mx : 0.0f;
+        mul[r] = mul[r + 6] = mul[r + 12] = mul[r + 18] = m;
+        sq[r] = nan ? NAN : mx > 0.0f ? mx / qmax : 0.0f;
+    }
+    /* the panel is [dp][6]: element e has row e % 6, so three vectors of
+     * multipliers repeat every 24 elements (dp * 6 is a multiple of 96) */
+    const __m256 m0 = _mm256_load_ps(mul), m1 = _mm256_load_ps(mul + 8), m2 = _mm256_load_ps(mul + 16);
+    for (int e = 0; e < MR * dp; e += 24) {
+        _mm256_storeu_si256((__m256i *)(cb + e), _mm256_cvtps_epi32(_mm256_mul_ps(m0, _mm256_loadu_ps(q + e))));
+        _mm256_storeu_si256((__m256i *)(cb + e + 8), _mm256_cvtps_epi32(_mm256_mul_ps(m1, _mm256_loadu_ps(q + e + 8))));
+        _mm256_storeu_si256((__m256i *)(cb + e + 16), _mm256_cvtps_epi32(_mm256_mul_ps(m2, _mm256_loadu_ps(q + e + 16))));
+    }
+    for (int i = 0; i < dp / 2; i++)
+        for (int r = 0; r < MR; r++)
+            dst[i * MR + r] = ((uint32_t)cb[2 * i * MR + r] & 0xffffu) | (uint32_t)cb[(2 * i + 1) * MR + r] << 16;
+}
+
+/* ------------------------------------------------------------------ tiles */
+
+/* Rows r0 .. r0 + 2 of s[6][16] (row stride BK) = (q pairs [dp/2][6] . key
+ * pairs [dp/2][16]) * sq[r] * sk[key]: 6 int32 accumulators, each step one
+ * pair of channels. Three rows, not six: vpmaddwd needs a temporary beside
+ * the accumulator (no fused add without VNNI), and 12 accumulators with the
+ * keys, the broadcast and it overflowed the 16 ymm registers (GCC spilled
+ * every accumulator each step). */
+#define ACC(c, m) __asm__("vpaddd %1, %0, %0" : "+x"(c) : "x"(m))
+static inline __attribute__((always_inline)) void s_tile6(int dp, const uint32_t *q,
+                                                          const uint32_t *kb, const float *sq,
+                                                          const float *sk, float *s)
+{
+    __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
+    __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
+    const uint32_t *qr = q;
+    for (int i = 0; i < dp / 2; i++, kb += NR, qr += MR) {
+        __m256i b0 = _mm256_loadu_si256((const __m256i *)kb);
+        __m256i b1 = _mm256_loadu_si256((const __m256i *)(kb + 8));
+        __m256i t = _mm256_set1_epi32((int)qr[0]);
+        ACC(c00, _mm256_madd_epi16(t, b0)); ACC(c01, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)qr[1]);
+        ACC(c10, _mm256_madd_epi16(t, b0)); ACC(c11, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)qr[2]);
+        ACC(c20, _mm256_madd_epi16(t, b0)); ACC(c21, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)qr[3]);
+        ACC(c30, _mm256_madd_epi16(t, b0)); ACC(c31, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)qr[4]);
+        ACC(c40, _mm256_madd_epi16(t, b0)); ACC(c41, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)qr[5]);
+        ACC(c50, _mm256_madd_epi16(t, b0)); ACC(c51, _mm256_madd_epi16(t, b1));
+    }
+    __m256i c[6][2] = { { c00, c01 }, { c10, c11 }, { c20, c21 }, { c30, c31 }, { c40, c41 }, { c50, c51 } };
+    __m256 k0 = _mm256_loadu_ps(sk), k1 = _mm256_loadu_ps(sk + 8);
+    for (int r = 0; r < 6; r++) {
+        __m256 a = _mm256_set1_ps(sq[r]);
+        float *sr = s + r * BK;
+        _mm256_storeu_ps(sr, _mm256_mul_ps(_mm256_cvtepi32_ps(c[r][0]), _mm256_mul_ps(a, k0)));
+        _mm256_storeu_ps(sr + 8, _mm256_mul_ps(_mm256_cvtepi32_ps(c[r][1]), _mm256_mul_ps(a, k1)));
+    }
+}
+
+__attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const uint32_t *kb,
+                                              const float *sq, const float *sk, float *s)
+{
+    for (int p = 0; p < BK / NR; p++)
+        s_tile6(dp, q, kb + (size_t)p * (size_t)dp / 2 * NR, sq, sk + p * NR, s + p * NR);
+}
+
+/* The online softmax over one 6 x BK block of log2-domain logits: the row
+ * maxima as the fp32 AVX2 piece (attention_avx2.c), alpha = 2^(m_old -
+ * m_new); then p = 2^(s - block max) to codes round(p 4096) as [6][BK/2]
+ * pairs, ps = 2^(block max - m_new) per row (the codes' scale), and
+ * l = alpha l + ps (sum of the codes) / 4096: the weights P V uses. A NaN
+ * weight (from a NaN logit) makes l NaN, which the codes could not carry. */
+static void softmax_block(float *s, int valid, float *m, float *l, float *alpha, float *ps,
+                          uint32_t *pb)
+{
+    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
+    float bmax[8] __attribute__((aligned(32))) = { 0 };
+    for (int r = 0; r < MR; r++) {
+        float *sr = s + r * BK;
+        for (int jj = valid; jj < BK; jj++)
+            sr[jj] = -INFINITY;
+        __m256 mx = _mm256_loadu_ps(sr);
+        for (int jj = 8; jj < BK; jj += 8)
+            mx = _mm256_max_ps(mx, _mm256_loadu_ps(sr + jj));
+        float bm = fk__hmax_avx2(mx);
+        bmax[r] = bm;
+        m_old[r] = m[r];
+        m_new[r] = bm > m[r] ? bm : m[r];
+    }
+    __m256 mn = _mm256_load_ps(m_new);
+    _mm256_store_ps(alpha, fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn)));
+    _mm256_store_ps(ps, fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn)));
+    for (int r = 0; r < MR; r++) {
+        const float *sr = s + r * BK;
+        /* 4096 p = 2^(s - (block max - 12)): exact powers of two stay exact */
+        __m256 bv = _mm256_set1_ps(bmax[r] - 12.0f), nan = _mm256_setzero_ps();
+        __m256i sum = _mm256_setzero_si256();
+        for (int jj = 0; jj < BK; jj += 16) {
+            __m256 p0 = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_loadu_ps(sr + jj), bv));
+            __m256 p1 = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_loadu_ps(sr + jj + 8), bv));
+            nan = _mm256_or_ps(nan, _mm256_cmp_ps(p0, p1, _CMP_UNORD_Q));
+            __m256i c0 = _mm256_cvtps_epi32(p0);
+            __m256i c1 = _mm256_cvtps_epi32(p1);
+            sum = _mm256_add_epi32(sum, _mm256_add_epi32(c0, c1));
+            /* packs interleaves 128-bit lanes; the permute puts keys back in order */
+            __m256i h = _mm256_permute4x64_epi64(_mm256_packs_epi32(c0, c1), _MM_SHUFFLE(3, 1, 2, 0));
+            _mm256_storeu_si256((__m256i *)(pb + r * (BK / 2) + jj / 2), h);
+        }
+        __m128i s4 = _mm_add_epi32(_mm256_castsi256_si128(sum), _mm256_extracti128_si256(sum, 1));
+        s4 = _mm_add_epi32(s4, _mm_shuffle_epi32(s4, _MM_SHUFFLE(1, 0, 3, 2)));
+        s4 = _mm_add_epi32(s4, _mm_shuffle_epi32(s4, _MM_SHUFFLE(2, 3, 0, 1)));
+        float add = ps[r] * ((float)_mm_cvtsi128_si32(s4) * (1.0f / P_ONE));
+        l[r] = _mm256_movemask_ps(nan) ? NAN : l[r] * alpha[r] + add;
+        m[r] = m_new[r];
+    }
+}
+
+/* o[6][dp] columns c0 .. c0 + 15 = alpha[r] o[r] + (p codes . v codes) ps[r] sv */
+static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const uint32_t *p,
+                                                           const uint32_t *v, const float *sv,
+                                                           float *o, const float *alpha,
+                                                           const float *ps)
+{
+    __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
+    __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
+    const uint32_t *vr = v + c0;
+    for (int jp = 0; jp < BK / 2; jp++, vr += dp) {
+        __m256i b0 = _mm256_loadu_si256((const __m256i *)vr);
+        __m256i b1 = _mm256_loadu_si256((const __m256i *)(vr + 8));
+        __m256i t = _mm256_set1_epi32((int)p[0 * (BK / 2) + jp]);
+        ACC(c00, _mm256_madd_epi16(t, b0)); ACC(c01, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)p[1 * (BK / 2) + jp]);
+        ACC(c10, _mm256_madd_epi16(t, b0)); ACC(c11, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)p[2 * (BK / 2) + jp]);
+        ACC(c20, _mm256_madd_epi16(t, b0)); ACC(c21, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)p[3 * (BK / 2) + jp]);
+        ACC(c30, _mm256_madd_epi16(t, b0)); ACC(c31, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)p[4 * (BK / 2) + jp]);
+        ACC(c40, _mm256_madd_epi16(t, b0)); ACC(c41, _mm256_madd_epi16(t, b1));
+        t = _mm256_set1_epi32((int)p[5 * (BK / 2) + jp]);
+        ACC(c50, _mm256_madd_epi16(t, b0)); ACC(c51, _mm256_madd_epi16(t, b1));
+    }
+    __m256i c[6][2] = { { c00, c01 }, { c10, c11 }, { c20, c21 }, { c30, c31 }, { c40, c41 }, { c50, c51 } };
+    __m256 s0 = _mm256_loadu_ps(sv + c0), s1 = _mm256_loadu_ps(sv + c0 + 8);
+    for (int r = 0; r < MR; r++) {
+        __m256 a = _mm256_set1_ps(alpha[r]), f = _mm256_set1_ps(ps[r]);
+        float *orow = o + (size_t)r * dp + c0;
+        _mm256_storeu_ps(orow, _mm256_fmadd_ps(_mm256_cvtepi32_ps(c[r][0]), _mm256_mul_ps(f, s0),
+                                               _mm256_mul_ps(a, _mm256_loadu_ps(orow))));
+        _mm256_storeu_ps(orow + 8, _mm256_fmadd_ps(_mm256_cvtepi32_ps(c[r][1]), _mm256_mul_ps(f, s1),
+                                                   _mm256_mul_ps(a, _mm256_loadu_ps(orow + 8))));
+    }
+}
+
+__attribute__((noinline)) static void pv_tile(int dp, const uint32_t *p, const uint32_t *v,
+                                              const float *sv, float *o, const float *alpha,
+                                              const float *ps)
+{
+    for (int c0 = 0; c0 < dp; c0 += 16)
+        pv_cols(dp, c0, p, v, sv, o, alpha, ps);
+}
+
+/* ------------------------------------------------------------------- task */
+
+static void attn_task(void *arg, int task, int thread)
+{
+    const struct fk__attn_i16_job *j = arg;
+    int hh = task / j->q_blocks, qb = task % j->q_blocks, d = j->d, dp = j->dp;
+    struct i16_head h = head_of(j, hh);
+    const float *qp = j->qp + (size_t)hh * j->head_q;
+    struct i16_local L = local_layout(dp);
+    char *scr = fk__scratch(j->ctx, thread);
+    float *s = (float *)scr, *o = (float *)(scr + L.off_o), *ml = (float *)(scr + L.off_ml);
+    float *sq = (float *)(scr + L.off_sq);
+    int32_t *cb = (int32_t *)(scr + L.off_cb);
+    uint32_t *pb = (uint32_t *)(scr + L.off_p), *qq = (uint32_t *)(scr + L.off_q);
+    float *mrow = ml, *lrow = ml + QB, *alpha = ml + 2 * QB, *ps = alpha + 8;
+    int q0 = qb * QB, rows = j->nq - q0 < QB ? j->nq - q0 : QB;
+    int panels = (rows + MR - 1) / MR;
+    const size_t qstride = (size_t)dp / 2 * MR;
+    for (int i = 0; i < panels; i++)
+        pack_q(dp, qp + (size_t)(q0 / MR + i) * (size_t)dp * MR, qq + (size_t)i * qstride, sq + i * MR, cb);
+    memset(o, 0, (size_t)panels * MR * (size_t)dp * sizeof *o);
+    for (int r = 0; r < panels * MR; r++) {
+        mrow[r] = -INFINITY;
+        lrow[r] = 0;
+    }
+    for (int kb = 0; kb < j->nk_pad / BK; kb++) {
+        int valid = j->nk - kb * BK < BK ? j->nk - kb * BK : BK;
+        if (kb == j->nk_pad / BK - 1)
+            fk__attn_prefetch_out(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d);
+        const uint32_t *kbb = h.kq + (size_t)kb * BK * (size_t)dp / 2;
+        const uint32_t *vbb = h.vq + (size_t)kb * (BK / 2) * (size_t)dp;
+        const float *sk = h.sk + (size_t)kb * BK, *sv = h.sv + (size_t)kb * (size_t)dp;
+        for (int i = 0; i < panels; i++) {
+            s_block(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+            softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
+            pv_tile(dp, pb, vbb, sv, o + (size_t)i * MR * (size_t)dp, alpha, ps);
+        }
+    }
+    for (int r = 0; r < rows; r++) {
+        float *dst = j->out + (size_t)(q0 + r) * (size_t)j->ldo + (size_t)(j->h0 + hh) * (size_t)d;
+        const float *orow = o + (size_t)r * (size_t)dp;
+        float inv = 1.0f / lrow[r];
+        for (int c = 0; c < d; c++)
+            dst[c] = orow[c] * inv;
+    }
+}
+
+void fk__attn_i16_run(const struct fk__attn_i16_job *j)
+{
+    int chunks = (j->nk_pad + PACK_CHUNK - 1) / PACK_CHUNK;
+    fk_parallel_for(j->ctx, j->hn * chunks, 6.0 * j->dp * j->hn * (double)j->nk_pad, pack_task, (void *)j);
+    fk_parallel_for(j->ctx, j->hn * j->q_blocks, 4.0 * j->d * (double)j->nq * j->nk * j->hn, attn_task,
+                    (void *)j);
+}
