@@ -79,6 +79,13 @@ struct rng {
     uint64_t s;
 };
 
+/* the products of int8 weights' attention on this context (model_block.c
+ * sets desc.bf16 and desc.int16 for int8 weights) */
+static const char *attn_kind(const fk_ctx *ctx)
+{
+    return fk_ctx_has_bf16(ctx) ? "bf16" : fk_ctx_has_int16(ctx) ? "int16" : "f32";
+}
+
 static double rnd_normal(struct rng *r)
 {
     /* xorshift64* -> two uniforms -> Box-Muller */
@@ -501,10 +508,10 @@ int bench_model(int argc, char **argv)
     /* int8 models run attention's products in bf16 where the context has
      * AVX512_BF16 (model_block.c), fp32 elsewhere */
     printf("model: isa %s, int8 path %s, int8 attention %s", fk_isa_name(fk_ctx_isa(ctx)),
-           fk_ctx_q8_path(ctx), fk_ctx_has_bf16(ctx) ? "bf16" : "f32");
+           fk_ctx_q8_path(ctx), attn_kind(ctx));
     for (int i = 0; i < n_x; i++)
         printf(", also int8 on %s (%s, attention %s)", fk_isa_name(fk_ctx_isa(xctx[i])),
-               fk_ctx_q8_path(xctx[i]), fk_ctx_has_bf16(xctx[i]) ? "bf16" : "f32");
+               fk_ctx_q8_path(xctx[i]), attn_kind(xctx[i]));
     printf("\n");
     int nthr = fk_ctx_threads(ctx);
     double peak = bench_fma_peak_gflops(nthr, 3);
@@ -610,7 +617,7 @@ int bench_model(int argc, char **argv)
         for (int p = 0; p < nrun; p++) {
             if (wts[p] == FK_W_Q8)
                 snprintf(wn[p], sizeof wn[p], "int8 %s attention %s", fk_ctx_q8_path(rctx[p]),
-                         fk_ctx_has_bf16(rctx[p]) ? "bf16" : "f32");
+                         attn_kind(rctx[p]));
             else
                 snprintf(wn[p], sizeof wn[p], "%s %s", wts[p] == FK_W_F32 ? "f32" : "f16",
                          fk_isa_name(fk_ctx_isa(rctx[p])));

@@ -53,8 +53,9 @@ int model_block_forward_seqs(struct model *m, const struct blk *b, float *x, int
         .q_norm_w = b->qnw, .q_norm_b = b->qnb, .k_norm_w = b->knw, .k_norm_b = b->knb,
         .norm_eps = 1e-5f, .rope_base = 100.0f,
         /* int8 weights: attention's products in bf16 where the CPU has
-         * AVX512_BF16 (attention was over half the int8 forward's time) */
-        .bf16 = m->wtype == FK_W_Q8,
+         * AVX512_BF16, in int16 on AVX2 without VNNI (attention was over
+         * half the int8 forward's time) */
+        .bf16 = m->wtype == FK_W_Q8, .int16 = m->wtype == FK_W_Q8,
     };
     double pairs = 0.0;
     for (int s = 0; s < nseq; s++) {

@@ -406,7 +406,7 @@ static int attend(struct model *m, const float *q, int nq, const float *kv, int 
     const int C = m->cfg.embed_dim, heads = m->cfg.num_heads;
     struct fk_attention_desc a = {
         .heads = heads, .head_dim = C / heads, .pos_q = pos_q, .pos_k = pos_k,
-        .rope_base = 100.0f, .bf16 = m->wtype == FK_W_Q8, /* as the blocks' attention */
+        .rope_base = 100.0f, .bf16 = m->wtype == FK_W_Q8, .int16 = m->wtype == FK_W_Q8, /* as the blocks' */
     };
     if (fk_attention(m->ctx, &a, q, C, nq, kv, 2 * C, kv + C, 2 * C, nk, out, C) != F4D_OK)
         return model_kfail(m, "cross-attention");
