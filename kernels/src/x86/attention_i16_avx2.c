@@ -273,31 +273,47 @@ static void softmax_block(float *s, int valid, float *m, float *l, float *alpha,
         m_new[r] = bm > m[r] ? bm : m[r];
     }
     __m256 mn = _mm256_load_ps(m_new);
-    _mm256_store_ps(alpha, fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn)));
-    _mm256_store_ps(ps, fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn)));
+    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn));
+    __m256 pv = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn));
+    _mm256_store_ps(alpha, al);
+    _mm256_store_ps(ps, pv);
+    __m256i sum[MR];
+    int nan_rows = 0;
     for (int r = 0; r < MR; r++) {
         const float *sr = s + r * BK;
         /* 4096 p = 2^(s - (block max - 12)): exact powers of two stay exact */
         __m256 bv = _mm256_set1_ps(bmax[r] - 12.0f), nan = _mm256_setzero_ps();
-        __m256i sum = _mm256_setzero_si256();
+        __m256i acc = _mm256_setzero_si256();
         for (int jj = 0; jj < BK; jj += 16) {
             __m256 p0 = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_loadu_ps(sr + jj), bv));
             __m256 p1 = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_loadu_ps(sr + jj + 8), bv));
             nan = _mm256_or_ps(nan, _mm256_cmp_ps(p0, p1, _CMP_UNORD_Q));
             __m256i c0 = _mm256_cvtps_epi32(p0);
             __m256i c1 = _mm256_cvtps_epi32(p1);
-            sum = _mm256_add_epi32(sum, _mm256_add_epi32(c0, c1));
+            acc = _mm256_add_epi32(acc, _mm256_add_epi32(c0, c1));
             /* packs interleaves 128-bit lanes; the permute puts keys back in order */
             __m256i h = _mm256_permute4x64_epi64(_mm256_packs_epi32(c0, c1), _MM_SHUFFLE(3, 1, 2, 0));
             _mm256_storeu_si256((__m256i *)(pb + r * (BK / 2) + jj / 2), h);
         }
-        __m128i s4 = _mm_add_epi32(_mm256_castsi256_si128(sum), _mm256_extracti128_si256(sum, 1));
-        s4 = _mm_add_epi32(s4, _mm_shuffle_epi32(s4, _MM_SHUFFLE(1, 0, 3, 2)));
-        s4 = _mm_add_epi32(s4, _mm_shuffle_epi32(s4, _MM_SHUFFLE(2, 3, 0, 1)));
-        float add = ps[r] * ((float)_mm_cvtsi128_si32(s4) * (1.0f / P_ONE));
-        l[r] = _mm256_movemask_ps(nan) ? NAN : l[r] * alpha[r] + add;
-        m[r] = m_new[r];
+        sum[r] = acc;
+        nan_rows |= (_mm256_movemask_ps(nan) != 0) << r;
     }
+    /* the six rows' code sums in lanes 0-5 at once (a row after row scalar
+     * reduction and update was a dependent chain the core waited on) */
+    __m256i h01 = _mm256_hadd_epi32(sum[0], sum[1]), h23 = _mm256_hadd_epi32(sum[2], sum[3]);
+    __m256i h45 = _mm256_hadd_epi32(sum[4], sum[5]);
+    __m256i q0 = _mm256_hadd_epi32(h01, h23), q1 = _mm256_hadd_epi32(h45, h45);
+    __m128i t03 = _mm_add_epi32(_mm256_castsi256_si128(q0), _mm256_extracti128_si256(q0, 1));
+    __m128i t45 = _mm_add_epi32(_mm256_castsi256_si128(q1), _mm256_extracti128_si256(q1, 1));
+    __m256 tot = _mm256_cvtepi32_ps(_mm256_set_m128i(t45, t03));
+    const __m256i rows = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
+    __m256 lv = _mm256_fmadd_ps(_mm256_maskload_ps(l, rows), al,
+                                _mm256_mul_ps(pv, _mm256_mul_ps(tot, _mm256_set1_ps(1.0f / P_ONE))));
+    _mm256_maskstore_ps(l, rows, lv);
+    _mm256_maskstore_ps(m, rows, mn);
+    for (int r = 0; nan_rows && r < MR; r++) /* NaN weights: l NaN, which the codes cannot carry */
+        if (nan_rows >> r & 1)
+            l[r] = NAN;
 }
 
 /* o[6][dp] columns c0 .. c0 + 15 = alpha[r] o[r] + (p codes . v codes) ps[r] sv */
