@@ -114,18 +114,23 @@ __attribute__((noinline)) static void softmax_block(float *s, int valid, float *
         m_new[r] = bm > m[r] ? bm : m[r];
     }
     /* all six rescale factors in one vector */
-    _mm256_store_ps(alpha, fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new))));
+    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new)));
+    _mm256_store_ps(alpha, al);
+    __m256 sum[MR];
     for (int r = 0; r < MR; r++) {
         float *sr = s + r * BK;
-        __m256 mv = _mm256_set1_ps(m_new[r]), sum = _mm256_setzero_ps();
+        __m256 mv = _mm256_set1_ps(m_new[r]);
+        sum[r] = _mm256_setzero_ps();
         for (int jj = 0; jj < BK; jj += 8) {
             __m256 p = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(sr + jj), mv));
             _mm256_store_ps(sr + jj, p);
-            sum = _mm256_add_ps(sum, p);
+            sum[r] = _mm256_add_ps(sum[r], p);
         }
-        l[r] = l[r] * alpha[r] + fk__hsum_avx2(sum);
-        m[r] = m_new[r];
     }
+    /* l = l alpha + sum p, the six rows at once (a multiply, then an add) */
+    const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
+    _mm256_maskstore_ps(l, six, _mm256_add_ps(_mm256_mul_ps(_mm256_maskload_ps(l, six), al), fk__hsum6_avx2(sum)));
+    _mm256_maskstore_ps(m, six, _mm256_load_ps(m_new));
 }
 
 static const struct fk__attn_isa attn_avx2 = {

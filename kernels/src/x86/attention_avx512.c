@@ -131,22 +131,28 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
     __m512 al_v = fk__exp2_softmax512(_mm512_sub_ps(m_old, m_new));
     _mm512_mask_storeu_ps(m, rows, m_new);
     __m512 al[MR];
+    __m256 sum[MR];
 #pragma GCC unroll 6
     for (int r = 0; r < MR; r++) {
         __m512i lane = _mm512_set1_epi32(r);
         __m512 mv = _mm512_permutexvar_ps(lane, m_new);
         al[r] = _mm512_permutexvar_ps(lane, al_v);
-        /* the row sum in 8 lanes, added in the AVX2 piece's order and reduced
-         * by the same hsum, l updated by the same expression: the same bits */
-        __m256 sum = _mm256_setzero_ps();
+        /* the row sum in 8 lanes, added in the AVX2 piece's order */
+        sum[r] = _mm256_setzero_ps();
         for (int p = 0; p < 4; p++) {
             c[r][p] = fk__exp2_softmax512(_mm512_sub_ps(c[r][p], mv));
             _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
-            sum = _mm256_add_ps(sum, _mm512_castps512_ps256(c[r][p]));
-            sum = _mm256_add_ps(sum, _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(c[r][p]), 1)));
+            sum[r] = _mm256_add_ps(sum[r], _mm512_castps512_ps256(c[r][p]));
+            sum[r] = _mm256_add_ps(sum[r], _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(c[r][p]), 1)));
         }
-        l[r] = l[r] * _mm512_cvtss_f32(al[r]) + fk__hsum_avx2(sum);
     }
+    /* l = l alpha + the row sums for the six rows at once, as the AVX2
+     * piece: the same hsum, a multiply then an add (not six dependent
+     * scalar chains) */
+    const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
+    __m256 lv = _mm256_add_ps(_mm256_mul_ps(_mm256_maskload_ps(l, six), _mm512_castps512_ps256(al_v)),
+                              fk__hsum6_avx2(sum));
+    _mm256_maskstore_ps(l, six, lv);
     /* alpha is exactly 1 in every row whose max did not grow: no rescale */
     int rescale = _mm512_mask_cmp_ps_mask(rows, al_v, _mm512_set1_ps(1.0f), _CMP_NEQ_UQ) != 0;
     int c0 = 0;

@@ -255,6 +255,22 @@ FK_AVX2_FN float fk__hsum_avx2(__m256 v)
     return _mm_cvtss_f32(s);
 }
 
+/* fk__hsum_avx2 of six vectors at once: lane r of the result is the sum of
+ * s[r] added as fk__hsum_avx2 adds it (the halves, then lanes 0+2 and 1+3,
+ * then those two), so the same bits; lanes 6 and 7 unspecified. */
+FK_AVX2_FN __m256 fk__hsum6_avx2(const __m256 *s)
+{
+    __m128 x[3];
+    for (int k = 0; k < 3; k++) {
+        __m256 a = s[2 * k], b = s[2 * k + 1];
+        __m256 t = _mm256_add_ps(_mm256_permute2f128_ps(a, b, 0x20), _mm256_permute2f128_ps(a, b, 0x31));
+        t = _mm256_add_ps(t, _mm256_permute_ps(t, _MM_SHUFFLE(3, 2, 3, 2)));
+        t = _mm256_add_ps(t, _mm256_movehdup_ps(t)); /* s[2k] in lane 0, s[2k+1] in lane 4 */
+        x[k] = _mm_unpacklo_ps(_mm256_castps256_ps128(t), _mm256_extractf128_ps(t, 1));
+    }
+    return _mm256_set_m128(x[2], _mm_movelh_ps(x[0], x[1]));
+}
+
 FK_AVX2_FN float fk__hmax_avx2(__m256 v)
 {
     __m128 m = _mm_max_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
