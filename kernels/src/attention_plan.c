@@ -146,11 +146,7 @@ static void attn_task(void *arg, int task, int thread)
     float *mrow = ml, *lrow = ml + QB, *alpha = ml + 2 * QB;
     int q0 = qb * QB, rows = j->nq - q0 < QB ? j->nq - q0 : QB;
     int panels = (rows + MR - 1) / MR;
-    memset(o, 0, (size_t)panels * MR * (size_t)dp * sizeof *o);
-    for (int r = 0; r < panels * MR; r++) {
-        mrow[r] = -INFINITY;
-        lrow[r] = 0;
-    }
+    fk__attn_task_init(o, panels, dp, mrow, lrow);
     for (int kb = 0; kb < j->nk_pad / BK; kb++) {
         int valid = j->nk - kb * BK < BK ? j->nk - kb * BK : BK;
         if (kb == j->nk_pad / BK - 1)
@@ -169,14 +165,7 @@ static void attn_task(void *arg, int task, int thread)
             isa->pv_tile(dp, s, vp + (size_t)kb * BK * (size_t)dp, o + (size_t)i * MR * (size_t)dp, alpha);
         }
     }
-    /* one rounding per element (o * (1 / l)), as the vector versions did */
-    for (int r = 0; r < rows; r++) {
-        float *dst = j->out + (size_t)(q0 + r) * (size_t)j->ldo + (size_t)h * (size_t)d;
-        const float *orow = o + (size_t)r * (size_t)dp;
-        float inv = 1.0f / lrow[r];
-        for (int c = 0; c < d; c++)
-            dst[c] = orow[c] * inv;
-    }
+    fk__attn_task_write(j->out, j->ldo, q0, rows, h * d, d, o, dp, lrow);
 }
 
 /* ------------------------------------------------------------------ driver */

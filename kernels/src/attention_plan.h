@@ -20,7 +20,9 @@
 #ifndef FK_ATTENTION_PLAN_H
 #define FK_ATTENTION_PLAN_H
 
+#include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "attention.h"
 
@@ -43,6 +45,30 @@ static inline void fk__attn_prefetch_out(const float *out, int ldo, int q0, int 
         for (size_t b = 0; b < (size_t)d * sizeof(float); b += 64)
             __builtin_prefetch(p + b, 1, 3);
         __builtin_prefetch(p + (size_t)d * sizeof(float) - 1, 1, 3);
+    }
+}
+
+/* A task's start: its panels' O rows zeroed, m = -inf, l = 0. */
+static inline void fk__attn_task_init(float *o, int panels, int dp, float *m, float *l)
+{
+    memset(o, 0, (size_t)panels * FK_ATTN_MR * (size_t)dp * sizeof *o);
+    for (int r = 0; r < panels * FK_ATTN_MR; r++) {
+        m[r] = -INFINITY;
+        l[r] = 0;
+    }
+}
+
+/* A task's end: out rows q0 .. q0 + rows - 1 (d floats from col0, stride
+ * ldo) = o / l, one rounding per element (o * (1 / l)). */
+static inline void fk__attn_task_write(float *out, int ldo, int q0, int rows, int col0, int d,
+                                       const float *o, int dp, const float *l)
+{
+    for (int r = 0; r < rows; r++) {
+        float *dst = out + (size_t)(q0 + r) * (size_t)ldo + (size_t)col0;
+        const float *orow = o + (size_t)r * (size_t)dp;
+        float inv = 1.0f / l[r];
+        for (int c = 0; c < d; c++)
+            dst[c] = orow[c] * inv;
     }
 }
 
@@ -105,6 +131,15 @@ static inline void fk__attn_bf16_bytes(int dp, int nk_pad, size_t *local, size_t
     *local = *per_head = 0;
 }
 static inline void fk__attn_bf16_run(const struct fk__attn_bf16_job *j) { (void)j; }
+#endif
+
+#if defined(__x86_64__)
+/* The AVX2 softmax's first pass over one 6 x BK block of logits (row
+ * stride BK; keys from valid on set to -inf): bmax[r] = the row's max,
+ * m_old[r] = m[r], m_new[r] = max(bmax, m) (x86/attention_avx2.c; the int16
+ * path's softmax shares it). */
+void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float *bmax, float *m_old,
+                          float *m_new);
 #endif
 
 /* int16 products (x86/attention_i16_avx2.c), for a desc with int16 set

@@ -460,9 +460,12 @@ static int run_lowp_case(enum lowp mode, const struct attn_case *c, uint64_t see
     return ran;
 }
 
-static void test_bf16(void **state)
+/* The low-precision cases, on every ISA under test: the model's shapes and
+ * padded ones at unit logits (RMS budget rms_unit), raw std-3 logits
+ * (rms_big) and +-1e4 logits (one-hot rows: the max bound only). Returns
+ * how many contexts ran the mode. */
+static int run_lowp_suite(enum lowp mode, double rms_unit, double rms_big)
 {
-    (void)state;
     static const struct attn_case cases[] = {
         { 2, 64, 131, 131, 1, 1, 0 }, { 4, 24, 276, 276, 1, 1, 0 }, { 2, 48, 70, 70, 1, 1, 0 },
         { 1, 80, 29, 130, 0, 1, 0 }, { 2, 32, 16, 301, 0, 0, 1 },  { 1, 16, 1, 1, 0, 0, 0 },
@@ -472,53 +475,43 @@ static void test_bf16(void **state)
     };
     int ran = 0;
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
-        ran += run_lowp_case(LOWP_BF16, &cases[i], 70 + i, 1.0f, 1.0 / 128);
-    /* large logits: raw q, k of std 3 (no LayerNorm) */
+        ran += run_lowp_case(mode, &cases[i], 70 + i, 1.0f, rms_unit);
     static const struct attn_case big = { 2, 64, 50, 300, 0, 0, 1 };
-    ran += run_lowp_case(LOWP_BF16, &big, 9, 3.0f, 1.0 / 64);
-    /* +-1e4 logits: one-hot rows, where bf16 logits keep the winner */
+    ran += run_lowp_case(mode, &big, 9, 3.0f, rms_big);
     static const struct attn_case huge = { 2, 16, 23, 23, 0, 0, 0 };
-    ran += run_lowp_case(LOWP_BF16, &huge, 7, 50.0f, 0);
+    ran += run_lowp_case(mode, &huge, 7, 50.0f, 0);
+    return ran;
+}
+
+static int isa_under_test(enum fk_isa isa)
+{
+    enum fk_isa isas[4];
+    int n_isa = test_isas(isas), found = 0;
+    for (int i = 0; i < n_isa; i++)
+        found |= isas[i] == isa;
+    return found;
+}
+
+static void test_bf16(void **state)
+{
+    (void)state;
+    int ran = run_lowp_suite(LOWP_BF16, 1.0 / 128, 1.0 / 64);
     /* the AVX-512 run is where bf16 runs: without AVX512_BF16 it checked
      * only the fp32 fallback, so it says so; other ISAs never run bf16 */
-    enum fk_isa isas[4];
-    int n_isa = test_isas(isas), avx512 = 0;
-    for (int i = 0; i < n_isa; i++)
-        avx512 |= isas[i] == FK_ISA_AVX512;
-    if (avx512 && !ran)
+    if (isa_under_test(FK_ISA_AVX512) && !ran)
         f4d_skip("the CPU has AVX-512 but no AVX512_BF16: only bf16 = 1 giving the fp32 bits was checked");
 }
 
 /* RMS budgets a quarter of bf16's: measured 4.6e-4 to 6.2e-4 of the
  * output's RMS for unit logits, 8.8e-4 for std-3 logits (bf16: 1.4e-3 to
- * 7.9e-3) */
+ * 7.9e-3). int16 runs on the AVX2 context (every x86-64 CPU here has it);
+ * the other ISAs' runs check that int16 = 1 gives their fp32 bits, which
+ * is all there is to check on them. */
 static void test_int16(void **state)
 {
     (void)state;
-    static const struct attn_case cases[] = {
-        { 2, 64, 131, 131, 1, 1, 0 }, { 4, 24, 276, 276, 1, 1, 0 }, { 2, 48, 70, 70, 1, 1, 0 },
-        { 1, 80, 29, 130, 0, 1, 0 }, { 2, 32, 16, 301, 0, 0, 1 },  { 1, 16, 1, 1, 0, 0, 0 },
-        { 2, 40, 37, 130, 0, 1, 1 },
-        /* long rows: one global block's 5496 keys */
-        { 1, 64, 13, 5496, 1, 1, 1 },
-    };
-    int ran = 0;
-    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
-        ran += run_lowp_case(LOWP_INT16, &cases[i], 70 + i, 1.0f, 1.0 / 512);
-    /* large logits: raw q, k of std 3 (no LayerNorm) */
-    static const struct attn_case big = { 2, 64, 50, 300, 0, 0, 1 };
-    ran += run_lowp_case(LOWP_INT16, &big, 9, 3.0f, 1.0 / 256);
-    /* +-1e4 logits: one-hot rows, where the codes keep the winner */
-    static const struct attn_case huge = { 2, 16, 23, 23, 0, 0, 0 };
-    ran += run_lowp_case(LOWP_INT16, &huge, 7, 50.0f, 0);
-    /* int16 runs on the AVX2 context (every x86-64 CPU here has it); the
-     * other ISAs' runs check that int16 = 1 gives their fp32 bits, which is
-     * all there is to check on them */
-    enum fk_isa isas[4];
-    int n_isa = test_isas(isas), avx2 = 0;
-    for (int i = 0; i < n_isa; i++)
-        avx2 |= isas[i] == FK_ISA_AVX2;
-    if (avx2 && !ran)
+    int ran = run_lowp_suite(LOWP_INT16, 1.0 / 512, 1.0 / 256);
+    if (isa_under_test(FK_ISA_AVX2) && !ran)
         fail_msg("the AVX2 context ran no int16 case");
 }
 

@@ -99,20 +99,28 @@ __attribute__((noinline)) static void pv_tile(int d, const float *p, const float
 
 /* Online softmax over one 6 x BK block of log2-domain logits, in place:
  * s becomes p = 2^(s - m_new); alpha = 2^(m_old - m_new); l = alpha l + sum p. */
-__attribute__((noinline)) static void softmax_block(float *s, int valid, float *m, float *l, float *alpha)
+void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float *bmax, float *m_old,
+                          float *m_new)
 {
-    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
     for (int r = 0; r < MR; r++) {
         float *sr = s + r * BK;
         for (int jj = valid; jj < BK; jj++)
             sr[jj] = -INFINITY;
-        __m256 mx = _mm256_load_ps(sr);
+        __m256 mx = _mm256_loadu_ps(sr);
         for (int jj = 8; jj < BK; jj += 8)
-            mx = _mm256_max_ps(mx, _mm256_load_ps(sr + jj));
+            mx = _mm256_max_ps(mx, _mm256_loadu_ps(sr + jj));
         float bm = fk__hmax_avx2(mx);
+        bmax[r] = bm;
         m_old[r] = m[r];
         m_new[r] = bm > m[r] ? bm : m[r];
     }
+}
+
+__attribute__((noinline)) static void softmax_block(float *s, int valid, float *m, float *l, float *alpha)
+{
+    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
+    float bmax[8];
+    fk__attn_rowmax_avx2(s, valid, m, bmax, m_old, m_new);
     /* all six rescale factors in one vector */
     __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new)));
     _mm256_store_ps(alpha, al);

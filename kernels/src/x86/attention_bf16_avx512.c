@@ -243,11 +243,7 @@ static void attn_task(void *arg, int task, int thread)
     const size_t qstride = (size_t)dp / 2 * MR;
     for (int i = 0; i < panels; i++)
         pack_q(dp, qp + (size_t)(q0 / MR + i) * (size_t)dp * MR, qb2 + (size_t)i * qstride);
-    memset(o, 0, (size_t)panels * MR * (size_t)dp * sizeof *o);
-    for (int r = 0; r < panels * MR; r++) {
-        mrow[r] = -INFINITY;
-        lrow[r] = 0;
-    }
+    fk__attn_task_init(o, panels, dp, mrow, lrow);
     for (int k0 = 0; k0 < j->nk_pad; k0 += SB) { /* nk_pad is a multiple of BK */
         int nk = j->nk_pad - k0 < SB ? j->nk_pad - k0 : SB;
         int valid = j->nk - k0 < nk ? j->nk - k0 : nk;
@@ -263,13 +259,7 @@ static void attn_task(void *arg, int task, int thread)
             pv_tile(dp, nk / 2, pb, vbb, o + (size_t)i * MR * (size_t)dp, alpha);
         }
     }
-    for (int r = 0; r < rows; r++) {
-        float *dst = j->out + (size_t)(q0 + r) * (size_t)j->ldo + (size_t)(j->h0 + hh) * (size_t)d;
-        const float *orow = o + (size_t)r * (size_t)dp;
-        float inv = 1.0f / lrow[r];
-        for (int c = 0; c < d; c++)
-            dst[c] = orow[c] * inv;
-    }
+    fk__attn_task_write(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d, o, dp, lrow);
 }
 
 void fk__attn_bf16_run(const struct fk__attn_bf16_job *j)

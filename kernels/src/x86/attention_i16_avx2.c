@@ -250,7 +250,7 @@ __attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const u
 }
 
 /* The online softmax over one 6 x BK block of log2-domain logits: the row
- * maxima as the fp32 AVX2 piece (attention_avx2.c), alpha = 2^(m_old -
+ * maxima by the fp32 AVX2 piece's pass (fk__attn_rowmax_avx2), alpha = 2^(m_old -
  * m_new); then p = 2^(s - block max) to codes round(p 4096) as [6][BK/2]
  * pairs, ps = 2^(block max - m_new) per row (the codes' scale), and
  * l = alpha l + ps (sum of the codes) / 4096: the weights P V uses. A NaN
@@ -260,18 +260,7 @@ static void softmax_block(float *s, int valid, float *m, float *l, float *alpha,
 {
     float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
     float bmax[8] __attribute__((aligned(32))) = { 0 };
-    for (int r = 0; r < MR; r++) {
-        float *sr = s + r * BK;
-        for (int jj = valid; jj < BK; jj++)
-            sr[jj] = -INFINITY;
-        __m256 mx = _mm256_loadu_ps(sr);
-        for (int jj = 8; jj < BK; jj += 8)
-            mx = _mm256_max_ps(mx, _mm256_loadu_ps(sr + jj));
-        float bm = fk__hmax_avx2(mx);
-        bmax[r] = bm;
-        m_old[r] = m[r];
-        m_new[r] = bm > m[r] ? bm : m[r];
-    }
+    fk__attn_rowmax_avx2(s, valid, m, bmax, m_old, m_new);
     __m256 mn = _mm256_load_ps(m_new);
     __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn));
     __m256 pv = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn));
@@ -381,11 +370,7 @@ static void attn_task(void *arg, int task, int thread)
     const size_t qstride = (size_t)dp / 2 * MR;
     for (int i = 0; i < panels; i++)
         pack_q(dp, qp + (size_t)(q0 / MR + i) * (size_t)dp * MR, qq + (size_t)i * qstride, sq + i * MR, cb);
-    memset(o, 0, (size_t)panels * MR * (size_t)dp * sizeof *o);
-    for (int r = 0; r < panels * MR; r++) {
-        mrow[r] = -INFINITY;
-        lrow[r] = 0;
-    }
+    fk__attn_task_init(o, panels, dp, mrow, lrow);
     for (int kb = 0; kb < j->nk_pad / BK; kb++) {
         int valid = j->nk - kb * BK < BK ? j->nk - kb * BK : BK;
         if (kb == j->nk_pad / BK - 1)
@@ -399,13 +384,7 @@ static void attn_task(void *arg, int task, int thread)
             pv_tile(dp, pb, vbb, sv, o + (size_t)i * MR * (size_t)dp, alpha, ps);
         }
     }
-    for (int r = 0; r < rows; r++) {
-        float *dst = j->out + (size_t)(q0 + r) * (size_t)j->ldo + (size_t)(j->h0 + hh) * (size_t)d;
-        const float *orow = o + (size_t)r * (size_t)dp;
-        float inv = 1.0f / lrow[r];
-        for (int c = 0; c < d; c++)
-            dst[c] = orow[c] * inv;
-    }
+    fk__attn_task_write(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d, o, dp, lrow);
 }
 
 void fk__attn_i16_run(const struct fk__attn_i16_job *j)
