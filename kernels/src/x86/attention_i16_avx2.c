@@ -202,13 +202,16 @@ static void pack_q(int dp, const float *q, uint32_t *dst, float *sq, int32_t *cb
 
 /* ------------------------------------------------------------------ tiles */
 
-/* Rows r0 .. r0 + 2 of s[6][16] (row stride BK) = (q pairs [dp/2][6] . key
- * pairs [dp/2][16]) * sq[r] * sk[key]: 6 int32 accumulators, each step one
- * pair of channels. Three rows, not six: vpmaddwd needs a temporary beside
- * the accumulator (no fused add without VNNI), and 12 accumulators with the
- * keys, the broadcast and it overflowed the 16 ymm registers (GCC spilled
- * every accumulator each step). */
-#define ACC(c, m) __asm__("vpaddd %1, %0, %0" : "+x"(c) : "x"(m))
+/* acc += m in place. Without VNNI the add after vpmaddwd is a separate
+ * instruction, and GCC gave each step's sum a fresh register and copied it
+ * back to the accumulator's (six copies a step), or with the arrays of the
+ * first version spilled all twelve accumulators: 12 accumulators, 2 key
+ * vectors, the broadcast and vpmaddwd's result fill the 16 ymm registers
+ * exactly. The asm names the accumulator as the destination. */
+#define ACC(acc, m) __asm__("vpaddd %1, %0, %0" : "+x"(acc) : "x"(m))
+
+/* s[6][16] (row stride BK) = (q pairs [dp/2][6] . key pairs [dp/2][16]) *
+ * sq[r] * sk[key]: 12 int32 accumulators, each step one pair of channels. */
 static inline __attribute__((always_inline)) void s_tile6(int dp, const uint32_t *q,
                                                           const uint32_t *kb, const float *sq,
                                                           const float *sk, float *s)
