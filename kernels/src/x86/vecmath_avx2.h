@@ -53,6 +53,9 @@ FK_AVX2_FN __m256 fk__scale2n_avx2(__m256 p, __m256 n, int kmin)
 
 /* The polynomials' coefficients, highest degree first, shared with the zmm
  * copies in vecmath_avx512.h (which must give these functions' bits). */
+static const float fk__exp2_softmax_c[7] = { 1.5403530393e-4f, 1.3333558146e-3f, 9.6181291076e-3f,
+                                             5.5504108665e-2f, 2.4022650696e-1f, 6.9314718056e-1f,
+                                             1.0f };
 static const float fk__exp_core_c[6] = { 1.9875691500e-4f, 1.3981999507e-3f, 8.3334519073e-3f,
                                          4.1665795894e-2f, 1.6666665459e-1f, 5.0000001201e-1f };
 static const float fk__erf_small_c[5] = { 4.719082732e-03f, -2.675773203e-02f, 1.128283143e-01f,
@@ -229,20 +232,16 @@ FK_AVX2_FN __m256 fk__silu_avx2(__m256 x)
 /* 2^x for the softmax, where x = s - max <= 0: results below 2^-126 only
  * need to be tiny, not exact (they are added to a sum >= 1), so inputs are
  * clamped at -127 and the scale is a plain exponent add. NaN stays NaN.
- * Degree-6 Taylor polynomial of 2^f on [-0.5, 0.5]: relative error <= 1e-7
- * above 2^-126. */
+ * Degree-6 Taylor polynomial of 2^f on [-0.5, 0.5] (fk__exp2_softmax_c):
+ * relative error <= 1e-7 above 2^-126. */
 FK_AVX2_FN __m256 fk__exp2_softmax_avx2(__m256 x)
 {
     x = _mm256_max_ps(_mm256_set1_ps(-127.0f), x);
     __m256 n = _mm256_round_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
     __m256 f = _mm256_sub_ps(x, n); /* [-0.5, 0.5] */
-    __m256 p = _mm256_set1_ps(1.5403530393e-4f);
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(1.3333558146e-3f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(9.6181291076e-3f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(5.5504108665e-2f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(2.4022650696e-1f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(6.9314718056e-1f));
-    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(1.0f));
+    __m256 p = _mm256_set1_ps(fk__exp2_softmax_c[0]);
+    for (int i = 1; i < 7; i++)
+        p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(fk__exp2_softmax_c[i]));
     __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
     return _mm256_mul_ps(p, _mm256_castsi256_ps(e));
 }
