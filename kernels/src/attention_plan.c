@@ -261,10 +261,8 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
     /* int16 products: packs as bf16's plus their scales, which take at
      * most (1 + dp / 64) / (2 dp) <= 1/25 of the fp32 packs (dp >= 16) */
     int i16 = !bf16 && a->int16 && ctx->int16;
-    size_t i16_local = 0, i16_head = 0;
     if (i16) {
-        fk__attn_i16_bytes(j.dp, j.nk_pad, &i16_local, &i16_head);
-        (void)i16_head; /* bounded by the fraction below, as bf16's */
+        size_t i16_local = fk__attn_i16_local_bytes(j.dp);
         local = local > i16_local ? local : i16_local;
         grp_bytes += grp_bytes / 2 + grp_bytes / 16 + 6 * FK_ALIGN;
     }

@@ -157,15 +157,12 @@ struct fk__attn_i16_job {
     float       *out;
 };
 #if defined(__x86_64__)
-/* per-thread scratch and shared bytes per head (packs and scales) of the int16 path */
-void fk__attn_i16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head);
+/* per-thread scratch of the int16 path (its shared packs and scales are
+ * bounded by a fraction of the fp32 packs: attention_plan.c) */
+size_t fk__attn_i16_local_bytes(int dp);
 void fk__attn_i16_run(const struct fk__attn_i16_job *j);
 #else /* never called: ctx->int16 is 0 off x86-64 */
-static inline void fk__attn_i16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head)
-{
-    (void)dp; (void)nk_pad;
-    *local = *per_head = 0;
-}
+static inline size_t fk__attn_i16_local_bytes(int dp) { (void)dp; return 0; }
 static inline void fk__attn_i16_run(const struct fk__attn_i16_job *j) { (void)j; }
 #endif
 

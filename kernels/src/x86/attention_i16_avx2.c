@@ -63,19 +63,7 @@ static struct i16_local local_layout(int dp)
     return L;
 }
 
-/* per head: key pairs, value pairs, key scales, value scales */
-static size_t head_bytes(int dp, int nk_pad)
-{
-    return 2 * fk__round_up((size_t)nk_pad * (size_t)dp * sizeof(uint16_t), FK_ALIGN) +
-           fk__round_up((size_t)nk_pad * sizeof(float), FK_ALIGN) +
-           fk__round_up((size_t)(nk_pad / BK) * (size_t)dp * sizeof(float), FK_ALIGN);
-}
-
-void fk__attn_i16_bytes(int dp, int nk_pad, size_t *local, size_t *per_head)
-{
-    *local = local_layout(dp).bytes;
-    *per_head = head_bytes(dp, nk_pad);
-}
+size_t fk__attn_i16_local_bytes(int dp) { return local_layout(dp).bytes; }
 
 /* The q / k code bound: dp products of two codes below 2^b each must sum
  * below 2^31 in int32 (and a vpmaddwd pair below 2^31: b <= 15). */
