@@ -358,6 +358,16 @@ static double qk_code_max(int d)
     return (double)((1 << (b > 14 ? 14 : b)) - 1);
 }
 
+/* max |x_c| and sum |x_c| of x[d] */
+static void abs_max_sum(const float *x, int d, double *mx, double *sum)
+{
+    *mx = *sum = 0;
+    for (int c = 0; c < d; c++) {
+        *mx = fmax(*mx, fabs((double)x[c]));
+        *sum += fabs((double)x[c]);
+    }
+}
+
 static double logit_bound_i16(const struct fk_attention_desc *a, const float *q, int ldq, int nq,
                               const float *k, int ldk, int nk)
 {
@@ -367,18 +377,12 @@ static double logit_bound_i16(const struct fk_attention_desc *a, const float *q,
     for (int h = 0; h < a->heads; h++)
         for (int i = 0; i < nq; i++) {
             fk__attn_prep_ref(a, 0, q + (size_t)i * ldq + h * d, a->pos_q ? a->pos_q + 2 * i : NULL, 1.0f, qs);
-            double mq = 0, sq = 0;
-            for (int c = 0; c < d; c++) {
-                mq = fmax(mq, fabs((double)qs[c]));
-                sq += fabs((double)qs[c]);
-            }
+            double mq, sq;
+            abs_max_sum(qs, d, &mq, &sq);
             for (int jj = 0; jj < nk; jj++) {
                 fk__attn_prep_ref(a, 1, k + (size_t)jj * ldk + h * d, a->pos_k ? a->pos_k + 2 * jj : NULL, 1.0f, ks);
-                double mk = 0, sk = 0;
-                for (int c = 0; c < d; c++) {
-                    mk = fmax(mk, fabs((double)ks[c]));
-                    sk += fabs((double)ks[c]);
-                }
+                double mk, sk;
+                abs_max_sum(ks, d, &mk, &sk);
                 double e = (mq * sk + mk * sq) / (2 * qmax) + d * mq * mk / (4 * qmax * qmax);
                 worst = e > worst ? e : worst;
             }
