@@ -33,6 +33,15 @@ enum {
     FK_ATTN_QB = 96  /* queries per task: 16 register tiles share each K/V block */
 };
 
+/* The fp32 online softmax (AVX2 and AVX-512, the same rule, so the same
+ * bits) keeps a row's running max m until a block's max exceeds it by more
+ * than this (log2 units): p = 2^(s - m) <= 2^8 then, and the result is the
+ * same softmax (m cancels in o / l). Mostly no row's max moves, so the
+ * AVX-512 block starts its exponentials without waiting for the block's
+ * maxima, and o is rarely rescaled. The int16 and bf16 paths keep m = the
+ * running max (their codes are relative to it). */
+#define FK_ATTN_SLACK 8.0f
+
 /* Pulls a task's output slice (rows q0 .. q0 + rows - 1, d floats from
  * out + col0, row stride ldo) into the cache for writing, issued while the
  * task's last key block runs: the writes of the normalized rows missed (the
@@ -136,10 +145,11 @@ static inline void fk__attn_bf16_run(const struct fk__attn_bf16_job *j) { (void)
 #if defined(__x86_64__)
 /* The AVX2 softmax's first pass over one 6 x BK block of logits (row
  * stride BK; keys from valid on set to -inf): bmax[r] = the row's max,
- * m_old[r] = m[r], m_new[r] = max(bmax, m) (x86/attention_avx2.c; the int16
- * path's softmax shares it). */
-void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float *bmax, float *m_old,
-                          float *m_new);
+ * m_old[r] = m[r], m_new[r] = bmax where bmax > m + slack, else m
+ * (x86/attention_avx2.c; fp32 passes FK_ATTN_SLACK, the int16 path's
+ * softmax 0: m_new = max(bmax, m)). */
+void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, float *bmax,
+                          float *m_old, float *m_new);
 #endif
 
 /* int16 products (x86/attention_i16_avx2.c), for a desc with int16 set

@@ -6,10 +6,11 @@
  * (the driver packs them so for struct fk__attn_isa's block), values [BK][d].
  *
  * The FMAs of S and P V are the work; everything else per block is
- * overhead paid per 6 x 64 logits, so it is kept in registers and short: S
- * stays in its 24 accumulators for the row max and the exponentials, the six
- * row maxima come out of one transposed reduction, alpha for the six rows is
- * one exp2, and P is stored once, for the P V broadcasts. Every output
+ * overhead paid per 6 x 64 logits, so it is kept short: S is stored once and
+ * read back by the softmax, the six row maxima come out of one transposed
+ * reduction, a running max moves only when a block's exceeds it by
+ * FK_ATTN_SLACK (so the exponentials rarely wait for the reduction), and P
+ * is stored in place, for the P V broadcasts. Every output
  * element is computed with the AVX2 pieces' operations in their order (S and
  * O along k / keys one FMA at a time, the same exp2, the row sums in 8 lanes),
  * so AVX-512 attention gives the AVX2 bits (test_attention checks it): the
@@ -79,14 +80,13 @@ static inline __attribute__((always_inline)) void pv_cols(int G, int d, const fl
             _mm512_storeu_ps(o + r * d + g * 16, c[r][g]);
 }
 
-/* One 6-query panel against one BK-key block (struct fk__attn_isa's block):
- * s[6][BK] = q[d][6] . kp in 24 accumulators (each k step loads 4 vectors of
- * keys for 24 FMAs); m_new = max(m, row max), p = 2^(s - m_new) into s,
- * alpha = 2^(m - m_new), l = alpha l + row sum of p; then
- * o = alpha o + p . v, 64 columns (24 accumulators) at a time. */
-static inline __attribute__((always_inline)) void block(int d, const float *q, const float *kp,
-                                                        const float *v, int valid, float *s,
-                                                        float *o, float *m, float *l, int padded)
+/* s[6][BK] = q[d][6] . kp (padding keys -inf): 24 accumulators, each k
+ * step loads 4 vectors of keys for 24 FMAs; stored once at the end. Its own
+ * phase, so that nothing else competes for the registers (with the softmax
+ * in the same scope GCC spilled five of the accumulators inside the loop). */
+static inline __attribute__((always_inline)) void s_tile(int d, const float *q, const float *kp,
+                                                         int valid, int padded, float *s,
+                                                         const float *o)
 {
     __m512 c[MR][4];
     for (int r = 0; r < MR; r++)
@@ -111,39 +111,62 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
             c[r][3] = _mm512_fmadd_ps(t, b3, c[r][3]);
         }
     }
-    /* the loops over rows and panels below are unrolled so that c stays in
-     * registers (a loop left rolled would keep it in memory) */
-    if (padded) /* padding keys: -inf */
 #pragma GCC unroll 4
-        for (int p = 0; p < 4; p++) {
+    for (int p = 0; p < 4; p++) {
+        __mmask16 pad = 0;
+        if (padded) {
             int n = valid - p * NR;
-            __mmask16 pad = n <= 0 ? (__mmask16)0xffff : n >= NR ? 0 : (__mmask16)(0xffffu << n);
-            for (int r = 0; r < MR; r++)
-                c[r][p] = _mm512_mask_mov_ps(c[r][p], pad, _mm512_set1_ps(-INFINITY));
+            pad = n <= 0 ? (__mmask16)0xffff : n >= NR ? 0 : (__mmask16)(0xffffu << n);
         }
-    /* the six row maxima, then m_new = bm > m ? bm : m in lanes 0-5 */
+        for (int r = 0; r < MR; r++)
+            _mm512_store_ps(s + r * BK + p * NR, _mm512_mask_mov_ps(c[r][p], pad, _mm512_set1_ps(-INFINITY)));
+    }
+}
+
+/* One 6-query panel against one BK-key block (struct fk__attn_isa's block):
+ * S by s_tile; the six rows' block maxima from one transposed reduction;
+ * m_new = the block max where it exceeds m by more than FK_ATTN_SLACK, else
+ * m (fk__attn_rowmax_avx2's rule); p = 2^(s - m_new) into s, alpha =
+ * 2^(m - m_new), l = alpha l + row sum of p; then o = alpha o + p . v, 64
+ * columns (24 accumulators) at a time. Mostly no row's max moves: the
+ * exponentials then start from m without waiting for the reduction (the
+ * branch is predicted) and o is not rescaled. */
+static inline __attribute__((always_inline)) void block(int d, const float *q, const float *kp,
+                                                        const float *v, int valid, float *s,
+                                                        float *o, float *m, float *l, int padded)
+{
+    s_tile(d, q, kp, valid, padded, s, o);
     __m512 red[MR];
-    for (int r = 0; r < MR; r++)
-        red[r] = _mm512_max_ps(_mm512_max_ps(c[r][0], c[r][1]), _mm512_max_ps(c[r][2], c[r][3]));
+    for (int r = 0; r < MR; r++) {
+        const float *sr = s + r * BK;
+        red[r] = _mm512_max_ps(_mm512_max_ps(_mm512_load_ps(sr), _mm512_load_ps(sr + NR)),
+                               _mm512_max_ps(_mm512_load_ps(sr + 2 * NR), _mm512_load_ps(sr + 3 * NR)));
+    }
     const __mmask16 rows = (__mmask16)((1u << MR) - 1);
-    __m512 m_old = _mm512_maskz_loadu_ps(rows, m);
-    __m512 m_new = _mm512_max_ps(reduce6_max(red), m_old);
-    __m512 al_v = fk__exp2_softmax512(_mm512_sub_ps(m_old, m_new));
-    _mm512_mask_storeu_ps(m, rows, m_new);
-    __m512 al[MR];
+    __m512 m_old = _mm512_maskz_loadu_ps(rows, m), bm = reduce6_max(red), m_new, al_v;
+    __mmask16 grow = _mm512_mask_cmp_ps_mask(rows, bm, _mm512_add_ps(m_old, _mm512_set1_ps(FK_ATTN_SLACK)),
+                                             _CMP_GT_OQ);
+    int rescale = grow != 0;
+    if (__builtin_expect(!rescale, 1)) {
+        m_new = m_old;
+        al_v = _mm512_set1_ps(1.0f); /* 2^0, as the AVX2 piece computes it */
+    } else {
+        m_new = _mm512_mask_mov_ps(m_old, grow, bm);
+        al_v = fk__exp2_softmax512(_mm512_sub_ps(m_old, m_new));
+        _mm512_mask_storeu_ps(m, rows, m_new);
+    }
     __m256 sum[MR];
 #pragma GCC unroll 6
     for (int r = 0; r < MR; r++) {
-        __m512i lane = _mm512_set1_epi32(r);
-        __m512 mv = _mm512_permutexvar_ps(lane, m_new);
-        al[r] = _mm512_permutexvar_ps(lane, al_v);
+        __m512 mv = _mm512_permutexvar_ps(_mm512_set1_epi32(r), m_new);
+        float *sr = s + r * BK;
         /* the row sum in 8 lanes, added in the AVX2 piece's order */
         sum[r] = _mm256_setzero_ps();
         for (int p = 0; p < 4; p++) {
-            c[r][p] = fk__exp2_softmax512(_mm512_sub_ps(c[r][p], mv));
-            _mm512_storeu_ps(s + r * BK + p * NR, c[r][p]);
-            sum[r] = _mm256_add_ps(sum[r], _mm512_castps512_ps256(c[r][p]));
-            sum[r] = _mm256_add_ps(sum[r], _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(c[r][p]), 1)));
+            __m512 e = fk__exp2_softmax512(_mm512_sub_ps(_mm512_load_ps(sr + p * NR), mv));
+            _mm512_store_ps(sr + p * NR, e);
+            sum[r] = _mm256_add_ps(sum[r], _mm512_castps512_ps256(e));
+            sum[r] = _mm256_add_ps(sum[r], _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(e), 1)));
         }
     }
     /* l = l alpha + the row sums for the six rows at once, as the AVX2
@@ -153,8 +176,9 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
     __m256 lv = _mm256_add_ps(_mm256_mul_ps(_mm256_maskload_ps(l, six), _mm512_castps512_ps256(al_v)),
                               fk__hsum6_avx2(sum));
     _mm256_maskstore_ps(l, six, lv);
-    /* alpha is exactly 1 in every row whose max did not grow: no rescale */
-    int rescale = _mm512_mask_cmp_ps_mask(rows, al_v, _mm512_set1_ps(1.0f), _CMP_NEQ_UQ) != 0;
+    __m512 al[MR];
+    for (int r = 0; r < MR; r++)
+        al[r] = _mm512_permutexvar_ps(_mm512_set1_epi32(r), al_v);
     int c0 = 0;
     for (; c0 + 64 <= d; c0 += 64)
         pv_cols(4, d, s, v + c0, o + c0, al, rescale);

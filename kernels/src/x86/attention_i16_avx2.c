@@ -251,7 +251,7 @@ static void softmax_block(float *s, int valid, float *m, float *l, float *alpha,
 {
     float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
     float bmax[8] __attribute__((aligned(32))) = { 0 };
-    fk__attn_rowmax_avx2(s, valid, m, bmax, m_old, m_new);
+    fk__attn_rowmax_avx2(s, valid, m, 0.0f, bmax, m_old, m_new);
     __m256 mn = _mm256_load_ps(m_new);
     __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn));
     __m256 pv = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn));

@@ -1026,20 +1026,39 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     j.mc = mc;
     j.m_blocks = (m + mc - 1) / mc;
     fk__gemm_plan_chunks(threads, j.m_blocks, j.panels, &j.n_chunks, &j.panels_per_chunk);
+    /* AVX-512 runs panels in pairs: an odd chunk leaves one panel to the
+     * 6x16 ymm kernel at half the rate (fc1's 256 panels in L2 chunks of 43
+     * spent 3.7 % of its time there, one thread, Zen 5) */
+    if (j.wide && j.panels_per_chunk % 2 && j.panels_per_chunk < j.panels) {
+        j.panels_per_chunk++;
+        j.n_chunks = (j.panels + j.panels_per_chunk - 1) / j.panels_per_chunk;
+    }
+    if (j.wide && j.nc_panels % 2)
+        j.nc_panels++;
     /* Scratch is laid out for mc_scratch and for the largest chunk of
      * panels, neither of which depends on m: one need measured at any size
      * covers every size (fk_ctx_measure). The C tile (mc x nc of fp32 /
-     * int32) is bounded by the L2 size: the nc of the model then shrinks to
-     * even chunks (A is packed once per chunk). */
+     * int32) is bounded by the L2 size (AVX2) or half the L3 share (AVX-512):
+     * the nc of the model then shrinks to even chunks (A is packed once per
+     * chunk). */
     size_t mcp = fk__round_up((size_t)mc_scratch, MR);
     size_t l2 = ctx->caches.l2_share ? ctx->caches.l2_share : ctx->caches.l2 ? ctx->caches.l2 : 512 * 1024;
-    int cap = (int)(l2 / (mcp * NR * 4));
-    cap = cap < 4 ? 4 : cap;
+    /* AVX-512's 6x32 calls touch their C tile once per 12 kc / 2 FMAs:
+     * from L3 it costs less than packing A again for every L2-sized chunk
+     * (one chunk: 5496 x 1024 <- 4096 and 1374 x 1024 <- 4096 1-2.5 %
+     * faster, fc1 alike, Zen 5) */
+    size_t cbound = l2;
+    if (j.wide && ctx->caches.l3_share / 2 > l2)
+        cbound = ctx->caches.l3_share / 2;
+    int cap = (int)(cbound / (mcp * NR * 4));
+    cap = cap < 4 ? 4 : j.wide ? cap / 2 * 2 : cap; /* even: whole pairs */
     int np = j.nc_panels < cap ? j.nc_panels : cap; /* bounds the runtime chunk below */
     np = np < j.panels ? np : j.panels;
     if (j.nc_panels > cap) {
         int chunks = (j.panels_per_chunk + cap - 1) / cap;
         j.nc_panels = (j.panels_per_chunk + chunks - 1) / chunks;
+        if (j.wide && j.nc_panels % 2) /* still <= cap, which is even */
+            j.nc_panels++;
     }
 
     int kcb = k < j.kc ? k : j.kc; /* fp32 block width */
