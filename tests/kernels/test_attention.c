@@ -191,6 +191,55 @@ static void test_onehot_and_uniform(void **state)
     free(q); free(k); free(v); free(o);
 }
 
+/* Logits that rise from key block to key block by 0.5 to 40 (log2 units)
+ * per 64 keys, one rate per query: the fp32 running max stays while a
+ * block's max is within FK_ATTN_SLACK (8) of it (p then reaches 2^8) and
+ * moves past that, both in one run; against the reference, and AVX-512
+ * giving the AVX2 bits. A rule that never moved the max would overflow p. */
+static void test_rising_logits(void **state)
+{
+    (void)state;
+    enum fk_isa isas[4];
+    int n_isa = test_isas(isas);
+    const int d = 16, nk = 300, nq = 10;
+    static const float rate[5] = { 0.5f, 3.0f, 7.5f, 9.0f, 40.0f }; /* log2 units per block */
+    struct rng r;
+    rng_seed(&r, 11);
+    float *q = xmalloc(sizeof(float) * nq * d), *k = xmalloc(sizeof(float) * nk * d);
+    float *v = xmalloc(sizeof(float) * nk * d), *want = xmalloc(sizeof(float) * nq * d);
+    float *got = xmalloc(sizeof(float) * nq * d), *alt = xmalloc(sizeof(float) * nq * d);
+    rng_fill_normal(&r, q, (size_t)nq * d, 0.05f);
+    rng_fill_normal(&r, k, (size_t)nk * d, 0.05f);
+    rng_fill_normal(&r, v, (size_t)nk * d, 1.0f);
+    /* logit of key j = q0 k0 / sqrt(d) (natural units) + small noise; k0 =
+     * j / 64 rises by 1 per block; rows 5-9 run the keys backwards (the
+     * first block holds the max) */
+    for (int j = 0; j < nk; j++)
+        k[j * d] = (float)j / 64.0f;
+    for (int i = 0; i < nq; i++)
+        q[i * d] = (i < 5 ? 1.0f : -1.0f) * rate[i % 5] * 4.0f / 1.44269504f;
+    struct fk_attention_desc desc = { .heads = 1, .head_dim = d };
+    fk_ctx *ref = test_ctx(FK_ISA_REF, 1);
+    assert_int_equal(fk_attention(ref, &desc, q, d, nq, k, d, v, d, nk, want, d), F4D_OK);
+    fk_ctx_free(ref);
+    for (int i = 0; i < n_isa; i++) {
+        fk_ctx *ctx = test_ctx(isas[i], 2);
+        assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, got, d), F4D_OK);
+        double e = budget_ratio(got, want, (size_t)nq * d, 2e-5, 2e-5);
+        if (e > 1.0)
+            fail_msg("%s: error %.3g of budget", fk_isa_name(isas[i]), e);
+        if (isas[i] == FK_ISA_AVX512) {
+            fk_ctx *x2 = test_ctx(FK_ISA_AVX2, 2);
+            assert_int_equal(fk_attention(x2, &desc, q, d, nq, k, d, v, d, nk, alt, d), F4D_OK);
+            if (memcmp(alt, got, sizeof(float) * (size_t)nq * d) != 0)
+                fail_msg("avx512 and avx2 differ on rising logits");
+            fk_ctx_free(x2);
+        }
+        fk_ctx_free(ctx);
+    }
+    free(q); free(k); free(v); free(want); free(got); free(alt);
+}
+
 static void test_nonfinite(void **state)
 {
     (void)state;
@@ -525,6 +574,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_vs_reference),
         cmocka_unit_test(test_huge_logits),
         cmocka_unit_test(test_onehot_and_uniform),
+        cmocka_unit_test(test_rising_logits),
         cmocka_unit_test(test_nonfinite),
         cmocka_unit_test(test_rope_reference),
         cmocka_unit_test(test_bad_arguments),
