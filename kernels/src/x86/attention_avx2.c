@@ -65,31 +65,18 @@ static void head_norm(float *t, int d, const float *w, const float *b, float eps
 
 /* The tile stays out of line: inlined into the task loop GCC spills. */
 
-/* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d]; o is read as it is where
- * every alpha is 1 (no row's max moved: the usual block), the same bits. */
+/* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
 __attribute__((noinline)) static void pv_tile(int d, const float *p, const float *v, float *o, const float *alpha)
 {
-    const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
-    __m256 one = _mm256_set1_ps(1.0f);
-    int rescale = _mm256_movemask_ps(_mm256_cmp_ps(_mm256_maskload_ps(alpha, six), one, _CMP_NEQ_UQ)) & 0x3f;
     for (int c0 = 0; c0 < d; c0 += 16) {
         float *oc = o + c0;
-        __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
-        c00 = _mm256_load_ps(oc + 0 * d); c01 = _mm256_load_ps(oc + 0 * d + 8);
-        c10 = _mm256_load_ps(oc + 1 * d); c11 = _mm256_load_ps(oc + 1 * d + 8);
-        c20 = _mm256_load_ps(oc + 2 * d); c21 = _mm256_load_ps(oc + 2 * d + 8);
-        c30 = _mm256_load_ps(oc + 3 * d); c31 = _mm256_load_ps(oc + 3 * d + 8);
-        c40 = _mm256_load_ps(oc + 4 * d); c41 = _mm256_load_ps(oc + 4 * d + 8);
-        c50 = _mm256_load_ps(oc + 5 * d); c51 = _mm256_load_ps(oc + 5 * d + 8);
-        if (rescale) {
-            __m256 a;
-            a = _mm256_set1_ps(alpha[0]); c00 = _mm256_mul_ps(a, c00); c01 = _mm256_mul_ps(a, c01);
-            a = _mm256_set1_ps(alpha[1]); c10 = _mm256_mul_ps(a, c10); c11 = _mm256_mul_ps(a, c11);
-            a = _mm256_set1_ps(alpha[2]); c20 = _mm256_mul_ps(a, c20); c21 = _mm256_mul_ps(a, c21);
-            a = _mm256_set1_ps(alpha[3]); c30 = _mm256_mul_ps(a, c30); c31 = _mm256_mul_ps(a, c31);
-            a = _mm256_set1_ps(alpha[4]); c40 = _mm256_mul_ps(a, c40); c41 = _mm256_mul_ps(a, c41);
-            a = _mm256_set1_ps(alpha[5]); c50 = _mm256_mul_ps(a, c50); c51 = _mm256_mul_ps(a, c51);
-        }
+        __m256 a, c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
+        a = _mm256_set1_ps(alpha[0]); c00 = _mm256_mul_ps(a, _mm256_load_ps(oc + 0 * d)); c01 = _mm256_mul_ps(a, _mm256_load_ps(oc + 0 * d + 8));
+        a = _mm256_set1_ps(alpha[1]); c10 = _mm256_mul_ps(a, _mm256_load_ps(oc + 1 * d)); c11 = _mm256_mul_ps(a, _mm256_load_ps(oc + 1 * d + 8));
+        a = _mm256_set1_ps(alpha[2]); c20 = _mm256_mul_ps(a, _mm256_load_ps(oc + 2 * d)); c21 = _mm256_mul_ps(a, _mm256_load_ps(oc + 2 * d + 8));
+        a = _mm256_set1_ps(alpha[3]); c30 = _mm256_mul_ps(a, _mm256_load_ps(oc + 3 * d)); c31 = _mm256_mul_ps(a, _mm256_load_ps(oc + 3 * d + 8));
+        a = _mm256_set1_ps(alpha[4]); c40 = _mm256_mul_ps(a, _mm256_load_ps(oc + 4 * d)); c41 = _mm256_mul_ps(a, _mm256_load_ps(oc + 4 * d + 8));
+        a = _mm256_set1_ps(alpha[5]); c50 = _mm256_mul_ps(a, _mm256_load_ps(oc + 5 * d)); c51 = _mm256_mul_ps(a, _mm256_load_ps(oc + 5 * d + 8));
         const float *vr = v + c0;
         for (int jj = 0; jj < BK; jj++) {
             __m256 b0 = _mm256_load_ps(vr), b1 = _mm256_load_ps(vr + 8), t;
@@ -128,12 +115,21 @@ void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, floa
     }
 }
 
-/* p = 2^(s - mrow[r]) in place over the six rows, their sums in 8 lanes. */
-static inline __attribute__((always_inline)) void exp_rows(float *s, const float *mrow, __m256 sum[MR])
+/* Online softmax over one 6 x BK block of log2-domain logits, in place:
+ * m_new by fk__attn_rowmax_avx2 with FK_ATTN_SLACK; s becomes p = 2^(s -
+ * m_new); alpha = 2^(m_old - m_new); l = alpha l + sum p. */
+__attribute__((noinline)) static void softmax_block(float *s, int valid, float *m, float *l, float *alpha)
 {
+    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
+    float bmax[8];
+    fk__attn_rowmax_avx2(s, valid, m, FK_ATTN_SLACK, bmax, m_old, m_new);
+    /* all six rescale factors in one vector */
+    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new)));
+    _mm256_store_ps(alpha, al);
+    __m256 sum[MR];
     for (int r = 0; r < MR; r++) {
         float *sr = s + r * BK;
-        __m256 mv = _mm256_set1_ps(mrow[r]);
+        __m256 mv = _mm256_set1_ps(m_new[r]);
         sum[r] = _mm256_setzero_ps();
         for (int jj = 0; jj < BK; jj += 8) {
             __m256 p = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(sr + jj), mv));
@@ -141,35 +137,10 @@ static inline __attribute__((always_inline)) void exp_rows(float *s, const float
             sum[r] = _mm256_add_ps(sum[r], p);
         }
     }
-}
-
-/* Online softmax over one 6 x BK block of log2-domain logits, in place:
- * m_new by fk__attn_rowmax_avx2 with FK_ATTN_SLACK; s becomes p = 2^(s -
- * m_new); alpha = 2^(m_old - m_new); l = alpha l + sum p. When no row's max
- * moves (the usual case) the exponentials read m itself, so they need not
- * wait for the maxima (the branch is predicted), and alpha is 2^0 = 1. */
-__attribute__((noinline)) static void softmax_block(float *s, int valid, float *m, float *l, float *alpha)
-{
-    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
-    float bmax[8];
-    fk__attn_rowmax_avx2(s, valid, m, FK_ATTN_SLACK, bmax, m_old, m_new);
-    int moved = 0;
-    for (int r = 0; r < MR; r++)
-        moved |= m_new[r] != m_old[r];
-    __m256 al = _mm256_set1_ps(1.0f), sum[MR];
-    if (__builtin_expect(!moved, 1)) {
-        exp_rows(s, m, sum);
-    } else {
-        /* all six rescale factors in one vector */
-        al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new)));
-        exp_rows(s, m_new, sum);
-    }
-    _mm256_store_ps(alpha, al);
     /* l = l alpha + sum p, the six rows at once (a multiply, then an add) */
     const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
     _mm256_maskstore_ps(l, six, _mm256_add_ps(_mm256_mul_ps(_mm256_maskload_ps(l, six), al), fk__hsum6_avx2(sum)));
-    if (moved)
-        _mm256_maskstore_ps(m, six, _mm256_load_ps(m_new));
+    _mm256_maskstore_ps(m, six, _mm256_load_ps(m_new));
 }
 
 static const struct fk__attn_isa attn_avx2 = {
