@@ -1000,6 +1000,19 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
      * than on FMAs: packed (pack_a_conv_f32) it ran 1.6-2x faster (CPU time,
      * one thread); at 16 channels both ways ran alike */
     j.direct = !q8 && a->conv && a->stride == 1 && a->cin >= FK_DIRECT_MIN_CIN;
+    if (j.wide && j.direct) {
+        /* AVX-512 direct convolutions: a tap's channels in as few equal k
+         * blocks as fit two slivers in 3/4 of L1 (the six pixels' runs are
+         * the rest): at 256 channels one call per tap, not 192 + 64 */
+        size_t l1 = ctx->caches.l1d ? ctx->caches.l1d : 32 * 1024;
+        int kmax = (int)(l1 * 3 / 4 / (2 * NR * sizeof(float))) / 8 * 8;
+        if (kmax > j.kc) {
+            int parts = (a->cin + kmax - 1) / kmax;
+            int kc = (a->cin + parts - 1) / parts;
+            kc = (kc + 7) / 8 * 8;
+            j.kc = kc < kmax ? kc : kmax;
+        }
+    }
     int mc = bl.mc / MR * MR;
     if (mc < MR)
         mc = MR;
