@@ -359,25 +359,38 @@ struct bf16_err {
     double ratio, max_abs, bound;
 };
 
+/* Head h's n vectors of x (row stride ld) as the kernel sees them (q/k
+ * LayerNorm, RoPE), into out[n][d]: prepared once, not once per pair. */
+static void prep_head(const struct fk_attention_desc *a, int which, const float *x, int ld, int n,
+                      int h, float *out)
+{
+    int d = a->head_dim;
+    const int32_t *pos = which == 0 ? a->pos_q : a->pos_k;
+    for (int i = 0; i < n; i++)
+        fk__attn_prep_ref(a, which, x + (size_t)i * ld + h * d, pos ? pos + 2 * i : NULL, 1.0f,
+                          out + (size_t)i * d);
+}
+
 /* max over rows and heads of 2^-8 scale log2(e) sum_i |q'_i k'_i| for the
  * worst key, with q', k' as the kernel sees them */
 static double logit_bound(const struct fk_attention_desc *a, const float *q, int ldq, int nq,
                           const float *k, int ldk, int nk)
 {
     int d = a->head_dim;
-    float qs[1024], ks[1024];
+    float *qs = xmalloc(sizeof(float) * (size_t)nq * d), *ks = xmalloc(sizeof(float) * (size_t)nk * d);
     double worst = 0, scale = a->scale > 0 ? a->scale : 1.0 / sqrt((double)d);
-    for (int h = 0; h < a->heads; h++)
-        for (int i = 0; i < nq; i++) {
-            fk__attn_prep_ref(a, 0, q + (size_t)i * ldq + h * d, a->pos_q ? a->pos_q + 2 * i : NULL, 1.0f, qs);
+    for (int h = 0; h < a->heads; h++) {
+        prep_head(a, 0, q, ldq, nq, h, qs);
+        prep_head(a, 1, k, ldk, nk, h, ks);
+        for (int i = 0; i < nq; i++)
             for (int jj = 0; jj < nk; jj++) {
-                fk__attn_prep_ref(a, 1, k + (size_t)jj * ldk + h * d, a->pos_k ? a->pos_k + 2 * jj : NULL, 1.0f, ks);
                 double s = 0;
                 for (int c = 0; c < d; c++)
-                    s += fabs((double)qs[c] * ks[c]);
+                    s += fabs((double)qs[(size_t)i * d + c] * ks[(size_t)jj * d + c]);
                 worst = s > worst ? s : worst;
             }
-        }
+    }
+    free(qs); free(ks);
     return worst * scale * 1.4426950408889634 / 256.0;
 }
 
@@ -421,21 +434,24 @@ static double logit_bound_i16(const struct fk_attention_desc *a, const float *q,
                               const float *k, int ldk, int nk)
 {
     int d = a->head_dim;
-    float qs[1024], ks[1024];
+    float *qs = xmalloc(sizeof(float) * (size_t)nq * d), *ks = xmalloc(sizeof(float) * (size_t)nk * d);
+    double *mk = xmalloc(sizeof(double) * (size_t)nk), *sk = xmalloc(sizeof(double) * (size_t)nk);
     double worst = 0, scale = a->scale > 0 ? a->scale : 1.0 / sqrt((double)d), qmax = qk_code_max(d);
-    for (int h = 0; h < a->heads; h++)
+    for (int h = 0; h < a->heads; h++) {
+        prep_head(a, 0, q, ldq, nq, h, qs);
+        prep_head(a, 1, k, ldk, nk, h, ks);
+        for (int jj = 0; jj < nk; jj++)
+            abs_max_sum(ks + (size_t)jj * d, d, &mk[jj], &sk[jj]);
         for (int i = 0; i < nq; i++) {
-            fk__attn_prep_ref(a, 0, q + (size_t)i * ldq + h * d, a->pos_q ? a->pos_q + 2 * i : NULL, 1.0f, qs);
             double mq, sq;
-            abs_max_sum(qs, d, &mq, &sq);
+            abs_max_sum(qs + (size_t)i * d, d, &mq, &sq);
             for (int jj = 0; jj < nk; jj++) {
-                fk__attn_prep_ref(a, 1, k + (size_t)jj * ldk + h * d, a->pos_k ? a->pos_k + 2 * jj : NULL, 1.0f, ks);
-                double mk, sk;
-                abs_max_sum(ks, d, &mk, &sk);
-                double e = (mq * sk + mk * sq) / (2 * qmax) + d * mq * mk / (4 * qmax * qmax);
+                double e = (mq * sk[jj] + mk[jj] * sq) / (2 * qmax) + d * mq * mk[jj] / (4 * qmax * qmax);
                 worst = e > worst ? e : worst;
             }
         }
+    }
+    free(qs); free(ks); free(mk); free(sk);
     return worst * scale * 1.4426950408889634;
 }
 
