@@ -506,7 +506,8 @@ int bench_model(int argc, char **argv)
         return wrc;
     }
     /* int8 models run attention's products in bf16 where the context has
-     * AVX512_BF16 (model_block.c), fp32 elsewhere */
+     * AVX512_BF16, in int16 on the AVX2 context (model_block.c), fp32
+     * elsewhere */
     printf("model: isa %s, int8 path %s, int8 attention %s", fk_isa_name(fk_ctx_isa(ctx)),
            fk_ctx_q8_path(ctx), attn_kind(ctx));
     for (int i = 0; i < n_x; i++)
