@@ -59,10 +59,17 @@ static void prep_vec(const struct attn_job *j, int which, const float *src, cons
 {
     const struct fk_attention_desc *a = j->a;
     int d = j->d;
-    memcpy(dst, src, (size_t)d * sizeof *dst);
     const float *w = which == 0 ? a->q_norm_w : a->k_norm_w;
     const float *b = which == 0 ? a->q_norm_b : a->k_norm_b;
-    if (a->qk_norm || w || b) {
+    const int norm = a->qk_norm || w || b;
+    if (j->isa->prep_row && d % 8 == 0 && (!pos || j->rope.on)) {
+        j->isa->prep_row(&j->rope, src, dst, d, norm, w, b, a->norm_eps, pos);
+        if (j->dp > d) /* padding columns: zeros */
+            memset(dst + d, 0, (size_t)(j->dp - d) * sizeof *dst);
+        return;
+    }
+    memcpy(dst, src, (size_t)d * sizeof *dst);
+    if (norm) {
         if (d % 8 == 0)
             j->isa->head_norm(dst, d, w, b, a->norm_eps);
         else

@@ -107,6 +107,11 @@ struct fk__attn_isa {
      * pieces */
     void (*block)(int d, const float *a, const float *kp, const float *v, int valid, float *s,
                   float *o, float *m, float *l);
+    /* optional: dst[d] = src[d] through head_norm (when norm) and then
+     * rope_apply (when pos), their bits, for d a multiple of 8 and a RoPE
+     * table; NULL: a copy and the two pieces */
+    void (*prep_row)(const struct fk__rope_table *rt, const float *src, float *dst, int d, int norm,
+                     const float *w, const float *b, float eps, const int32_t *pos);
 };
 
 #if defined(__x86_64__)

@@ -17,7 +17,7 @@
 
 /* ------------------------------------------------------------------- prep */
 
-static void rope_apply(const struct fk__rope_table *rt, float *t, int d, const int32_t *pos)
+static inline __attribute__((always_inline)) void rope_apply_in(const struct fk__rope_table *rt, float *t, int d, const int32_t *pos)
 {
     int m = d / 2, h = m / 2;
     for (int axis = 0; axis < 2; axis++) {
@@ -39,26 +39,54 @@ static void rope_apply(const struct fk__rope_table *rt, float *t, int d, const i
     }
 }
 
-/* LayerNorm over d (a multiple of 8) in registers. */
-static void head_norm(float *t, int d, const float *w, const float *b, float eps)
+static void rope_apply(const struct fk__rope_table *rt, float *t, int d, const int32_t *pos)
+{
+    rope_apply_in(rt, t, d, pos);
+}
+
+/* LayerNorm over d (a multiple of 8) in registers, from src to dst (which
+ * may be src). */
+static inline __attribute__((always_inline)) void head_norm_to(const float *src, float *dst, int d,
+                                                               const float *w, const float *b, float eps)
 {
     __m256 s = _mm256_setzero_ps();
     for (int i = 0; i < d; i += 8)
-        s = _mm256_add_ps(s, _mm256_loadu_ps(t + i));
+        s = _mm256_add_ps(s, _mm256_loadu_ps(src + i));
     __m256 mean = _mm256_set1_ps(fk__hsum_avx2(s) / (float)d), v = _mm256_setzero_ps();
     for (int i = 0; i < d; i += 8) {
-        __m256 c = _mm256_sub_ps(_mm256_loadu_ps(t + i), mean);
+        __m256 c = _mm256_sub_ps(_mm256_loadu_ps(src + i), mean);
         v = _mm256_fmadd_ps(c, c, v);
     }
     __m256 inv = _mm256_set1_ps(1.0f / sqrtf(fk__hsum_avx2(v) / (float)d + eps));
     for (int i = 0; i < d; i += 8) {
-        __m256 x = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(t + i), mean), inv);
+        __m256 x = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(src + i), mean), inv);
         if (w)
             x = _mm256_mul_ps(x, _mm256_loadu_ps(w + i));
         if (b)
             x = _mm256_add_ps(x, _mm256_loadu_ps(b + i));
-        _mm256_storeu_ps(t + i, x);
+        _mm256_storeu_ps(dst + i, x);
     }
+}
+
+static void head_norm(float *t, int d, const float *w, const float *b, float eps)
+{
+    head_norm_to(t, t, d, w, b, eps);
+}
+
+/* struct fk__attn_isa's prep_row: head_norm and rope_apply's operations in
+ * their order (the same bits), read from the qkv row, with no copy and no
+ * calls between (the copy and the two calls per token and head were a
+ * quarter of phase 1's samples, 1374 tokens, Zen 5). */
+static void prep_row(const struct fk__rope_table *rt, const float *src, float *dst, int d, int norm,
+                     const float *w, const float *b, float eps, const int32_t *pos)
+{
+    if (norm)
+        head_norm_to(src, dst, d, w, b, eps);
+    else
+        for (int i = 0; i < d; i += 8)
+            _mm256_storeu_ps(dst + i, _mm256_loadu_ps(src + i));
+    if (pos)
+        rope_apply_in(rt, dst, d, pos);
 }
 
 /* -------------------------------------------------------------- the tiles */
@@ -144,13 +172,13 @@ __attribute__((noinline)) static void softmax_block(float *s, int valid, float *
 }
 
 static const struct fk__attn_isa attn_avx2 = {
-    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, NULL,
+    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, NULL, prep_row,
 };
 
 /* AVX-512: the per-pair work in zmm, one call per panel and key block
  * (attention_avx512.c), the per-token prep as above. */
 static const struct fk__attn_isa attn_avx512 = {
-    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, fk__attn_block_avx512,
+    head_norm, rope_apply, fk__ukr_f32_6x16, softmax_block, pv_tile, fk__attn_block_avx512, prep_row,
 };
 
 int fk__attention_avx2(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,
