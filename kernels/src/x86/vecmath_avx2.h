@@ -232,37 +232,36 @@ FK_AVX2_FN __m256 fk__silu_avx2(__m256 x)
 /* 2^x for the softmax, where x = s - max <= 0: results below 2^-126 only
  * need to be tiny, not exact (they are added to a sum >= 1), so inputs are
  * clamped at -127 and the scale is a plain exponent add. NaN stays NaN.
- * Degree-6 Taylor polynomial of 2^f on [-0.5, 0.5] (fk__exp2_softmax_c):
- * relative error <= 1e-7 above 2^-126. */
-FK_AVX2_FN __m256 fk__exp2_softmax_avx2(__m256 x)
+ * p(f) ~ 2^f on [-0.5, 0.5]: the n coefficients c, highest degree first. */
+FK_AVX2_FN __m256 fk__exp2_poly_avx2(__m256 x, const float *c, int n)
 {
     x = _mm256_max_ps(_mm256_set1_ps(-127.0f), x);
-    __m256 n = _mm256_round_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    __m256 f = _mm256_sub_ps(x, n); /* [-0.5, 0.5] */
-    __m256 p = _mm256_set1_ps(fk__exp2_softmax_c[0]);
-    for (int i = 1; i < 7; i++)
-        p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(fk__exp2_softmax_c[i]));
-    __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
+    __m256 k = _mm256_round_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+    __m256 f = _mm256_sub_ps(x, k); /* [-0.5, 0.5] */
+    __m256 p = _mm256_set1_ps(c[0]);
+    for (int i = 1; i < n; i++)
+        p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(c[i]));
+    __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(k), _mm256_set1_epi32(127)), 23);
     return _mm256_mul_ps(p, _mm256_castsi256_ps(e));
 }
 
-/* 2^x for the int16 softmax's weights, which are rounded to 12-bit codes
- * (p 4096 <= 4096): fk__exp2_softmax_avx2 with a degree-4 polynomial whose
- * constant term is 1 (powers of two stay exact), relative error <= 3.7e-6,
- * under 0.016 of a code; two fewer FMAs per vector. Coefficients: a Remez
- * fit of 2^f on [-0.5, 0.5] (relative error). */
+/* The fp32 softmax's: degree-6 Taylor polynomial (fk__exp2_softmax_c),
+ * relative error <= 1e-7 above 2^-126. */
+FK_AVX2_FN __m256 fk__exp2_softmax_avx2(__m256 x)
+{
+    return fk__exp2_poly_avx2(x, fk__exp2_softmax_c, 7);
+}
+
+/* The int16 softmax's weights, which are rounded to 12-bit codes (p 4096
+ * <= 4096): a degree-4 polynomial whose constant term is 1 (powers of two
+ * stay exact), relative error <= 3.7e-6, under 0.016 of a code; two fewer
+ * FMAs per vector. Coefficients: a Remez fit of 2^f on [-0.5, 0.5]
+ * (relative error). */
 static const float fk__exp2_codes_c[5] = { 9.7829122096e-03f, 5.5976882577e-02f, 2.4020710588e-01f,
                                            6.9311362505e-01f, 1.0f };
 FK_AVX2_FN __m256 fk__exp2_codes_avx2(__m256 x)
 {
-    x = _mm256_max_ps(_mm256_set1_ps(-127.0f), x);
-    __m256 n = _mm256_round_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-    __m256 f = _mm256_sub_ps(x, n); /* [-0.5, 0.5] */
-    __m256 p = _mm256_set1_ps(fk__exp2_codes_c[0]);
-    for (int i = 1; i < 5; i++)
-        p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(fk__exp2_codes_c[i]));
-    __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
-    return _mm256_mul_ps(p, _mm256_castsi256_ps(e));
+    return fk__exp2_poly_avx2(x, fk__exp2_codes_c, 5);
 }
 
 /* The six rows' maxima at once: lane r of the result is max(v[r]) for r <
