@@ -109,9 +109,12 @@ static void prep_keys(const struct attn_job *j, int b0, float *tmp)
         }
         memset(tmp + (size_t)real * (size_t)dp, 0, (size_t)(kw - real) * (size_t)dp * sizeof *tmp);
         memset(vd, 0, (size_t)(kw - real) * (size_t)dp * sizeof *vd);
-        for (int c = 0; c < dp; c++)
-            for (int t = 0; t < kw; t++)
-                kpan[(size_t)c * kw + t] = tmp[(size_t)t * (size_t)dp + c];
+        if (j->isa->key_panel)
+            j->isa->key_panel(tmp, dp, kw, kpan);
+        else
+            for (int c = 0; c < dp; c++)
+                for (int t = 0; t < kw; t++)
+                    kpan[(size_t)c * kw + t] = tmp[(size_t)t * (size_t)dp + c];
     }
 }
 

@@ -112,6 +112,9 @@ struct fk__attn_isa {
      * table; NULL: a copy and the two pieces */
     void (*prep_row)(const struct fk__rope_table *rt, const float *src, float *dst, int d, int norm,
                      const float *w, const float *b, float eps, const int32_t *pos);
+    /* optional: the key panel kp[dp][kw] = the transpose of t[kw][dp]
+     * (kw and dp multiples of 8); NULL: a scalar loop */
+    void (*key_panel)(const float *t, int dp, int kw, float *kp);
 };
 
 #if defined(__x86_64__)

@@ -152,7 +152,7 @@ __attribute__((noinline)) static void softmax_block(float *s, int valid, float *
 }
 
 static const struct fk__attn_isa attn_neon = {
-    head_norm, rope_apply, fk__ukr_f32_6x16_neon, softmax_block, pv_tile, NULL, NULL,
+    head_norm, rope_apply, fk__ukr_f32_6x16_neon, softmax_block, pv_tile, NULL, NULL, NULL,
 };
 
 int fk__attention_neon(fk_ctx *ctx, const struct fk_attention_desc *a, const float *q, int ldq,
