@@ -14,6 +14,8 @@
 #define GROUP_BYTES (8u << 20) /* shared scratch per head group      */
 #define LOG2E 1.4426950408889634f
 
+_Static_assert(QB >= BK, "phase 1's token block lives in phase 2's O rows");
+
 struct attn_job {
     const struct fk__attn_isa      *isa;
     fk_ctx                         *ctx;
@@ -64,25 +66,29 @@ static void prep_vec(const struct attn_job *j, int which, const float *src, cons
     const int norm = a->qk_norm || w || b;
     if (j->isa->prep_row && d % 8 == 0 && (!pos || j->rope.on)) {
         j->isa->prep_row(&j->rope, src, dst, d, norm, w, b, a->norm_eps, pos);
-        if (j->dp > d) /* padding columns: zeros */
-            memset(dst + d, 0, (size_t)(j->dp - d) * sizeof *dst);
-        return;
-    }
-    memcpy(dst, src, (size_t)d * sizeof *dst);
-    if (norm) {
-        if (d % 8 == 0)
-            j->isa->head_norm(dst, d, w, b, a->norm_eps);
-        else
-            fk__head_layernorm_ref(dst, d, w, b, a->norm_eps);
-    }
-    if (pos) {
-        if (j->rope.on)
-            j->isa->rope_apply(&j->rope, dst, d, pos);
-        else
-            fk_rope2d_ref(dst, d, pos[0], pos[1], a->rope_base > 0 ? a->rope_base : 100.0f);
+    } else {
+        memcpy(dst, src, (size_t)d * sizeof *dst);
+        if (norm) {
+            if (d % 8 == 0)
+                j->isa->head_norm(dst, d, w, b, a->norm_eps);
+            else
+                fk__head_layernorm_ref(dst, d, w, b, a->norm_eps);
+        }
+        if (pos) {
+            if (j->rope.on)
+                j->isa->rope_apply(&j->rope, dst, d, pos);
+            else
+                fk_rope2d_ref(dst, d, pos[0], pos[1], a->rope_base > 0 ? a->rope_base : 100.0f);
+        }
     }
     if (j->dp > d) /* padding columns: zeros */
         memset(dst + d, 0, (size_t)(j->dp - d) * sizeof *dst);
+}
+
+/* Tokens of a panel of `width` from b0 that exist (n of them in all). */
+static inline int panel_tokens(int n, int b0, int width)
+{
+    return n - b0 >= width ? width : n - b0 > 0 ? n - b0 : 0;
 }
 
 /* Keys b0 .. b0 + kw - 1 of every head of the group: a key panel [dp][kw]
@@ -91,7 +97,7 @@ static void prep_vec(const struct attn_job *j, int which, const float *src, cons
 static void prep_keys(const struct attn_job *j, int b0, float *tmp)
 {
     const int d = j->d, dp = j->dp, kw = j->kw;
-    const int real = j->nk - b0 < kw ? (j->nk - b0 > 0 ? j->nk - b0 : 0) : kw;
+    const int real = panel_tokens(j->nk, b0, kw);
     const int32_t *pos = j->a->pos_k;
     for (int h = j->h0; h < j->h0 + j->hn; h++) {
         float *kpan = j->kp + (size_t)(h - j->h0) * j->head_k + (size_t)(b0 / kw) * (size_t)dp * kw;
@@ -123,15 +129,14 @@ static void prep_keys(const struct attn_job *j, int b0, float *tmp)
 static void prep_queries(const struct attn_job *j, int b0, float *tmp)
 {
     const int dp = j->dp;
-    const int real = j->nq - b0 < MR ? (j->nq - b0 > 0 ? j->nq - b0 : 0) : MR;
+    const int real = panel_tokens(j->nq, b0, MR);
     const int32_t *pos = j->a->pos_q;
     for (int h = j->h0; h < j->h0 + j->hn; h++) {
         float *qpan = j->qp + (size_t)(h - j->h0) * j->head_q + (size_t)(b0 / MR) * (size_t)dp * MR;
         for (int t = 0; t < real; t++) {
-            if (h == j->h0) /* the next panel's rows, every head of the group */
+            if (h == j->h0 && b0 + MR + t < j->nq) /* the next panel's rows, every head of the group */
                 for (int c = 0; c < j->hn * j->d; c += 16)
-                    if (b0 + MR + t < j->nq)
-                        __builtin_prefetch(j->q + (size_t)(b0 + MR + t) * (size_t)j->ldq + (size_t)j->h0 * (size_t)j->d + c);
+                    __builtin_prefetch(j->q + (size_t)(b0 + MR + t) * (size_t)j->ldq + (size_t)j->h0 * (size_t)j->d + c);
             prep_vec(j, 0, j->q + (size_t)(b0 + t) * (size_t)j->ldq + (size_t)h * (size_t)j->d,
                      pos ? pos + 2 * (size_t)(b0 + t) : NULL, tmp + (size_t)t * (size_t)dp);
         }
@@ -145,7 +150,9 @@ static void prep_queries(const struct attn_job *j, int b0, float *tmp)
 static void prep_task(void *arg, int task, int thread)
 {
     const struct attn_job *j = arg;
-    float *tmp = fk__scratch(j->ctx, thread); /* [max(kw, MR)][dp]: phase 2's scratch, unused yet */
+    /* [max(kw, MR)][dp]: phase 2's scratch, unused yet, which holds the
+     * task's QB rows of O, and QB >= BK >= kw */
+    float *tmp = fk__scratch(j->ctx, thread);
     if (task < j->k_chunks) {
         int t0 = task * j->chunk, t1 = t0 + j->chunk < j->nk_pad ? t0 + j->chunk : j->nk_pad;
         for (int b0 = t0; b0 < t1; b0 += j->kw)
