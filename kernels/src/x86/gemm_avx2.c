@@ -628,33 +628,45 @@ static inline __m256 activate(enum fk_act act, __m256 v)
     }
 }
 
+/* An epilogue's fields read once per tile: the intrinsics' stores may alias
+ * anything, so fields read through j->ep and j->c were reloaded after every
+ * row's store (a third of epi_f32's samples at 226 x 256 <- 64, one thread,
+ * Zen 5). c itself is passed on only for the scattered destinations. */
+struct row_out {
+    enum fk_act              act;
+    const float             *gamma;
+    int                      accumulate, tconv_k, tconv_cout;
+    float                   *y;
+    size_t                   ldy;
+    const struct fk__cdst   *c;
+};
+
 /* Writes t[0..nn) (already biased and activated) to row m, columns n0..,
  * applying LayerScale and the residual accumulation. */
 static inline __attribute__((always_inline)) void
-store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0, int nn,
-          __m256 t0, __m256 t1)
+store_row(const struct row_out *o, int m, int n0, int nn, __m256 t0, __m256 t1)
 {
-    int contiguous = !c->tconv_k || (n0 % c->tconv_cout) + nn <= c->tconv_cout;
+    int contiguous = !o->tconv_k || (n0 % o->tconv_cout) + nn <= o->tconv_cout;
     if (!contiguous) {
         float t[16];
         _mm256_storeu_ps(t, t0);
         _mm256_storeu_ps(t + 8, t1);
         for (int j = 0; j < nn; j++) {
-            float v = ep->gamma ? t[j] * ep->gamma[n0 + j] : t[j];
-            float *d = fk__cdst_ptr(c, m, n0 + j);
-            *d = ep->accumulate ? *d + v : v;
+            float v = o->gamma ? t[j] * o->gamma[n0 + j] : t[j];
+            float *d = fk__cdst_ptr(o->c, m, n0 + j);
+            *d = o->accumulate ? *d + v : v;
         }
         return;
     }
     /* dense rows inline: the call per row and panel showed in the int8
      * epilogue's profile (thin convolutions, 16-48 columns) */
-    float *d = c->tconv_k ? fk__cdst_ptr(c, m, n0) : c->y + (size_t)m * (size_t)c->ldy + (size_t)n0;
+    float *d = o->tconv_k ? fk__cdst_ptr(o->c, m, n0) : o->y + (size_t)m * o->ldy + (size_t)n0;
     if (nn == 16) {
-        if (ep->gamma) {
-            t0 = _mm256_mul_ps(t0, _mm256_loadu_ps(ep->gamma + n0));
-            t1 = _mm256_mul_ps(t1, _mm256_loadu_ps(ep->gamma + n0 + 8));
+        if (o->gamma) {
+            t0 = _mm256_mul_ps(t0, _mm256_loadu_ps(o->gamma + n0));
+            t1 = _mm256_mul_ps(t1, _mm256_loadu_ps(o->gamma + n0 + 8));
         }
-        if (ep->accumulate) {
+        if (o->accumulate) {
             t0 = _mm256_add_ps(_mm256_loadu_ps(d), t0);
             t1 = _mm256_add_ps(_mm256_loadu_ps(d + 8), t1);
         }
@@ -664,11 +676,11 @@ store_row(const struct fk__cdst *c, const struct fk_epilogue *ep, int m, int n0,
     }
     __m256i k0 = _mm256_loadu_si256((const __m256i *)(mask_table + 16 - nn));
     __m256i k1 = _mm256_loadu_si256((const __m256i *)(mask_table + 24 - nn));
-    if (ep->gamma) {
-        t0 = _mm256_mul_ps(t0, _mm256_maskload_ps(ep->gamma + n0, k0));
-        t1 = _mm256_mul_ps(t1, _mm256_maskload_ps(ep->gamma + n0 + 8, k1));
+    if (o->gamma) {
+        t0 = _mm256_mul_ps(t0, _mm256_maskload_ps(o->gamma + n0, k0));
+        t1 = _mm256_mul_ps(t1, _mm256_maskload_ps(o->gamma + n0 + 8, k1));
     }
-    if (ep->accumulate) {
+    if (o->accumulate) {
         t0 = _mm256_add_ps(_mm256_maskload_ps(d, k0), t0);
         t1 = _mm256_add_ps(_mm256_maskload_ps(d + 8, k1), t1);
     }
@@ -768,6 +780,13 @@ static inline void prefetch_out(const struct gemm_job *j, int m, int rows, int j
 /* The C tile is [mp][np][6][16]: micro-tile (i, p) at ((i * np + p) * 6) * 16. */
 static inline size_t tile_at(int i, int np, int p) { return ((size_t)i * (size_t)np + (size_t)p) * MR * NR; }
 
+static inline struct row_out row_out_of(const struct gemm_job *j)
+{
+    const struct fk__cdst *c = j->c;
+    return (struct row_out){ j->ep->act, j->ep->gamma, j->ep->accumulate, c->tconv_k, c->tconv_cout,
+                             c->y, (size_t)c->ldy, c };
+}
+
 /* The epilogue of one finished 6 x 16 fp32 tile (panel jp, rows m .. m +
  * nr - 1), run right after its last k block while the tile is in L1
  * (a pass over the whole mc x nc tile afterwards read it back from L2). */
@@ -776,11 +795,12 @@ static void epi_f32(const struct gemm_job *j, const float *ci, int m, int nr, in
     const struct fk_linear *L = j->L;
     int n0 = jp * NR, nn = L->n - n0 < NR ? L->n - n0 : NR;
     __m256 b0 = _mm256_load_ps(L->bias + n0), b1 = _mm256_load_ps(L->bias + n0 + 8);
+    const struct row_out o = row_out_of(j);
     for (int r = 0; r < nr; r++) {
         const float *cr = ci + (size_t)r * NR;
-        __m256 t0 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr), b0));
-        __m256 t1 = activate(j->ep->act, _mm256_add_ps(_mm256_load_ps(cr + 8), b1));
-        store_row(j->c, j->ep, m + r, n0, nn, t0, t1);
+        __m256 t0 = activate(o.act, _mm256_add_ps(_mm256_load_ps(cr), b0));
+        __m256 t1 = activate(o.act, _mm256_add_ps(_mm256_load_ps(cr + 8), b1));
+        store_row(&o, m + r, n0, nn, t0, t1);
     }
 }
 
@@ -798,6 +818,7 @@ static void epi_q8(const struct gemm_job *j, const int32_t *ci, const float *sa,
         cs0 = _mm256_load_si256((const __m256i *)(L->colsum + n0));
         cs1 = _mm256_load_si256((const __m256i *)(L->colsum + n0 + 8));
     }
+    const struct row_out o = row_out_of(j);
     for (int r = 0; r < nr; r++) {
         const int32_t *cr = ci + (size_t)r * NR;
         __m256 s_r = _mm256_set1_ps(sa[r]);
@@ -805,7 +826,7 @@ static void epi_q8(const struct gemm_job *j, const int32_t *ci, const float *sa,
         __m256i a1 = _mm256_sub_epi32(_mm256_load_si256((const __m256i *)(cr + 8)), cs1);
         __m256 t0 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a0), _mm256_mul_ps(s_r, w0), b0);
         __m256 t1 = _mm256_fmadd_ps(_mm256_cvtepi32_ps(a1), _mm256_mul_ps(s_r, w1), b1);
-        store_row(j->c, j->ep, m + r, n0, nn, activate(j->ep->act, t0), activate(j->ep->act, t1));
+        store_row(&o, m + r, n0, nn, activate(o.act, t0), activate(o.act, t1));
     }
 }
 
