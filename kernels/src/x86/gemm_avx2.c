@@ -701,7 +701,7 @@ struct gemm_job {
     const struct fk__asrc    *a;
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
-    int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct;
+    int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct, inplace;
     int    wide; /* AVX-512: two panels per micro-kernel call */
     size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero, off_pix;
 };
@@ -846,7 +846,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
             /* direct convolution: k blocks never straddle two taps */
             kc = j->direct ? src->cin - k0 % src->cin : k - k0;
             kc = kc < KC ? kc : KC;
-            if (!j->direct)
+            if (!j->direct && !j->inplace)
                 pack_a_f32(src, m0, rows, k0, kc, ap, zeros);
             /* AVX-512: two panels per step (a 6x32 tile), direct convolutions too
              * (at 6x16 in ymm they ran the DPT heads at half the zmm rate) */
@@ -892,9 +892,14 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                             _mm_prefetch((const char *)(ci + MR * NR * np) + l, _MM_HINT_T0);
                     if (k0 + kc >= k)
                         prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
-                    if (j->direct) {
+                    if (j->direct || j->inplace) {
                         const float *ar[MR];
-                        direct_rows(src, pix, i, k0, zeros, ar);
+                        if (j->direct)
+                            direct_rows(src, pix, i, k0, zeros, ar);
+                        else
+                            for (int r = 0; r < MR; r++)
+                                ar[r] = i * MR + r < rows ? src->x + (size_t)(m0 + i * MR + r) * (size_t)src->ldx + (size_t)k0
+                                                          : zeros;
                         if (pair)
                             fk__gemm_f32_ukr_avx512_rows(kc, ar, bp, bp1, ci, k0 > 0);
                         else
@@ -1034,6 +1039,13 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
             j.kc = kc < kmax ? kc : kmax;
         }
     }
+    /* A read in place, not packed, where the pack would serve at most 4
+     * panels (n <= 64): 226 x 64 <- 64 / 256, 1374 x 64 <- 1024, 5496 x 64 <-
+     * 1024 and 1374 x 48 <- 4096 ran 3-35 % faster (1 and 2 threads, AVX2 and
+     * AVX-512, Zen 5); at 8 panels (226 x 128 <- 128) the zmm path lost 2-6 %,
+     * at 16 both were alike. The tiles that read rows in place (the direct
+     * convolutions') keep the packed tiles' order of operations: same bits. */
+    j.inplace = !q8 && !a->conv && j.panels <= 4;
     int mc = bl.mc / MR * MR;
     if (mc < MR)
         mc = MR;
@@ -1098,7 +1110,7 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     int kcb = k < j.kc ? k : j.kc; /* fp32 block width */
     size_t a_bytes = q8 ? mcp * (size_t)j.k_pad * (j.path == Q8_EXACT16 ? 2 : 1) + 8 * sizeof(float)
                         : mcp * (size_t)kcb * 4 + 8 * sizeof(float); /* + transpose spill */
-    size_t bytes_a = j.direct ? 0 : fk__round_up(a_bytes, FK_ALIGN);
+    size_t bytes_a = j.direct || j.inplace ? 0 : fk__round_up(a_bytes, FK_ALIGN);
     j.off_c = bytes_a;
     j.off_b = j.off_c + fk__round_up(mcp * (size_t)np * NR * 4, FK_ALIGN);
     j.off_tmp = j.off_b + (q8 || L->type == FK_W_F32 ? 0 : fk__round_up((size_t)kcb * NR * 4 * 2, FK_ALIGN));
