@@ -89,6 +89,9 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
 /* fp32, rows of A read in place (a[r][k], the direct stride-1 convolution). */
 void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *b0, const float *b1,
                                   float *c, int accumulate);
+/* fp32, one panel: c[6][16] (+)= a (row r at a[r][k * step]) * b[kc][16]. */
+void fk__gemm_f32_ukr_avx512_6x16(int kc, const float *const a[6], int step, const float *b,
+                                  float *c, int accumulate);
 /* PREFETCHW on `rows` rows of `cols` floats at y (row stride ldy): the
  * AVX-512 driver's output rows, claimed for writing while the last k block
  * of their tile runs. PRFCHW is on every AVX-512 CPU (Intel since Broadwell,

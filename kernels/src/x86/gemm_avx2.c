@@ -912,10 +912,16 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                                                           : zeros;
                         if (pair)
                             fk__gemm_f32_ukr_avx512_rows(kc, ar, bp, bp1, ci, k0 > 0);
+                        else if (j->wide)
+                            fk__gemm_f32_ukr_avx512_6x16(kc, ar, 1, bp, ci, k0 > 0);
                         else
                             ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
                     } else if (pair) {
                         fk__gemm_f32_ukr_avx512(kc, ap + (size_t)i * (size_t)kc * MR, bp, bp1, ci, k0 > 0);
+                    } else if (j->wide) {
+                        const float *a0 = ap + (size_t)i * (size_t)kc * MR;
+                        const float *ar[MR] = { a0, a0 + 1, a0 + 2, a0 + 3, a0 + 4, a0 + 5 };
+                        fk__gemm_f32_ukr_avx512_6x16(kc, ar, MR, bp, ci, k0 > 0);
                     } else {
                         fk__ukr_f32_6x16(kc, ap + (size_t)i * (size_t)kc * MR, bp, ci, NR, k0 > 0);
                     }
