@@ -92,6 +92,8 @@ void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *
 /* fp32, one panel: c[6][16] (+)= a (row r at a[r][k * step]) * b[kc][16]. */
 void fk__gemm_f32_ukr_avx512_6x16(int kc, const float *const a[6], int step, const float *b,
                                   float *c, int accumulate);
+/* int8, one panel: c[6][16] (+)= u8 a[k4][6][4] * s8 b[k4][16][4]. */
+void fk__gemm_q8_ukr_avx512_6x16(int k4, const uint8_t *a, const int8_t *b, int32_t *c, int accumulate);
 /* PREFETCHW on `rows` rows of `cols` floats at y (row stride ldy): the
  * AVX-512 driver's output rows, claimed for writing while the last k block
  * of their tile runs. PRFCHW is on every AVX-512 CPU (Intel since Broadwell,

@@ -974,6 +974,8 @@ static void task_q8(const struct gemm_job *j, int m0, int rows, int jp0, int jp1
                         prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
                     if (pair) {
                         fk__gemm_q8_ukr_avx512(qn, (const uint8_t *)ai, bp, bp + panel_b, ci, q0 > 0);
+                    } else if (j->wide) {
+                        fk__gemm_q8_ukr_avx512_6x16(qn, (const uint8_t *)ai, bp, ci, q0 > 0);
                     } else {
                         switch (j->path) {
                         case Q8_VNNI:  fk__gemm_q8_ukr_vnni(qn, (const uint8_t *)ai, bp, ci, q0 > 0); break;

@@ -153,6 +153,35 @@ void fk__gemm_q8_ukr_avx512(int k4, const uint8_t *a, const int8_t *b0, const in
 #undef ST
 }
 
+/* The int8 tile of one panel (as fk__gemm_f32_ukr_avx512_6x16): six zmm
+ * accumulators instead of the ymm VNNI tile's twelve half-width ones;
+ * exact sums, so the same values. c is [6][16]. */
+void fk__gemm_q8_ukr_avx512_6x16(int k4, const uint8_t *a, const int8_t *b, int32_t *c, int accumulate)
+{
+    __m512i c0, c1, c2, c3, c4, c5;
+    if (accumulate) {
+#define LD(r) _mm512_load_si512((const void *)(c + 16 * (r)))
+        c0 = LD(0); c1 = LD(1); c2 = LD(2); c3 = LD(3); c4 = LD(4); c5 = LD(5);
+#undef LD
+    } else {
+        c0 = c1 = c2 = c3 = c4 = c5 = _mm512_setzero_si512();
+    }
+    for (int k = 0; k < k4; k++) {
+        __m512i w = _mm512_load_si512((const void *)b);
+        c0 = _mm512_dpbusd_epi32(c0, _mm512_set1_epi32(load_i32(a + 0)), w);
+        c1 = _mm512_dpbusd_epi32(c1, _mm512_set1_epi32(load_i32(a + 4)), w);
+        c2 = _mm512_dpbusd_epi32(c2, _mm512_set1_epi32(load_i32(a + 8)), w);
+        c3 = _mm512_dpbusd_epi32(c3, _mm512_set1_epi32(load_i32(a + 12)), w);
+        c4 = _mm512_dpbusd_epi32(c4, _mm512_set1_epi32(load_i32(a + 16)), w);
+        c5 = _mm512_dpbusd_epi32(c5, _mm512_set1_epi32(load_i32(a + 20)), w);
+        a += 24;
+        b += 64;
+    }
+#define ST(r, v) _mm512_store_si512((void *)(c + 16 * (r)), v)
+    ST(0, c0); ST(1, c1); ST(2, c2); ST(3, c3); ST(4, c4); ST(5, c5);
+#undef ST
+}
+
 void fk__f16_to_f32_avx512(const uint16_t *h, float *d, int n)
 {
     for (int e = 0; e < n; e += 16)
