@@ -694,6 +694,7 @@ enum q8_path { Q8_EXACT16, Q8_VNNI, Q8_7BIT };
 
 /* fewest input channels of a stride-1 convolution read in place (see fk__gemm_avx2) */
 #define FK_DIRECT_MIN_CIN 16
+#define FK_TAPS_MAX 64 /* taps of an all-taps call (tap_rows' offsets) */
 
 struct gemm_job {
     fk_ctx                   *ctx;
@@ -702,8 +703,9 @@ struct gemm_job {
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
     int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct, inplace;
+    int    taps; /* AVX-512 direct convolution: every tap in one call (ntaps) */
     int    wide; /* AVX-512: two panels per micro-kernel call */
-    size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero, off_pix;
+    size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero, off_pix, off_tap;
 };
 
 /* The top-left input pixel (oy - pad, ox - pad) of each output row of the
@@ -712,10 +714,16 @@ struct gemm_job {
  * a call) were most of the driver's 8 % of the DPT heads' samples. */
 static void direct_pix(const struct fk__asrc *a, int m0, int rows, int mp, int *pix)
 {
+    /* one division, then step along the output rows (a division per pixel
+     * showed at 16 channels) */
+    int oy = m0 / a->wo, ox = m0 % a->wo;
     for (int row = 0; row < mp * MR; row++) {
-        int m = m0 + row;
-        pix[2 * row] = row < rows ? m / a->wo - a->pad : INT_MIN;
-        pix[2 * row + 1] = row < rows ? m % a->wo - a->pad : INT_MIN;
+        pix[2 * row] = row < rows ? oy - a->pad : INT_MIN;
+        pix[2 * row + 1] = row < rows ? ox - a->pad : INT_MIN;
+        if (++ox == a->wo) {
+            ox = 0;
+            oy++;
+        }
     }
 }
 
@@ -734,6 +742,36 @@ static void direct_rows(const struct fk__asrc *a, const int *pix, int i, int k0,
         else
             ar[r] = a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin + (size_t)c0;
     }
+}
+
+/* Every tap's row pointers for the mp micro-panels, tab[i][t][r] (the
+ * taps mode): a pixel whose whole window lies in the image gets its tap
+ * offsets added to one base (direct_rows per tap and micro-panel was a
+ * quarter of a 16-channel 3x3's time, Zen 5); the others, and rows past
+ * the end, as direct_rows. */
+static void tap_rows(const struct fk__asrc *a, const int *pix, int mp, int taps, const float *zeros,
+                     const float **tab)
+{
+    size_t off[FK_TAPS_MAX];
+    for (int t = 0; t < taps; t++)
+        off[t] = ((size_t)(t / a->kw) * (size_t)a->w + (size_t)(t % a->kw)) * (size_t)a->cin;
+    for (int i = 0; i < mp; i++)
+        for (int r = 0; r < MR; r++) {
+            const int *p = pix + 2 * (i * MR + r);
+            const float **d = tab + (size_t)i * (size_t)taps * MR + r;
+            if (p[0] != INT_MIN && p[0] >= 0 && p[0] + a->kh <= a->h && p[1] >= 0 && p[1] + a->kw <= a->w) {
+                const float *base = a->x + ((size_t)p[0] * (size_t)a->w + (size_t)p[1]) * (size_t)a->cin;
+                for (int t = 0; t < taps; t++)
+                    d[(size_t)t * MR] = base + off[t];
+                continue;
+            }
+            for (int t = 0; t < taps; t++) {
+                int iy = p[0] + t / a->kw, ix = p[1] + t % a->kw;
+                d[(size_t)t * MR] = p[0] == INT_MIN || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w
+                                        ? zeros
+                                        : a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin;
+            }
+        }
 }
 
 /* Pulls `lines` cache lines from p towards L1, the share of micro-panel i of mp. */
@@ -848,13 +886,16 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
     const float *zeros = (const float *)(s + j->off_zero);
     const struct fk__asrc *src = j->a;
     int *pix = (int *)(void *)(s + j->off_pix);
+    const float **tap = (const float **)(void *)(s + j->off_tap); /* [mp][taps][MR] */
     if (j->direct)
         direct_pix(src, m0, rows, mp, pix);
+    if (j->taps)
+        tap_rows(src, pix, mp, j->taps, zeros, tap);
     for (int jg = jp0; jg < jp1; jg += j->nc_panels) {
         int jge = jg + j->nc_panels < jp1 ? jg + j->nc_panels : jp1, np = jge - jg;
         for (int k0 = 0, kc; k0 < k; k0 += kc) {
             /* direct convolution: k blocks never straddle two taps */
-            kc = j->direct ? src->cin - k0 % src->cin : k - k0;
+            kc = j->direct && !j->taps ? src->cin - k0 % src->cin : k - k0;
             kc = kc < KC ? kc : KC;
             if (!j->direct && !j->inplace)
                 pack_a_f32(src, m0, rows, k0, kc, ap, zeros);
@@ -902,7 +943,10 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                             _mm_prefetch((const char *)(ci + MR * NR * np) + l, _MM_HINT_T0);
                     if (k0 + kc >= k)
                         prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
-                    if (j->direct || j->inplace) {
+                    if (j->taps) {
+                        fk__gemm_f32_ukr_avx512_taps(j->taps, src->cin, tap + (size_t)i * (size_t)j->taps * MR,
+                                                     bp, pair ? bp1 : NULL, ci);
+                    } else if (j->direct || j->inplace) {
                         const float *ar[MR];
                         if (j->direct)
                             direct_rows(src, pix, i, k0, zeros, ar);
@@ -1056,6 +1100,12 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
             kc = (kc + 7) / 8 * 8;
             j.kc = kc < kmax ? kc : kmax;
         }
+        /* all taps in one call where the whole k fits that budget (16 and
+         * 32 channels, 3x3): fk__gemm_f32_ukr_avx512_taps */
+        if (k <= kmax && a->kh * a->kw <= FK_TAPS_MAX) {
+            j.taps = a->kh * a->kw;
+            j.kc = k;
+        }
     }
     /* A read in place, not packed, where the pack would serve at most 4
      * panels (n <= 64): 226 x 64 <- 64 / 256, 1374 x 64 <- 1024, 5496 x 64 <-
@@ -1138,7 +1188,8 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     /* a row of zeros stands in for the padding rows of the last micro-panel */
     j.off_zero = j.off_sa + fk__round_up(q8 ? mcp * 4 : 0, FK_ALIGN);
     j.off_pix = j.off_zero + fk__round_up(q8 ? 0 : (size_t)kcb * 4, FK_ALIGN);
-    size_t need = j.off_pix + (j.direct ? mcp * 2 * sizeof(int) : 0) + FK_ALIGN;
+    j.off_tap = j.off_pix + fk__round_up(j.direct ? mcp * 2 * sizeof(int) : 0, FK_ALIGN);
+    size_t need = j.off_tap + mcp * (size_t)j.taps * sizeof(const float *) + FK_ALIGN;
     int st = fk__scratch_reserve(ctx, need, 0);
     if (st || fk__measuring(ctx))
         return st;
