@@ -73,6 +73,36 @@ __attribute__((noinline)) static void ukr_f32(int kc, const float *const a[MR], 
     _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
 }
 
+/* ukr_f32 over a stride-1 convolution's whole k: ntaps taps of cin channels,
+ * the six rows of tap t at a[6 t + r], the accumulators in registers across
+ * the taps (a call per tap reloaded the C tile and rebuilt the row pointers
+ * for 16 k-steps); the k order of the per-tap calls, so the same bits. c is
+ * [6][16]. */
+__attribute__((noinline)) static void ukr_f32_taps(int ntaps, int cin, const float *const *a,
+                                                   const float *b, float *c)
+{
+    __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
+    c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
+    c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
+    for (int t = 0; t < ntaps; t++, a += MR) {
+        const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
+#pragma GCC unroll 4
+        for (int k = 0; k < cin; k++, b += 16) {
+            __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), x;
+            x = _mm256_broadcast_ss(a0 + k); c00 = _mm256_fmadd_ps(x, b0, c00); c01 = _mm256_fmadd_ps(x, b1, c01);
+            x = _mm256_broadcast_ss(a1 + k); c10 = _mm256_fmadd_ps(x, b0, c10); c11 = _mm256_fmadd_ps(x, b1, c11);
+            x = _mm256_broadcast_ss(a2 + k); c20 = _mm256_fmadd_ps(x, b0, c20); c21 = _mm256_fmadd_ps(x, b1, c21);
+            x = _mm256_broadcast_ss(a3 + k); c30 = _mm256_fmadd_ps(x, b0, c30); c31 = _mm256_fmadd_ps(x, b1, c31);
+            x = _mm256_broadcast_ss(a4 + k); c40 = _mm256_fmadd_ps(x, b0, c40); c41 = _mm256_fmadd_ps(x, b1, c41);
+            x = _mm256_broadcast_ss(a5 + k); c50 = _mm256_fmadd_ps(x, b0, c50); c51 = _mm256_fmadd_ps(x, b1, c51);
+        }
+    }
+    _mm256_store_ps(c + 0, c00);  _mm256_store_ps(c + 8, c01);  _mm256_store_ps(c + 16, c10);
+    _mm256_store_ps(c + 24, c11); _mm256_store_ps(c + 32, c20); _mm256_store_ps(c + 40, c21);
+    _mm256_store_ps(c + 48, c30); _mm256_store_ps(c + 56, c31); _mm256_store_ps(c + 64, c40);
+    _mm256_store_ps(c + 72, c41); _mm256_store_ps(c + 80, c50); _mm256_store_ps(c + 88, c51);
+}
+
 void fk__ukr_f32_6x16(int kc, const float *a, const float *b, float *c, int ldc, int accumulate)
 {
     const float *rows[MR] = { a, a + 1, a + 2, a + 3, a + 4, a + 5 };
@@ -703,7 +733,7 @@ struct gemm_job {
     const struct fk__cdst    *c;
     const struct fk_epilogue *ep;
     int    m, mc, kc, nc_panels, m_blocks, n_chunks, panels, panels_per_chunk, k_pad, path, direct, inplace;
-    int    taps; /* AVX-512 direct convolution: every tap in one call (ntaps) */
+    int    taps; /* direct convolution: every tap in one call (the taps per call) */
     int    wide; /* AVX-512: two panels per micro-kernel call */
     size_t off_c, off_b, off_tmp, off_q, off_sa, off_zero, off_pix, off_tap;
 };
@@ -944,8 +974,11 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (k0 + kc >= k)
                         prefetch_out(j, m0 + i * MR, rows - i * MR, jp, 1 + pair);
                     if (j->taps) {
-                        fk__gemm_f32_ukr_avx512_taps(j->taps, src->cin, tap + (size_t)i * (size_t)j->taps * MR,
-                                                     bp, pair ? bp1 : NULL, ci);
+                        const float *const *ti = tap + (size_t)i * (size_t)j->taps * MR;
+                        if (j->wide)
+                            fk__gemm_f32_ukr_avx512_taps(j->taps, src->cin, ti, bp, pair ? bp1 : NULL, ci);
+                        else
+                            ukr_f32_taps(j->taps, src->cin, ti, bp, ci);
                     } else if (j->direct || j->inplace) {
                         const float *ar[MR];
                         if (j->direct)
@@ -1103,6 +1136,14 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
         /* all taps in one call where the whole k fits that budget (16 and
          * 32 channels, 3x3): fk__gemm_f32_ukr_avx512_taps */
         if (k <= kmax && a->kh * a->kw <= FK_TAPS_MAX) {
+            j.taps = a->kh * a->kw;
+            j.kc = k;
+        }
+    } else if (j.direct) {
+        /* AVX2: the same where one sliver of the whole k fits 3/4 of L1
+         * (up to 64 channels, 3x3): ukr_f32_taps */
+        size_t l1 = ctx->caches.l1d ? ctx->caches.l1d : 32 * 1024;
+        if ((size_t)k * NR * sizeof(float) <= l1 * 3 / 4 && a->kh * a->kw <= FK_TAPS_MAX) {
             j.taps = a->kh * a->kw;
             j.kc = k;
         }
