@@ -722,7 +722,8 @@ store_row(const struct row_out *o, int m, int n0, int nn, __m256 t0, __m256 t1)
 
 enum q8_path { Q8_EXACT16, Q8_VNNI, Q8_7BIT };
 
-/* fewest input channels of a stride-1 convolution read in place (see fk__gemm_avx2) */
+/* fewest input channels of a stride-1 convolution read in place a tap per
+ * call (see fk__gemm_avx2; the all-taps call takes any) */
 #define FK_DIRECT_MIN_CIN 16
 #define FK_TAPS_MAX 64 /* taps of an all-taps call (tap_rows' offsets) */
 
@@ -1114,39 +1115,33 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     if (j.wide) /* two slivers share the half of L1 that one had */
         j.kc = bl.kc / 2 / 8 * 8 > 8 ? bl.kc / 2 / 8 * 8 : 8;
     j.nc_panels = bl.nc / NR > 0 ? bl.nc / NR : 1;
-    /* stride-1 convolutions (3x3 in the DPT heads) read A in place when a
-     * tap's channels make a k block worth a micro-kernel call: at 8 channels
-     * (the shipped model's full-resolution 3x3, 8 -> 32 at 112 x 112) a call
-     * per tap of 8 k-steps spends more on row pointers and C-tile reloads
-     * than on FMAs: packed (pack_a_conv_f32) it ran 1.6-2x faster (CPU time,
-     * one thread); at 16 channels both ways ran alike */
-    j.direct = !q8 && a->conv && a->stride == 1 && a->cin >= FK_DIRECT_MIN_CIN;
-    if (j.wide && j.direct) {
-        /* AVX-512 direct convolutions: a tap's channels in as few equal k
-         * blocks as fit two slivers in 3/4 of L1 (the six pixels' runs are
-         * the rest): at 256 channels one call per tap, not 192 + 64 */
-        size_t l1 = ctx->caches.l1d ? ctx->caches.l1d : 32 * 1024;
-        int kmax = (int)(l1 * 3 / 4 / (2 * NR * sizeof(float))) / 8 * 8;
-        if (kmax > j.kc) {
-            int parts = (a->cin + kmax - 1) / kmax;
-            int kc = (a->cin + parts - 1) / parts;
-            kc = (kc + 7) / 8 * 8;
-            j.kc = kc < kmax ? kc : kmax;
-        }
-        /* all taps in one call where the whole k fits that budget (16 and
-         * 32 channels, 3x3): fk__gemm_f32_ukr_avx512_taps */
-        if (k <= kmax && a->kh * a->kw <= FK_TAPS_MAX) {
-            j.taps = a->kh * a->kw;
-            j.kc = k;
-        }
-    } else if (j.direct) {
-        /* AVX2: the same where one sliver of the whole k fits 3/4 of L1
-         * (up to 64 channels, 3x3): ukr_f32_taps */
-        size_t l1 = ctx->caches.l1d ? ctx->caches.l1d : 32 * 1024;
-        if ((size_t)k * NR * sizeof(float) <= l1 * 3 / 4 && a->kh * a->kw <= FK_TAPS_MAX) {
-            j.taps = a->kh * a->kw;
-            j.kc = k;
-        }
+    /* Stride-1 convolutions (3x3 in the DPT heads) read A in place, every
+     * tap in one call (`taps`) where the whole k's weight slivers fit 3/4 of
+     * L1 (AVX-512: two slivers; 16 / 32 channels at 3x3; AVX2: one, up to
+     * 64): the accumulators stay in registers across the taps. Against the
+     * packed im2col path that made 3-12 channels 1.4-2.5x faster (one
+     * thread, both ISAs, Zen 5). Larger k reads in place a tap's channels
+     * per call where they make a k block worth it: at 8 channels a call per
+     * tap spent more on row pointers and C-tile reloads than on FMAs (packed
+     * ran 1.6-2x faster), at 16 both ways ran alike. */
+    size_t l1 = ctx->caches.l1d ? ctx->caches.l1d : 32 * 1024;
+    int kmax = (int)(l1 * 3 / 4 / ((j.wide ? 2 : 1) * NR * sizeof(float))) / 8 * 8;
+    int stride1 = !q8 && a->conv && a->stride == 1;
+    if (stride1 && k <= kmax && a->kh * a->kw <= FK_TAPS_MAX) {
+        j.direct = 1;
+        j.taps = a->kh * a->kw;
+        j.kc = k;
+    } else {
+        j.direct = stride1 && a->cin >= FK_DIRECT_MIN_CIN;
+    }
+    if (j.wide && j.direct && !j.taps && kmax > j.kc) {
+        /* AVX-512: a tap's channels in as few equal k blocks as fit two
+         * slivers in 3/4 of L1 (the six pixels' runs are the rest): at 256
+         * channels one call per tap, not 192 + 64 */
+        int parts = (a->cin + kmax - 1) / kmax;
+        int kc = (a->cin + parts - 1) / parts;
+        kc = (kc + 7) / 8 * 8;
+        j.kc = kc < kmax ? kc : kmax;
     }
     /* A read in place, not packed, where the pack would serve at most 4
      * panels (n <= 64): 226 x 64 <- 64 / 256, 1374 x 64 <- 1024, 5496 x 64 <-
