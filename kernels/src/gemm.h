@@ -86,14 +86,12 @@ void fk__gemm_q8_ukr_vnni(int k4, const uint8_t *a, const int8_t *b, int32_t *c,
  * fp32: c (+)= a[kc][6] * (b0 | b1)[kc][16]; int8: u8 a x s8 b with vpdpbusd. */
 void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const float *b1, float *c,
                              int accumulate);
-/* fp32, rows of A read in place (a[r][k], the direct stride-1 convolution). */
-void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *b0, const float *b1,
-                                  float *c, int accumulate);
-/* fp32, a stride-1 convolution's whole k (ntaps taps of cin channels), rows
- * of tap t at a[6 t + r]: c[2][6][16] = the rows * (b0 | b1); b1 NULL: one
- * panel, c[6][16]. */
+/* fp32, rows of A read in place: ntaps taps of cin k-steps, rows of tap t at
+ * a[6 t + r] (a stride-1 convolution's whole k, or ntaps 1 for one k
+ * block): c[2][6][16] (+)= the rows * (b0 | b1); b1 NULL: one panel,
+ * c[6][16]. */
 void fk__gemm_f32_ukr_avx512_taps(int ntaps, int cin, const float *const *a, const float *b0,
-                                  const float *b1, float *c);
+                                  const float *b1, float *c, int accumulate);
 /* fp32, one panel: c[6][16] (+)= a (row r at a[r][k * step]) * b[kc][16]. */
 void fk__gemm_f32_ukr_avx512_6x16(int kc, const float *const a[6], int step, const float *b,
                                   float *c, int accumulate);

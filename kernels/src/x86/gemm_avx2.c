@@ -977,7 +977,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     if (j->taps) {
                         const float *const *ti = tap + (size_t)i * (size_t)j->taps * MR;
                         if (j->wide)
-                            fk__gemm_f32_ukr_avx512_taps(j->taps, src->cin, ti, bp, pair ? bp1 : NULL, ci);
+                            fk__gemm_f32_ukr_avx512_taps(j->taps, src->cin, ti, bp, pair ? bp1 : NULL, ci, 0);
                         else
                             ukr_f32_taps(j->taps, src->cin, ti, bp, ci);
                     } else if (j->direct || j->inplace) {
@@ -988,10 +988,8 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                             for (int r = 0; r < MR; r++)
                                 ar[r] = i * MR + r < rows ? src->x + (size_t)(m0 + i * MR + r) * (size_t)src->ldx + (size_t)k0
                                                           : zeros;
-                        if (pair)
-                            fk__gemm_f32_ukr_avx512_rows(kc, ar, bp, bp1, ci, k0 > 0);
-                        else if (j->wide)
-                            fk__gemm_f32_ukr_avx512_6x16(kc, ar, 1, bp, ci, k0 > 0);
+                        if (j->wide)
+                            fk__gemm_f32_ukr_avx512_taps(1, kc, ar, bp, pair ? bp1 : NULL, ci, k0 > 0);
                         else
                             ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
                     } else if (pair) {

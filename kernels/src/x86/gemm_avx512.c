@@ -46,56 +46,32 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
     _mm512_store_ps(c + 144, c31); _mm512_store_ps(c + 160, c41); _mm512_store_ps(c + 176, c51);
 }
 
-/* The same 6 x 32 tile with the six rows of A read in place, one float per
- * k step from a[r] (a stride-1 convolution's pixels: the direct path, no
- * packing); each element accumulates along k in the same order as the
- * packed kernel and the AVX2 6x16 one, so the bits are theirs. */
-void fk__gemm_f32_ukr_avx512_rows(int kc, const float *const a[6], const float *b0, const float *b1,
-                                  float *c, int accumulate)
-{
-    const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
-    __m512 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
-    if (accumulate) {
-        c00 = _mm512_load_ps(c + 0);  c10 = _mm512_load_ps(c + 16); c20 = _mm512_load_ps(c + 32);
-        c30 = _mm512_load_ps(c + 48); c40 = _mm512_load_ps(c + 64); c50 = _mm512_load_ps(c + 80);
-        c01 = _mm512_load_ps(c + 96);  c11 = _mm512_load_ps(c + 112); c21 = _mm512_load_ps(c + 128);
-        c31 = _mm512_load_ps(c + 144); c41 = _mm512_load_ps(c + 160); c51 = _mm512_load_ps(c + 176);
-    } else {
-        c00 = c01 = c10 = c11 = c20 = c21 = _mm512_setzero_ps();
-        c30 = c31 = c40 = c41 = c50 = c51 = _mm512_setzero_ps();
-    }
-#pragma GCC unroll 4
-    for (int k = 0; k < kc; k++) {
-        __m512 w0 = _mm512_load_ps(b0 + 16 * k), w1 = _mm512_load_ps(b1 + 16 * k), t;
-        t = _mm512_set1_ps(a0[k]); c00 = _mm512_fmadd_ps(t, w0, c00); c01 = _mm512_fmadd_ps(t, w1, c01);
-        t = _mm512_set1_ps(a1[k]); c10 = _mm512_fmadd_ps(t, w0, c10); c11 = _mm512_fmadd_ps(t, w1, c11);
-        t = _mm512_set1_ps(a2[k]); c20 = _mm512_fmadd_ps(t, w0, c20); c21 = _mm512_fmadd_ps(t, w1, c21);
-        t = _mm512_set1_ps(a3[k]); c30 = _mm512_fmadd_ps(t, w0, c30); c31 = _mm512_fmadd_ps(t, w1, c31);
-        t = _mm512_set1_ps(a4[k]); c40 = _mm512_fmadd_ps(t, w0, c40); c41 = _mm512_fmadd_ps(t, w1, c41);
-        t = _mm512_set1_ps(a5[k]); c50 = _mm512_fmadd_ps(t, w0, c50); c51 = _mm512_fmadd_ps(t, w1, c51);
-    }
-    _mm512_store_ps(c + 0, c00);   _mm512_store_ps(c + 16, c10);  _mm512_store_ps(c + 32, c20);
-    _mm512_store_ps(c + 48, c30);  _mm512_store_ps(c + 64, c40);  _mm512_store_ps(c + 80, c50);
-    _mm512_store_ps(c + 96, c01);  _mm512_store_ps(c + 112, c11); _mm512_store_ps(c + 128, c21);
-    _mm512_store_ps(c + 144, c31); _mm512_store_ps(c + 160, c41); _mm512_store_ps(c + 176, c51);
-}
-
-/* A stride-1 convolution's whole k in one call: for each of the ntaps
- * taps, cin channels of the six pixels' rows a[6 t + r] (zeros for padding)
- * against the weights' next cin k-steps, the accumulators kept in registers
- * from the first tap to the last (a call per tap reloaded and stored the C
- * tile and rebuilt six row pointers for 16 or 32 k-steps: 16- and
- * 32-channel 3x3s at 0.59 / 0.75 of the zmm peak, one thread, Zen 5). The
- * k order is the per-tap calls' (tap, then channel): the same bits. b1 NULL:
- * one panel (six accumulators). c is [2][6][16] (or [6][16]). */
+/* The 6 x 32 tile (or 6 x 16: b1 NULL, six accumulators) with the six rows
+ * of A read in place, the tap t's at a[6 t + r] (zeros for padding), cin
+ * k-steps per tap: a stride-1 convolution's whole k in one call (ntaps
+ * taps), the accumulators in registers from the first tap to the last (a
+ * call per tap reloaded and stored the C tile and rebuilt six row pointers
+ * for 16 or 32 k-steps: 16- and 32-channel 3x3s at 0.59 / 0.75 of the zmm
+ * peak, one thread, Zen 5), or one tap's channel block (ntaps 1, cin = kc,
+ * accumulate: add to c), or rows of a plain GEMM read in place. Each element
+ * accumulates along k one FMA at a time, as the packed kernel and the AVX2
+ * 6x16 one: their bits. c is [2][6][16] (or [6][16]). */
 void fk__gemm_f32_ukr_avx512_taps(int ntaps, int cin, const float *const *a, const float *b0,
-                                  const float *b1, float *c)
+                                  const float *b1, float *c, int accumulate)
 {
     /* named accumulators: arrays of them made GCC zero a stack copy with
      * rep stos on every call */
     __m512 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51, x;
     c00 = c01 = c10 = c11 = c20 = c21 = _mm512_setzero_ps();
     c30 = c31 = c40 = c41 = c50 = c51 = _mm512_setzero_ps();
+    if (accumulate) {
+        c00 = _mm512_load_ps(c + 0);  c10 = _mm512_load_ps(c + 16); c20 = _mm512_load_ps(c + 32);
+        c30 = _mm512_load_ps(c + 48); c40 = _mm512_load_ps(c + 64); c50 = _mm512_load_ps(c + 80);
+        if (b1) {
+            c01 = _mm512_load_ps(c + 96);  c11 = _mm512_load_ps(c + 112); c21 = _mm512_load_ps(c + 128);
+            c31 = _mm512_load_ps(c + 144); c41 = _mm512_load_ps(c + 160); c51 = _mm512_load_ps(c + 176);
+        }
+    }
     if (!b1) { /* one panel: six accumulators */
         for (int t = 0; t < ntaps; t++, a += FK_GEMM_MR) {
             const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
