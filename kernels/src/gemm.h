@@ -92,8 +92,9 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
  * c[6][16]. */
 void fk__gemm_f32_ukr_avx512_taps(int ntaps, int cin, const float *const *a, const float *b0,
                                   const float *b1, float *c, int accumulate);
-/* fp32, one panel: c[6][16] (+)= a (row r at a[r][k * step]) * b[kc][16]. */
-void fk__gemm_f32_ukr_avx512_6x16(int kc, const float *const a[6], int step, const float *b,
+/* fp32, one panel: c[6][16] (+)= a * b[ntaps kc][16], ntaps taps of kc
+ * k-steps, row r of tap t at a[6 t + r][k * step]. */
+void fk__gemm_f32_ukr_avx512_6x16(int ntaps, int kc, const float *const *a, int step, const float *b,
                                   float *c, int accumulate);
 /* int8, one panel: c[6][16] (+)= u8 a[k4][6][4] * s8 b[k4][16][4]. */
 void fk__gemm_q8_ukr_avx512_6x16(int k4, const uint8_t *a, const int8_t *b, int32_t *c, int accumulate);

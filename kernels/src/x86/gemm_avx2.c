@@ -997,7 +997,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                     } else if (j->wide) {
                         const float *a0 = ap + (size_t)i * (size_t)kc * MR;
                         const float *ar[MR] = { a0, a0 + 1, a0 + 2, a0 + 3, a0 + 4, a0 + 5 };
-                        fk__gemm_f32_ukr_avx512_6x16(kc, ar, MR, bp, ci, k0 > 0);
+                        fk__gemm_f32_ukr_avx512_6x16(1, kc, ar, MR, bp, ci, k0 > 0);
                     } else {
                         fk__ukr_f32_6x16(kc, ap + (size_t)i * (size_t)kc * MR, bp, ci, NR, k0 > 0);
                     }

@@ -59,65 +59,52 @@ void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const floa
 void fk__gemm_f32_ukr_avx512_taps(int ntaps, int cin, const float *const *a, const float *b0,
                                   const float *b1, float *c, int accumulate)
 {
+    if (!b1) {
+        fk__gemm_f32_ukr_avx512_6x16(ntaps, cin, a, 1, b0, c, accumulate);
+        return;
+    }
     /* named accumulators: arrays of them made GCC zero a stack copy with
      * rep stos on every call */
     __m512 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51, x;
-    c00 = c01 = c10 = c11 = c20 = c21 = _mm512_setzero_ps();
-    c30 = c31 = c40 = c41 = c50 = c51 = _mm512_setzero_ps();
     if (accumulate) {
-        c00 = _mm512_load_ps(c + 0);  c10 = _mm512_load_ps(c + 16); c20 = _mm512_load_ps(c + 32);
-        c30 = _mm512_load_ps(c + 48); c40 = _mm512_load_ps(c + 64); c50 = _mm512_load_ps(c + 80);
-        if (b1) {
-            c01 = _mm512_load_ps(c + 96);  c11 = _mm512_load_ps(c + 112); c21 = _mm512_load_ps(c + 128);
-            c31 = _mm512_load_ps(c + 144); c41 = _mm512_load_ps(c + 160); c51 = _mm512_load_ps(c + 176);
-        }
-    }
-    if (!b1) { /* one panel: six accumulators */
-        for (int t = 0; t < ntaps; t++, a += FK_GEMM_MR) {
-            const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
-#pragma GCC unroll 4
-            for (int k = 0; k < cin; k++, b0 += 16) {
-                __m512 w = _mm512_load_ps(b0);
-                c00 = _mm512_fmadd_ps(_mm512_set1_ps(a0[k]), w, c00);
-                c10 = _mm512_fmadd_ps(_mm512_set1_ps(a1[k]), w, c10);
-                c20 = _mm512_fmadd_ps(_mm512_set1_ps(a2[k]), w, c20);
-                c30 = _mm512_fmadd_ps(_mm512_set1_ps(a3[k]), w, c30);
-                c40 = _mm512_fmadd_ps(_mm512_set1_ps(a4[k]), w, c40);
-                c50 = _mm512_fmadd_ps(_mm512_set1_ps(a5[k]), w, c50);
-            }
-        }
+        c00 = _mm512_load_ps(c + 0);   c10 = _mm512_load_ps(c + 16);  c20 = _mm512_load_ps(c + 32);
+        c30 = _mm512_load_ps(c + 48);  c40 = _mm512_load_ps(c + 64);  c50 = _mm512_load_ps(c + 80);
+        c01 = _mm512_load_ps(c + 96);  c11 = _mm512_load_ps(c + 112); c21 = _mm512_load_ps(c + 128);
+        c31 = _mm512_load_ps(c + 144); c41 = _mm512_load_ps(c + 160); c51 = _mm512_load_ps(c + 176);
     } else {
-        for (int t = 0; t < ntaps; t++, a += FK_GEMM_MR) {
-            const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
-#pragma GCC unroll 4
-            for (int k = 0; k < cin; k++, b0 += 16, b1 += 16) {
-                __m512 w0 = _mm512_load_ps(b0), w1 = _mm512_load_ps(b1);
-                x = _mm512_set1_ps(a0[k]); c00 = _mm512_fmadd_ps(x, w0, c00); c01 = _mm512_fmadd_ps(x, w1, c01);
-                x = _mm512_set1_ps(a1[k]); c10 = _mm512_fmadd_ps(x, w0, c10); c11 = _mm512_fmadd_ps(x, w1, c11);
-                x = _mm512_set1_ps(a2[k]); c20 = _mm512_fmadd_ps(x, w0, c20); c21 = _mm512_fmadd_ps(x, w1, c21);
-                x = _mm512_set1_ps(a3[k]); c30 = _mm512_fmadd_ps(x, w0, c30); c31 = _mm512_fmadd_ps(x, w1, c31);
-                x = _mm512_set1_ps(a4[k]); c40 = _mm512_fmadd_ps(x, w0, c40); c41 = _mm512_fmadd_ps(x, w1, c41);
-                x = _mm512_set1_ps(a5[k]); c50 = _mm512_fmadd_ps(x, w0, c50); c51 = _mm512_fmadd_ps(x, w1, c51);
-            }
-        }
-        _mm512_store_ps(c + 96, c01);  _mm512_store_ps(c + 112, c11); _mm512_store_ps(c + 128, c21);
-        _mm512_store_ps(c + 144, c31); _mm512_store_ps(c + 160, c41); _mm512_store_ps(c + 176, c51);
+        c00 = c01 = c10 = c11 = c20 = c21 = _mm512_setzero_ps();
+        c30 = c31 = c40 = c41 = c50 = c51 = _mm512_setzero_ps();
     }
-    _mm512_store_ps(c + 0, c00);  _mm512_store_ps(c + 16, c10); _mm512_store_ps(c + 32, c20);
-    _mm512_store_ps(c + 48, c30); _mm512_store_ps(c + 64, c40); _mm512_store_ps(c + 80, c50);
+    for (int t = 0; t < ntaps; t++, a += FK_GEMM_MR) {
+        const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
+#pragma GCC unroll 4
+        for (int k = 0; k < cin; k++, b0 += 16, b1 += 16) {
+            __m512 w0 = _mm512_load_ps(b0), w1 = _mm512_load_ps(b1);
+            x = _mm512_set1_ps(a0[k]); c00 = _mm512_fmadd_ps(x, w0, c00); c01 = _mm512_fmadd_ps(x, w1, c01);
+            x = _mm512_set1_ps(a1[k]); c10 = _mm512_fmadd_ps(x, w0, c10); c11 = _mm512_fmadd_ps(x, w1, c11);
+            x = _mm512_set1_ps(a2[k]); c20 = _mm512_fmadd_ps(x, w0, c20); c21 = _mm512_fmadd_ps(x, w1, c21);
+            x = _mm512_set1_ps(a3[k]); c30 = _mm512_fmadd_ps(x, w0, c30); c31 = _mm512_fmadd_ps(x, w1, c31);
+            x = _mm512_set1_ps(a4[k]); c40 = _mm512_fmadd_ps(x, w0, c40); c41 = _mm512_fmadd_ps(x, w1, c41);
+            x = _mm512_set1_ps(a5[k]); c50 = _mm512_fmadd_ps(x, w0, c50); c51 = _mm512_fmadd_ps(x, w1, c51);
+        }
+    }
+    _mm512_store_ps(c + 0, c00);   _mm512_store_ps(c + 16, c10);  _mm512_store_ps(c + 32, c20);
+    _mm512_store_ps(c + 48, c30);  _mm512_store_ps(c + 64, c40);  _mm512_store_ps(c + 80, c50);
+    _mm512_store_ps(c + 96, c01);  _mm512_store_ps(c + 112, c11); _mm512_store_ps(c + 128, c21);
+    _mm512_store_ps(c + 144, c31); _mm512_store_ps(c + 160, c41); _mm512_store_ps(c + 176, c51);
 }
 
 /* One 16-wide panel (the odd one of a chunk, or n <= 16): a 6 x 16 tile in
- * six zmm accumulators, row r of A at a[r][k * step] (step 6: a packed
- * micro-panel, 1: rows in place). Six dependent FMA chains fill three
- * quarters of two 4-cycle FMA pipes, against half the zmm rate for the ymm
- * 6x16 tile it replaces (6912 x 16 <- 288, the DPT heads' 16-channel 3x3,
- * was 9 % of the tiny forward's samples there); along k one FMA at a time
- * per element, as every other tile: the same bits. c is [6][16]. */
-void fk__gemm_f32_ukr_avx512_6x16(int kc, const float *const a[6], int step, const float *b,
+ * six zmm accumulators, ntaps taps of kc k-steps, row r of tap t at
+ * a[6 t + r][k * step] (step 6: a packed micro-panel, 1: rows in place).
+ * Six dependent FMA chains fill three quarters of two 4-cycle FMA pipes,
+ * against half the zmm rate for the ymm 6x16 tile it replaces (6912 x 16
+ * <- 288, the DPT heads' 16-channel 3x3, was 9 % of the tiny forward's
+ * samples there); along k one FMA at a time per element, as every other
+ * tile: the same bits. c is [6][16]. */
+void fk__gemm_f32_ukr_avx512_6x16(int ntaps, int kc, const float *const *a, int step, const float *b,
                                   float *c, int accumulate)
 {
-    const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
     __m512 c0, c1, c2, c3, c4, c5;
     if (accumulate) {
         c0 = _mm512_load_ps(c + 0);  c1 = _mm512_load_ps(c + 16); c2 = _mm512_load_ps(c + 32);
@@ -125,16 +112,19 @@ void fk__gemm_f32_ukr_avx512_6x16(int kc, const float *const a[6], int step, con
     } else {
         c0 = c1 = c2 = c3 = c4 = c5 = _mm512_setzero_ps();
     }
+    for (int t = 0; t < ntaps; t++, a += FK_GEMM_MR) {
+        const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
 #pragma GCC unroll 4
-    for (int k = 0; k < kc; k++) {
-        __m512 w = _mm512_load_ps(b + 16 * k);
-        size_t o = (size_t)k * (size_t)step;
-        c0 = _mm512_fmadd_ps(_mm512_set1_ps(a0[o]), w, c0);
-        c1 = _mm512_fmadd_ps(_mm512_set1_ps(a1[o]), w, c1);
-        c2 = _mm512_fmadd_ps(_mm512_set1_ps(a2[o]), w, c2);
-        c3 = _mm512_fmadd_ps(_mm512_set1_ps(a3[o]), w, c3);
-        c4 = _mm512_fmadd_ps(_mm512_set1_ps(a4[o]), w, c4);
-        c5 = _mm512_fmadd_ps(_mm512_set1_ps(a5[o]), w, c5);
+        for (int k = 0; k < kc; k++, b += 16) {
+            __m512 w = _mm512_load_ps(b);
+            size_t o = (size_t)k * (size_t)step;
+            c0 = _mm512_fmadd_ps(_mm512_set1_ps(a0[o]), w, c0);
+            c1 = _mm512_fmadd_ps(_mm512_set1_ps(a1[o]), w, c1);
+            c2 = _mm512_fmadd_ps(_mm512_set1_ps(a2[o]), w, c2);
+            c3 = _mm512_fmadd_ps(_mm512_set1_ps(a3[o]), w, c3);
+            c4 = _mm512_fmadd_ps(_mm512_set1_ps(a4[o]), w, c4);
+            c5 = _mm512_fmadd_ps(_mm512_set1_ps(a5[o]), w, c5);
+        }
     }
     _mm512_store_ps(c + 0, c0);  _mm512_store_ps(c + 16, c1); _mm512_store_ps(c + 32, c2);
     _mm512_store_ps(c + 48, c3); _mm512_store_ps(c + 64, c4); _mm512_store_ps(c + 80, c5);
