@@ -31,16 +31,18 @@
 
 /* ----------------------------------------------------------- micro-kernels */
 
-/* c[6][ldc] (16 columns) (+)= A[6][kc] * b[kc][16]: the fp32 register tile of
- * the GEMM, of the convolutions and of attention's Q K^T. Row r of A is read
- * at a[r][k * step]: step 6 walks a packed micro-panel [kc][6], step 1 rows
- * read in place (a stride-1 convolution's six pixels, adjacent in memory, so
- * no im2col gather). Kept out of line: inlined into a driver, GCC runs out of
- * general registers and spills the A pointers. */
-__attribute__((noinline)) static void ukr_f32(int kc, const float *const a[MR], int step,
+/* c[6][ldc] (16 columns) (+)= A[6][ntaps kc] * b[ntaps kc][16]: the fp32
+ * register tile of the GEMM, of the convolutions and of attention's Q K^T.
+ * Row r of tap t is read at a[6 t + r][k * step]: step 6 walks a packed
+ * micro-panel [kc][6], step 1 rows read in place (a stride-1 convolution's
+ * six pixels, adjacent in memory, so no im2col gather). Several taps (a
+ * convolution's whole k in one call) keep the accumulators in registers
+ * across them: a call per tap reloaded the C tile and rebuilt the row
+ * pointers for 16 k-steps. Kept out of line: inlined into a driver, GCC runs
+ * out of general registers and spills the A pointers. */
+__attribute__((noinline)) static void ukr_f32(int ntaps, int kc, const float *const *a, int step,
                                               const float *b, float *c, int ldc, int accumulate)
 {
-    const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
     __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
     if (accumulate) {
         c00 = _mm256_load_ps(c + 0 * ldc); c01 = _mm256_load_ps(c + 0 * ldc + 8);
@@ -53,17 +55,20 @@ __attribute__((noinline)) static void ukr_f32(int kc, const float *const a[MR], 
         c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
         c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
     }
+    for (int tap = 0; tap < ntaps; tap++, a += MR) {
+        const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
 #pragma GCC unroll 4
-    for (int k = 0; k < kc; k++) {
-        __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
-        t = _mm256_broadcast_ss(a0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
-        t = _mm256_broadcast_ss(a1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
-        t = _mm256_broadcast_ss(a2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
-        t = _mm256_broadcast_ss(a3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
-        t = _mm256_broadcast_ss(a4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
-        t = _mm256_broadcast_ss(a5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
-        a0 += step; a1 += step; a2 += step; a3 += step; a4 += step; a5 += step;
-        b += 16;
+        for (int k = 0; k < kc; k++) {
+            __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
+            t = _mm256_broadcast_ss(a0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
+            t = _mm256_broadcast_ss(a1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
+            t = _mm256_broadcast_ss(a2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
+            t = _mm256_broadcast_ss(a3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
+            t = _mm256_broadcast_ss(a4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
+            t = _mm256_broadcast_ss(a5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
+            a0 += step; a1 += step; a2 += step; a3 += step; a4 += step; a5 += step;
+            b += 16;
+        }
     }
     _mm256_store_ps(c + 0 * ldc, c00); _mm256_store_ps(c + 0 * ldc + 8, c01);
     _mm256_store_ps(c + 1 * ldc, c10); _mm256_store_ps(c + 1 * ldc + 8, c11);
@@ -73,40 +78,10 @@ __attribute__((noinline)) static void ukr_f32(int kc, const float *const a[MR], 
     _mm256_store_ps(c + 5 * ldc, c50); _mm256_store_ps(c + 5 * ldc + 8, c51);
 }
 
-/* ukr_f32 over a stride-1 convolution's whole k: ntaps taps of cin channels,
- * the six rows of tap t at a[6 t + r], the accumulators in registers across
- * the taps (a call per tap reloaded the C tile and rebuilt the row pointers
- * for 16 k-steps); the k order of the per-tap calls, so the same bits. c is
- * [6][16]. */
-__attribute__((noinline)) static void ukr_f32_taps(int ntaps, int cin, const float *const *a,
-                                                   const float *b, float *c)
-{
-    __m256 c00, c01, c10, c11, c20, c21, c30, c31, c40, c41, c50, c51;
-    c00 = c01 = c10 = c11 = c20 = c21 = _mm256_setzero_ps();
-    c30 = c31 = c40 = c41 = c50 = c51 = _mm256_setzero_ps();
-    for (int t = 0; t < ntaps; t++, a += MR) {
-        const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
-#pragma GCC unroll 4
-        for (int k = 0; k < cin; k++, b += 16) {
-            __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), x;
-            x = _mm256_broadcast_ss(a0 + k); c00 = _mm256_fmadd_ps(x, b0, c00); c01 = _mm256_fmadd_ps(x, b1, c01);
-            x = _mm256_broadcast_ss(a1 + k); c10 = _mm256_fmadd_ps(x, b0, c10); c11 = _mm256_fmadd_ps(x, b1, c11);
-            x = _mm256_broadcast_ss(a2 + k); c20 = _mm256_fmadd_ps(x, b0, c20); c21 = _mm256_fmadd_ps(x, b1, c21);
-            x = _mm256_broadcast_ss(a3 + k); c30 = _mm256_fmadd_ps(x, b0, c30); c31 = _mm256_fmadd_ps(x, b1, c31);
-            x = _mm256_broadcast_ss(a4 + k); c40 = _mm256_fmadd_ps(x, b0, c40); c41 = _mm256_fmadd_ps(x, b1, c41);
-            x = _mm256_broadcast_ss(a5 + k); c50 = _mm256_fmadd_ps(x, b0, c50); c51 = _mm256_fmadd_ps(x, b1, c51);
-        }
-    }
-    _mm256_store_ps(c + 0, c00);  _mm256_store_ps(c + 8, c01);  _mm256_store_ps(c + 16, c10);
-    _mm256_store_ps(c + 24, c11); _mm256_store_ps(c + 32, c20); _mm256_store_ps(c + 40, c21);
-    _mm256_store_ps(c + 48, c30); _mm256_store_ps(c + 56, c31); _mm256_store_ps(c + 64, c40);
-    _mm256_store_ps(c + 72, c41); _mm256_store_ps(c + 80, c50); _mm256_store_ps(c + 88, c51);
-}
-
 void fk__ukr_f32_6x16(int kc, const float *a, const float *b, float *c, int ldc, int accumulate)
 {
     const float *rows[MR] = { a, a + 1, a + 2, a + 3, a + 4, a + 5 };
-    ukr_f32(kc, rows, MR, b, c, ldc, accumulate);
+    ukr_f32(1, kc, rows, MR, b, c, ldc, accumulate);
 }
 
 static inline long long load_i64(const int16_t *p)
@@ -979,7 +954,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                         if (j->wide)
                             fk__gemm_f32_ukr_avx512_taps(j->taps, src->cin, ti, bp, pair ? bp1 : NULL, ci, 0);
                         else
-                            ukr_f32_taps(j->taps, src->cin, ti, bp, ci);
+                            ukr_f32(j->taps, src->cin, ti, 1, bp, ci, NR, 0);
                     } else if (j->direct || j->inplace) {
                         const float *ar[MR];
                         if (j->direct)
@@ -991,7 +966,7 @@ static void task_float(const struct gemm_job *j, int m0, int rows, int jp0, int 
                         if (j->wide)
                             fk__gemm_f32_ukr_avx512_taps(1, kc, ar, bp, pair ? bp1 : NULL, ci, k0 > 0);
                         else
-                            ukr_f32(kc, ar, 1, bp, ci, NR, k0 > 0);
+                            ukr_f32(1, kc, ar, 1, bp, ci, NR, k0 > 0);
                     } else if (pair) {
                         fk__gemm_f32_ukr_avx512(kc, ap + (size_t)i * (size_t)kc * MR, bp, bp1, ci, k0 > 0);
                     } else if (j->wide) {

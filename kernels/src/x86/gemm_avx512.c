@@ -12,7 +12,6 @@
 #include "vecmath_avx2.h"
 #include "vecmath_avx512.h"
 
-
 void fk__gemm_f32_ukr_avx512(int kc, const float *a, const float *b0, const float *b1, float *c,
                              int accumulate)
 {
