@@ -49,7 +49,8 @@ struct fk_attention_desc {
     const int32_t *pos_k;      /* [nk][2] */
     float          rope_base;  /* 100 in VGGT; 0 means 100                       */
     /* Nonzero: the q.k and p.v products in bfloat16 with fp32 accumulation
-     * where the context has AVX512_BF16 (fk_ctx_has_bf16; fp32 elsewhere).
+     * where the context runs them (fk_ctx_has_bf16: AVX512_BF16, and by
+     * default only on AMD, where they pay; fp32 elsewhere).
      * LayerNorm, RoPE, the softmax and the row sums stay fp32; q, k, v and
      * the softmax weights p are rounded to bf16 (8-bit significand), and the
      * row sum adds the rounded p that multiply v. Error: see README

@@ -56,6 +56,8 @@ enum {
     FK_CPU_ASIMDDP  = 1u << 5, /* AArch64 dot product (sdot/udot), ARMv8.2+ */
     FK_CPU_AVX512   = 1u << 6, /* F + BW + VL + VNNI, ZMM state enabled by the OS */
     FK_CPU_AVX512_BF16 = 1u << 7, /* AVX512_BF16 (vdpbf16ps) beside FK_CPU_AVX512 */
+    FK_CPU_AMD      = 1u << 8, /* vendor AuthenticAMD / HygonGenuine: not an ISA,
+                                * it picks where bf16 attention pays (fk_bf16_use) */
 };
 
 /* Data caches as read at context creation (cpuid leaf 4 on Intel, 0x8000001D
@@ -86,6 +88,15 @@ enum fk_q8_bits {
                      * spent per pair; requantized at packing              */
 };
 
+/* Whether a desc's bf16 attention (desc.bf16, set by the model for int8
+ * weights) runs in bf16 on an AVX-512 context of a CPU with AVX512_BF16.
+ * AUTO: where the CPU runs vdpbf16ps at twice the fp32 FMA rate, AMD's
+ * (Zen 4 / Zen 5: bf16 attention 1.3-1.5x fp32 on Zen 5); not on Intel's
+ * (Cooper Lake, Sapphire / Emerald / Granite Rapids: one vdpbf16ps per cycle,
+ * the rate of two FMAs, so the conversions made it 0.63-0.70x fp32 on the
+ * Xeon VM). ON: wherever the CPU has it (tests, benches); OFF: never. */
+enum fk_bf16_use { FK_BF16_AUTO = 0, FK_BF16_ON = 1, FK_BF16_OFF = 2 };
+
 struct fk_ctx_config {
     enum fk_isa isa;     /* FK_ISA_AUTO picks the best the CPU supports          */
     int         threads; /* 0 = all online CPUs; 1 = no pool threads at all      */
@@ -95,6 +106,7 @@ struct fk_ctx_config {
     struct fk_gemm_blocks blocks;  /* override of the cache model's blocks  */
     struct fk_cache_info  caches;  /* l1d/l2 nonzero: model these caches     */
     enum fk_q8_bits       q8_bits; /* int8 weight codes                      */
+    enum fk_bf16_use      bf16;    /* bf16 attention (FK_ATTN_BF16=0|1 where AUTO) */
 };
 
 typedef struct fk_ctx fk_ctx;
@@ -113,7 +125,8 @@ enum fk_q8_bits       fk_ctx_q8_bits    (const fk_ctx *ctx); /* 7 or 8 (never AU
  * "avx2-7bit", "avx2-8bit". */
 const char * fk_ctx_q8_path  (const fk_ctx *ctx);
 /* Nonzero where a desc's bf16 attention runs in bf16: the context's ISA is
- * FK_ISA_AVX512 and the CPU has AVX512_BF16. */
+ * FK_ISA_AVX512, the CPU has AVX512_BF16 and the config's bf16 (AUTO: an
+ * AMD CPU) lets it. */
 int          fk_ctx_has_bf16 (const fk_ctx *ctx);
 /* Nonzero where a desc's int16 attention runs in int16: the context's ISA
  * is FK_ISA_AVX2 (AVX2 without VNNI or AVX-512, where int8 weights take the

@@ -28,6 +28,16 @@ static unsigned long long xgetbv0(void)
     return ((unsigned long long)hi << 32) | lo;
 }
 
+/* AuthenticAMD or HygonGenuine (leaf 0's vendor string in b, d, c) */
+static int vendor_amd(void)
+{
+    unsigned a, b, c, d;
+    if (!__get_cpuid(0, &a, &b, &c, &d))
+        return 0;
+    return (b == 0x68747541u && d == 0x69746e65u && c == 0x444d4163u) ||
+           (b == 0x6f677948u && d == 0x6e65476eu && c == 0x656e6975u);
+}
+
 static unsigned detect_x86(void)
 {
     unsigned a, b, c, d, f = 0;
@@ -51,6 +61,7 @@ static unsigned detect_x86(void)
         if ((a >> 4) & 1) f |= FK_CPU_AVX_VNNI;
         if (((a >> 5) & 1) && (f & FK_CPU_AVX512)) f |= FK_CPU_AVX512_BF16;
     }
+    if (vendor_amd()) f |= FK_CPU_AMD;
     return f;
 }
 #endif
@@ -67,8 +78,7 @@ static int caches_cpuid(struct fk_cache_info *ci)
     if (!__get_cpuid(0, &a, &b, &c, &d))
         return 0;
     unsigned max_std = a;
-    int amd = (b == 0x68747541u && d == 0x69746e65u && c == 0x444d4163u) ||  /* AuthenticAMD */
-              (b == 0x6f677948u && d == 0x6e65476eu && c == 0x656e6975u);    /* HygonGenuine */
+    int amd = vendor_amd();
     if (amd) {
         unsigned max_ext = __get_cpuid_max(0x80000000u, NULL);
         if (max_ext >= 0x8000001Du && __get_cpuid(0x80000001u, &a, &b, &c, &d) && ((c >> 22) & 1))
@@ -446,6 +456,16 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     if (qbits != FK_Q8_7BIT && qbits != FK_Q8_8BIT)
         qbits = isa == FK_ISA_AVX2 ? FK_Q8_7BIT : FK_Q8_8BIT;
 
+    /* bf16 attention: the config's choice, else FK_ATTN_BF16 (0 or 1),
+     * else where vdpbf16ps runs at twice the FMA rate (fk_bf16_use) */
+    if (cfg->bf16 != FK_BF16_AUTO && cfg->bf16 != FK_BF16_ON && cfg->bf16 != FK_BF16_OFF)
+        return F4D_EINVAL;
+    const char *benv = getenv("FK_ATTN_BF16");
+    int bf16_use = cfg->bf16 == FK_BF16_ON                               ? 1
+                 : cfg->bf16 == FK_BF16_OFF                              ? 0
+                 : benv && (!strcmp(benv, "0") || !strcmp(benv, "1")) ? benv[0] == '1'
+                                                                         : (fk_cpu_features() & FK_CPU_AMD) != 0;
+
     fk_ctx *ctx = calloc(1, sizeof *ctx);
     if (!ctx)
         return F4D_ENOMEM;
@@ -464,7 +484,7 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     ctx->blocks = blocks_override(blocks_override(fk_gemm_blocks_for(&ctx->caches), blocks_env()),
                                   cfg->blocks);
     ctx->q8_bits = qbits;
-    ctx->bf16 = isa == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16);
+    ctx->bf16 = isa == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16) && bf16_use;
     ctx->int16 = isa == FK_ISA_AVX2;
     ctx->local = calloc((size_t)threads, sizeof *ctx->local);
     if (!ctx->local) {

@@ -51,11 +51,32 @@ static void test_isa_selection(void **state)
         cfg = (struct fk_ctx_config){ .isa = (enum fk_isa)i, .threads = 1 };
         if (!fk_isa_supported((enum fk_isa)i))
             continue;
-        assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
-        assert_int_equal(fk_ctx_has_bf16(ctx),
-                         i == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16) != 0);
-        fk_ctx_free(ctx);
+        int can = i == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16) != 0;
+        /* AUTO: where vdpbf16ps pays (AMD); ON: wherever it runs; OFF: never */
+        static const enum fk_bf16_use uses[] = { FK_BF16_AUTO, FK_BF16_ON, FK_BF16_OFF };
+        for (int u = 0; u < 3; u++) {
+            cfg.bf16 = uses[u];
+            unsetenv("FK_ATTN_BF16");
+            assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+            int want = uses[u] == FK_BF16_ON ? can
+                     : uses[u] == FK_BF16_OFF ? 0 : can && (fk_cpu_features() & FK_CPU_AMD) != 0;
+            assert_int_equal(fk_ctx_has_bf16(ctx), want);
+            fk_ctx_free(ctx);
+            if (uses[u] == FK_BF16_AUTO) { /* the environment decides where the config does not */
+                setenv("FK_ATTN_BF16", "1", 1);
+                assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+                assert_int_equal(fk_ctx_has_bf16(ctx), can);
+                fk_ctx_free(ctx);
+                setenv("FK_ATTN_BF16", "0", 1);
+                assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
+                assert_int_equal(fk_ctx_has_bf16(ctx), 0);
+                fk_ctx_free(ctx);
+                unsetenv("FK_ATTN_BF16");
+            }
+        }
     }
+    cfg = (struct fk_ctx_config){ .isa = FK_ISA_REF, .threads = 1, .bf16 = (enum fk_bf16_use)7 };
+    assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_EINVAL);
 }
 
 struct count_arg {

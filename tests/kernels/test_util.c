@@ -61,7 +61,8 @@ int test_isas(enum fk_isa out[4])
 fk_ctx *test_ctx(enum fk_isa isa, int threads)
 {
     fk_ctx *ctx = NULL;
-    struct fk_ctx_config cfg = { .isa = isa, .threads = threads };
+    /* bf16 attention wherever the CPU has it: the tests hold every path */
+    struct fk_ctx_config cfg = { .isa = isa, .threads = threads, .bf16 = FK_BF16_ON };
     assert_int_equal(fk_ctx_new(&cfg, &ctx), F4D_OK);
     return ctx;
 }

@@ -134,7 +134,9 @@ static void errors_vs(const float *y, const float *ref, size_t n, double *max_re
 static fk_ctx *make_ctx(enum fk_isa isa, int threads)
 {
     fk_ctx *ctx;
-    struct fk_ctx_config cfg = { .isa = isa, .threads = threads };
+    /* bf16 attention wherever the CPU has it, beside fp32, also where the
+     * model's contexts (FK_BF16_AUTO) leave it off */
+    struct fk_ctx_config cfg = { .isa = isa, .threads = threads, .bf16 = FK_BF16_ON };
     if (fk_ctx_new(&cfg, &ctx) != F4D_OK) {
         fprintf(stderr, "f4d-bench: cannot create a %s context with %d threads\n",
                 fk_isa_name(isa), threads);
@@ -149,15 +151,22 @@ static int cmp_double(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
-/* Before each timed call with threads > 1: a millisecond for the idle
- * threads of whichever library ran last to fall asleep (ours spin 4000
- * pauses, OpenBLAS's 2^OPENBLAS_THREAD_TIMEOUT cycles, set below), so
- * that neither is timed beside the other's spinning worker on a 2-core
- * machine, and every timed call pays the same one wake-up. */
+/* Before each timed call with threads > 1: 100 us for the idle threads of
+ * whichever library ran last to fall asleep (ours spin 4000 pauses, 45 us on
+ * the Xeon VM; OpenBLAS 2^OPENBLAS_THREAD_TIMEOUT TSC cycles, set to 2^14
+ * below), so that neither is timed beside the other's spinning worker on a
+ * 2-core machine, and every timed call pays the same one wake-up. Not
+ * longer: a vCPU idle past KVM's halt polling (200 us by default) is
+ * descheduled, and the call after a 1 ms settle ran either at its usual time
+ * or twice it (226 x 256 <- 64, 2 threads, Xeon VM: 60 or 125 us, both
+ * libraries, both weight types), so a row's median of pairs was decided by
+ * which side drew the slow wake-up (f16 / f32 0.49-0.60 with best times
+ * within 7 %). */
+#define SETTLE_NS 100000
 static void settle(int threads)
 {
     if (threads > 1)
-        nanosleep(&(struct timespec){ 0, 1000000 }, NULL);
+        nanosleep(&(struct timespec){ 0, SETTLE_NS }, NULL);
 }
 
 /* Median of num[r] / den[r] over the reps: the ratio of two kernels timed in
@@ -641,8 +650,9 @@ int bench_kernels(int argc, char **argv)
      * sleep, 2^28 TSC cycles by default (0.1 s). On a 2-core machine that
      * spin took a core from whatever ran next: after each OpenBLAS call it
      * slowed our f32 GEMM timed next (2 threads, Zen 5: medians of pairs
-     * 0.60-0.92x on shapes where best times gave 1.01-1.06x). 2^18 cycles is
-     * about our pool's spin (4000 pauses); the user's own setting is kept. */
+     * 0.60-0.92x on shapes where best times gave 1.01-1.06x). 2^14 cycles
+     * (6 us at a 2.6 GHz TSC) ends well inside the settle before each timed
+     * call; the user's own setting is kept. */
     const char *inherited = getenv("OPENBLAS_CORETYPE");
     int set_timeout = !getenv("OPENBLAS_THREAD_TIMEOUT");
     if (!getenv("F4D_BENCH_OPENBLAS_SET") &&
@@ -661,7 +671,7 @@ int bench_kernels(int argc, char **argv)
         else if (o.openblas_native)
             unsetenv("OPENBLAS_CORETYPE");
         if (set_timeout)
-            setenv("OPENBLAS_THREAD_TIMEOUT", "18", 1);
+            setenv("OPENBLAS_THREAD_TIMEOUT", "14", 1);
         setenv("F4D_BENCH_OPENBLAS_SET", "1", 1);
         execv("/proc/self/exe", argv - 1);
         fprintf(stderr, "f4d-bench kernels: cannot restart with OPENBLAS_CORETYPE=%s; "
@@ -693,7 +703,7 @@ int bench_kernels(int argc, char **argv)
     printf("peer: OpenBLAS sgemm, %s kernels%s, idle workers spin 2^%s cycles (OPENBLAS_THREAD_TIMEOUT)%s%s\n",
            openblas_get_corename(), getenv("OPENBLAS_CORETYPE") ? " (OPENBLAS_CORETYPE)" : "",
            getenv("OPENBLAS_THREAD_TIMEOUT") ? getenv("OPENBLAS_THREAD_TIMEOUT") : "28",
-           o.threads_max > 1 ? "; 1 ms settle before each timed multi-thread call" : "",
+           o.threads_max > 1 ? "; 100 us settle before each timed multi-thread call" : "",
            o.no_avx512 ? "; the avx512 GEMM rows: SkylakeX kernels, in a second process" : "");
 #else
     printf("peer: OpenBLAS not built in (F4D_BENCH_OPENBLAS=OFF)\n");
