@@ -240,6 +240,20 @@ static void build_rope(struct attn_job *j, int lo, int span, float *t)
     j->rope = (struct fk__rope_table){ 1, lo, span, quarter, t, sn };
 }
 
+enum fk_attn_products fk_attention_products(const fk_ctx *ctx, const struct fk_attention_desc *a)
+{
+    if (!ctx || !a || a->head_dim > 1024) /* the reference runs those */
+        return FK_ATTN_F32;
+    if (a->bf16 && ctx->bf16)
+        return FK_ATTN_BF16;
+    /* AVX-512 (vpdpwssd) from 64-dim heads: 1.17-1.37x fp32 zmm at 64, 0.76x
+     * at 16 (the softmax's AVX2 code outweighs the cheaper products there) */
+    int dp = (int)fk__round_up((size_t)(a->head_dim > 0 ? a->head_dim : 0), 16);
+    if (a->int16 && ctx->int16 && (ctx->isa != FK_ISA_AVX512 || dp >= 64))
+        return FK_ATTN_INT16;
+    return FK_ATTN_F32;
+}
+
 int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
                            const struct fk_attention_desc *a, const float *q, int ldq, int nq,
                            const float *k, int ldk, const float *v, int ldv, int nk, float *out,
@@ -255,7 +269,11 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
     /* Head dims off the 16-wide tiles (the shipped model's 24) run on tiles
      * padded with zero columns: they add nothing to q.k or to P V. */
     j.dp = (int)fk__round_up((size_t)d, 16);
-    j.kw = isa->block ? BK : NR; /* see attention_plan.h */
+    /* bf16 / int16 products where the desc asks and the context runs them */
+    enum fk_attn_products prod = fk_attention_products(ctx, a);
+    int bf16 = prod == FK_ATTN_BF16, i16 = prod == FK_ATTN_INT16;
+    /* see attention_plan.h; the int16 packs read 16-key panels on every ISA */
+    j.kw = isa->block && !i16 ? BK : NR;
     j.nk_pad = (int)fk__round_up((size_t)nk, BK);
     j.nq_pad = (int)fk__round_up((size_t)nq, MR);
     j.qscale = (a->scale > 0 ? a->scale : 1.0f / sqrtf((float)d)) * LOG2E;
@@ -287,7 +305,6 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
     if (grp_bytes > per_head * (size_t)a->heads)
         grp_bytes = per_head * (size_t)a->heads;
     /* bf16 products: the bf16 packs take at most half of the fp32 ones */
-    int bf16 = a->bf16 && ctx->bf16;
     size_t bf_local = 0, bf_head = 0;
     if (bf16) {
         fk__attn_bf16_bytes(j.dp, j.nk_pad, &bf_local, &bf_head);
@@ -296,7 +313,6 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
     }
     /* int16 products: packs as bf16's plus their scales, which take at
      * most (1 + dp / 64) / (2 dp) <= 1/25 of the fp32 packs (dp >= 16) */
-    int i16 = !bf16 && a->int16 && ctx->int16;
     if (i16) {
         size_t i16_local = fk__attn_i16_local_bytes(j.dp);
         local = local > i16_local ? local : i16_local;
@@ -339,7 +355,7 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
             float *sv = (float *)fk__round_up((uintptr_t)(sk + (size_t)j.nk_pad * (size_t)j.hn), FK_ALIGN);
             struct fk__attn_i16_job b = {
                 ctx, j.kp, j.vp, j.qp, j.head_k, j.head_v, j.head_q, kq, vq, pairs, sk, sv,
-                nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
+                nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out, ctx->isa == FK_ISA_AVX512,
             };
             fk__attn_i16_run(&b);
             continue;

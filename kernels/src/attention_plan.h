@@ -163,7 +163,7 @@ void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, floa
 /* int16 products (x86/attention_i16_avx2.c), for a desc with int16 set
  * where ctx->int16 (and not bf16): after phase 1 the group's fp32 packs are
  * quantized once to int16 pairs with their scales, then phase 2 runs S and
- * P V with vpmaddwd into exact int32 sums. */
+ * P V with vpmaddwd (AVX-512: vpdpwssd) into exact int32 sums. */
 struct fk__attn_i16_job {
     fk_ctx      *ctx;
     const float *kp, *vp, *qp;         /* the group's fp32 packs (phase 1), kw = NR */
@@ -173,8 +173,15 @@ struct fk__attn_i16_job {
     float       *sk, *sv;              /* key scales [nk_pad], value scales [nk_pad/BK][dp] per head */
     int          nq, nk, nk_pad, d, dp, h0, hn, q_blocks, ldo;
     float       *out;
+    int          wide;                 /* AVX-512: the products by vpdpwssd */
 };
 #if defined(__x86_64__)
+/* The two products of one 6-query panel and BK-key block in zmm with
+ * vpdpwssd (x86/attention_i16_avx512.c): the AVX2 tiles' bits. */
+void fk__attn_i16_s_block_avx512(int dp, const uint32_t *q, const uint32_t *kb, const float *sq,
+                                 const float *sk, float *s);
+void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
+                                 const float *alpha, const float *ps);
 /* per-thread scratch of the int16 path (its shared packs and scales are
  * bounded by a fraction of the fp32 packs: attention_plan.c) */
 size_t fk__attn_i16_local_bytes(int dp);

@@ -177,7 +177,7 @@ static void test_onehot_and_uniform(void **state)
     for (int a = 0; a < 3 * n_isa; a++) {
         fk_ctx *ctx = test_ctx(all[a / 3], 2);
         struct fk_attention_desc desc = { .heads = 1, .head_dim = d, .bf16 = a % 3 == 1, .int16 = a % 3 == 2 };
-        double tol = fk_ctx_has_int16(ctx) && desc.int16 ? 126.0 / 8190 : 0;
+        double tol = fk_attention_products(ctx, &desc) == FK_ATTN_INT16 ? 126.0 / 8190 : 0;
         assert_int_equal(fk_attention(ctx, &desc, q, d, nq, k, d, v, d, nk, o, d), F4D_OK);
         for (int c = 0; c < d; c++) {
             assert_float_equal(o[c], v[20 * d + c], 1e-4 + tol);
@@ -494,7 +494,7 @@ static int run_lowp_case(enum lowp mode, const struct attn_case *c, uint64_t see
             memset(got, 0xff, sizeof(float) * n_out);
             if (fk_attention(ctx, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C) != F4D_OK)
                 fail_msg("%s", fk_ctx_error(ctx));
-            if (!(mode == LOWP_BF16 ? fk_ctx_has_bf16(ctx) : fk_ctx_has_int16(ctx) && !fk_ctx_has_bf16(ctx))) {
+            if (fk_attention_products(ctx, &a) != (mode == LOWP_BF16 ? FK_ATTN_BF16 : FK_ATTN_INT16)) {
                 assert_memory_equal(got, f32, sizeof(float) * n_out);
             } else {
                 double e = max_abs_diff(got, want, n_out), e32 = max_abs_diff(f32, want, n_out);
@@ -524,6 +524,37 @@ static int run_lowp_case(enum lowp mode, const struct attn_case *c, uint64_t see
             }
             fk_ctx_free(ctx);
         }
+    /* AVX-512 without bf16 attention (Intel's default) runs int16's products
+     * in zmm with vpdpwssd: AVX2's bits exactly, 1 and 2 threads */
+    for (int i = 0; mode == LOWP_INT16 && i < n_isa; i++) {
+        if (all[i] != FK_ISA_AVX512)
+            continue;
+        for (int threads = 1; threads <= 2; threads++) {
+            fk_ctx *z = NULL, *x2 = test_ctx(FK_ISA_AVX2, threads);
+            struct fk_ctx_config cfg = { .isa = FK_ISA_AVX512, .threads = threads, .bf16 = FK_BF16_OFF };
+            assert_int_equal(fk_ctx_new(&cfg, &z), F4D_OK);
+            assert_true(fk_ctx_has_int16(z) && !fk_ctx_has_bf16(z));
+            a.bf16 = 0;
+            a.int16 = 1;
+            /* from 64-dim heads (fk_attention_products); fp32 below */
+            assert_int_equal(fk_attention_products(z, &a), a.head_dim > 48 ? FK_ATTN_INT16 : FK_ATTN_F32);
+            if (fk_attention_products(z, &a) != FK_ATTN_INT16) {
+                fk_ctx_free(z);
+                fk_ctx_free(x2);
+                continue;
+            }
+            memset(got, 0xff, sizeof(float) * n_out);
+            memset(one, 0, sizeof(float) * n_out);
+            assert_int_equal(fk_attention(z, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C), F4D_OK);
+            assert_int_equal(fk_attention(x2, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, one, C), F4D_OK);
+            if (memcmp(got, one, sizeof(float) * n_out) != 0)
+                fail_msg("int16 avx512 (vpdpwssd) threads %d heads %d d %d nq %d nk %d: not AVX2's bits",
+                         threads, c->heads, c->d, c->nq, nkv);
+            ran++;
+            fk_ctx_free(z);
+            fk_ctx_free(x2);
+        }
+    }
     free_inputs(&in);
     free(want); free(f32); free(got); free(one);
     return ran;

@@ -376,21 +376,38 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
             ctxs[n_ctx++] = make_ctx(FK_ISA_AVX2, threads);
         for (int c = 0; c < n_ctx; c++) {
             fk_ctx *ctx = ctxs[c];
-            /* f32, and bf16 products where the context has AVX512_BF16 (or
-             * int16 ones where it runs them), in turn rep after rep (xf32 of
-             * such a row: the median pair ratio) */
-            int bf = fk_ctx_has_bf16(ctx), i16 = !bf && fk_ctx_has_int16(ctx);
-            int nv = bf || i16 ? 2 : 1, reps = o->reps < 63 ? o->reps : 63;
-            double t[2][63];
+            /* f32, bf16 products where the context has AVX512_BF16, int16
+             * ones where a context of this ISA without bf16 runs them (AVX2;
+             * AVX-512 with FK_BF16_OFF, Intel's default): in turn rep after
+             * rep (xf32 of such a row: the median pair ratio) */
+            fk_ctx *x16 = NULL;
+            if (fk_ctx_isa(ctx) == FK_ISA_AVX512) {
+                struct fk_ctx_config cfg = { .isa = FK_ISA_AVX512, .threads = threads, .bf16 = FK_BF16_OFF };
+                if (fk_ctx_new(&cfg, &x16) != F4D_OK)
+                    exit(1);
+            }
+            fk_ctx *c16 = x16 ? x16 : ctx;
+            enum { V_F32, V_BF16, V_I16 } kind[3];
+            int nv = 0, reps = o->reps < 63 ? o->reps : 63;
+            kind[nv++] = V_F32;
+            if (fk_ctx_has_bf16(ctx))
+                kind[nv++] = V_BF16;
+            a.bf16 = 0;
+            a.int16 = 1;
+            if (fk_attention_products(c16, &a) == FK_ATTN_INT16)
+                kind[nv++] = V_I16;
+            a.int16 = 0;
+            double t[3][63];
             for (int r = 0; r < reps; r++)
                 for (int vr = 0; vr < nv; vr++) {
-                    a.bf16 = vr && bf;
-                    a.int16 = vr && i16;
+                    a.bf16 = kind[vr] == V_BF16;
+                    a.int16 = kind[vr] == V_I16;
+                    fk_ctx *cx = kind[vr] == V_I16 ? c16 : ctx;
                     settle(threads);
                     double t0 = now_for(o, threads);
-                    if (fk_attention(ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
+                    if (fk_attention(cx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
                                      vr ? out16 : out, C) != F4D_OK) {
-                        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(ctx));
+                        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(cx));
                         exit(1);
                     }
                     t[vr][r] = now_for(o, threads) - t0;
@@ -400,13 +417,25 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
                 for (int r = 0; r < reps; r++)
                     best = t[vr][r] < best ? t[vr][r] : best;
                 struct row *r = &rows[count++];
-                *r = (struct row){ "attention", !vr ? "f32" : bf ? "bf16" : "int16", threads, ntok, ntok, d,
+                int z = fk_ctx_isa(ctx) == FK_ISA_AVX512;
+                *r = (struct row){ "attention", kind[vr] == V_F32 ? "f32" : kind[vr] == V_BF16 ? "bf16" : "int16",
+                                   threads, ntok, ntok, d,
                                    4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
-                                   vr ? paired_ratio(t[0], t[1], reps) : NAN,
-                                   !vr ? fk_isa_name(fk_ctx_isa(ctx)) : bf ? "avx512-bf16" : "avx2-int16",
+                                   vr ? paired_ratio(t[0], t[vr], reps) : NAN,
+                                   kind[vr] == V_F32 ? fk_isa_name(fk_ctx_isa(ctx))
+                                   : kind[vr] == V_BF16 ? "avx512-bf16" : z ? "avx512-int16" : "avx2-int16",
                                    fk_ctx_isa(ctx) };
+                /* out16 holds the last variant's output: each low-precision
+                 * one is run once more for its errors */
+                if (vr) {
+                    a.bf16 = kind[vr] == V_BF16;
+                    a.int16 = kind[vr] == V_I16;
+                    fk_attention(kind[vr] == V_I16 ? c16 : ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C,
+                                 qkv + 2 * C, 3 * C, ntok, out16, C);
+                }
                 errors_vs(vr ? out16 : out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
             }
+            fk_ctx_free(x16);
             a.bf16 = a.int16 = 0;
             fk_ctx_free(ctx);
         }

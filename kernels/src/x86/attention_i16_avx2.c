@@ -2,7 +2,9 @@
  * sums (AVX2 vpmaddwd: two multiply-adds per 32-bit lane), run by
  * attention_plan.c for a desc with int16 set where the context's ISA is
  * FK_ISA_AVX2 (no VNNI, no AVX-512: the 7-bit int8 path, whose attention was
- * fp32 FMAs at the ymm peak's rate while its GEMMs ran at twice it). The
+ * fp32 FMAs at the ymm peak's rate while its GEMMs ran at twice it), or
+ * FK_ISA_AVX512 without bf16 attention (the products then in zmm with
+ * vpdpwssd, attention_i16_avx512.c, same bits). The
  * plan's phase 1 (LayerNorm, RoPE, q scaled by scale * log2 e, fp32 packs)
  * is reused; this file quantizes the packs once per head group and runs the
  * blocks:
@@ -371,9 +373,16 @@ static void attn_task(void *arg, int task, int thread)
         const uint32_t *vbb = h.vq + (size_t)kb * (BK / 2) * (size_t)dp;
         const float *sk = h.sk + (size_t)kb * BK, *sv = h.sv + (size_t)kb * (size_t)dp;
         for (int i = 0; i < panels; i++) {
-            s_block(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+            float *oi = o + (size_t)i * MR * (size_t)dp;
+            if (j->wide)
+                fk__attn_i16_s_block_avx512(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+            else
+                s_block(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
             softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
-            pv_tile(dp, pb, vbb, sv, o + (size_t)i * MR * (size_t)dp, alpha, ps);
+            if (j->wide)
+                fk__attn_i16_pv_tile_avx512(dp, pb, vbb, sv, oi, alpha, ps);
+            else
+                pv_tile(dp, pb, vbb, sv, oi, alpha, ps);
         }
     }
     fk__attn_task_write(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d, o, dp, lrow);
