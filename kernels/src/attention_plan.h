@@ -182,6 +182,9 @@ void fk__attn_i16_s_block_avx512(int dp, const uint32_t *q, const uint32_t *kb, 
                                  const float *sk, float *s);
 void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
                                  const float *alpha, const float *ps);
+/* The int16 softmax's codes of one 6 x BK block in zmm: pairs in pb, row
+ * sums in tot, NaN rows as the returned bits (x86/attention_i16_avx512.c). */
+int fk__attn_i16_codes_avx512(const float *s, const float *bmax, uint32_t *pb, int32_t *tot); /* tot[8] */
 /* per-thread scratch of the int16 path (its shared packs and scales are
  * bounded by a fraction of the fp32 packs: attention_plan.c) */
 size_t fk__attn_i16_local_bytes(int dp);

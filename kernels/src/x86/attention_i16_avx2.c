@@ -242,23 +242,12 @@ __attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const u
         s_tile6(dp, q, kb + (size_t)p * (size_t)dp / 2 * NR, sq, sk + p * NR, s + p * NR);
 }
 
-/* The online softmax over one 6 x BK block of log2-domain logits: the row
- * maxima by the fp32 AVX2 piece's pass (fk__attn_rowmax_avx2), alpha = 2^(m_old -
- * m_new); then p = 2^(s - block max) to codes round(p 4096) as [6][BK/2]
- * pairs, ps = 2^(block max - m_new) per row (the codes' scale), and
- * l = alpha l + ps (sum of the codes) / 4096: the weights P V uses. A NaN
- * weight (from a NaN logit) makes l NaN, which the codes could not carry. */
-static void softmax_block(float *s, int valid, float *m, float *l, float *alpha, float *ps,
-                          uint32_t *pb)
+/* The int16 weights of one 6 x BK block: codes round(2^(s - (bmax[r] -
+ * 12))) as [6][BK/2] pairs in pb, row r's code sum in tot[r]; returns the
+ * rows with a NaN weight as bits (fk__attn_i16_codes_avx512: the same, in
+ * zmm). */
+static int codes_avx2(const float *s, const float *bmax, uint32_t *pb, int32_t *tot)
 {
-    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
-    float bmax[8] __attribute__((aligned(32))) = { 0 };
-    fk__attn_rowmax_avx2(s, valid, m, 0.0f, bmax, m_old, m_new);
-    __m256 mn = _mm256_load_ps(m_new);
-    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn));
-    __m256 pv = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn));
-    _mm256_store_ps(alpha, al);
-    _mm256_store_ps(ps, pv);
     __m256i sum[MR];
     int nan_rows = 0;
     for (int r = 0; r < MR; r++) {
@@ -281,14 +270,37 @@ static void softmax_block(float *s, int valid, float *m, float *l, float *alpha,
         sum[r] = acc;
         nan_rows |= (_mm256_movemask_ps(nan) != 0) << r;
     }
-    /* the six rows' code sums in lanes 0-5 at once (a row after row scalar
-     * reduction and update was a dependent chain the core waited on) */
+    /* the six rows' code sums at once (a row after row scalar reduction
+     * was a dependent chain the core waited on) */
     __m256i h01 = _mm256_hadd_epi32(sum[0], sum[1]), h23 = _mm256_hadd_epi32(sum[2], sum[3]);
     __m256i h45 = _mm256_hadd_epi32(sum[4], sum[5]);
     __m256i q0 = _mm256_hadd_epi32(h01, h23), q1 = _mm256_hadd_epi32(h45, h45);
-    __m128i t03 = _mm_add_epi32(_mm256_castsi256_si128(q0), _mm256_extracti128_si256(q0, 1));
-    __m128i t45 = _mm_add_epi32(_mm256_castsi256_si128(q1), _mm256_extracti128_si256(q1, 1));
-    __m256 tot = _mm256_cvtepi32_ps(_mm256_set_m128i(t45, t03));
+    _mm_storeu_si128((__m128i *)tot, _mm_add_epi32(_mm256_castsi256_si128(q0), _mm256_extracti128_si256(q0, 1)));
+    _mm_storeu_si128((__m128i *)(tot + 4),
+                     _mm_add_epi32(_mm256_castsi256_si128(q1), _mm256_extracti128_si256(q1, 1)));
+    return nan_rows;
+}
+
+/* The online softmax over one 6 x BK block of log2-domain logits: the row
+ * maxima by the fp32 AVX2 piece's pass (fk__attn_rowmax_avx2), alpha = 2^(m_old -
+ * m_new); then p = 2^(s - block max) to codes round(p 4096) as [6][BK/2]
+ * pairs, ps = 2^(block max - m_new) per row (the codes' scale), and
+ * l = alpha l + ps (sum of the codes) / 4096: the weights P V uses. A NaN
+ * weight (from a NaN logit) makes l NaN, which the codes could not carry. */
+static void softmax_block(int wide, float *s, int valid, float *m, float *l, float *alpha, float *ps,
+                          uint32_t *pb)
+{
+    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
+    float bmax[8] __attribute__((aligned(32))) = { 0 };
+    fk__attn_rowmax_avx2(s, valid, m, 0.0f, bmax, m_old, m_new);
+    __m256 mn = _mm256_load_ps(m_new);
+    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn));
+    __m256 pv = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(bmax), mn));
+    _mm256_store_ps(alpha, al);
+    _mm256_store_ps(ps, pv);
+    int32_t t[8];
+    int nan_rows = wide ? fk__attn_i16_codes_avx512(s, bmax, pb, t) : codes_avx2(s, bmax, pb, t);
+    __m256 tot = _mm256_cvtepi32_ps(_mm256_setr_epi32(t[0], t[1], t[2], t[3], t[4], t[5], 0, 0));
     const __m256i rows = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
     __m256 lv = _mm256_fmadd_ps(_mm256_maskload_ps(l, rows), al,
                                 _mm256_mul_ps(pv, _mm256_mul_ps(tot, _mm256_set1_ps(1.0f / P_ONE))));
@@ -378,7 +390,7 @@ static void attn_task(void *arg, int task, int thread)
                 fk__attn_i16_s_block_avx512(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
             else
                 s_block(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
-            softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
+            softmax_block(j->wide, s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
             if (j->wide)
                 fk__attn_i16_pv_tile_avx512(dp, pb, vbb, sv, oi, alpha, ps);
             else

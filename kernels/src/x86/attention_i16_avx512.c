@@ -12,6 +12,7 @@
 
 #include "../attention_plan.h"
 #include "../fk_internal.h"
+#include "vecmath_avx512.h"
 
 #define MR FK_ATTN_MR
 #define NR FK_ATTN_NR
@@ -118,4 +119,30 @@ void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, c
                                { c3r, z, z, z }, { c4r, z, z, z }, { c5r, z, z, z } };
         pv_out(dp, c0, 1, acc, sv, o, alpha, ps);
     }
+}
+
+/* The int16 softmax's weights of one 6 x BK block (softmax_block in
+ * attention_i16_avx2.c, 16 lanes at a time): codes round(2^(s - (bmax[r] -
+ * 12))) as [6][BK/2] pairs in pb, each row's code sum in tot[r] (exact);
+ * returns the rows with a NaN weight as bits. The AVX2 loop's operations
+ * per element, and signed saturation to int16 as its packs: the same codes. */
+int fk__attn_i16_codes_avx512(const float *s, const float *bmax, uint32_t *pb, int32_t *tot)
+{
+    int nan_rows = 0;
+    for (int r = 0; r < MR; r++) {
+        const float *sr = s + r * BK;
+        __m512 bv = _mm512_set1_ps(bmax[r] - 12.0f);
+        __m512i acc = _mm512_setzero_si512();
+        __mmask16 nan = 0;
+        for (int jj = 0; jj < BK; jj += 16) {
+            __m512 p = fk__exp2_codes512(_mm512_sub_ps(_mm512_loadu_ps(sr + jj), bv));
+            nan |= _mm512_cmp_ps_mask(p, p, _CMP_UNORD_Q);
+            __m512i c = _mm512_cvtps_epi32(p);
+            acc = _mm512_add_epi32(acc, c);
+            _mm256_storeu_si256((__m256i *)(pb + r * (BK / 2) + jj / 2), _mm512_cvtsepi32_epi16(c));
+        }
+        tot[r] = _mm512_reduce_add_epi32(acc);
+        nan_rows |= (nan != 0) << r;
+    }
+    return nan_rows;
 }

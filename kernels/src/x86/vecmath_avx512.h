@@ -15,20 +15,26 @@
 
 #define FK_AVX512_FN __attribute__((target("avx512f,fma"))) static inline
 
-/* 2^x for x = s - max <= 0, as the AVX2 piece (same clamp at -127, same
- * degree-6 polynomial on [-0.5, 0.5], exponent add; NaN stays NaN), so
- * both give the same bits. */
-FK_AVX512_FN __m512 fk__exp2_softmax512(__m512 x)
+/* fk__exp2_poly_avx2: 2^x for x = s - max <= 0 (same clamp at -127, same
+ * polynomial on [-0.5, 0.5], exponent add; NaN stays NaN), so both give the
+ * same bits. */
+FK_AVX512_FN __m512 fk__exp2_poly512(__m512 x, const float *c, int nc)
 {
     x = _mm512_max_ps(_mm512_set1_ps(-127.0f), x);
     __m512 n = _mm512_roundscale_ps(x, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
     __m512 f = _mm512_sub_ps(x, n);
-    __m512 p = _mm512_set1_ps(fk__exp2_softmax_c[0]);
-    for (int i = 1; i < 7; i++)
-        p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(fk__exp2_softmax_c[i]));
+    __m512 p = _mm512_set1_ps(c[0]);
+    for (int i = 1; i < nc; i++)
+        p = _mm512_fmadd_ps(p, f, _mm512_set1_ps(c[i]));
     __m512i e = _mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23);
     return _mm512_mul_ps(p, _mm512_castsi512_ps(e));
 }
+
+/* the fp32 softmax's 2^x (fk__exp2_softmax_avx2) */
+FK_AVX512_FN __m512 fk__exp2_softmax512(__m512 x) { return fk__exp2_poly512(x, fk__exp2_softmax_c, 7); }
+
+/* the int16 softmax's (fk__exp2_codes_avx2) */
+FK_AVX512_FN __m512 fk__exp2_codes512(__m512 x) { return fk__exp2_poly512(x, fk__exp2_codes_c, 5); }
 
 /* fk__scale2n_avx2: p 2^n in two normal factors, 0 where n < kmin. */
 FK_AVX512_FN __m512 fk__scale2n512(__m512 p, __m512 n, int kmin)
