@@ -90,11 +90,11 @@ enum fk_q8_bits {
 
 /* Whether a desc's bf16 attention (desc.bf16, set by the model for int8
  * weights) runs in bf16 on an AVX-512 context of a CPU with AVX512_BF16.
- * AUTO: where the CPU runs vdpbf16ps at twice the fp32 FMA rate, AMD's
- * (Zen 4 / Zen 5: bf16 attention 1.3-1.5x fp32 on Zen 5); not on Intel's
- * (Cooper Lake, Sapphire / Emerald / Granite Rapids: one vdpbf16ps per cycle,
- * the rate of two FMAs, so the conversions made it 0.63-0.70x fp32 on the
- * Xeon VM). ON: wherever the CPU has it (tests, benches); OFF: never. */
+ * AUTO: on AMD's CPUs (Zen 5: bf16 attention 1.3-1.5x fp32; Zen 4, the
+ * other AMD with AVX512_BF16, not measured here); not on Intel's
+ * (the Xeon VM retired a zmm vdpbf16ps every other cycle, half the FMAs'
+ * multiply-adds: bf16 attention 0.63-0.71x fp32 there). ON: wherever the
+ * CPU has it (tests, benches); OFF: never. */
 enum fk_bf16_use { FK_BF16_AUTO = 0, FK_BF16_ON = 1, FK_BF16_OFF = 2 };
 
 struct fk_ctx_config {
