@@ -57,16 +57,18 @@ __attribute__((noinline)) static void ukr_f32(int ntaps, int kc, const float *co
     }
     for (int tap = 0; tap < ntaps; tap++, a += MR) {
         const float *a0 = a[0], *a1 = a[1], *a2 = a[2], *a3 = a[3], *a4 = a[4], *a5 = a[5];
+        /* one offset for the six rows: six pointer adds per k step took
+         * integer ports the FMAs share on Intel cores */
+        size_t o = 0;
 #pragma GCC unroll 4
-        for (int k = 0; k < kc; k++) {
+        for (int k = 0; k < kc; k++, o += (size_t)step) {
             __m256 b0 = _mm256_load_ps(b), b1 = _mm256_load_ps(b + 8), t;
-            t = _mm256_broadcast_ss(a0); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
-            t = _mm256_broadcast_ss(a1); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
-            t = _mm256_broadcast_ss(a2); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
-            t = _mm256_broadcast_ss(a3); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
-            t = _mm256_broadcast_ss(a4); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
-            t = _mm256_broadcast_ss(a5); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
-            a0 += step; a1 += step; a2 += step; a3 += step; a4 += step; a5 += step;
+            t = _mm256_broadcast_ss(a0 + o); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
+            t = _mm256_broadcast_ss(a1 + o); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);
+            t = _mm256_broadcast_ss(a2 + o); c20 = _mm256_fmadd_ps(t, b0, c20); c21 = _mm256_fmadd_ps(t, b1, c21);
+            t = _mm256_broadcast_ss(a3 + o); c30 = _mm256_fmadd_ps(t, b0, c30); c31 = _mm256_fmadd_ps(t, b1, c31);
+            t = _mm256_broadcast_ss(a4 + o); c40 = _mm256_fmadd_ps(t, b0, c40); c41 = _mm256_fmadd_ps(t, b1, c41);
+            t = _mm256_broadcast_ss(a5 + o); c50 = _mm256_fmadd_ps(t, b0, c50); c51 = _mm256_fmadd_ps(t, b1, c51);
             b += 16;
         }
     }
