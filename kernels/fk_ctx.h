@@ -130,9 +130,9 @@ const char * fk_ctx_q8_path  (const fk_ctx *ctx);
 int          fk_ctx_has_bf16 (const fk_ctx *ctx);
 /* Nonzero where a desc's int16 attention runs in int16: the context's ISA
  * is FK_ISA_AVX2 (AVX2 without VNNI or AVX-512, where int8 weights take the
- * 7-bit path and fp32 attention would hold the forward to the FMA rate), or
- * FK_ISA_AVX512 without bf16 attention (vpdpwssd; from 64-dim heads, see
- * fk_attention_products). */
+ * 7-bit path and fp32 attention would hold the forward to the FMA rate),
+ * FK_ISA_AVX2_VNNI (VEX vpdpwssd), or FK_ISA_AVX512 without bf16 attention
+ * (vpdpwssd in zmm; from 64-dim heads, see fk_attention_products). */
 int          fk_ctx_has_int16(const fk_ctx *ctx);
 
 /* The cache model (pure; unknown sizes take 32K / 512K / 2M defaults), with

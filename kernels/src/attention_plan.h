@@ -173,7 +173,8 @@ struct fk__attn_i16_job {
     float       *sk, *sv;              /* key scales [nk_pad], value scales [nk_pad/BK][dp] per head */
     int          nq, nk, nk_pad, d, dp, h0, hn, q_blocks, ldo;
     float       *out;
-    int          wide;                 /* AVX-512: the products by vpdpwssd */
+    int          wide;                 /* AVX-512: the products by vpdpwssd in zmm */
+    int          vnni;                 /* AVX2-VNNI: by VEX vpdpwssd in ymm */
 };
 #if defined(__x86_64__)
 /* The two products of one 6-query panel and BK-key block in zmm with
@@ -182,6 +183,11 @@ void fk__attn_i16_s_block_avx512(int dp, const uint32_t *q, const uint32_t *kb, 
                                  const float *sk, float *s);
 void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
                                  const float *alpha, const float *ps);
+/* The same two products with AVX-VNNI (x86/attention_i16_vnni.c). */
+void fk__attn_i16_s_block_vnni(int dp, const uint32_t *q, const uint32_t *kb, const float *sq,
+                               const float *sk, float *s);
+void fk__attn_i16_pv_tile_vnni(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
+                               const float *alpha, const float *ps);
 /* The int16 softmax's codes of one 6 x BK block in zmm: pairs in pb, row
  * sums in tot, NaN rows as the returned bits (x86/attention_i16_avx512.c). */
 int fk__attn_i16_codes_avx512(const float *s, const float *bmax, uint32_t *pb, int32_t *tot); /* tot[8] */

@@ -486,8 +486,9 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
     ctx->q8_bits = qbits;
     ctx->bf16 = isa == FK_ISA_AVX512 && (fk_cpu_features() & FK_CPU_AVX512_BF16) && bf16_use;
     /* int16 attention where int8's GEMMs outrun fp32 FMAs and no bf16 does
-     * better: AVX2 without VNNI (vpmaddwd), AVX-512 without bf16 (vpdpwssd) */
-    ctx->int16 = isa == FK_ISA_AVX2 || (isa == FK_ISA_AVX512 && !ctx->bf16);
+     * better: AVX2 without VNNI (vpmaddwd), AVX2-VNNI (VEX vpdpwssd),
+     * AVX-512 without bf16 (vpdpwssd in zmm) */
+    ctx->int16 = isa == FK_ISA_AVX2 || isa == FK_ISA_AVX2_VNNI || (isa == FK_ISA_AVX512 && !ctx->bf16);
     ctx->local = calloc((size_t)threads, sizeof *ctx->local);
     if (!ctx->local) {
         free(ctx);

@@ -525,19 +525,21 @@ static int run_lowp_case(enum lowp mode, const struct attn_case *c, uint64_t see
             fk_ctx_free(ctx);
         }
     /* AVX-512 without bf16 attention (Intel's default) runs int16's products
-     * in zmm with vpdpwssd: AVX2's bits exactly, 1 and 2 threads */
+     * in zmm with vpdpwssd, AVX2-VNNI in ymm with VEX vpdpwssd: AVX2's bits
+     * exactly, 1 and 2 threads */
     for (int i = 0; mode == LOWP_INT16 && i < n_isa; i++) {
-        if (all[i] != FK_ISA_AVX512)
+        if (all[i] != FK_ISA_AVX512 && all[i] != FK_ISA_AVX2_VNNI)
             continue;
         for (int threads = 1; threads <= 2; threads++) {
             fk_ctx *z = NULL, *x2 = test_ctx(FK_ISA_AVX2, threads);
-            struct fk_ctx_config cfg = { .isa = FK_ISA_AVX512, .threads = threads, .bf16 = FK_BF16_OFF };
+            struct fk_ctx_config cfg = { .isa = all[i], .threads = threads, .bf16 = FK_BF16_OFF };
             assert_int_equal(fk_ctx_new(&cfg, &z), F4D_OK);
             assert_true(fk_ctx_has_int16(z) && !fk_ctx_has_bf16(z));
             a.bf16 = 0;
             a.int16 = 1;
-            /* from 64-dim heads (fk_attention_products); fp32 below */
-            assert_int_equal(fk_attention_products(z, &a), a.head_dim > 48 ? FK_ATTN_INT16 : FK_ATTN_F32);
+            /* AVX-512 from 64-dim heads (fk_attention_products); fp32 below */
+            assert_int_equal(fk_attention_products(z, &a),
+                             a.head_dim > 48 || all[i] != FK_ISA_AVX512 ? FK_ATTN_INT16 : FK_ATTN_F32);
             if (fk_attention_products(z, &a) != FK_ATTN_INT16) {
                 fk_ctx_free(z);
                 fk_ctx_free(x2);
@@ -548,8 +550,8 @@ static int run_lowp_case(enum lowp mode, const struct attn_case *c, uint64_t see
             assert_int_equal(fk_attention(z, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, got, C), F4D_OK);
             assert_int_equal(fk_attention(x2, &a, q, ld, c->nq, k, ldk, v, ldk, nkv, one, C), F4D_OK);
             if (memcmp(got, one, sizeof(float) * n_out) != 0)
-                fail_msg("int16 avx512 (vpdpwssd) threads %d heads %d d %d nq %d nk %d: not AVX2's bits",
-                         threads, c->heads, c->d, c->nq, nkv);
+                fail_msg("int16 %s (vpdpwssd) threads %d heads %d d %d nq %d nk %d: not AVX2's bits",
+                         fk_isa_name(all[i]), threads, c->heads, c->d, c->nq, nkv);
             ran++;
             fk_ctx_free(z);
             fk_ctx_free(x2);

@@ -423,7 +423,10 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
                                    4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
                                    vr ? paired_ratio(t[0], t[vr], reps) : NAN,
                                    kind[vr] == V_F32 ? fk_isa_name(fk_ctx_isa(ctx))
-                                   : kind[vr] == V_BF16 ? "avx512-bf16" : z ? "avx512-int16" : "avx2-int16",
+                                   : kind[vr] == V_BF16                      ? "avx512-bf16"
+                                   : z                                       ? "avx512-int16"
+                                   : fk_ctx_isa(ctx) == FK_ISA_AVX2_VNNI ? "vnni-int16"
+                                                                             : "avx2-int16",
                                    fk_ctx_isa(ctx) };
                 /* out16 holds the last variant's output: each low-precision
                  * one is run once more for its errors */

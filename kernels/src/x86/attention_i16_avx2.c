@@ -200,47 +200,8 @@ static void pack_q(int dp, const float *q, uint32_t *dst, float *sq, int32_t *cb
  * exactly. The asm names the accumulator as the destination. */
 #define ACC(acc, m) __asm__("vpaddd %1, %0, %0" : "+x"(acc) : "x"(m))
 
-/* s[6][16] (row stride BK) = (q pairs [dp/2][6] . key pairs [dp/2][16]) *
- * sq[r] * sk[key]: 12 int32 accumulators, each step one pair of channels. */
-static inline __attribute__((always_inline)) void s_tile6(int dp, const uint32_t *q,
-                                                          const uint32_t *kb, const float *sq,
-                                                          const float *sk, float *s)
-{
-    __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
-    __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
-    const uint32_t *qr = q;
-    for (int i = 0; i < dp / 2; i++, kb += NR, qr += MR) {
-        __m256i b0 = _mm256_loadu_si256((const __m256i *)kb);
-        __m256i b1 = _mm256_loadu_si256((const __m256i *)(kb + 8));
-        __m256i t = _mm256_set1_epi32((int)qr[0]);
-        ACC(c00, _mm256_madd_epi16(t, b0)); ACC(c01, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)qr[1]);
-        ACC(c10, _mm256_madd_epi16(t, b0)); ACC(c11, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)qr[2]);
-        ACC(c20, _mm256_madd_epi16(t, b0)); ACC(c21, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)qr[3]);
-        ACC(c30, _mm256_madd_epi16(t, b0)); ACC(c31, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)qr[4]);
-        ACC(c40, _mm256_madd_epi16(t, b0)); ACC(c41, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)qr[5]);
-        ACC(c50, _mm256_madd_epi16(t, b0)); ACC(c51, _mm256_madd_epi16(t, b1));
-    }
-    __m256i c[6][2] = { { c00, c01 }, { c10, c11 }, { c20, c21 }, { c30, c31 }, { c40, c41 }, { c50, c51 } };
-    __m256 k0 = _mm256_loadu_ps(sk), k1 = _mm256_loadu_ps(sk + 8);
-    for (int r = 0; r < 6; r++) {
-        __m256 a = _mm256_set1_ps(sq[r]);
-        float *sr = s + r * BK;
-        _mm256_storeu_ps(sr, _mm256_mul_ps(_mm256_cvtepi32_ps(c[r][0]), _mm256_mul_ps(a, k0)));
-        _mm256_storeu_ps(sr + 8, _mm256_mul_ps(_mm256_cvtepi32_ps(c[r][1]), _mm256_mul_ps(a, k1)));
-    }
-}
-
-__attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const uint32_t *kb,
-                                              const float *sq, const float *sk, float *s)
-{
-    for (int p = 0; p < BK / NR; p++)
-        s_tile6(dp, q, kb + (size_t)p * (size_t)dp / 2 * NR, sq, sk + p * NR, s + p * NR);
-}
+#define I16_DOT(acc, t, b) ACC(acc, _mm256_madd_epi16(t, b))
+#include "attention_i16_tiles.h"
 
 /* The int16 weights of one 6 x BK block: codes round(2^(s - (bmax[r] -
  * 12))) as [6][BK/2] pairs in pb, row r's code sum in tot[r]; returns the
@@ -311,51 +272,6 @@ static void softmax_block(int wide, float *s, int valid, float *m, float *l, flo
             l[r] = NAN;
 }
 
-/* o[6][dp] columns c0 .. c0 + 15 = alpha[r] o[r] + (p codes . v codes) ps[r] sv */
-static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const uint32_t *p,
-                                                           const uint32_t *v, const float *sv,
-                                                           float *o, const float *alpha,
-                                                           const float *ps)
-{
-    __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
-    __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
-    const uint32_t *vr = v + c0;
-    for (int jp = 0; jp < BK / 2; jp++, vr += dp) {
-        __m256i b0 = _mm256_loadu_si256((const __m256i *)vr);
-        __m256i b1 = _mm256_loadu_si256((const __m256i *)(vr + 8));
-        __m256i t = _mm256_set1_epi32((int)p[0 * (BK / 2) + jp]);
-        ACC(c00, _mm256_madd_epi16(t, b0)); ACC(c01, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)p[1 * (BK / 2) + jp]);
-        ACC(c10, _mm256_madd_epi16(t, b0)); ACC(c11, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)p[2 * (BK / 2) + jp]);
-        ACC(c20, _mm256_madd_epi16(t, b0)); ACC(c21, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)p[3 * (BK / 2) + jp]);
-        ACC(c30, _mm256_madd_epi16(t, b0)); ACC(c31, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)p[4 * (BK / 2) + jp]);
-        ACC(c40, _mm256_madd_epi16(t, b0)); ACC(c41, _mm256_madd_epi16(t, b1));
-        t = _mm256_set1_epi32((int)p[5 * (BK / 2) + jp]);
-        ACC(c50, _mm256_madd_epi16(t, b0)); ACC(c51, _mm256_madd_epi16(t, b1));
-    }
-    __m256i c[6][2] = { { c00, c01 }, { c10, c11 }, { c20, c21 }, { c30, c31 }, { c40, c41 }, { c50, c51 } };
-    __m256 s0 = _mm256_loadu_ps(sv + c0), s1 = _mm256_loadu_ps(sv + c0 + 8);
-    for (int r = 0; r < MR; r++) {
-        __m256 a = _mm256_set1_ps(alpha[r]), f = _mm256_set1_ps(ps[r]);
-        float *orow = o + (size_t)r * dp + c0;
-        _mm256_storeu_ps(orow, _mm256_fmadd_ps(_mm256_cvtepi32_ps(c[r][0]), _mm256_mul_ps(f, s0),
-                                               _mm256_mul_ps(a, _mm256_loadu_ps(orow))));
-        _mm256_storeu_ps(orow + 8, _mm256_fmadd_ps(_mm256_cvtepi32_ps(c[r][1]), _mm256_mul_ps(f, s1),
-                                                   _mm256_mul_ps(a, _mm256_loadu_ps(orow + 8))));
-    }
-}
-
-__attribute__((noinline)) static void pv_tile(int dp, const uint32_t *p, const uint32_t *v,
-                                              const float *sv, float *o, const float *alpha,
-                                              const float *ps)
-{
-    for (int c0 = 0; c0 < dp; c0 += 16)
-        pv_cols(dp, c0, p, v, sv, o, alpha, ps);
-}
-
 /* ------------------------------------------------------------------- task */
 
 static void attn_task(void *arg, int task, int thread)
@@ -386,13 +302,18 @@ static void attn_task(void *arg, int task, int thread)
         const float *sk = h.sk + (size_t)kb * BK, *sv = h.sv + (size_t)kb * (size_t)dp;
         for (int i = 0; i < panels; i++) {
             float *oi = o + (size_t)i * MR * (size_t)dp;
+            const uint32_t *qi = qq + (size_t)i * qstride;
             if (j->wide)
-                fk__attn_i16_s_block_avx512(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+                fk__attn_i16_s_block_avx512(dp, qi, kbb, sq + i * MR, sk, s);
+            else if (j->vnni)
+                fk__attn_i16_s_block_vnni(dp, qi, kbb, sq + i * MR, sk, s);
             else
-                s_block(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+                s_block(dp, qi, kbb, sq + i * MR, sk, s);
             softmax_block(j->wide, s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
             if (j->wide)
                 fk__attn_i16_pv_tile_avx512(dp, pb, vbb, sv, oi, alpha, ps);
+            else if (j->vnni)
+                fk__attn_i16_pv_tile_vnni(dp, pb, vbb, sv, oi, alpha, ps);
             else
                 pv_tile(dp, pb, vbb, sv, oi, alpha, ps);
         }
