@@ -334,10 +334,22 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
     return count;
 }
 
+/* The path column of an attention row: the ISA's name for fp32, else the
+ * low-precision kernel that ran. */
+static const char *attn_path(enum fk_isa isa, int bf16, int int16)
+{
+    if (bf16)
+        return "avx512-bf16";
+    if (!int16)
+        return fk_isa_name(isa);
+    return isa == FK_ISA_AVX512 ? "avx512-int16" : isa == FK_ISA_AVX2_VNNI ? "vnni-int16" : "avx2-int16";
+}
+
 /* Attention with the aggregator's settings: qk-norm, 2-D RoPE, 16 heads of 64;
  * f32, and bf16 products (desc.bf16) where the context has AVX512_BF16,
- * int16 products (desc.int16) where it runs them (AVX2 without VNNI). */
-static int bench_attention_shape(const struct opts *o, int ntok, int heads, int d, struct row *rows)
+ * int16 products (desc.int16) where it runs them (fk_attention_products). */
+static int bench_attention_shape(const struct opts *o, int ntok, int heads, int d, struct row *rows,
+                                 int nrows)
 {
     int C = heads * d, side = (int)sqrt((double)ntok);
     float *qkv = rand_buf((size_t)ntok * 3 * C, 1.0f), *out = malloc((size_t)ntok * C * sizeof *out);
@@ -368,18 +380,21 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
     fk_ctx_free(rctx);
     int count = 0;
     for (int threads = o->quick ? o->threads_max : 1; threads <= o->threads_max; threads++) {
-        /* --isa all: also AVX2's attention where the first ISA is another
-         * (AVX2-VNNI runs the same attention code as AVX2) */
-        fk_ctx *ctxs[2] = { make_ctx(o->isa, threads), NULL };
+        /* --isa all: also AVX2's and AVX2-VNNI's attention where the first
+         * ISA is AVX-512 (their fp32 code is the same; their int16 products
+         * are not) */
+        fk_ctx *ctxs[3] = { make_ctx(o->isa, threads), NULL, NULL };
         int n_ctx = 1;
         if (o->all_isas && fk_ctx_isa(ctxs[0]) == FK_ISA_AVX512 && fk_isa_supported(FK_ISA_AVX2))
             ctxs[n_ctx++] = make_ctx(FK_ISA_AVX2, threads);
+        if (o->all_isas && fk_ctx_isa(ctxs[0]) == FK_ISA_AVX512 && fk_isa_supported(FK_ISA_AVX2_VNNI))
+            ctxs[n_ctx++] = make_ctx(FK_ISA_AVX2_VNNI, threads);
         for (int c = 0; c < n_ctx; c++) {
             fk_ctx *ctx = ctxs[c];
             /* f32, bf16 products where the context has AVX512_BF16, int16
-             * ones where a context of this ISA without bf16 runs them (AVX2;
-             * AVX-512 with FK_BF16_OFF, Intel's default): in turn rep after
-             * rep (xf32 of such a row: the median pair ratio) */
+             * ones where a context of this ISA without bf16 runs them (AVX2,
+             * AVX2-VNNI; AVX-512 with FK_BF16_OFF, Intel's default): in turn
+             * rep after rep (xf32 of such a row: the median pair ratio) */
             fk_ctx *x16 = NULL;
             if (fk_ctx_isa(ctx) == FK_ISA_AVX512) {
                 struct fk_ctx_config cfg = { .isa = FK_ISA_AVX512, .threads = threads, .bf16 = FK_BF16_OFF };
@@ -412,29 +427,32 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
                     }
                     t[vr][r] = now_for(o, threads) - t0;
                 }
+            if (count + nv > nrows) {
+                fprintf(stderr, "f4d-bench: more attention rows than the table holds (%d)\n", nrows);
+                exit(1);
+            }
             for (int vr = 0; vr < nv; vr++) {
                 double best = 1e30;
                 for (int r = 0; r < reps; r++)
                     best = t[vr][r] < best ? t[vr][r] : best;
                 struct row *r = &rows[count++];
-                int z = fk_ctx_isa(ctx) == FK_ISA_AVX512;
                 *r = (struct row){ "attention", kind[vr] == V_F32 ? "f32" : kind[vr] == V_BF16 ? "bf16" : "int16",
                                    threads, ntok, ntok, d,
                                    4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
                                    vr ? paired_ratio(t[0], t[vr], reps) : NAN,
-                                   kind[vr] == V_F32 ? fk_isa_name(fk_ctx_isa(ctx))
-                                   : kind[vr] == V_BF16                      ? "avx512-bf16"
-                                   : z                                       ? "avx512-int16"
-                                   : fk_ctx_isa(ctx) == FK_ISA_AVX2_VNNI ? "vnni-int16"
-                                                                             : "avx2-int16",
+                                   attn_path(fk_ctx_isa(ctx), kind[vr] == V_BF16, kind[vr] == V_I16),
                                    fk_ctx_isa(ctx) };
                 /* out16 holds the last variant's output: each low-precision
                  * one is run once more for its errors */
                 if (vr) {
                     a.bf16 = kind[vr] == V_BF16;
                     a.int16 = kind[vr] == V_I16;
-                    fk_attention(kind[vr] == V_I16 ? c16 : ctx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C,
-                                 qkv + 2 * C, 3 * C, ntok, out16, C);
+                    fk_ctx *cx = kind[vr] == V_I16 ? c16 : ctx;
+                    if (fk_attention(cx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
+                                     out16, C) != F4D_OK) {
+                        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(cx));
+                        exit(1);
+                    }
                 }
                 errors_vs(vr ? out16 : out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
             }
@@ -743,29 +761,30 @@ int bench_kernels(int argc, char **argv)
 
     static const int real_nk[][2] = { { 1024, 1024 }, { 3072, 1024 }, { 4096, 1024 }, { 1024, 4096 } };
     static const int tiny_nk[][2] = { { 64, 64 }, { 192, 64 }, { 256, 64 }, { 64, 256 } };
-    struct row rows[256];
+    enum { MAX_ROWS = 512 }; /* --isa all: ~220 GEMM rows, up to 54 attention rows */
+    struct row rows[MAX_ROWS];
     int n = 0, failed = 0;
     int tok_real[2] = { 1374, 5496 };
     if (o.shape[0]) /* one GEMM shape, for a focused measurement */
-        n += bench_gemm_shape(&o, o.shape[0], o.shape[1], o.shape[2], rows + n, 256 - n);
+        n += bench_gemm_shape(&o, o.shape[0], o.shape[1], o.shape[2], rows + n, MAX_ROWS - n);
     for (int t = 0; gemm && !o.shape[0] && t < (o.quick ? 1 : 2); t++)
         for (int s = 0; s < 4; s++)
-            n += bench_gemm_shape(&o, tok_real[t], real_nk[s][0], real_nk[s][1], rows + n, 256 - n);
+            n += bench_gemm_shape(&o, tok_real[t], real_nk[s][0], real_nk[s][1], rows + n, MAX_ROWS - n);
     for (int s = 0; gemm && !o.shape[0] && s < 4; s++) /* tiny test model: 2 views of 5 + 12x9 patches */
-        n += bench_gemm_shape(&o, 226, tiny_nk[s][0], tiny_nk[s][1], rows + n, 256 - n);
+        n += bench_gemm_shape(&o, 226, tiny_nk[s][0], tiny_nk[s][1], rows + n, MAX_ROWS - n);
 #ifdef F4D_HAVE_OPENBLAS
     char child_paths[128][32];
     if (o.no_avx512) {
-        int c = avx512_rows_from_child(&o, rows + n, 256 - n < 128 ? 256 - n : 128, child_paths);
+        int c = avx512_rows_from_child(&o, rows + n, MAX_ROWS - n < 128 ? MAX_ROWS - n : 128, child_paths);
         n += c > 0 ? c : 0;
         failed = c < 0;
     }
 #endif
     attn = attn && !o.shape[0];
     for (int t = 0; attn && t < (o.quick ? 1 : 2); t++)
-        n += bench_attention_shape(&o, tok_real[t], 16, 64, rows + n);
+        n += bench_attention_shape(&o, tok_real[t], 16, 64, rows + n, MAX_ROWS - n);
     if (attn)
-        n += bench_attention_shape(&o, 226, 4, 16, rows + n);
+        n += bench_attention_shape(&o, 226, 4, 16, rows + n, MAX_ROWS - n);
 
     attention_ratios(rows, n);
     /* Read again after the rows, each xpeak against the higher reading: on
