@@ -74,8 +74,9 @@ int fk_attention(fk_ctx *ctx, const struct fk_attention_desc *desc,
 
 /* The products a call with this desc runs on this context: bf16 where
  * desc.bf16 and fk_ctx_has_bf16; else int16 where desc.int16 and
- * fk_ctx_has_int16 (on AVX-512 from 64-dim heads: vpdpwssd ran 1.17-1.37x
- * fp32 zmm at 64, 0.76x at 16); else fp32. */
+ * fk_ctx_has_int16 (on AVX-512 from 64-dim heads only: vpdpwssd ran
+ * 1.17-1.37x fp32 zmm at 64, 0.76x at 16); else fp32 (also for head dims
+ * above 1024, which the reference runs). */
 enum fk_attn_products { FK_ATTN_F32 = 0, FK_ATTN_BF16 = 1, FK_ATTN_INT16 = 2 };
 enum fk_attn_products fk_attention_products(const fk_ctx *ctx, const struct fk_attention_desc *desc);
 

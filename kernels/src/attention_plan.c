@@ -355,7 +355,7 @@ int fk__attention_plan_run(const struct fk__attn_isa *isa, fk_ctx *ctx,
             float *sv = (float *)fk__round_up((uintptr_t)(sk + (size_t)j.nk_pad * (size_t)j.hn), FK_ALIGN);
             struct fk__attn_i16_job b = {
                 ctx, j.kp, j.vp, j.qp, j.head_k, j.head_v, j.head_q, kq, vq, pairs, sk, sv,
-                nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out, ctx->isa == FK_ISA_AVX512, ctx->isa == FK_ISA_AVX2_VNNI,
+                nq, nk, j.nk_pad, d, j.dp, h0, j.hn, j.q_blocks, ldo, out,
             };
             fk__attn_i16_run(&b);
             continue;

@@ -163,7 +163,8 @@ void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, floa
 /* int16 products (x86/attention_i16_avx2.c), for a desc with int16 set
  * where ctx->int16 (and not bf16): after phase 1 the group's fp32 packs are
  * quantized once to int16 pairs with their scales, then phase 2 runs S and
- * P V with vpmaddwd (AVX-512: vpdpwssd) into exact int32 sums. */
+ * P V with vpmaddwd (AVX2-VNNI: VEX vpdpwssd; AVX-512: vpdpwssd in zmm)
+ * into exact int32 sums. */
 struct fk__attn_i16_job {
     fk_ctx      *ctx;
     const float *kp, *vp, *qp;         /* the group's fp32 packs (phase 1), kw = NR */
@@ -173,8 +174,6 @@ struct fk__attn_i16_job {
     float       *sk, *sv;              /* key scales [nk_pad], value scales [nk_pad/BK][dp] per head */
     int          nq, nk, nk_pad, d, dp, h0, hn, q_blocks, ldo;
     float       *out;
-    int          wide;                 /* AVX-512: the products by vpdpwssd in zmm */
-    int          vnni;                 /* AVX2-VNNI: by VEX vpdpwssd in ymm */
 };
 #if defined(__x86_64__)
 /* The two products of one 6-query panel and BK-key block in zmm with

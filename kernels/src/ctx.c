@@ -457,7 +457,7 @@ int fk_ctx_new(const struct fk_ctx_config *cfg, fk_ctx **out)
         qbits = isa == FK_ISA_AVX2 ? FK_Q8_7BIT : FK_Q8_8BIT;
 
     /* bf16 attention: the config's choice, else FK_ATTN_BF16 (0 or 1),
-     * else where vdpbf16ps runs at twice the FMA rate (fk_bf16_use) */
+     * else on AMD's CPUs only (fk_bf16_use) */
     if (cfg->bf16 != FK_BF16_AUTO && cfg->bf16 != FK_BF16_ON && cfg->bf16 != FK_BF16_OFF)
         return F4D_EINVAL;
     const char *benv = getenv("FK_ATTN_BF16");

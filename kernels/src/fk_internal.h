@@ -21,8 +21,8 @@ struct fk_ctx {
     enum fk_isa      isa;
     int              threads;
     int              q8_bits;    /* 7 or 8: int8 weight codes packed       */
-    int              bf16;       /* AVX-512 ISA and AVX512_BF16: bf16 attention */
-    int              int16;      /* int16 attention: AVX2 ISA, or AVX-512 without bf16 */
+    int              bf16;       /* bf16 attention: AVX-512 ISA, AVX512_BF16, fk_bf16_use */
+    int              int16;      /* int16 attention: AVX2 / AVX2-VNNI ISA, or AVX-512 without bf16 */
     struct fk_cache_info  caches;
     struct fk_gemm_blocks blocks; /* resolved: model, then overrides       */
     int              frozen;

@@ -2,9 +2,10 @@
  * sums (AVX2 vpmaddwd: two multiply-adds per 32-bit lane), run by
  * attention_plan.c for a desc with int16 set where the context's ISA is
  * FK_ISA_AVX2 (no VNNI, no AVX-512: the 7-bit int8 path, whose attention was
- * fp32 FMAs at the ymm peak's rate while its GEMMs ran at twice it), or
- * FK_ISA_AVX512 without bf16 attention (the products then in zmm with
- * vpdpwssd, attention_i16_avx512.c, same bits). The
+ * fp32 FMAs at the ymm peak's rate while its GEMMs ran at twice it),
+ * FK_ISA_AVX2_VNNI (the products by VEX vpdpwssd, attention_i16_vnni.c) or
+ * FK_ISA_AVX512 without bf16 attention (the products and the weight codes in
+ * zmm, attention_i16_avx512.c); all give the same bits. The
  * plan's phase 1 (LayerNorm, RoPE, q scaled by scale * log2 e, fp32 packs)
  * is reused; this file quantizes the packs once per head group and runs the
  * blocks:
@@ -274,6 +275,11 @@ static void softmax_block(int wide, float *s, int valid, float *m, float *l, flo
 
 /* ------------------------------------------------------------------- task */
 
+typedef void s_block_fn(int dp, const uint32_t *q, const uint32_t *kb, const float *sq, const float *sk,
+                        float *s);
+typedef void pv_tile_fn(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
+                        const float *alpha, const float *ps);
+
 static void attn_task(void *arg, int task, int thread)
 {
     const struct fk__attn_i16_job *j = arg;
@@ -290,6 +296,12 @@ static void attn_task(void *arg, int task, int thread)
     int q0 = qb * QB, rows = j->nq - q0 < QB ? j->nq - q0 : QB;
     int panels = (rows + MR - 1) / MR;
     const size_t qstride = (size_t)dp / 2 * MR;
+    /* the products by the context's ISA: vpmaddwd + vpaddd here, VEX
+     * vpdpwssd (AVX2-VNNI) or zmm vpdpwssd (AVX-512); the same bits */
+    enum fk_isa isa = j->ctx->isa;
+    int wide = isa == FK_ISA_AVX512;
+    s_block_fn *s_fn = wide ? fk__attn_i16_s_block_avx512 : isa == FK_ISA_AVX2_VNNI ? fk__attn_i16_s_block_vnni : s_block;
+    pv_tile_fn *pv_fn = wide ? fk__attn_i16_pv_tile_avx512 : isa == FK_ISA_AVX2_VNNI ? fk__attn_i16_pv_tile_vnni : pv_tile;
     for (int i = 0; i < panels; i++)
         pack_q(dp, qp + (size_t)(q0 / MR + i) * (size_t)dp * MR, qq + (size_t)i * qstride, sq + i * MR, cb);
     fk__attn_task_init(o, panels, dp, mrow, lrow);
@@ -302,20 +314,9 @@ static void attn_task(void *arg, int task, int thread)
         const float *sk = h.sk + (size_t)kb * BK, *sv = h.sv + (size_t)kb * (size_t)dp;
         for (int i = 0; i < panels; i++) {
             float *oi = o + (size_t)i * MR * (size_t)dp;
-            const uint32_t *qi = qq + (size_t)i * qstride;
-            if (j->wide)
-                fk__attn_i16_s_block_avx512(dp, qi, kbb, sq + i * MR, sk, s);
-            else if (j->vnni)
-                fk__attn_i16_s_block_vnni(dp, qi, kbb, sq + i * MR, sk, s);
-            else
-                s_block(dp, qi, kbb, sq + i * MR, sk, s);
-            softmax_block(j->wide, s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
-            if (j->wide)
-                fk__attn_i16_pv_tile_avx512(dp, pb, vbb, sv, oi, alpha, ps);
-            else if (j->vnni)
-                fk__attn_i16_pv_tile_vnni(dp, pb, vbb, sv, oi, alpha, ps);
-            else
-                pv_tile(dp, pb, vbb, sv, oi, alpha, ps);
+            s_fn(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+            softmax_block(wide, s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
+            pv_fn(dp, pb, vbb, sv, oi, alpha, ps);
         }
     }
     fk__attn_task_write(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d, o, dp, lrow);

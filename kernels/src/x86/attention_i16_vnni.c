@@ -18,9 +18,7 @@
  * EVEX (AVX512_VNNI) form, which an AVX-VNNI CPU without AVX-512 lacks. The
  * asm names the accumulator as the destination (with the intrinsic GCC may
  * copy sums through spare registers, as it did for the AVX2 tiles). */
-#define DP(acc, t, b) __asm__("%{vex%} vpdpwssd %2, %1, %0" : "+x"(acc) : "x"(t), "x"(b))
-
-#define I16_DOT(acc, t, b) DP(acc, t, b)
+#define I16_DOT(acc, t, b) __asm__("%{vex%} vpdpwssd %2, %1, %0" : "+x"(acc) : "x"(t), "x"(b))
 #include "attention_i16_tiles.h"
 
 void fk__attn_i16_s_block_vnni(int dp, const uint32_t *q, const uint32_t *kb, const float *sq, const float *sk,

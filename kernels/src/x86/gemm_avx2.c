@@ -735,6 +735,16 @@ static void direct_pix(const struct fk__asrc *a, int m0, int rows, int mp, int *
     }
 }
 
+/* The channels of tap (ky, kx) under output pixel p (from direct_pix):
+ * zeros for padding and for rows past the end. */
+static inline const float *tap_pixel(const struct fk__asrc *a, const int *p, int ky, int kx, const float *zeros)
+{
+    int iy = p[0] + ky, ix = p[1] + kx;
+    if (p[0] == INT_MIN || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w)
+        return zeros;
+    return a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin;
+}
+
 /* Row pointers of micro-panel i for the k block starting at k0 of a stride-1
  * convolution: output pixel (oy, ox) (from direct_pix), tap (ky, kx),
  * channels from k0 % cin; padding and rows past the end read zeros. */
@@ -743,12 +753,8 @@ static void direct_rows(const struct fk__asrc *a, const int *pix, int i, int k0,
 {
     int tap = k0 / a->cin, c0 = k0 % a->cin, ky = tap / a->kw, kx = tap % a->kw;
     for (int r = 0; r < MR; r++) {
-        const int *p = pix + 2 * (i * MR + r);
-        int iy = p[0] + ky, ix = p[1] + kx;
-        if (p[0] == INT_MIN || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w)
-            ar[r] = zeros;
-        else
-            ar[r] = a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin + (size_t)c0;
+        const float *x = tap_pixel(a, pix + 2 * (i * MR + r), ky, kx, zeros);
+        ar[r] = x == zeros ? zeros : x + c0;
     }
 }
 
@@ -756,7 +762,7 @@ static void direct_rows(const struct fk__asrc *a, const int *pix, int i, int k0,
  * taps mode): a pixel whose whole window lies in the image gets its tap
  * offsets added to one base (direct_rows per tap and micro-panel was a
  * quarter of a 16-channel 3x3's time, Zen 5); the others, and rows past
- * the end, as direct_rows. */
+ * the end, by tap_pixel. */
 static void tap_rows(const struct fk__asrc *a, const int *pix, int mp, int taps, const float *zeros,
                      const float **tab)
 {
@@ -773,12 +779,8 @@ static void tap_rows(const struct fk__asrc *a, const int *pix, int mp, int taps,
                     d[(size_t)t * MR] = base + off[t];
                 continue;
             }
-            for (int t = 0; t < taps; t++) {
-                int iy = p[0] + t / a->kw, ix = p[1] + t % a->kw;
-                d[(size_t)t * MR] = p[0] == INT_MIN || iy < 0 || iy >= a->h || ix < 0 || ix >= a->w
-                                        ? zeros
-                                        : a->x + ((size_t)iy * (size_t)a->w + (size_t)ix) * (size_t)a->cin;
-            }
+            for (int t = 0; t < taps; t++)
+                d[(size_t)t * MR] = tap_pixel(a, p, t / a->kw, t % a->kw, zeros);
         }
 }
 
