@@ -90,8 +90,9 @@ enum fk_q8_bits {
 
 /* Whether a desc's bf16 attention (desc.bf16, set by the model for int8
  * weights) runs in bf16 on an AVX-512 context of a CPU with AVX512_BF16.
- * AUTO: on AMD's CPUs (Zen 5: bf16 attention 1.3-1.5x fp32; Zen 4, the
- * other AMD with AVX512_BF16, not measured here); not on Intel's
+ * AUTO: on AMD's CPUs (bf16 attention 1.3-1.5x fp32 on Zen 5, 1.7-1.9x
+ * on Zen 4, whose zmm vdpbf16ps retires once a cycle: twice the zmm FMAs'
+ * multiply-adds); not on Intel's
  * (the Xeon VM retired a zmm vdpbf16ps every other cycle, half the FMAs'
  * multiply-adds: bf16 attention 0.63-0.71x fp32 there). ON: wherever the
  * CPU has it (tests, benches); OFF: never. */
