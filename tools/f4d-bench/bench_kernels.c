@@ -334,15 +334,33 @@ static int bench_gemm_shape(const struct opts *o, int m, int n, int k, struct ro
     return count;
 }
 
+/* An attention row's products: fp32, bf16 (desc.bf16) or int16 (desc.int16). */
+enum attn_variant { V_F32, V_BF16, V_I16 };
+
 /* The path column of an attention row: the ISA's name for fp32, else the
  * low-precision kernel that ran. */
-static const char *attn_path(enum fk_isa isa, int bf16, int int16)
+static const char *attn_path(enum fk_isa isa, enum attn_variant v)
 {
-    if (bf16)
+    if (v == V_BF16)
         return "avx512-bf16";
-    if (!int16)
+    if (v == V_F32)
         return fk_isa_name(isa);
     return isa == FK_ISA_AVX512 ? "avx512-int16" : isa == FK_ISA_AVX2_VNNI ? "vnni-int16" : "avx2-int16";
+}
+
+/* One attention call of variant v over the qkv rows into dst: its products
+ * set on the desc, int16 on c16 (the context that runs them), the others on
+ * ctx; exits on an error. */
+static void attention_variant(enum attn_variant v, fk_ctx *ctx, fk_ctx *c16, struct fk_attention_desc *a,
+                              const float *qkv, int C, int ntok, float *dst)
+{
+    a->bf16 = v == V_BF16;
+    a->int16 = v == V_I16;
+    fk_ctx *cx = v == V_I16 ? c16 : ctx;
+    if (fk_attention(cx, a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok, dst, C) != F4D_OK) {
+        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(cx));
+        exit(1);
+    }
 }
 
 /* Attention with the aggregator's settings: qk-norm, 2-D RoPE, 16 heads of 64;
@@ -402,7 +420,7 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
                     exit(1);
             }
             fk_ctx *c16 = x16 ? x16 : ctx;
-            enum { V_F32, V_BF16, V_I16 } kind[3];
+            enum attn_variant kind[3];
             int nv = 0, reps = o->reps < 63 ? o->reps : 63;
             kind[nv++] = V_F32;
             if (fk_ctx_has_bf16(ctx))
@@ -415,16 +433,9 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
             double t[3][63];
             for (int r = 0; r < reps; r++)
                 for (int vr = 0; vr < nv; vr++) {
-                    a.bf16 = kind[vr] == V_BF16;
-                    a.int16 = kind[vr] == V_I16;
-                    fk_ctx *cx = kind[vr] == V_I16 ? c16 : ctx;
                     settle(threads);
                     double t0 = now_for(o, threads);
-                    if (fk_attention(cx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
-                                     vr ? out16 : out, C) != F4D_OK) {
-                        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(cx));
-                        exit(1);
-                    }
+                    attention_variant(kind[vr], ctx, c16, &a, qkv, C, ntok, vr ? out16 : out);
                     t[vr][r] = now_for(o, threads) - t0;
                 }
             if (count + nv > nrows) {
@@ -440,20 +451,12 @@ static int bench_attention_shape(const struct opts *o, int ntok, int heads, int 
                                    threads, ntok, ntok, d,
                                    4.0 * d * (double)ntok * ntok * heads / best * 1e-9, NAN, NAN, NAN, NAN,
                                    vr ? paired_ratio(t[0], t[vr], reps) : NAN,
-                                   attn_path(fk_ctx_isa(ctx), kind[vr] == V_BF16, kind[vr] == V_I16),
+                                   attn_path(fk_ctx_isa(ctx), kind[vr]),
                                    fk_ctx_isa(ctx) };
                 /* out16 holds the last variant's output: each low-precision
                  * one is run once more for its errors */
-                if (vr) {
-                    a.bf16 = kind[vr] == V_BF16;
-                    a.int16 = kind[vr] == V_I16;
-                    fk_ctx *cx = kind[vr] == V_I16 ? c16 : ctx;
-                    if (fk_attention(cx, &a, qkv, 3 * C, ntok, qkv + C, 3 * C, qkv + 2 * C, 3 * C, ntok,
-                                     out16, C) != F4D_OK) {
-                        fprintf(stderr, "f4d-bench: %s\n", fk_ctx_error(cx));
-                        exit(1);
-                    }
-                }
+                if (vr)
+                    attention_variant(kind[vr], ctx, c16, &a, qkv, C, ntok, out16);
                 errors_vs(vr ? out16 : out, ref, (size_t)nsample * C, &r->max_rel_err, &r->mean_rel_err);
             }
             fk_ctx_free(x16);
