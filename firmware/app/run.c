@@ -58,6 +58,7 @@
 #include <fcntl.h>
 #include <stdarg.h>
 #include <math.h>
+#include <poll.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1009,12 +1010,28 @@ static const char *stream_file(const char *url)
 }
 
 /* Spawns the display on the stream file being written, headless and paced,
- * timing each key against the key-times file. Its stdout (the summary, also
- * in its --json) is discarded. */
-static int display_spawn(struct run *r, const char *stream_path, struct f4d_err *err)
+ * timing each key against the key-times file, and waits until it is set up
+ * (its --ready-fd byte), at most limit_s: a live display that came up after
+ * a short stream had ended showed only its last key (a cold start of its
+ * libraries took about a second on a loaded 2-core machine). Its stdout (the
+ * summary, also in its --json) is discarded. A display that exits or does
+ * not answer in time is reported at the end by display_wait. */
+static int display_spawn(struct run *r, const char *stream_path, double limit_s, struct f4d_err *err)
 {
     char extra[sizeof r->cfg->display_args];
     snprintf(extra, sizeof extra, "%s", r->cfg->display_args);
+    int ready[2];
+    if (pipe(ready) < 0)
+        return f4d_fail(err, F4D_EIO, "display: pipe: %s", strerror(errno));
+    /* neither end leaks into other children (the descriptor the display
+     * gets is its own dup2 copy) */
+    fcntl(ready[0], F_SETFD, FD_CLOEXEC);
+    fcntl(ready[1], F_SETFD, FD_CLOEXEC);
+    /* the child's copy on a fixed descriptor (dup2 clears close-on-exec
+     * there; the same number would keep it) */
+    int child_fd = ready[1] == 3 ? 4 : 3;
+    char fd_arg[16];
+    snprintf(fd_arg, sizeof fd_arg, "%d", child_fd);
     char *argv[48];
     int n = 0;
     argv[n++] = (char *)r->cfg->display;
@@ -1026,10 +1043,16 @@ static int display_spawn(struct run *r, const char *stream_path, struct f4d_err 
     argv[n++] = r->kt_path;
     argv[n++] = "--json";
     argv[n++] = r->display_json;
+    argv[n++] = "--ready-fd";
+    argv[n++] = fd_arg;
+    const int fixed = n, most = 46; /* the stream path and NULL follow */
     char *save = NULL;
     for (char *t = strtok_r(extra, " \t", &save); t; t = strtok_r(NULL, " \t", &save)) {
-        if (n >= 46)
-            return f4d_fail(err, F4D_EINVAL, "display_args: more than 36 arguments");
+        if (n >= most) {
+            close(ready[0]);
+            close(ready[1]);
+            return f4d_fail(err, F4D_EINVAL, "display_args: more than %d arguments", most - fixed);
+        }
         argv[n++] = t;
     }
     argv[n++] = (char *)stream_path;
@@ -1037,13 +1060,36 @@ static int display_spawn(struct run *r, const char *stream_path, struct f4d_err 
     posix_spawn_file_actions_t fa;
     posix_spawn_file_actions_init(&fa);
     posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
+    posix_spawn_file_actions_adddup2(&fa, ready[1], child_fd);
     extern char **environ;
     int rc = posix_spawn(&r->display_pid, r->cfg->display, &fa, NULL, argv, environ);
     posix_spawn_file_actions_destroy(&fa);
+    close(ready[1]);
     if (rc != 0) {
+        close(ready[0]);
         r->display_pid = 0;
         return f4d_fail(err, F4D_EIO, "display %s: cannot start: %s", r->cfg->display, strerror(rc));
     }
+    /* a byte: set up; end of file: it exited (or closed the descriptor)
+     * before that; neither in limit_s: go on without it */
+    struct pollfd pf = { .fd = ready[0], .events = POLLIN };
+    uint64_t t0 = mono_ns();
+    for (;;) {
+        double left_ms = limit_s * 1e3 - (double)(mono_ns() - t0) * 1e-6;
+        int pr = left_ms > 0 ? poll(&pf, 1, (int)ceil(left_ms)) : 0;
+        if (pr < 0 && errno == EINTR)
+            continue;
+        if (pr == 0) /* a warning, shown under --quiet too */
+            fprintf(stderr, "forge4d run: display %s: not set up after %.0f s; starting without it\n",
+                    r->cfg->display, limit_s);
+        if (pr > 0) {
+            char b;
+            while (read(ready[0], &b, 1) < 0 && errno == EINTR) {
+            }
+        }
+        break;
+    }
+    close(ready[0]);
     return 0;
 }
 
@@ -1300,7 +1346,7 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
             memcpy(r->display_json, base, strlen(base));
             memcpy(r->display_json + strlen(base), ext, strlen(ext) + 1);
             remove(r->display_json); /* a summary left from an earlier run must not be read as this one's */
-            if (display_spawn(r, sf, &err) < 0)
+            if (display_spawn(r, sf, 60.0, &err) < 0)
                 goto out;
         }
         r->pkt = malloc(r->enc.packet_cap);

@@ -36,7 +36,15 @@ grep -q '"frames": 3,' "$dir/join.json"
 # orbit camera with the status line, --seconds limits the refreshes
 "$disp" --headless --png-dir "$dir/orbit" --size 128x96 --seconds 0.05 --fps 60 "$dir/s.f4ds" > "$dir/orbit.json"
 grep -q '"frames": 3,' "$dir/orbit.json"
+# --ready-fd: one byte on the descriptor once set up, then closed (the
+# reader below sees the byte and the end of the pipe)
+"$disp" --headless --no-status --frames 1 --size 96x64 --ready-fd 5 "$dir/s.f4ds" 5> "$dir/ready.txt" > /dev/null
+[ "$(cat "$dir/ready.txt")" = "1" ] || { echo "--ready-fd: no byte"; exit 1; }
 # errors name what is wrong
+if "$disp" --ready-fd 9 "$dir/s.f4ds" 9>&- 2> "$dir/e6.txt"; then echo "a closed --ready-fd accepted"; exit 1; fi
+grep -q "ready-fd 9: not an open descriptor" "$dir/e6.txt"
+if "$disp" --ready-fd 1.5 "$dir/s.f4ds" 2> "$dir/e7.txt"; then echo "--ready-fd 1.5 accepted"; exit 1; fi
+grep -q "whole number" "$dir/e7.txt"
 if "$disp" --headless "$dir/missing.f4ds" 2> "$dir/e1.txt"; then echo "missing input accepted"; exit 1; fi
 grep -q "missing.f4ds" "$dir/e1.txt"
 if "$disp" --camera 3 "$dir/s.f4ds" 2> "$dir/e2.txt"; then echo "--camera without a rig accepted"; exit 1; fi

@@ -5,7 +5,7 @@
  *               [--fps F] [--seconds S] [--frames N] [--renderer auto|cpu|gles]
  *               [--interp fused|both|nearest] [--lookup render|zbuffer] [--offset BYTES] [--no-status]
  *               [--realtime|--no-realtime] [--threads N] [--json FILE]
- *               [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] INPUT
+ *               [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] [--ready-fd N] INPUT
  *
  * INPUT is a stream file (.f4ds), or srt://HOST:PORT?... / file:PATH through
  * the stream transport (f4d_transport.h: caller or listener, latency,
@@ -25,12 +25,17 @@
  * CLOCK_MONOTONIC, written before the key's packet) times each key from its
  * trigger to the end of the first refresh that shows it in full (stream time
  * and newest key both at or past the key's time), p50 / p95 in the summary:
- * both processes read CLOCK_MONOTONIC, one clock on one machine. Without a
+ * both processes read CLOCK_MONOTONIC, one clock on one machine. --ready-fd
+ * N: one byte is written to the open descriptor N, which is then closed,
+ * once the source is open and the display set up (a starter waits for it:
+ * a live display that came up after the stream had ended would show only
+ * its last key). Without a
  * camera the first key places an orbit camera. Prints a JSON summary on stdout
  * (and into --json FILE). Exit 0, 1 on error, 2 on bad usage. */
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -47,7 +52,8 @@ static void usage(FILE *f)
                "                   [--interp fused|both|nearest] [--lookup render|zbuffer]\n"
                "                   [--offset BYTES] [--no-status]\n"
                "                   [--realtime|--no-realtime] [--threads N] [--json FILE]\n"
-               "                   [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] INPUT\n");
+               "                   [--follow [--follow-idle S]] [--live-lag K] [--key-times FILE] [--ready-fd N]\n"
+               "                   INPUT\n");
 }
 
 static double cpu_ms(void)
@@ -336,7 +342,7 @@ int main(int argc, char **argv)
 {
     struct display_config cfg = display_config_default();
     const char *input = NULL, *rig_path = NULL, *cam_sel = NULL, *json = NULL, *kt_path = NULL;
-    int size_given = 0, realtime = -1, threads = 0, follow = 0;
+    int size_given = 0, realtime = -1, threads = 0, follow = 0, ready_fd = -1;
     double seconds = 0, frames = 0, offset = 0, follow_idle = 30, live_lag = NAN;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
@@ -401,6 +407,18 @@ int main(int argc, char **argv)
             } else if (!strcmp(a, "--offset")) {
                 if (num(a, v, 0, 1e15, &offset) < 0)
                     return 2;
+            } else if (!strcmp(a, "--ready-fd")) {
+                if (num(a, v, 0, 65535, &x) < 0)
+                    return 2;
+                ready_fd = (int)x;
+                if (x != (double)ready_fd) {
+                    fprintf(stderr, "f4d-display: --ready-fd '%s' must be a whole number\n", v);
+                    return 2;
+                }
+                if (fcntl(ready_fd, F_GETFD) < 0) {
+                    fprintf(stderr, "f4d-display: --ready-fd %d: not an open descriptor\n", ready_fd);
+                    return 2;
+                }
             } else if (!strcmp(a, "--threads")) {
                 if (num(a, v, 0, 256, &x) < 0)
                     return 2;
@@ -529,6 +547,18 @@ int main(int argc, char **argv)
     if (src_rc < 0 || display_new(ctx, &cfg, &d, &err) < 0) {
         fprintf(stderr, "f4d-display: %s\n", err.msg);
         goto done;
+    }
+    if (ready_fd >= 0) { /* set up: the starter may begin the stream */
+        /* a starter that gave up has closed its end: EPIPE, not a signal */
+        void (*old)(int) = signal(SIGPIPE, SIG_IGN);
+        ssize_t w;
+        while ((w = write(ready_fd, "1", 1)) < 0 && errno == EINTR) {
+        }
+        signal(SIGPIPE, old);
+        if (w < 0)
+            fprintf(stderr, "f4d-display: --ready-fd %d: %s (going on)\n", ready_fd, strerror(errno));
+        close(ready_fd);
+        ready_fd = -1;
     }
     /* the refresh limit: --frames, or --seconds of stream time at --fps */
     uint64_t limit = frames > 0 ? (uint64_t)frames : seconds > 0 ? (uint64_t)ceil(seconds * cfg.fps) : 0;
