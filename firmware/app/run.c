@@ -1071,23 +1071,26 @@ static int display_spawn(struct run *r, const char *stream_path, double limit_s,
         return f4d_fail(err, F4D_EIO, "display %s: cannot start: %s", r->cfg->display, strerror(rc));
     }
     /* a byte: set up; end of file: it exited (or closed the descriptor)
-     * before that; neither in limit_s: go on without it */
+     * before that; neither in limit_s: go on without it. In steps of at
+     * most 50 ms: a stop is not kept waiting. */
     struct pollfd pf = { .fd = ready[0], .events = POLLIN };
     uint64_t t0 = mono_ns();
-    for (;;) {
+    while (!*r->stop) {
         double left_ms = limit_s * 1e3 - (double)(mono_ns() - t0) * 1e-6;
-        int pr = left_ms > 0 ? poll(&pf, 1, (int)ceil(left_ms)) : 0;
-        if (pr < 0 && errno == EINTR)
-            continue;
-        if (pr == 0) /* a warning, shown under --quiet too */
+        if (left_ms <= 0) { /* a warning, shown under --quiet too */
             fprintf(stderr, "forge4d run: display %s: not set up after %.0f s; starting without it\n",
                     r->cfg->display, limit_s);
+            break;
+        }
+        int pr = poll(&pf, 1, left_ms < 50 ? (int)ceil(left_ms) : 50);
         if (pr > 0) {
             char b;
             while (read(ready[0], &b, 1) < 0 && errno == EINTR) {
             }
+            break;
         }
-        break;
+        if (pr < 0 && errno != EINTR)
+            break; /* cannot wait: go on, as after the limit */
     }
     close(ready[0]);
     return 0;
