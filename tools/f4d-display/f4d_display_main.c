@@ -558,7 +558,6 @@ int main(int argc, char **argv)
         if (w < 0)
             fprintf(stderr, "f4d-display: --ready-fd %d: %s (going on)\n", ready_fd, strerror(errno));
         close(ready_fd);
-        ready_fd = -1;
     }
     /* the refresh limit: --frames, or --seconds of stream time at --fps */
     uint64_t limit = frames > 0 ? (uint64_t)frames : seconds > 0 ? (uint64_t)ceil(seconds * cfg.fps) : 0;
