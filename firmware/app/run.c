@@ -1376,8 +1376,9 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         fprintf(stderr, "[forge4d run] no weights: capture%s only, no inference or stream\n",
                 r->take_dir ? " and recording" : "");
     }
-    /* about two seconds of sets for the recorder (a disk's fdatasync on a
-     * busy machine can take a second), three for inference */
+    /* about two seconds of sets for the recorder (its fdatasync runs on
+     * the take's own thread; this covers writes the kernel throttles when
+     * the disk falls behind the page cache), three for inference */
     uint32_t rate2 = 2 * ((board.trigger.rate_mhz + 999) / 1000);
     r->rec_cap = r->take_dir ? (rate2 < 8 ? 8 : rate2 > 64 ? 64 : rate2) : 0;
     r->n_slots = r->rec_cap + 3;

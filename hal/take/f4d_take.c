@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -130,18 +131,30 @@ static void fsync_dir(const char *dir)
 }
 
 /* ======================= writer ======================= */
+/* The appender writes records; a syncer thread of the writer's own runs
+ * fdatasync, so a slow disk (a second-long fdatasync on a busy machine or an
+ * eMMC) delays durability, never an append: the records go on into the page
+ * cache meanwhile. `mu` guards the fields the two threads share; the data
+ * writes and fdatasync itself run outside it. */
 struct f4d_take_writer {
     int fd, idx_fd;
     char dir[HAL_PATH_MAX];
     struct f4d_take_info info;
-    uint64_t durability_ns, last_sync_ns;
-    uint64_t offset;          /* bytes in take.f4t */
-    uint64_t sets, durable;
+    uint64_t durability_ns;
+    uint64_t offset;          /* bytes in take.f4t (appender only) */
+    pthread_t syncer;
+    pthread_mutex_t mu;
+    pthread_cond_t cv;        /* a set appended, or stop */
+    uint64_t sets, durable;   /* written under mu, read atomically by the getters */
+    uint64_t unsynced_since;  /* mono time of the oldest set no fdatasync has started on; 0: none */
+    uint64_t test_delay_ns;   /* F4D_TAKE_TEST_SYNC_DELAY_MS: a slow disk, for tests */
+    bool stop, failed;
+    int sync_errno;
     uint8_t idx_pending[IDX_PENDING * IDX_ENTRY_BYTES];
     uint32_t n_pending;
-    bool failed;
 };
 
+/* Caller holds mu. */
 static int flush_index(struct f4d_take_writer *w)
 {
     if (!w->n_pending)
@@ -151,13 +164,53 @@ static int flush_index(struct f4d_take_writer *w)
     return write_all(w->idx_fd, &iov, 1);
 }
 
-static int sync_now(struct f4d_take_writer *w)
+static void abs_time(struct timespec *ts, uint64_t mono)
 {
-    if (fdatasync(w->fd) < 0)
-        return -1;
-    w->durable = w->sets;
-    w->last_sync_ns = mono_ns();
-    return flush_index(w); /* the index is a hint: verify rebuilds it, no sync needed */
+    ts->tv_sec = (time_t)(mono / 1000000000u);
+    ts->tv_nsec = (long)(mono % 1000000000u);
+}
+
+/* Syncs at most durability_ns after the oldest unsynced set was appended. */
+static void *syncer_main(void *arg)
+{
+    struct f4d_take_writer *w = arg;
+    pthread_mutex_lock(&w->mu);
+    while (!w->stop && !w->failed) {
+        if (!w->unsynced_since) {
+            pthread_cond_wait(&w->cv, &w->mu);
+            continue;
+        }
+        uint64_t due = w->unsynced_since + w->durability_ns;
+        if (mono_ns() < due) {
+            struct timespec ts;
+            abs_time(&ts, due);
+            pthread_cond_timedwait(&w->cv, &w->mu, &ts);
+            continue;
+        }
+        uint64_t n = w->sets; /* every record up to n is fully written */
+        w->unsynced_since = 0;
+        pthread_mutex_unlock(&w->mu);
+        if (w->test_delay_ns) {
+            struct timespec d = {(time_t)(w->test_delay_ns / 1000000000u), (long)(w->test_delay_ns % 1000000000u)};
+            while (nanosleep(&d, &d) < 0 && errno == EINTR) {
+            }
+        }
+        int rc = fdatasync(w->fd);
+        int e = errno;
+        pthread_mutex_lock(&w->mu);
+        if (rc < 0) {
+            w->failed = true;
+            w->sync_errno = e;
+            break;
+        }
+        __atomic_store_n(&w->durable, n, __ATOMIC_RELEASE);
+        if (flush_index(w) < 0) { /* the index is a hint (verify rebuilds it), but a write error is a disk error */
+            w->failed = true;
+            w->sync_errno = errno;
+        }
+    }
+    pthread_mutex_unlock(&w->mu);
+    return NULL;
 }
 
 int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct f4d_take_info *info,
@@ -178,6 +231,8 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     snprintf(w->dir, sizeof w->dir, "%s", dir);
     w->info = *info;
     w->durability_ns = (uint64_t)durability_ms * 1000000u;
+    const char *delay = getenv("F4D_TAKE_TEST_SYNC_DELAY_MS");
+    w->test_delay_ns = delay ? (uint64_t)strtoul(delay, NULL, 10) * 1000000u : 0;
     /* O_EXCL: never append to (or clobber) an existing take */
     w->fd = open(path, O_WRONLY | O_CREAT | O_EXCL | O_APPEND | O_CLOEXEC, 0644);
     if (w->fd < 0) {
@@ -237,7 +292,26 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     }
     fsync_dir(dir);
     w->offset = HDR_BYTES + len + 4;
-    w->last_sync_ns = mono_ns();
+    if (pthread_mutex_init(&w->mu, NULL) != 0) {
+        rc = f4d_fail(err, F4D_ENOMEM, "take %s: cannot create a mutex", dir);
+        goto fail;
+    }
+    pthread_condattr_t ca;
+    bool cv_ok = pthread_condattr_init(&ca) == 0 && pthread_condattr_setclock(&ca, CLOCK_MONOTONIC) == 0 &&
+                 pthread_cond_init(&w->cv, &ca) == 0;
+    pthread_condattr_destroy(&ca);
+    if (!cv_ok) {
+        pthread_mutex_destroy(&w->mu);
+        rc = f4d_fail(err, F4D_ENOMEM, "take %s: cannot create a condition variable", dir);
+        goto fail;
+    }
+    int te = pthread_create(&w->syncer, NULL, syncer_main, w);
+    if (te != 0) {
+        pthread_cond_destroy(&w->cv);
+        pthread_mutex_destroy(&w->mu);
+        rc = f4d_fail(err, F4D_ENOMEM, "take %s: cannot start the sync thread: %s", dir, strerror(te));
+        goto fail;
+    }
     *out = w;
     return F4D_OK;
 fail:
@@ -248,9 +322,26 @@ fail:
     return rc;
 }
 
+static bool writer_failed(struct f4d_take_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    bool f = w->failed;
+    pthread_mutex_unlock(&w->mu);
+    return f;
+}
+
+static int fail_writer(struct f4d_take_writer *w)
+{
+    pthread_mutex_lock(&w->mu);
+    w->failed = true;
+    pthread_cond_signal(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+    return F4D_EIO;
+}
+
 int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
 {
-    if (w->failed)
+    if (writer_failed(w))
         return F4D_EIO;
     uint8_t meta[HDR_BYTES + SET_META_BYTES + HAL_RIG_CAMERAS_MAX * FRAME_META_BYTES];
     uint8_t tail[4];
@@ -307,48 +398,58 @@ int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set)
      * written atomically anyway (a power cut tears them), and this way a
      * kill -9 between parts tears them too, so the crash test exercises the
      * same torn-tail repair a power cut needs. */
-    for (int i = 0; i < niov; i++) {
-        if (write_all(w->fd, &iov[i], 1) < 0) {
-            w->failed = true;
-            return F4D_EIO;
-        }
-    }
-    if (w->n_pending == IDX_PENDING && flush_index(w) < 0) {
-        w->failed = true;
-        return F4D_EIO;
-    }
-    uint8_t *e = w->idx_pending + (size_t)w->n_pending++ * IDX_ENTRY_BYTES;
+    for (int i = 0; i < niov; i++)
+        if (write_all(w->fd, &iov[i], 1) < 0)
+            return fail_writer(w);
+    uint8_t e[IDX_ENTRY_BYTES];
     put64(e, set->seq);
     put64(e + 8, w->offset);
     put32(e + 16, (uint32_t)len);
     put32(e + 20, crc(0, e, 20));
-    w->offset += HDR_BYTES + len + 4;
-    w->sets++;
-    if (mono_ns() - w->last_sync_ns >= w->durability_ns && sync_now(w) < 0) {
-        w->failed = true;
-        return F4D_EIO;
+    __atomic_store_n(&w->offset, w->offset + HDR_BYTES + len + 4, __ATOMIC_RELAXED);
+    pthread_mutex_lock(&w->mu);
+    int bad = w->n_pending == IDX_PENDING && flush_index(w) < 0;
+    if (!bad) {
+        memcpy(w->idx_pending + (size_t)w->n_pending++ * IDX_ENTRY_BYTES, e, sizeof e);
+        __atomic_store_n(&w->sets, w->sets + 1, __ATOMIC_RELEASE);
+        if (!w->unsynced_since) {
+            w->unsynced_since = mono_ns();
+            pthread_cond_signal(&w->cv);
+        }
     }
-    return F4D_OK;
+    pthread_mutex_unlock(&w->mu);
+    return bad ? fail_writer(w) : F4D_OK;
 }
 
-uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w) { return w->durable; }
-uint64_t f4d_take_bytes_written(const struct f4d_take_writer *w) { return w->offset; }
-uint64_t f4d_take_sets_written(const struct f4d_take_writer *w) { return w->sets; }
+uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w) { return __atomic_load_n(&w->durable, __ATOMIC_ACQUIRE); }
+uint64_t f4d_take_bytes_written(const struct f4d_take_writer *w) { return __atomic_load_n(&w->offset, __ATOMIC_RELAXED); }
+uint64_t f4d_take_sets_written(const struct f4d_take_writer *w) { return __atomic_load_n(&w->sets, __ATOMIC_ACQUIRE); }
 
 int f4d_take_close(struct f4d_take_writer *w, struct f4d_err *err)
 {
+    pthread_mutex_lock(&w->mu);
+    w->stop = true;
+    pthread_cond_signal(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+    pthread_join(w->syncer, NULL); /* an fdatasync in flight finishes first */
     int rc = F4D_OK;
-    if (!w->failed) {
+    if (w->sync_errno) {
+        rc = f4d_fail(err, F4D_EIO, "take %s: fdatasync: %s", w->dir, strerror(w->sync_errno));
+    } else if (!w->failed) {
         uint8_t buf[HDR_BYTES + 8 + 4];
         put64(buf + HDR_BYTES, w->sets);
         make_header(buf, F4D_TAKE_REC_END, 8);
         put32(buf + HDR_BYTES + 8, crc(0, buf + HDR_BYTES, 8));
         struct iovec io = {buf, sizeof buf};
-        if (write_all(w->fd, &io, 1) < 0 || sync_now(w) < 0 || fsync(w->idx_fd) < 0)
+        if (write_all(w->fd, &io, 1) < 0 || fdatasync(w->fd) < 0 || flush_index(w) < 0 || fsync(w->idx_fd) < 0)
             rc = f4d_fail(err, F4D_EIO, "take %s: closing: %s", w->dir, strerror(errno));
+        else
+            w->durable = w->sets;
     } else {
         rc = f4d_fail(err, F4D_EIO, "take %s: an earlier write failed", w->dir);
     }
+    pthread_cond_destroy(&w->cv);
+    pthread_mutex_destroy(&w->mu);
     close(w->idx_fd);
     if (close(w->fd) < 0 && rc == F4D_OK)
         rc = f4d_fail(err, F4D_EIO, "take %s: close: %s", w->dir, strerror(errno));

@@ -11,12 +11,19 @@
  *              Written as the take grows; rebuilt from take.f4t by verify.
  *   board.json the board the take was recorded with.
  *
- * Durability: the writer calls fdatasync() on take.f4t at most
- * `durability_ms` after appending a set, so after a power cut or kill -9 at
- * most the sets appended in the last durability window (plus the time of one
- * fdatasync) are lost; everything older survives and verify recovers it.
- * Records are never rewritten; verify only truncates a torn tail and
- * rewrites the index atomically (tmp + rename).
+ * Durability: a thread of the writer's own calls fdatasync() on take.f4t
+ * at most `durability_ms` after a set is appended (later only while an
+ * earlier fdatasync is still running), so after a power cut at most the sets
+ * appended in the last durability window plus the time of two fdatasyncs
+ * are lost (after a kill -9 only a torn last record: the page cache keeps
+ * the rest); everything older survives and verify recovers it. Appends never
+ * wait for fdatasync: a disk that stalls for seconds delays durability
+ * (f4d_take_durable_sets lags), not the appender. Records are never
+ * rewritten; verify only truncates a torn tail and rewrites the index
+ * atomically (tmp + rename).
+ *
+ * Test knob: F4D_TAKE_TEST_SYNC_DELAY_MS=N (read at create) makes every
+ * background fdatasync N ms slower: a slow disk, for tests.
  *
  *     struct f4d_take_writer *w;
  *     f4d_take_create(&w, "takes/t1", &info, board_json, 250, err, n);
@@ -71,13 +78,15 @@ struct f4d_take_set {
 struct f4d_take_writer;
 int f4d_take_create(struct f4d_take_writer **w, const char *dir, const struct f4d_take_info *info,
                     const char *board_json, uint32_t durability_ms, struct f4d_err *err);
-/* Appends one set (frames as the synchronizer holds them). */
+/* Appends one set (frames as the synchronizer holds them). One appending
+ * thread; the getters below may be called from any thread. */
 int f4d_take_append(struct f4d_take_writer *w, const struct hal_set *set);
 /* Sets known to be on stable storage (fdatasync returned after them). */
 uint64_t f4d_take_durable_sets(const struct f4d_take_writer *w);
 uint64_t f4d_take_bytes_written(const struct f4d_take_writer *w);
 uint64_t f4d_take_sets_written(const struct f4d_take_writer *w);
-/* Writes the end record, syncs, closes. Frees w even on error. */
+/* Waits for an fdatasync in flight, writes the end record, syncs, closes.
+ * Frees w even on error. */
 int f4d_take_close(struct f4d_take_writer *w, struct f4d_err *err);
 
 /* ---- reader ---- */

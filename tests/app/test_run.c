@@ -701,11 +701,17 @@ static void load_faults(void **state)
     snprintf(board, sizeof board, "%s/load-board.json", tmp);
     board_at("sim-4cam-faulty.json", board, 160);
     setenv("F4D_RUN_TEST_INFER_DELAY_MS", "250", 1);
+    /* and a disk whose every fdatasync takes 3 s, longer than the recorder's
+     * 2 s queue: no set may be lost for it (the take syncs on a thread of its
+     * own). A CI machine's disk once stalled 2.5 s here, and 16 sets were
+     * left out when the recorder thread synced inline. */
+    setenv("F4D_TAKE_TEST_SYNC_DELAY_MS", "3000", 1);
     char *argv[] = {(char *)forge4d, "run", "--no-config", "--board", board, "--weights", (char *)weights,
                     "--record", take, "--stream", stream, "--stats-json", stats, "--seconds", secs, NULL};
     const double t_spawn = mono_s();
     pid_t pid = spawn(argv, log, NULL);
     unsetenv("F4D_RUN_TEST_INFER_DELAY_MS");
+    unsetenv("F4D_TAKE_TEST_SYNC_DELAY_MS");
     double rss[4096];
     int n = 0, st_exit = -1;
     bool exited = false;

@@ -1,5 +1,6 @@
 /* test_record.c: the take format: round trip, CRC catching corruption, torn
- * tails, lost index, and the recorder killed (SIGKILL) at random points. */
+ * tails, lost index, a slow disk, and the recorder killed (SIGKILL) at
+ * random points. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -266,6 +267,65 @@ static void torn_tail_and_lost_index(void **state)
     assert_non_null(strstr(err.msg, "no valid take header"));
 }
 
+/* Appends like rec_set; after the first set it waits past the durability
+ * window, so the writer's fdatasync is running while the rest go in. */
+struct slow_rec {
+    struct rec rec;
+    uint64_t t_rest; /* when the sets after the first began */
+};
+
+static int slow_set(void *user, const struct hal_set *set)
+{
+    struct slow_rec *s = user;
+    int rc = rec_set(&s->rec, set);
+    if (f4d_take_sets_written(s->rec.w) == 1) {
+        usleep(100000);
+        s->t_rest = now_ns();
+    }
+    return rc;
+}
+
+/* A disk whose fdatasync takes 2 s (the writer's test knob): appends do not
+ * wait for it (it runs on the writer's thread), durability lags meanwhile
+ * and catches up at close. Had the appender synced inline, its first append
+ * after the window would have held it for the whole 2 s. */
+static void slow_disk_does_not_block_appends(void **state)
+{
+    (void)state;
+    enum { SETS = 200 };
+    const uint64_t delay_ns = 2000000000u;
+    char dir[300];
+    snprintf(dir, sizeof dir, "%s/slow", tmp_root);
+    setenv("F4D_TAKE_TEST_SYNC_DELAY_MS", "2000", 1);
+    struct hal_board b;
+    sim_board(&b, 32, 32);
+    struct hal_rig rig;
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &b, &err), 0);
+    struct slow_rec r = {{NULL, &b, dir, 20, NULL, 0}, 0};
+    struct f4d_capture_config cfg = {.triggers = SETS, .on_ready = rec_ready};
+    struct f4d_capture_stats st;
+    assert_int_equal(f4d_capture_run(&rig, &cfg, slow_set, NULL, &r, NULL, &st, &err), 0);
+    uint64_t took = now_ns() - r.t_rest;
+    unsetenv("F4D_TAKE_TEST_SYNC_DELAY_MS");
+    uint64_t durable = f4d_take_durable_sets(r.rec.w);
+    assert_int_equal(f4d_take_sets_written(r.rec.w), SETS);
+    if (took >= delay_ns)
+        fail_msg("%d appends took %.2f s: they waited for the 2 s fdatasync", SETS - 1, (double)took / 1e9);
+    assert_int_equal(durable, 0); /* the first fdatasync (of set 1) has not returned */
+    uint64_t t1 = now_ns();
+    assert_int_equal(f4d_take_close(r.rec.w, &err), 0); /* waits for the sync in flight */
+    uint64_t closing = now_ns() - t1;
+    assert_true(closing > delay_ns / 2); /* the sync began within 0.1 s of the first set */
+    hal_rig_close(&rig);
+    struct f4d_take_report rep;
+    assert_int_equal(f4d_take_verify(dir, false, &rep, &err), 0);
+    assert_int_equal(rep.sets, SETS);
+    assert_true(rep.clean_end);
+    printf("[ slow disk ] %d appends in %.3f s while a 2 s fdatasync ran; close waited %.2f s for it\n", SETS - 1,
+           (double)took / 1e9, (double)closing / 1e9);
+}
+
 /* The recorder is SIGKILLed at random points; verify must recover every set
  * that was appended longer than the durability window before the kill, and
  * every set the writer had reported durable. */
@@ -355,6 +415,7 @@ int main(void)
         cmocka_unit_test(round_trip),
         cmocka_unit_test(crc_catches_corruption),
         cmocka_unit_test(torn_tail_and_lost_index),
+        cmocka_unit_test(slow_disk_does_not_block_appends),
         cmocka_unit_test(killed_at_random_points),
     };
     return cmocka_run_group_tests_name("hal/take", tests, setup, teardown);
