@@ -37,12 +37,15 @@
 #include "report_internal.h"
 #include "run_internal.h"
 
-static volatile sig_atomic_t g_stop; /* set by SIGINT/SIGTERM: finish the take cleanly */
+/* SIGINT/SIGTERM: 1, finish the take and the stream cleanly; 2, a second
+ * request (also one after --seconds or --keys ended the run): stop waiting
+ * for a display that has not ended */
+static volatile sig_atomic_t g_stop;
 
 static void on_signal(int sig)
 {
     (void)sig;
-    g_stop = 1;
+    g_stop = g_stop ? 2 : 1;
 }
 
 static int usage(void)

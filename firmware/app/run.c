@@ -39,6 +39,9 @@
  * stops, the key being inferred finishes and is streamed, the set waiting in
  * the mailbox is dropped (counted), the recorder writes what it holds and
  * closes the take, the stream gets its end packet and is closed. Exit 0.
+ * With --display the run then waits for the display to end at the end
+ * packet (at most 120 s); a second stop request ends that wait: the display
+ * gets SIGTERM, SIGKILL 3 s later, and the run exits 1 naming it.
  *
  * Memory: slots, keys, packet buffer, model arena, budget scratch and latency
  * samples are allocated before the trigger is armed; the per-set path does
@@ -724,8 +727,8 @@ static void *stream_main(void *arg)
                 r->lat_part_ms[j + 1] += at[j + 1] > at[j] ? (double)(at[j + 1] - at[j]) * 1e-6 : 0.0;
             uint64_t i = atomic_fetch_add(&r->lat_n, 1);
             r->lat_ms[i % RUN_LAT_MAX] = (float)ms;
-            if (atomic_fetch_add(&r->keys, 1) + 1 == r->cfg->keys)
-                *r->stop = 1; /* --keys: enough streamed */
+            if (atomic_fetch_add(&r->keys, 1) + 1 == r->cfg->keys && !*r->stop)
+                *r->stop = 1; /* --keys: enough streamed (a 2, a second request, stays) */
         }
         run_fifo_try_push(&r->free_keys, k);
         hb_idle(&r->hb_stream);
@@ -804,7 +807,7 @@ static void *status_main(void *arg)
     while (!atomic_load(&r->done)) {
         nanosleep(&(struct timespec){0, 50000000}, NULL);
         uint64_t now = mono_ns();
-        if (r->cfg->seconds > 0 && now - r->t0 >= (uint64_t)(r->cfg->seconds * 1e9))
+        if (r->cfg->seconds > 0 && now - r->t0 >= (uint64_t)(r->cfg->seconds * 1e9) && !*r->stop)
             *r->stop = 1;
         if (now >= next) {
             status_tick(r, now, &prev_sets, &prev_keys, &prev_bytes, &prev_t);
@@ -1098,24 +1101,53 @@ static int display_spawn(struct run *r, const char *stream_path, double limit_s,
 
 /* Waits for the display to show the stream's end (it exits there), at most
  * limit_s; then stops it. Returns its exit status, -1 when it was stopped. */
+/* Ends a display that did not end by itself: SIGTERM, then SIGKILL after
+ * 3 s (a hung one may ignore SIGTERM). */
+static void display_end(pid_t pid)
+{
+    kill(pid, SIGTERM);
+    uint64_t t0 = mono_ns();
+    while (waitpid(pid, NULL, WNOHANG) == 0) {
+        if (mono_ns() - t0 > 3000000000u) {
+            kill(pid, SIGKILL);
+            waitpid(pid, NULL, 0);
+            return;
+        }
+        nanosleep(&(struct timespec){0, 20000000}, NULL);
+    }
+}
+
+/* Waits for the display to exit (it does at the end packet), at most
+ * limit_s, or until a second stop request (*stop 2: a signal after the run
+ * was already stopping): a hung display must not hold a stopping appliance.
+ * Returns its exit status, DISPLAY_TIMEOUT or DISPLAY_STOPPED (ended here). */
+enum { DISPLAY_TIMEOUT = -1, DISPLAY_STOPPED = -2 };
 static int display_wait(struct run *r, double limit_s)
 {
     if (r->display_pid <= 0)
-        return -1;
+        return DISPLAY_TIMEOUT;
     int st = 0;
     uint64_t t0 = mono_ns();
+    bool told = false;
     pid_t got;
-    while ((got = waitpid(r->display_pid, &st, WNOHANG)) == 0 &&
-           (double)(mono_ns() - t0) * 1e-9 < limit_s)
+    while ((got = waitpid(r->display_pid, &st, WNOHANG)) == 0 && *r->stop < 2) {
+        double waited = (double)(mono_ns() - t0) * 1e-9;
+        if (waited >= limit_s)
+            break;
+        if (waited >= 2.0 && !told && !r->cfg->quiet) {
+            fprintf(stderr, "[forge4d run] waiting for the display to end (at most %.0f s; a second stop "
+                            "request ends it now)\n", limit_s);
+            told = true;
+        }
         nanosleep(&(struct timespec){0, 20000000}, NULL);
+    }
     if (got == 0) {
-        kill(r->display_pid, SIGTERM);
-        waitpid(r->display_pid, &st, 0);
+        display_end(r->display_pid);
         r->display_pid = 0;
-        return -1;
+        return *r->stop >= 2 ? DISPLAY_STOPPED : DISPLAY_TIMEOUT;
     }
     r->display_pid = 0;
-    return got > 0 && WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+    return got > 0 && WIFEXITED(st) ? WEXITSTATUS(st) : DISPLAY_TIMEOUT;
 }
 
 /* ---- the command ---- */
@@ -1450,7 +1482,9 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
         int drc = display_wait(r, 120.0);
         if (drc != 0) {
             fprintf(stderr, "forge4d run: display %s %s\n", cfg.display,
-                    drc < 0 ? "did not finish in 120 s: stopped" : "failed (see above)");
+                    drc == DISPLAY_STOPPED   ? "had not ended at a second stop request: stopped"
+                    : drc == DISPLAY_TIMEOUT ? "did not finish in 120 s: stopped"
+                                             : "failed (see above)");
             status = 1;
         }
         display_figures_read(r->display_json, &disp);

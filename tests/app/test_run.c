@@ -577,6 +577,61 @@ static void display_late(void **state)
     cJSON_Delete(dj);
 }
 
+/* A display that hangs (it writes its ready byte, then never reads the
+ * stream and ignores SIGTERM): the run streams its keys, says it waits for
+ * the display, and a stop request (the second: --keys made the first) ends
+ * that wait at once rather than after 120 s: the display SIGKILLed after its
+ * SIGTERM grace, exit 1 naming it, the stream and the stats complete. */
+static void display_hung(void **state)
+{
+    (void)state;
+    char script[512], log[512], stats[512], stream[512], path[512], out[1 << 14];
+    snprintf(script, sizeof script, "%s/hung_display.sh", tmp);
+    FILE *f = fopen(script, "w");
+    assert_non_null(f);
+    fprintf(f, "#!/bin/sh\n"
+               "while [ $# -gt 0 ]; do [ \"$1\" = --ready-fd ] && fd=$2; shift; done\n"
+               "eval \"printf x >&$fd\"\n"
+               "trap '' TERM\n"
+               "while :; do sleep 1; done\n");
+    assert_int_equal(fclose(f), 0);
+    assert_int_equal(chmod(script, 0755), 0);
+    snprintf(log, sizeof log, "%s/hung.log", tmp);
+    snprintf(stats, sizeof stats, "%s/hung.json", tmp);
+    snprintf(stream, sizeof stream, "file:%s/hung.f4ds", tmp);
+    char *argv[] = {(char *)forge4d, "run", "--no-config", "--board", F4D_BOARD_DIR "/sim-4cam.json", "--weights",
+                    (char *)weights, "--keys", "2", "--stream", stream, "--stats-json", stats, "--display", script,
+                    NULL};
+    pid_t pid = spawn(argv, log, NULL);
+    bool waiting = false;
+    for (int i = 0; i < 1200 && !waiting; i++) {
+        sleep_ms(100);
+        sh(out, sizeof out, "cat %s", log);
+        waiting = strstr(out, "waiting for the display to end") != NULL;
+    }
+    if (!waiting) {
+        kill(pid, SIGKILL);
+        waitpid(pid, NULL, 0);
+        fail_msg("no \"waiting for the display\" line in 120 s:\n%s", out);
+    }
+    double t0 = mono_s();
+    kill(pid, SIGINT);
+    int rc = wait_exit(pid);
+    double took = mono_s() - t0;
+    sh(out, sizeof out, "cat %s", log);
+    if (rc != 1 || !strstr(out, "had not ended at a second stop request: stopped") || !strstr(out, script))
+        fail_msg("forge4d run with a hung display, stopped: exit %d:\n%s", rc, out);
+    /* SIGTERM ignored, SIGKILL after 3 s: far from the 120 s of a normal end */
+    if (took > 30)
+        fail_msg("the stop request took %.1f s to end the run:\n%s", took, out);
+    print_message("hung display: the run ended %.1f s after the stop request\n", took);
+    cJSON *st = read_json(stats);
+    assert_true(num(st, "key_frames") == 2);
+    cJSON_Delete(st);
+    snprintf(path, sizeof path, "%s/hung.f4ds", tmp);
+    assert_int_equal(decode_stream(path, "dec_hung"), 2);
+}
+
 /* No allocation per set or key: the process's allocation count (an
  * LD_PRELOAD counter, F4D_RUN_ALLOC_LIB) is the same for 3 keys and for 9,
  * with the recorder and the stream on. */
@@ -816,7 +871,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(sim_short), cmocka_unit_test(sigterm),     cmocka_unit_test(replay),
         cmocka_unit_test(srt),       cmocka_unit_test(config),      cmocka_unit_test(load_faults),
         cmocka_unit_test(alloc),     cmocka_unit_test(display),     cmocka_unit_test(motion_off),
-        cmocka_unit_test(key_hz),    cmocka_unit_test(display_late),
+        cmocka_unit_test(key_hz),    cmocka_unit_test(display_late), cmocka_unit_test(display_hung),
     };
     return F4D_TEST_MAIN(argc, argv, "app/run", tests, setup, teardown);
 }
