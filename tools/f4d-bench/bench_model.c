@@ -514,6 +514,9 @@ int bench_model(int argc, char **argv)
         printf(", also int8 on %s (%s, attention %s)", fk_isa_name(fk_ctx_isa(xctx[i])),
                fk_ctx_q8_path(xctx[i]), attn_kind(xctx[i]));
     printf("\n");
+    /* what those paths' instructions can reach here: the int8 forward's
+     * ratio to the FMA peak is bounded by them */
+    bench_print_int_ceilings(bench_int_ceilings(fk_cpu_features(), 3));
     int nthr = fk_ctx_threads(ctx);
     double peak = bench_fma_peak_gflops(nthr, 3);
     char path[1024];

@@ -1,0 +1,150 @@
+/* peak_int.c - what the integer and bf16 paths' multiply-add instructions
+ * can do on this CPU: multiply-adds per second over fp32 FMA's of the same
+ * vector width, one thread, the ceiling of each int8 / int16 / bf16 ratio
+ * the benchmarks print. Each loop is 12 independent steps (10 for the
+ * 7-bit triple) on fixed registers, written in asm: compiled from
+ * intrinsics, GCC 12 spilled the accumulators of the integer loops to the
+ * stack (an add from memory per step), which read the int16 pair at 0.99x
+ * fp32 where it does 1.60x. Zen 4, AVX2 code: the 7-bit GEMM's vpmaddubsw
+ * + vpmaddwd + vpaddd reach 1.94x the ymm FMA's multiply-adds and the int16
+ * attention's vpmaddwd + vpaddd 1.60x, not the 4x and 2x that the lane
+ * counts suggest. */
+#include <math.h>
+#include <stdio.h>
+#include <time.h>
+
+#include "bench.h"
+#include "peak.h"
+
+#if defined(__x86_64__)
+
+static double cpu_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+#define ITERS 4000000L
+
+/* 12 steps on accumulators 3-14 (ymm or zmm), operands in registers 0 and 1
+ * (2: the 7-bit triple's ones), 15 the product */
+#define R12(S) S(3) S(4) S(5) S(6) S(7) S(8) S(9) S(10) S(11) S(12) S(13) S(14)
+#define R10(S) S(3) S(4) S(5) S(6) S(7) S(8) S(9) S(10) S(11) S(12)
+#define LOOP(body)                                                                   \
+    "mov %0, %%rcx\n\t"                                                              \
+    "1:\n\t" body "dec %%rcx\n\t"                                                    \
+    "jnz 1b\n\t"
+#define YMM_CLOBBERS                                                                 \
+    "rcx", "xmm0", "xmm1", "xmm2", "xmm3", "xmm4", "xmm5", "xmm6", "xmm7", "xmm8",   \
+        "xmm9", "xmm10", "xmm11", "xmm12", "xmm13", "xmm14", "xmm15", "cc"
+
+#define FMA_Y(i) "vfmadd231ps %%ymm0, %%ymm1, %%ymm" #i "\n\t"
+#define S7_Y(i)                                                                      \
+    "vpmaddubsw %%ymm1, %%ymm0, %%ymm15\n\t"                                         \
+    "vpmaddwd %%ymm2, %%ymm15, %%ymm15\n\t"                                          \
+    "vpaddd %%ymm15, %%ymm" #i ", %%ymm" #i "\n\t"
+#define I16_Y(i)                                                                     \
+    "vpmaddwd %%ymm1, %%ymm0, %%ymm15\n\t"                                           \
+    "vpaddd %%ymm15, %%ymm" #i ", %%ymm" #i "\n\t"
+#define FMA_Z(i) "vfmadd231ps %%zmm0, %%zmm1, %%zmm" #i "\n\t"
+#define VNNI_Z(i) "vpdpbusd %%zmm1, %%zmm0, %%zmm" #i "\n\t"
+#define BF16_Z(i) "vdpbf16ps %%zmm1, %%zmm0, %%zmm" #i "\n\t"
+
+/* Zeroed operands: the units' throughput does not depend on the values
+ * (no denormals arise from zeros), and nothing overflows. */
+#define ZERO_Y "vpxor %%xmm0, %%xmm0, %%xmm0\n\tvpxor %%xmm1, %%xmm1, %%xmm1\n\tvpxor %%xmm2, %%xmm2, %%xmm2\n\t"
+#define ZERO_Z "vpxord %%zmm0, %%zmm0, %%zmm0\n\tvpxord %%zmm1, %%zmm1, %%zmm1\n\t"
+
+__attribute__((target("avx2,fma"))) static double run_fma_ymm(void)
+{
+    double t = cpu_now();
+    __asm__ volatile(ZERO_Y LOOP(R12(FMA_Y)) : : "r"(ITERS) : YMM_CLOBBERS);
+    return cpu_now() - t;
+}
+
+__attribute__((target("avx2"))) static double run_s7_ymm(void)
+{
+    double t = cpu_now();
+    __asm__ volatile(ZERO_Y LOOP(R10(S7_Y)) : : "r"(ITERS) : YMM_CLOBBERS);
+    return cpu_now() - t;
+}
+
+__attribute__((target("avx2"))) static double run_i16_ymm(void)
+{
+    double t = cpu_now();
+    __asm__ volatile(ZERO_Y LOOP(R12(I16_Y)) : : "r"(ITERS) : YMM_CLOBBERS);
+    return cpu_now() - t;
+}
+
+__attribute__((target("avx512f"))) static double run_fma_zmm(void)
+{
+    double t = cpu_now();
+    __asm__ volatile(ZERO_Z LOOP(R12(FMA_Z)) : : "r"(ITERS) : YMM_CLOBBERS);
+    return cpu_now() - t;
+}
+
+__attribute__((target("avx512f,avx512vnni"))) static double run_vnni_zmm(void)
+{
+    double t = cpu_now();
+    __asm__ volatile(ZERO_Z LOOP(R12(VNNI_Z)) : : "r"(ITERS) : YMM_CLOBBERS);
+    return cpu_now() - t;
+}
+
+__attribute__((target("avx512f,avx512bf16"))) static double run_bf16_zmm(void)
+{
+    double t = cpu_now();
+    __asm__ volatile(ZERO_Z LOOP(R12(BF16_Z)) : : "r"(ITERS) : YMM_CLOBBERS);
+    return cpu_now() - t;
+}
+
+/* shortest of `repeats` */
+static double best_of(double (*run)(void), int repeats)
+{
+    double best = INFINITY;
+    for (int r = 0; r < repeats; r++) {
+        double t = run();
+        best = t < best ? t : best;
+    }
+    return best;
+}
+
+struct int_ceilings bench_int_ceilings(unsigned cpu_features, int repeats)
+{
+    struct int_ceilings c = { NAN, NAN, NAN, NAN };
+    if (!(cpu_features & FK_CPU_AVX2) || !(cpu_features & FK_CPU_FMA))
+        return c;
+    /* multiply-adds per step: ymm FMA 8, 7-bit 32 (10 steps a loop, the
+     * others 12), int16 16; zmm FMA 16, vpdpbusd 64, vdpbf16ps 32 */
+    double fy = best_of(run_fma_ymm, repeats) / 8.0;
+    c.s7_avx2 = fy / (best_of(run_s7_ymm, repeats) * 12.0 / 10.0 / 32.0);
+    c.i16_avx2 = fy / (best_of(run_i16_ymm, repeats) / 16.0);
+    if (cpu_features & FK_CPU_AVX512) { /* F + BW + VL + VNNI, zmm state on */
+        double fz = best_of(run_fma_zmm, repeats) / 16.0;
+        c.vnni_avx512 = fz / (best_of(run_vnni_zmm, repeats) / 64.0);
+        if (cpu_features & FK_CPU_AVX512_BF16)
+            c.bf16_avx512 = fz / (best_of(run_bf16_zmm, repeats) / 32.0);
+    }
+    return c;
+}
+#else
+struct int_ceilings bench_int_ceilings(unsigned cpu_features, int repeats)
+{
+    (void)cpu_features;
+    (void)repeats;
+    return (struct int_ceilings){ NAN, NAN, NAN, NAN };
+}
+#endif
+
+void bench_print_int_ceilings(struct int_ceilings c)
+{
+    if (isnan(c.s7_avx2))
+        return;
+    printf("multiply-add ceilings over fp32 FMA (1 thread, same width): 7-bit u8s8 (avx2) %.2fx, "
+           "int16 pairs (avx2) %.2fx", c.s7_avx2, c.i16_avx2);
+    if (!isnan(c.vnni_avx512))
+        printf(", vpdpbusd zmm %.2fx", c.vnni_avx512);
+    if (!isnan(c.bf16_avx512))
+        printf(", vdpbf16ps zmm %.2fx", c.bf16_avx512);
+    printf("\n");
+}
