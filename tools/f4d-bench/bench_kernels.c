@@ -749,7 +749,7 @@ int bench_kernels(int argc, char **argv)
     struct peaks pk0 = read_peaks(o.threads_max, zmm);
     printf("f4d-bench kernels: isa %s, fp32 FMA peak ", fk_isa_name(isa));
     print_peaks(&pk0, o.threads_max, zmm);
-    bench_print_int_ceilings(bench_int_ceilings(fk_cpu_features(), 3));
+    bench_print_int_ceilings(bench_int_ceilings(fk_cpu_features(), 5));
     int gemm = !o.only || !strcmp(o.only, "gemm"), attn = !o.only || !strcmp(o.only, "attention");
 #ifdef F4D_HAVE_OPENBLAS
     o.no_avx512 = o.all_isas && !o.openblas_native && gemm && fk_isa_supported(FK_ISA_AVX512) &&

@@ -516,7 +516,7 @@ int bench_model(int argc, char **argv)
     printf("\n");
     /* what those paths' instructions can reach here: the int8 forward's
      * ratio to the FMA peak is bounded by them */
-    bench_print_int_ceilings(bench_int_ceilings(fk_cpu_features(), 3));
+    bench_print_int_ceilings(bench_int_ceilings(fk_cpu_features(), 5));
     int nthr = fk_ctx_threads(ctx);
     double peak = bench_fma_peak_gflops(nthr, 3);
     char path[1024];

@@ -25,7 +25,7 @@ static double cpu_now(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-#define ITERS 4000000L
+#define ITERS 8000000L /* 20-40 ms a loop */
 
 /* 12 steps on accumulators 3-14 (ymm or zmm), operands in registers 0 and 1
  * (2: the 7-bit triple's ones), 15 the product */
@@ -56,75 +56,54 @@ static double cpu_now(void)
 #define ZERO_Y "vpxor %%xmm0, %%xmm0, %%xmm0\n\tvpxor %%xmm1, %%xmm1, %%xmm1\n\tvpxor %%xmm2, %%xmm2, %%xmm2\n\t"
 #define ZERO_Z "vpxord %%zmm0, %%zmm0, %%zmm0\n\tvpxord %%zmm1, %%zmm1, %%zmm1\n\t"
 
-__attribute__((target("avx2,fma"))) static double run_fma_ymm(void)
-{
-    double t = cpu_now();
-    __asm__ volatile(ZERO_Y LOOP(R12(FMA_Y)) : : "r"(ITERS) : YMM_CLOBBERS);
-    return cpu_now() - t;
-}
-
-__attribute__((target("avx2"))) static double run_s7_ymm(void)
-{
-    double t = cpu_now();
-    __asm__ volatile(ZERO_Y LOOP(R10(S7_Y)) : : "r"(ITERS) : YMM_CLOBBERS);
-    return cpu_now() - t;
-}
-
-__attribute__((target("avx2"))) static double run_i16_ymm(void)
-{
-    double t = cpu_now();
-    __asm__ volatile(ZERO_Y LOOP(R12(I16_Y)) : : "r"(ITERS) : YMM_CLOBBERS);
-    return cpu_now() - t;
-}
-
-__attribute__((target("avx512f"))) static double run_fma_zmm(void)
-{
-    double t = cpu_now();
-    __asm__ volatile(ZERO_Z LOOP(R12(FMA_Z)) : : "r"(ITERS) : YMM_CLOBBERS);
-    return cpu_now() - t;
-}
-
-__attribute__((target("avx512f,avx512vnni"))) static double run_vnni_zmm(void)
-{
-    double t = cpu_now();
-    __asm__ volatile(ZERO_Z LOOP(R12(VNNI_Z)) : : "r"(ITERS) : YMM_CLOBBERS);
-    return cpu_now() - t;
-}
-
-__attribute__((target("avx512f,avx512bf16"))) static double run_bf16_zmm(void)
-{
-    double t = cpu_now();
-    __asm__ volatile(ZERO_Z LOOP(R12(BF16_Z)) : : "r"(ITERS) : YMM_CLOBBERS);
-    return cpu_now() - t;
-}
-
-/* shortest of `repeats` */
-static double best_of(double (*run)(void), int repeats)
-{
-    double best = INFINITY;
-    for (int r = 0; r < repeats; r++) {
-        double t = run();
-        best = t < best ? t : best;
+/* One timed loop: `name`, compiled for `isa` (the assembler takes the
+ * instructions either way; the attribute documents what the CPU needs). */
+#define RUN_LOOP(name, isa, zero, steps)                                             \
+    __attribute__((target(isa))) static double name(void)                            \
+    {                                                                                \
+        double t = cpu_now();                                                        \
+        __asm__ volatile(zero LOOP(steps) : : "r"(ITERS) : YMM_CLOBBERS);            \
+        return cpu_now() - t;                                                        \
     }
-    return best;
-}
+
+RUN_LOOP(run_fma_ymm, "avx2,fma", ZERO_Y, R12(FMA_Y))
+RUN_LOOP(run_s7_ymm, "avx2", ZERO_Y, R10(S7_Y))
+RUN_LOOP(run_i16_ymm, "avx2", ZERO_Y, R12(I16_Y))
+RUN_LOOP(run_fma_zmm, "avx512f", ZERO_Z, R12(FMA_Z))
+RUN_LOOP(run_vnni_zmm, "avx512f,avx512vnni", ZERO_Z, R12(VNNI_Z))
+RUN_LOOP(run_bf16_zmm, "avx512f,avx512bf16", ZERO_Z, R12(BF16_Z))
+
+static double shorter(double a, double b) { return b < a ? b : a; }
 
 struct int_ceilings bench_int_ceilings(unsigned cpu_features, int repeats)
 {
     struct int_ceilings c = { NAN, NAN, NAN, NAN };
     if (!(cpu_features & FK_CPU_AVX2) || !(cpu_features & FK_CPU_FMA))
         return c;
+    int zmm = (cpu_features & FK_CPU_AVX512) != 0; /* F + BW + VL + VNNI, zmm state on */
+    int bf16 = zmm && (cpu_features & FK_CPU_AVX512_BF16);
+    /* every loop once per round, best of the rounds: a slow phase of a
+     * shared machine hits the FMA baseline and the paths alike */
+    double fy = INFINITY, s7 = INFINITY, i16 = INFINITY, fz = INFINITY, vn = INFINITY, bf = INFINITY;
+    for (int r = 0; r < repeats; r++) {
+        fy = shorter(fy, run_fma_ymm());
+        s7 = shorter(s7, run_s7_ymm());
+        i16 = shorter(i16, run_i16_ymm());
+        if (zmm) {
+            fz = shorter(fz, run_fma_zmm());
+            vn = shorter(vn, run_vnni_zmm());
+        }
+        if (bf16)
+            bf = shorter(bf, run_bf16_zmm());
+    }
     /* multiply-adds per step: ymm FMA 8, 7-bit 32 (10 steps a loop, the
      * others 12), int16 16; zmm FMA 16, vpdpbusd 64, vdpbf16ps 32 */
-    double fy = best_of(run_fma_ymm, repeats) / 8.0;
-    c.s7_avx2 = fy / (best_of(run_s7_ymm, repeats) * 12.0 / 10.0 / 32.0);
-    c.i16_avx2 = fy / (best_of(run_i16_ymm, repeats) / 16.0);
-    if (cpu_features & FK_CPU_AVX512) { /* F + BW + VL + VNNI, zmm state on */
-        double fz = best_of(run_fma_zmm, repeats) / 16.0;
-        c.vnni_avx512 = fz / (best_of(run_vnni_zmm, repeats) / 64.0);
-        if (cpu_features & FK_CPU_AVX512_BF16)
-            c.bf16_avx512 = fz / (best_of(run_bf16_zmm, repeats) / 32.0);
-    }
+    c.s7_avx2 = (32.0 * 10.0 / 12.0 / s7) / (8.0 / fy);
+    c.i16_avx2 = (16.0 / i16) / (8.0 / fy);
+    if (zmm)
+        c.vnni_avx512 = (64.0 / vn) / (16.0 / fz);
+    if (bf16)
+        c.bf16_avx512 = (32.0 / bf) / (16.0 / fz);
     return c;
 }
 #else
