@@ -5,10 +5,10 @@
  * 7-bit triple) on fixed registers, written in asm: compiled from
  * intrinsics, GCC 12 spilled the accumulators of the integer loops to the
  * stack (an add from memory per step), which read the int16 pair at 0.99x
- * fp32 where it does 1.60x. Zen 4, AVX2 code: the 7-bit GEMM's vpmaddubsw
- * + vpmaddwd + vpaddd reach 1.94x the ymm FMA's multiply-adds and the int16
- * attention's vpmaddwd + vpaddd 1.60x, not the 4x and 2x that the lane
- * counts suggest. */
+ * fp32 where it does 1.5-1.6x. Zen 4, AVX2 code: the 7-bit GEMM's
+ * vpmaddubsw + vpmaddwd + vpaddd reach 1.90-2.03x the ymm FMA's
+ * multiply-adds and the int16 attention's vpmaddwd + vpaddd 1.50-1.66x, not
+ * the 4x and 2x that the lane counts suggest. */
 #include <math.h>
 #include <stdio.h>
 #include <time.h>
