@@ -227,6 +227,7 @@ struct run {
     /* counters */
     counter sets_captured, sets_complete, sets_skipped, sets_no_slot, rec_written, rec_overflow, keys,
         keys_dropped, infer_errors, stream_errors, stream_bytes, key_us_last;
+    counter rec_durable; /* the take's fdatasynced sets, as the recorder last saw them */
     _Atomic int rec_failed;
     _Atomic uint64_t cam_seen[HAL_RIG_CAMERAS_MAX];
     int cam_reported[HAL_RIG_CAMERAS_MAX];
@@ -455,6 +456,7 @@ static void *record_main(void *arg)
                     r->take_dir, f4d_status_name(rc));
             } else {
                 atomic_fetch_add(&r->rec_written, 1);
+                atomic_store(&r->rec_durable, f4d_take_durable_sets(r->take));
             }
         }
         slot_release(r, s);
@@ -784,11 +786,12 @@ static void status_tick(struct run *r, uint64_t now, uint64_t *prev_sets, uint64
     if (!r->cfg->quiet) {
         double t = (double)(now - r->t0) * 1e-9;
         fprintf(stderr,
-                "%s[forge4d run] %6.1f s  sets %llu (%.1f/s)  queues rec %u/%u infer %u/1 key %u/%d  "
+                "%s[forge4d run] %6.1f s  sets %llu (%.1f/s)  queues rec %u/%u (%llu unsynced) infer %u/1 key %u/%d  "
                 "drops: frames %llu incomplete %llu skipped %llu rec %llu keys %llu  key %.0f ms (%.1f Hz)  "
                 "%.2f Mbit/s  rss %.0f MB%s",
                 r->tty ? "\r\033[K" : "", t, (unsigned long long)sets,
                 dt > 0 ? (double)(sets - *prev_sets) / dt : 0.0, run_fifo_depth(&r->rec_q), r->rec_cap,
+                (unsigned long long)(atomic_load(&r->rec_written) - atomic_load(&r->rec_durable)),
                 run_fifo_depth(&r->infer_box), run_fifo_depth(&r->key_q), RUN_KEYS,
                 (unsigned long long)sc.frames_dropped, (unsigned long long)sc.sets_incomplete,
                 (unsigned long long)atomic_load(&r->sets_skipped), (unsigned long long)atomic_load(&r->rec_overflow),

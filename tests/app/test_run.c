@@ -809,6 +809,17 @@ static void load_faults(void **state)
         fail_msg("summary without the take's counts:\n%s", out);
     double in_take = verify_take(take);
     assert_true(in_take == taken);
+    /* the 3 s syncs show in the status line as sets written, not yet synced */
+    double unsynced_max = 0;
+    for (const char *u = strstr(out, " unsynced)"); u; u = strstr(u + 1, " unsynced)")) {
+        const char *b = u;
+        while (b > out && b[-1] != '(')
+            b--;
+        double v = atof(b);
+        unsynced_max = v > unsynced_max ? v : unsynced_max;
+    }
+    if (unsynced_max < 10)
+        fail_msg("no status line showed the take's sync lag (max %g unsynced):\n%s", unsynced_max, out);
     if (!strict || strcmp(strict, "0")) {
         if (!strstr(out, "lost for want of a slot 0;") || !strstr(out, "(0 left out)"))
             fail_msg("sets lost by the daemon: %s", strstr(out, "[forge4d run] done in"));
