@@ -26,5 +26,8 @@ void bench_preset_tiny(struct model_config *c);
 
 /* Seconds on CLOCK_MONOTONIC. */
 double bench_now(void);
+/* CPU seconds of the calling thread (CLOCK_THREAD_CPUTIME_ID): on a shared
+ * machine, time spent descheduled is not counted. */
+double bench_thread_cpu_s(void);
 
 #endif

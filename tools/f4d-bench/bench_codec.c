@@ -86,12 +86,7 @@ static void mid(const struct splat_frame *src, struct splat_frame *dst)
             dst->pos[i] += 0.5f * src->motion_fwd[i];
 }
 
-static double thread_ms(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
-    return 1e3 * (double)t.tv_sec + 1e-6 * (double)t.tv_nsec;
-}
+static double thread_ms(void) { return 1e3 * bench_thread_cpu_s(); }
 
 /* The packets pk[0..len) (one key after another) decoded reps times by d:
  * the best run's intra ms and mean predicted ms (thread CPU time). */

@@ -59,11 +59,8 @@ struct opts {
  * counted; otherwise the wall clock. */
 static double now_for(const struct opts *o, int threads)
 {
-    if (o->cpu_clock && threads == 1) {
-        struct timespec ts;
-        clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-        return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-    }
+    if (o->cpu_clock && threads == 1)
+        return bench_thread_cpu_s();
     return bench_now();
 }
 

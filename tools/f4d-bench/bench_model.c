@@ -255,19 +255,12 @@ struct result {
     size_t arena, weights;
 };
 
-/* --clock cpu with one thread: each Eval's stage times (wall clock, measured
- * inside the model) are scaled by the Eval's thread CPU time over its wall
- * time, so time spent descheduled on a shared machine is taken out (assumed
- * spread evenly over the stages). */
-static double thread_cpu_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 /* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run
- * (st) and each stage's best (st_best). */
+ * (st) and each stage's best (st_best). --clock cpu with one thread: each
+ * Eval's stage times (wall clock, measured inside the model) are scaled by
+ * the Eval's thread CPU time over its wall time, so time spent descheduled
+ * on a shared machine is taken out (assumed spread evenly over the
+ * stages). */
 /* CPU seconds of this process: under load from other jobs (this 2-core box
  * often runs at load 8-10) wall times vary 3x between runs, CPU time much less */
 static double cpu_now(void)
@@ -306,7 +299,7 @@ static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int
     const int warm = (model_groups(m) & MODEL_G_MOTION) ? 1 : 0;
     for (int i = 0; i < reps + warm; i++) {
         struct model_outputs o;
-        double t0 = bench_now(), c0 = thread_cpu_s(), p0 = cpu_now();
+        double t0 = bench_now(), c0 = bench_thread_cpu_s(), p0 = cpu_now();
         if (model_eval(m, img, S, H, W, &o) < 0) {
             fprintf(stderr, "f4d-bench model: %s\n", model_error(m));
             rc = -1;
@@ -314,7 +307,7 @@ static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int
         }
         double t = bench_now() - t0, scale = 1.0, tc = cpu_now() - p0;
         if (cpu_clock && fk_ctx_threads(ctx) == 1 && t > 0) {
-            scale = (thread_cpu_s() - c0) / t;
+            scale = (bench_thread_cpu_s() - c0) / t;
             t *= scale;
         }
         if (i >= warm && tc < r->cpu)

@@ -42,16 +42,6 @@
 
 #define VIEWS 4
 
-/* CPU seconds of this thread: the shared 2-core machine runs other jobs, and
- * a descheduled thread's wall time says nothing about the step. Both clocks
- * are reported; the ratios use the same clock on both sides. */
-static double cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 static unsigned long long rng_state = 88172645463325252ull;
 static float frand(void) /* [0, 1) */
 {
@@ -61,18 +51,21 @@ static float frand(void) /* [0, 1) */
     return (float)(rng_state >> 40) / 16777216.0f;
 }
 
-/* Bandwidth of one thread, GB/s: best of reps over `bytes`. */
+/* Bandwidth of one thread, GB/s: best of reps over `bytes`. Timed on both
+ * clocks, wall and the thread's CPU time (the shared 2-core machine runs
+ * other jobs, and a descheduled thread's wall time says nothing about the
+ * step); the ratios use the same clock on both sides. */
 static double bw_read(const float *buf, size_t n, int reps, double *sink, double *gb_cpu)
 {
     double best = 1e30, bc = 1e30;
     for (int r = 0; r < reps; r++) {
-        double t0 = bench_now(), c0 = cpu_now();
+        double t0 = bench_now(), c0 = bench_thread_cpu_s();
         float s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0, s5 = 0, s6 = 0, s7 = 0;
         for (size_t i = 0; i + 8 <= n; i += 8) {
             s0 += buf[i]; s1 += buf[i + 1]; s2 += buf[i + 2]; s3 += buf[i + 3];
             s4 += buf[i + 4]; s5 += buf[i + 5]; s6 += buf[i + 6]; s7 += buf[i + 7];
         }
-        double t = bench_now() - t0, c = cpu_now() - c0;
+        double t = bench_now() - t0, c = bench_thread_cpu_s() - c0;
         *sink += s0 + s1 + s2 + s3 + s4 + s5 + s6 + s7;
         best = t < best ? t : best;
         bc = c < bc ? c : bc;
@@ -85,9 +78,9 @@ static double bw_copy(float *dst, const float *src, size_t n, int reps, double *
 {
     double best = 1e30, bc = 1e30;
     for (int r = 0; r < reps; r++) {
-        double t0 = bench_now(), c0 = cpu_now();
+        double t0 = bench_now(), c0 = bench_thread_cpu_s();
         memcpy(dst, src, n * sizeof(float));
-        double t = bench_now() - t0, c = cpu_now() - c0;
+        double t = bench_now() - t0, c = bench_thread_cpu_s() - c0;
         best = t < best ? t : best;
         bc = c < bc ? c : bc;
     }
@@ -337,12 +330,12 @@ int bench_stream(int argc, char **argv)
             }
             double best = 1e30, bc = 1e30;
             for (int i = 0; i < reps + 1 && !rc; i++) { /* +1: the first touches the output */
-                double t0 = bench_now(), c0 = cpu_now();
+                double t0 = bench_now(), c0 = bench_thread_cpu_s();
                 if (interp_at(ip, &k0, &k1, 0.5f, &cfg, &out, &st, &err) < 0) {
                     fprintf(stderr, "f4d-bench stream: %s\n", err.msg);
                     rc = 1;
                 }
-                double t = 1e3 * (bench_now() - t0), c = 1e3 * (cpu_now() - c0);
+                double t = 1e3 * (bench_now() - t0), c = 1e3 * (bench_thread_cpu_s() - c0);
                 if (i) {
                     best = t < best ? t : best;
                     bc = c < bc ? c : bc;

@@ -2,7 +2,6 @@
  * on every thread, long enough to hide the latency (2 ports x 4 cycles). */
 #include <pthread.h>
 #include <stdint.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "bench.h"
@@ -80,15 +79,6 @@ struct peak_arg {
     double cpu_s; /* the thread's CPU time for its chains */
 };
 
-/* The thread's own CPU clock: on a shared machine the peak is the rate while
- * it runs, not diluted by time spent descheduled. */
-static double thread_cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 /* The chains touch no memory, so the compiler may run them before the first
  * clock read (a refactored caller, inlined at -O3, read 0 s: an infinite
  * rate): the empty asm statements pin the loop between the two reads. */
@@ -96,7 +86,7 @@ static void *peak_thread(void *v)
 {
     struct peak_arg *a = v;
     long iters = a->iters;
-    double t0 = thread_cpu_now(), sink;
+    double t0 = bench_thread_cpu_s(), sink;
     __asm__ volatile("" : "+r"(iters) : : "memory");
 #ifdef HAVE_ZMM
     if (a->zmm)
@@ -106,7 +96,7 @@ static void *peak_thread(void *v)
         sink = fma_loop(iters);
     __asm__ volatile("" : "+m"(sink) : : "memory");
     a->sink = sink;
-    a->cpu_s = thread_cpu_now() - t0;
+    a->cpu_s = bench_thread_cpu_s() - t0;
     return NULL;
 }
 

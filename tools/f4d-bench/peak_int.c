@@ -11,19 +11,11 @@
  * the 4x and 2x that the lane counts suggest. */
 #include <math.h>
 #include <stdio.h>
-#include <time.h>
 
 #include "bench.h"
 #include "peak.h"
 
 #if defined(__x86_64__)
-
-static double cpu_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 #define ITERS 8000000L /* 20-40 ms a loop */
 
@@ -35,7 +27,8 @@ static double cpu_now(void)
     "mov %0, %%rcx\n\t"                                                              \
     "1:\n\t" body "dec %%rcx\n\t"                                                    \
     "jnz 1b\n\t"
-#define YMM_CLOBBERS                                                                 \
+/* vector registers 0-15 (xmm names cover the ymm and zmm they extend) */
+#define VEC_CLOBBERS                                                                 \
     "rcx", "xmm0", "xmm1", "xmm2", "xmm3", "xmm4", "xmm5", "xmm6", "xmm7", "xmm8",   \
         "xmm9", "xmm10", "xmm11", "xmm12", "xmm13", "xmm14", "xmm15", "cc"
 
@@ -61,9 +54,9 @@ static double cpu_now(void)
 #define RUN_LOOP(name, isa, zero, steps)                                             \
     __attribute__((target(isa))) static double name(void)                            \
     {                                                                                \
-        double t = cpu_now();                                                        \
-        __asm__ volatile(zero LOOP(steps) : : "r"(ITERS) : YMM_CLOBBERS);            \
-        return cpu_now() - t;                                                        \
+        double t = bench_thread_cpu_s();                                             \
+        __asm__ volatile(zero LOOP(steps) : : "r"(ITERS) : VEC_CLOBBERS);            \
+        return bench_thread_cpu_s() - t;                                             \
     }
 
 RUN_LOOP(run_fma_ymm, "avx2,fma", ZERO_Y, R12(FMA_Y))
