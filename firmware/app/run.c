@@ -1102,8 +1102,6 @@ static int display_spawn(struct run *r, const char *stream_path, double limit_s,
     return 0;
 }
 
-/* Waits for the display to show the stream's end (it exits there), at most
- * limit_s; then stops it. Returns its exit status, -1 when it was stopped. */
 /* Ends a display that did not end by itself: SIGTERM, then SIGKILL after
  * 3 s (a hung one may ignore SIGTERM). */
 static void display_end(pid_t pid)
