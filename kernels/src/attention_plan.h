@@ -153,7 +153,8 @@ static inline void fk__attn_bf16_run(const struct fk__attn_bf16_job *j) { (void)
 #if defined(__x86_64__)
 /* The AVX2 softmax's first pass over one 6 x BK block of logits (row
  * stride BK; keys from valid on set to -inf): bmax[r] = the row's max,
- * m_old[r] = m[r], m_new[r] = bmax where bmax > m + slack, else m
+ * m_old[r] = m[r], m_new[r] = bmax where bmax > m + slack, else m, each
+ * written as 8 floats (lanes 6 and 7 zero)
  * (x86/attention_avx2.c; fp32 passes FK_ATTN_SLACK, the int16 path's
  * softmax 0: m_new = max(bmax, m)). */
 void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, float *bmax,

@@ -154,9 +154,13 @@ __attribute__((noinline)) static void pv_tile(int d, const float *p, const float
     }
 }
 
-/* The first pass of the online softmax below (see attention_plan.h). */
-void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, float *bmax,
-                          float *m_old, float *m_new)
+/* The first pass of the online softmax, the six rows at once in registers
+ * (lanes 0-5; lanes 6 and 7 of m_old and m_new are 0): bmax = the rows'
+ * block maxima, m_old = m, m_new = bmax where bmax > m + slack, else m (NaN:
+ * no move). Six serial reductions and scalar updates were a dependent chain
+ * (1.4 % of the 7-bit forward's samples, Zen 5). */
+static inline __attribute__((always_inline)) void rowmax6(float *s, int valid, const float *m, float slack,
+                                                          __m256 *bmax, __m256 *m_old, __m256 *m_new)
 {
     __m256 red[MR];
     for (int r = 0; r < MR; r++) {
@@ -168,31 +172,45 @@ void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, floa
             mx = _mm256_max_ps(mx, _mm256_loadu_ps(sr + jj));
         red[r] = mx;
     }
-    /* the six rows at once (six serial reductions and scalar updates were a
-     * dependent chain: 1.4 % of the 7-bit forward's samples, Zen 5) */
     const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
     __m256 bm = fk__hmax6_avx2(red), mo = _mm256_maskload_ps(m, six);
-    __m256 grow = _mm256_cmp_ps(bm, _mm256_add_ps(mo, _mm256_set1_ps(slack)), _CMP_GT_OQ); /* NaN: no move */
-    _mm256_maskstore_ps(bmax, six, bm);
-    _mm256_maskstore_ps(m_old, six, mo);
-    _mm256_maskstore_ps(m_new, six, _mm256_blendv_ps(mo, bm, grow));
+    __m256 grow = _mm256_and_ps(_mm256_castsi256_ps(six),
+                                _mm256_cmp_ps(bm, _mm256_add_ps(mo, _mm256_set1_ps(slack)), _CMP_GT_OQ));
+    *bmax = bm;
+    *m_old = mo;
+    *m_new = _mm256_blendv_ps(mo, bm, grow);
+}
+
+/* Whole 8-lane stores, lanes 6 and 7 zero: masked stores do not forward to
+ * the caller's loads that follow. */
+void fk__attn_rowmax_avx2(float *s, int valid, const float *m, float slack, float *bmax,
+                          float *m_old, float *m_new)
+{
+    const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
+    __m256 bm, mo, mn;
+    rowmax6(s, valid, m, slack, &bm, &mo, &mn);
+    _mm256_storeu_ps(bmax, _mm256_and_ps(bm, _mm256_castsi256_ps(six)));
+    _mm256_storeu_ps(m_old, mo);
+    _mm256_storeu_ps(m_new, mn);
 }
 
 /* Online softmax over one 6 x BK block of log2-domain logits, in place:
- * m_new by fk__attn_rowmax_avx2 with FK_ATTN_SLACK; s becomes p = 2^(s -
- * m_new); alpha = 2^(m_old - m_new); l = alpha l + sum p. */
+ * m_new by rowmax6 with FK_ATTN_SLACK; s becomes p = 2^(s - m_new); alpha =
+ * 2^(m_old - m_new); l = alpha l + sum p. The maxima stay in registers: read
+ * back through memory after masked stores (which do not forward to loads)
+ * they cost 7-11 % of this function (Zen 4). */
 __attribute__((noinline)) static void softmax_block(float *s, int valid, float *m, float *l, float *alpha)
 {
-    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
-    float bmax[8];
-    fk__attn_rowmax_avx2(s, valid, m, FK_ATTN_SLACK, bmax, m_old, m_new);
+    __m256 bm, mo, mn;
+    rowmax6(s, valid, m, FK_ATTN_SLACK, &bm, &mo, &mn);
+    (void)bm;
     /* all six rescale factors in one vector */
-    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), _mm256_load_ps(m_new)));
+    __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(mo, mn));
     _mm256_store_ps(alpha, al);
     __m256 sum[MR];
     for (int r = 0; r < MR; r++) {
         float *sr = s + r * BK;
-        __m256 mv = _mm256_set1_ps(m_new[r]);
+        __m256 mv = _mm256_permutevar8x32_ps(mn, _mm256_set1_epi32(r));
         sum[r] = _mm256_setzero_ps();
         for (int jj = 0; jj < BK; jj += 8) {
             __m256 p = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(sr + jj), mv));
@@ -203,7 +221,7 @@ __attribute__((noinline)) static void softmax_block(float *s, int valid, float *
     /* l = l alpha + sum p, the six rows at once (a multiply, then an add) */
     const __m256i six = _mm256_setr_epi32(-1, -1, -1, -1, -1, -1, 0, 0);
     _mm256_maskstore_ps(l, six, _mm256_add_ps(_mm256_mul_ps(_mm256_maskload_ps(l, six), al), fk__hsum6_avx2(sum)));
-    _mm256_maskstore_ps(m, six, _mm256_load_ps(m_new));
+    _mm256_maskstore_ps(m, six, mn);
 }
 
 static const struct fk__attn_isa attn_avx2 = {

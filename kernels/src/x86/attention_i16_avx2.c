@@ -252,8 +252,8 @@ static int codes_avx2(const float *s, const float *bmax, uint32_t *pb, int32_t *
 static void softmax_block(int wide, float *s, int valid, float *m, float *l, float *alpha, float *ps,
                           uint32_t *pb)
 {
-    float m_new[8] __attribute__((aligned(32))) = { 0 }, m_old[8] __attribute__((aligned(32))) = { 0 };
-    float bmax[8] __attribute__((aligned(32))) = { 0 };
+    float m_new[8] __attribute__((aligned(32))), m_old[8] __attribute__((aligned(32)));
+    float bmax[8] __attribute__((aligned(32)));
     fk__attn_rowmax_avx2(s, valid, m, 0.0f, bmax, m_old, m_new);
     __m256 mn = _mm256_load_ps(m_new);
     __m256 al = fk__exp2_softmax_avx2(_mm256_sub_ps(_mm256_load_ps(m_old), mn));
