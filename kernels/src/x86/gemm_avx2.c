@@ -1165,17 +1165,21 @@ int fk__gemm_avx2(fk_ctx *ctx, const struct fk_linear *L, const struct fk__asrc 
     /* Scratch is laid out for mc_scratch and for the largest chunk of
      * panels, neither of which depends on m: one need measured at any size
      * covers every size (fk_ctx_measure). The C tile (mc x nc of fp32 /
-     * int32) is bounded by the L2 size (AVX2) or half the L3 share (AVX-512):
-     * the nc of the model then shrinks to even chunks (A is packed once per
-     * chunk). */
+     * int32) is bounded by half the L3 share (AVX-512; AVX2 fp32 and fp16)
+     * or the L2 size (AVX2 int8): the nc of the model then shrinks to even
+     * chunks (A is packed once per chunk). */
     size_t mcp = fk__round_up((size_t)mc_scratch, MR);
     size_t l2 = ctx->caches.l2_share ? ctx->caches.l2_share : ctx->caches.l2 ? ctx->caches.l2 : 512 * 1024;
     /* AVX-512's 6x32 calls touch their C tile once per 12 kc / 2 FMAs:
      * from L3 it costs less than packing A again for every L2-sized chunk
      * (one chunk: 5496 x 1024 <- 4096 and 1374 x 1024 <- 4096 1-2.5 %
-     * faster, fc1 alike, Zen 5) */
+     * faster, fc1 alike, Zen 5). AVX2's fp32 6x16 calls alike, once per 12
+     * kc FMAs: the packs of A, which streams from L3 or memory, were 4-5 %
+     * of the GEMM's samples at 32-panel chunks; one chunk ran 0.3-3.8 %
+     * faster on every model shape, 1 and 2 threads (Zen 4). int8 packs A
+     * once per task whatever the chunks, so its C tile stays in L2. */
     size_t cbound = l2;
-    if (j.wide && ctx->caches.l3_share / 2 > l2)
+    if ((j.wide || !q8) && ctx->caches.l3_share / 2 > l2)
         cbound = ctx->caches.l3_share / 2;
     int cap = (int)(cbound / (mcp * NR * 4));
     cap = cap < 4 ? 4 : j.wide ? cap / 2 * 2 : cap; /* even: whole pairs */
