@@ -452,7 +452,7 @@ static void *record_main(void *arg)
             int rc = f4d_take_append(r->take, &s->set);
             if (rc < 0) { /* the take stops here; streaming goes on */
                 atomic_store(&r->rec_failed, 1);
-                say(r, "take %s: write failed (%s, disk full?): recording stopped, the stream goes on",
+                say(r, "take %s: a write or flush failed (%s: disk full or failing?): recording stopped, the stream goes on",
                     r->take_dir, f4d_status_name(rc));
             } else {
                 atomic_fetch_add(&r->rec_written, 1);
@@ -1499,13 +1499,14 @@ int forge4d_run_main(int argc, char **argv, volatile sig_atomic_t *stop)
     fprintf(stderr,
             "[forge4d run] done in %.1f s: %llu sets (%llu complete), frames dropped %llu late %llu duplicate %llu, "
             "sets incomplete %llu, skipped by inference %llu, lost for want of a slot %llu; take %llu sets "
-            "(%llu left out); %llu keys (%.2f Hz, %llu dropped, %llu failed), latency p50 %.0f ms p95 %.0f ms, "
+            "(%llu left out%s); %llu keys (%.2f Hz, %llu dropped, %llu failed), latency p50 %.0f ms p95 %.0f ms, "
             "%.2f Mbit/s, %llu stream errors; rss %.0f -> %.0f MB\n",
             wall, (unsigned long long)atomic_load(&r->sets_captured), (unsigned long long)atomic_load(&r->sets_complete),
             (unsigned long long)st.sync.frames_dropped, (unsigned long long)st.sync.frames_late,
             (unsigned long long)st.sync.frames_duplicate, (unsigned long long)st.sync.sets_incomplete,
             (unsigned long long)atomic_load(&r->sets_skipped), (unsigned long long)atomic_load(&r->sets_no_slot),
             (unsigned long long)atomic_load(&r->rec_written), (unsigned long long)atomic_load(&r->rec_overflow),
+            atomic_load(&r->rec_failed) ? ", then stopped by a disk error" : "",
             (unsigned long long)atomic_load(&r->keys), wall > 0 ? (double)atomic_load(&r->keys) / wall : 0.0,
             (unsigned long long)atomic_load(&r->keys_dropped), (unsigned long long)atomic_load(&r->infer_errors), p50,
             p95, wall > 0 ? (double)atomic_load(&r->stream_bytes) * 8e-6 / wall : 0.0,

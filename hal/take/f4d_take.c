@@ -148,6 +148,10 @@ struct f4d_take_writer {
     uint64_t sets, durable;   /* written under mu, read atomically by the getters */
     uint64_t unsynced_since;  /* mono time of the oldest set no fdatasync has started on; 0: none */
     uint64_t test_delay_ns;   /* F4D_TAKE_TEST_SYNC_DELAY_MS: a slow disk, for tests */
+    long test_fail_after;     /* F4D_TAKE_TEST_SYNC_FAIL_AFTER: this many background syncs
+                               * succeed, the next fails with EIO (a dying disk, for tests);
+                               * -1: off */
+    long syncs;               /* background fdatasyncs done (syncer only) */
     bool stop, failed;
     int sync_errno;
     uint8_t idx_pending[IDX_PENDING * IDX_ENTRY_BYTES];
@@ -195,8 +199,15 @@ static void *syncer_main(void *arg)
             while (nanosleep(&d, &d) < 0 && errno == EINTR) {
             }
         }
-        int rc = fdatasync(w->fd);
-        int e = errno;
+        int rc, e;
+        if (w->syncs == w->test_fail_after) {
+            rc = -1;
+            e = EIO;
+        } else {
+            rc = fdatasync(w->fd);
+            e = errno;
+        }
+        w->syncs++;
         pthread_mutex_lock(&w->mu);
         if (rc < 0) {
             w->failed = true;
@@ -233,6 +244,8 @@ int f4d_take_create(struct f4d_take_writer **out, const char *dir, const struct 
     w->durability_ns = (uint64_t)durability_ms * 1000000u;
     const char *delay = getenv("F4D_TAKE_TEST_SYNC_DELAY_MS");
     w->test_delay_ns = delay ? (uint64_t)strtoul(delay, NULL, 10) * 1000000u : 0;
+    const char *fail_after = getenv("F4D_TAKE_TEST_SYNC_FAIL_AFTER");
+    w->test_fail_after = fail_after ? strtol(fail_after, NULL, 10) : -1;
     /* O_EXCL: never append to (or clobber) an existing take */
     w->fd = open(path, O_WRONLY | O_CREAT | O_EXCL | O_APPEND | O_CLOEXEC, 0644);
     if (w->fd < 0) {

@@ -236,6 +236,44 @@ static void sim_short(void **state)
     cJSON_Delete(st);
 }
 
+/* A disk that fails a flush mid-run (the take writer's test knob: its
+ * second background fdatasync reports EIO): the take stops there, named on
+ * stderr, and keeps what was durable; the stream goes on to the end and
+ * decodes; the run exits 1 naming the fdatasync error. */
+static void take_sync_failed(void **state)
+{
+    (void)state;
+    char out[8192], path[512];
+    int rc = sh(out, sizeof out,
+                "F4D_TAKE_TEST_SYNC_FAIL_AFTER=1 %s run --no-config --board %s/sim-4cam.json --weights %s --seconds 2 "
+                "--record %s/take_sf --stream file:%s/sf.f4ds --stats-json %s/sf.json 2>&1",
+                forge4d, F4D_BOARD_DIR, weights, tmp, tmp, tmp);
+    if (rc != 1)
+        fail_msg("forge4d run with a failing flush: exit %d, expected 1: %s", rc, out);
+    if (!strstr(out, "a write or flush failed (F4D_EIO") || !strstr(out, "recording stopped, the stream goes on") ||
+        !strstr(out, "fdatasync: Input/output error") || !strstr(out, "then stopped by a disk error"))
+        fail_msg("forge4d run did not name the failed flush:\n%s", out);
+    snprintf(path, sizeof path, "%s/sf.json", tmp);
+    cJSON *st = check_stats(path);
+    double keys = num(st, "key_frames"), sets = num(st, "sets_captured");
+    snprintf(path, sizeof path, "%s/sf.f4ds", tmp);
+    assert_true(keys >= 1);
+    assert_int_equal(decode_stream(path, "dec_sf"), (int)keys);
+    /* the take: readable, not closed, the first flush's sets at least, and
+     * capture went on well past it (the flush failed ~0.5 s into 2 s at 30 Hz) */
+    rc = sh(out, sizeof out, "%s verify %s/take_sf --json", forge4d, tmp);
+    assert_int_equal(rc, 0);
+    cJSON *v = cJSON_Parse(out);
+    assert_non_null(v);
+    double taken = num(v, "sets");
+    assert_true(taken >= 1 && num(v, "corrupt") == 0);
+    assert_true(cJSON_IsFalse(cJSON_GetObjectItemCaseSensitive(v, "clean_end")));
+    if (!(sets >= taken + 10))
+        fail_msg("%g sets captured, %g in the take: capture stopped with the take", sets, taken);
+    cJSON_Delete(v);
+    cJSON_Delete(st);
+}
+
 /* --motion off on weights with a motion part: the motion head is skipped,
  * keys leave as soon as their set ran (none held for its forward motion, so
  * --keys N streams N, or N + 1 with the key in flight) and carry no motion;
@@ -883,6 +921,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(srt),       cmocka_unit_test(config),      cmocka_unit_test(load_faults),
         cmocka_unit_test(alloc),     cmocka_unit_test(display),     cmocka_unit_test(motion_off),
         cmocka_unit_test(key_hz),    cmocka_unit_test(display_late), cmocka_unit_test(display_hung),
+        cmocka_unit_test(take_sync_failed),
     };
     return F4D_TEST_MAIN(argc, argv, "app/run", tests, setup, teardown);
 }

@@ -326,6 +326,70 @@ static void slow_disk_does_not_block_appends(void **state)
            (double)took / 1e9, (double)closing / 1e9);
 }
 
+/* Appends with 2 ms between sets (a background sync every ~5 with a 10 ms
+ * window) until the writer refuses one. */
+struct failing_rec {
+    struct rec rec;
+    uint64_t appended;       /* accepted appends */
+    int refused;             /* the first refusal's status */
+    uint64_t durable_before; /* durable sets when it came */
+};
+
+static int failing_set(void *user, const struct hal_set *set)
+{
+    struct failing_rec *f = user;
+    usleep(2000);
+    int rc = f4d_take_append(f->rec.w, set);
+    if (rc < 0) {
+        f->refused = rc;
+        f->durable_before = f4d_take_durable_sets(f->rec.w);
+        return rc;
+    }
+    f->appended++;
+    return 0;
+}
+
+/* A disk whose third fdatasync fails (the writer's test knob: a dying eMMC
+ * reports EIO on the flush): the syncer marks the writer failed, the next
+ * append is refused with F4D_EIO (`forge4d run` then stops the take and
+ * streams on), close names the fdatasync error and writes no end record, and
+ * every set acknowledged durable before the failure reads back. */
+static void failed_fdatasync_stops_the_take(void **state)
+{
+    (void)state;
+    enum { TRIGGERS = 1000 };
+    char dir[300];
+    snprintf(dir, sizeof dir, "%s/syncfail", tmp_root);
+    setenv("F4D_TAKE_TEST_SYNC_FAIL_AFTER", "2", 1);
+    struct hal_board b;
+    sim_board(&b, 32, 32);
+    struct hal_rig rig;
+    struct f4d_err err = {0};
+    assert_int_equal(hal_rig_open(&rig, &b, &err), 0);
+    struct failing_rec f = {{NULL, &b, dir, 10, NULL, 0}, 0, 0, 0};
+    struct f4d_capture_config cfg = {.triggers = TRIGGERS, .on_ready = rec_ready};
+    struct f4d_capture_stats st;
+    int rc = f4d_capture_run(&rig, &cfg, failing_set, NULL, &f, NULL, &st, &err);
+    unsetenv("F4D_TAKE_TEST_SYNC_FAIL_AFTER");
+    hal_rig_close(&rig);
+    assert_int_equal(rc, F4D_EIO);
+    assert_non_null(strstr(err.msg, "set consumer failed"));
+    assert_int_equal(f.refused, F4D_EIO);
+    assert_true(f.appended < TRIGGERS);
+    assert_true(f.durable_before >= 2); /* two syncs went through first */
+    assert_true(f.durable_before <= f.appended);
+    /* refused from then on */
+    struct f4d_err cerr = {0};
+    assert_int_equal(f4d_take_close(f.rec.w, &cerr), F4D_EIO);
+    assert_non_null(strstr(cerr.msg, "fdatasync: Input/output error"));
+    struct f4d_take_report rep;
+    assert_int_equal(f4d_take_verify(dir, true, &rep, &err), 0);
+    assert_false(rep.clean_end);
+    assert_true(rep.sets >= f.durable_before);
+    printf("[ failed sync ] %llu sets appended, %llu durable when the third fdatasync failed; %llu read back\n",
+           (unsigned long long)f.appended, (unsigned long long)f.durable_before, (unsigned long long)rep.sets);
+}
+
 /* The recorder is SIGKILLed at random points; verify must recover every set
  * that was appended longer than the durability window before the kill, and
  * every set the writer had reported durable. */
@@ -416,6 +480,7 @@ int main(void)
         cmocka_unit_test(crc_catches_corruption),
         cmocka_unit_test(torn_tail_and_lost_index),
         cmocka_unit_test(slow_disk_does_not_block_appends),
+        cmocka_unit_test(failed_fdatasync_stops_the_take),
         cmocka_unit_test(killed_at_random_points),
     };
     return cmocka_run_group_tests_name("hal/take", tests, setup, teardown);
