@@ -101,13 +101,20 @@ static void sim_board(struct hal_board *b, uint32_t w, uint32_t h)
     }
 }
 
+/* A rig of 32 x 32 simulated cameras. */
+static void sim_rig(struct hal_board *b, struct hal_rig *rig)
+{
+    struct f4d_err err = {0};
+    sim_board(b, 32, 32);
+    assert_int_equal(hal_rig_open(rig, b, &err), 0);
+}
+
 static void record(const char *dir, uint64_t triggers)
 {
     struct hal_board b;
-    sim_board(&b, 32, 32);
     struct hal_rig rig;
     struct f4d_err err = {0};
-    assert_int_equal(hal_rig_open(&rig, &b, &err), 0);
+    sim_rig(&b, &rig);
     struct rec r = {NULL, &b, dir, 50, NULL, 0};
     struct f4d_capture_config cfg = {.triggers = triggers, .on_ready = rec_ready};
     struct f4d_capture_stats st;
@@ -298,10 +305,9 @@ static void slow_disk_does_not_block_appends(void **state)
     snprintf(dir, sizeof dir, "%s/slow", tmp_root);
     setenv("F4D_TAKE_TEST_SYNC_DELAY_MS", "2000", 1);
     struct hal_board b;
-    sim_board(&b, 32, 32);
     struct hal_rig rig;
     struct f4d_err err = {0};
-    assert_int_equal(hal_rig_open(&rig, &b, &err), 0);
+    sim_rig(&b, &rig);
     struct slow_rec r = {{NULL, &b, dir, 20, NULL, 0}, 0};
     struct f4d_capture_config cfg = {.triggers = SETS, .on_ready = rec_ready};
     struct f4d_capture_stats st;
@@ -362,10 +368,9 @@ static void failed_fdatasync_stops_the_take(void **state)
     snprintf(dir, sizeof dir, "%s/syncfail", tmp_root);
     setenv("F4D_TAKE_TEST_SYNC_FAIL_AFTER", "2", 1);
     struct hal_board b;
-    sim_board(&b, 32, 32);
     struct hal_rig rig;
     struct f4d_err err = {0};
-    assert_int_equal(hal_rig_open(&rig, &b, &err), 0);
+    sim_rig(&b, &rig);
     struct failing_rec f = {{NULL, &b, dir, 10, NULL, 0}, 0, 0, 0};
     struct f4d_capture_config cfg = {.triggers = TRIGGERS, .on_ready = rec_ready};
     struct f4d_capture_stats st;
