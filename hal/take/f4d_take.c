@@ -153,7 +153,8 @@ struct f4d_take_writer {
                                * -1: off */
     long syncs;               /* background fdatasyncs done (syncer only) */
     bool stop, failed;
-    int sync_errno;
+    int sync_errno;           /* the syncer's failure, in sync_op */
+    const char *sync_op;
     uint8_t idx_pending[IDX_PENDING * IDX_ENTRY_BYTES];
     uint32_t n_pending;
 };
@@ -168,10 +169,10 @@ static int flush_index(struct f4d_take_writer *w)
     return write_all(w->idx_fd, &iov, 1);
 }
 
-static void abs_time(struct timespec *ts, uint64_t mono)
+static void ns_timespec(struct timespec *ts, uint64_t ns)
 {
-    ts->tv_sec = (time_t)(mono / 1000000000u);
-    ts->tv_nsec = (long)(mono % 1000000000u);
+    ts->tv_sec = (time_t)(ns / 1000000000u);
+    ts->tv_nsec = (long)(ns % 1000000000u);
 }
 
 /* Syncs at most durability_ns after the oldest unsynced set was appended. */
@@ -187,7 +188,7 @@ static void *syncer_main(void *arg)
         uint64_t due = w->unsynced_since + w->durability_ns;
         if (mono_ns() < due) {
             struct timespec ts;
-            abs_time(&ts, due);
+            ns_timespec(&ts, due);
             pthread_cond_timedwait(&w->cv, &w->mu, &ts);
             continue;
         }
@@ -195,7 +196,8 @@ static void *syncer_main(void *arg)
         w->unsynced_since = 0;
         pthread_mutex_unlock(&w->mu);
         if (w->test_delay_ns) {
-            struct timespec d = {(time_t)(w->test_delay_ns / 1000000000u), (long)(w->test_delay_ns % 1000000000u)};
+            struct timespec d;
+            ns_timespec(&d, w->test_delay_ns);
             while (nanosleep(&d, &d) < 0 && errno == EINTR) {
             }
         }
@@ -212,12 +214,14 @@ static void *syncer_main(void *arg)
         if (rc < 0) {
             w->failed = true;
             w->sync_errno = e;
+            w->sync_op = "fdatasync";
             break;
         }
         __atomic_store_n(&w->durable, n, __ATOMIC_RELEASE);
         if (flush_index(w) < 0) { /* the index is a hint (verify rebuilds it), but a write error is a disk error */
             w->failed = true;
             w->sync_errno = errno;
+            w->sync_op = "index write";
         }
     }
     pthread_mutex_unlock(&w->mu);
@@ -447,7 +451,7 @@ int f4d_take_close(struct f4d_take_writer *w, struct f4d_err *err)
     pthread_join(w->syncer, NULL); /* an fdatasync in flight finishes first */
     int rc = F4D_OK;
     if (w->sync_errno) {
-        rc = f4d_fail(err, F4D_EIO, "take %s: fdatasync: %s", w->dir, strerror(w->sync_errno));
+        rc = f4d_fail(err, F4D_EIO, "take %s: %s: %s", w->dir, w->sync_op, strerror(w->sync_errno));
     } else if (!w->failed) {
         uint8_t buf[HDR_BYTES + 8 + 4];
         put64(buf + HDR_BYTES, w->sets);

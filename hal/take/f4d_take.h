@@ -22,8 +22,14 @@
  * rewritten; verify only truncates a torn tail and rewrites the index
  * atomically (tmp + rename).
  *
- * Test knob: F4D_TAKE_TEST_SYNC_DELAY_MS=N (read at create) makes every
- * background fdatasync N ms slower: a slow disk, for tests.
+ * A failed background fdatasync (or index write) fails the writer: the
+ * next append returns F4D_EIO and close names the error, writing no end
+ * record (verify then recovers what reached the disk).
+ *
+ * Test knobs, read at create: F4D_TAKE_TEST_SYNC_DELAY_MS=N makes every
+ * background fdatasync N ms slower (a slow disk); F4D_TAKE_TEST_SYNC_FAIL_AFTER=N
+ * lets N background fdatasyncs succeed and fails the next with EIO (a dying
+ * disk).
  *
  *     struct f4d_take_writer *w;
  *     f4d_take_create(&w, "takes/t1", &info, board_json, 250, err, n);

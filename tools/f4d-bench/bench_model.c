@@ -255,12 +255,6 @@ struct result {
     size_t arena, weights;
 };
 
-/* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run
- * (st) and each stage's best (st_best). --clock cpu with one thread: each
- * Eval's stage times (wall clock, measured inside the model) are scaled by
- * the Eval's thread CPU time over its wall time, so time spent descheduled
- * on a shared machine is taken out (assumed spread evenly over the
- * stages). */
 /* CPU seconds of this process: under load from other jobs (this 2-core box
  * often runs at load 8-10) wall times vary 3x between runs, CPU time much less */
 static double cpu_now(void)
@@ -270,7 +264,13 @@ static double cpu_now(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-/* skip_head: a head left out (model_skip_head, as the streaming path does), or NULL */
+/* Loads `path` as `wt`, prepares, runs `reps` times; keeps the best run
+ * (st) and each stage's best (st_best). --clock cpu with one thread: each
+ * Eval's stage times (wall clock, measured inside the model) are scaled by
+ * the Eval's thread CPU time over its wall time, so time spent descheduled
+ * on a shared machine is taken out (assumed spread evenly over the
+ * stages). skip_head: a head left out (model_skip_head, as the streaming
+ * path does), or NULL. */
 static int run_model(fk_ctx *ctx, const char *path, enum fk_wtype wt, int S, int H, int W,
                      int reps, int layer, int cpu_clock, const char *skip_head, struct result *r)
 {
