@@ -228,6 +228,7 @@ struct run {
     counter sets_captured, sets_complete, sets_skipped, sets_no_slot, rec_written, rec_overflow, keys,
         keys_dropped, infer_errors, stream_errors, stream_bytes, key_us_last;
     counter rec_durable; /* the take's fdatasynced sets, as the recorder last saw them */
+    counter rec_stop_captured; /* sets_captured when the take stopped on a disk error */
     _Atomic int rec_failed;
     _Atomic uint64_t cam_seen[HAL_RIG_CAMERAS_MAX];
     int cam_reported[HAL_RIG_CAMERAS_MAX];
@@ -451,6 +452,7 @@ static void *record_main(void *arg)
         if (!atomic_load(&r->rec_failed)) {
             int rc = f4d_take_append(r->take, &s->set);
             if (rc < 0) { /* the take stops here; streaming goes on */
+                atomic_store(&r->rec_stop_captured, atomic_load(&r->sets_captured));
                 atomic_store(&r->rec_failed, 1);
                 say(r, "take %s: a write or flush failed (%s: disk full or failing?): recording stopped, the stream goes on",
                     r->take_dir, f4d_status_name(rc));
@@ -988,6 +990,19 @@ static int write_stats(struct run *r, const char *path, const struct display_fig
     NUM_OR_NULL("latency_sink_ms_p95", *p95);
     if (disp)
         NUM_OR_NULL("keys_displayed", disp->presented);
+    /* the take (with --record): how much of the capture it holds, and where
+     * a disk error stopped it while capture and the stream went on */
+    cJSON *tk = r->take_dir ? cJSON_AddObjectToObject(o, "record") : NULL;
+    if (tk) {
+        bool failed = atomic_load(&r->rec_failed);
+        cJSON_AddNumberToObject(tk, "sets_written", (double)atomic_load(&r->rec_written));
+        cJSON_AddNumberToObject(tk, "sets_left_out", (double)atomic_load(&r->rec_overflow));
+        cJSON_AddBoolToObject(tk, "stopped_by_disk_error", failed);
+        if (failed)
+            cJSON_AddNumberToObject(tk, "sets_captured_at_stop", (double)atomic_load(&r->rec_stop_captured));
+        else
+            cJSON_AddNullToObject(tk, "sets_captured_at_stop");
+    }
 #undef NUM_OR_NULL
     /* the text in one buffer of its final size class: cJSON_Print grows its
      * buffer as the text grows, so the allocation count followed the
