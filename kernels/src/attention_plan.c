@@ -230,10 +230,12 @@ static void build_rope(struct attn_job *j, int lo, int span, float *t)
     int quarter = j->d / 4, m = j->d / 2;
     float base = a->rope_base > 0 ? a->rope_base : 100.0f;
     float *sn = t + (size_t)span * (size_t)quarter;
+    float inv_freq[256]; /* head_dim <= 1024 here (larger ones run the reference) */
+    for (int k = 0; k < quarter; k++)
+        inv_freq[k] = (float)(1.0 / pow((double)base, (double)(2 * k) / (double)m));
     for (int p = 0; p < span; p++)
         for (int k = 0; k < quarter; k++) {
-            float inv_freq = (float)(1.0 / pow((double)base, (double)(2 * k) / (double)m));
-            float theta = (float)(lo + p) * inv_freq;
+            float theta = (float)(lo + p) * inv_freq[k];
             t[(size_t)p * (size_t)quarter + (size_t)k] = cosf(theta);
             sn[(size_t)p * (size_t)quarter + (size_t)k] = sinf(theta);
         }
