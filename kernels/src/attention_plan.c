@@ -195,10 +195,13 @@ static void attn_task(void *arg, int task, int thread)
                            o + (size_t)i * MR * (size_t)dp, mrow + i * MR, lrow + i * MR);
                 continue;
             }
-            for (int p = 0; p < BK / NR; p++)
+            /* a last block's key tiles past its keys are skipped (the
+             * softmax sets their s to -inf), and its P V stops at them */
+            for (int p = 0; p * NR < valid; p++)
                 isa->ukr_6x16(dp, qi, kb_p + (size_t)p * (size_t)dp * NR, s + p * NR, BK, 0);
             isa->softmax_block(s, valid, mrow + i * MR, lrow + i * MR, alpha);
-            isa->pv_tile(dp, s, vp + (size_t)kb * BK * (size_t)dp, o + (size_t)i * MR * (size_t)dp, alpha);
+            isa->pv_tile(dp, valid, s, vp + (size_t)kb * BK * (size_t)dp, o + (size_t)i * MR * (size_t)dp,
+                         alpha);
         }
     }
     fk__attn_task_write(j->out, j->ldo, q0, rows, h * d, d, o, dp, lrow);

@@ -98,8 +98,10 @@ struct fk__attn_isa {
      * s becomes p = 2^(s - m_new); alpha = 2^(m_old - m_new) (alpha[8]);
      * l = alpha l + sum p */
     void (*softmax_block)(float *s, int valid, float *m, float *l, float *alpha);
-    /* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
-    void (*pv_tile)(int d, const float *p, const float *v, float *o, const float *alpha);
+    /* o[6][d] = alpha[r] o[r] + p[6][0, kv) . v[0, kv)[d]: kv = the block's
+     * keys that exist (a last block's padding keys are skipped; an ISA may
+     * round kv up to its step, the padding's p being ~0 and its v rows 0) */
+    void (*pv_tile)(int d, int kv, const float *p, const float *v, float *o, const float *alpha);
     /* optional: the whole step for one panel and one key block, in place of
      * ukr_6x16, softmax_block and pv_tile: s[6][BK] (scratch) = the a panel
      * . the key block kp, then packed [d][BK] (not [d][16]), the online

@@ -64,9 +64,12 @@ static void head_norm(float *t, int d, const float *w, const float *b, float eps
 
 /* -------------------------------------------------------------- the tiles */
 
-/* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d], 16 columns at a time */
-__attribute__((noinline)) static void pv_tile(int d, const float *p, const float *v, float *o, const float *alpha)
+/* o[6][d] = alpha[r] o[r] + p[6][0, kv) . v[0, kv)[d], 16 columns at a time
+ * (kv rounded up to the 4 keys of a step) */
+__attribute__((noinline)) static void pv_tile(int d, int kv, const float *p, const float *v, float *o,
+                                              const float *alpha)
 {
+    kv = (kv + 3) & ~3;
     for (int c0 = 0; c0 < d; c0 += 16) {
         float *oc = o + c0;
         float32x4_t acc[MR][4];
@@ -76,7 +79,7 @@ __attribute__((noinline)) static void pv_tile(int d, const float *p, const float
                 acc[r][q] = vmulq_f32(a, vld1q_f32(oc + (size_t)r * (size_t)d + 4 * q));
         }
         const float *vr = v + c0;
-        for (int jj = 0; jj < BK; jj += 4) {
+        for (int jj = 0; jj < kv; jj += 4) {
             float32x4_t pr[MR];
             for (int r = 0; r < MR; r++)
                 pr[r] = vld1q_f32(p + r * BK + jj);

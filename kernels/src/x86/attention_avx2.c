@@ -122,8 +122,9 @@ static void key_panel(const float *t, int dp, int kw, float *kp)
 
 /* The tile stays out of line: inlined into the task loop GCC spills. */
 
-/* o[6][d] = alpha[r] o[r] + p[6][BK] . v[BK][d] */
-__attribute__((noinline)) static void pv_tile(int d, const float *p, const float *v, float *o, const float *alpha)
+/* o[6][d] = alpha[r] o[r] + p[6][0, kv) . v[0, kv)[d] */
+__attribute__((noinline)) static void pv_tile(int d, int kv, const float *p, const float *v, float *o,
+                                              const float *alpha)
 {
     for (int c0 = 0; c0 < d; c0 += 16) {
         float *oc = o + c0;
@@ -135,7 +136,7 @@ __attribute__((noinline)) static void pv_tile(int d, const float *p, const float
         a = _mm256_set1_ps(alpha[4]); c40 = _mm256_mul_ps(a, _mm256_load_ps(oc + 4 * d)); c41 = _mm256_mul_ps(a, _mm256_load_ps(oc + 4 * d + 8));
         a = _mm256_set1_ps(alpha[5]); c50 = _mm256_mul_ps(a, _mm256_load_ps(oc + 5 * d)); c51 = _mm256_mul_ps(a, _mm256_load_ps(oc + 5 * d + 8));
         const float *vr = v + c0;
-        for (int jj = 0; jj < BK; jj++) {
+        for (int jj = 0; jj < kv; jj++) {
             __m256 b0 = _mm256_load_ps(vr), b1 = _mm256_load_ps(vr + 8), t;
             t = _mm256_broadcast_ss(p + 0 * BK + jj); c00 = _mm256_fmadd_ps(t, b0, c00); c01 = _mm256_fmadd_ps(t, b1, c01);
             t = _mm256_broadcast_ss(p + 1 * BK + jj); c10 = _mm256_fmadd_ps(t, b0, c10); c11 = _mm256_fmadd_ps(t, b1, c11);

@@ -50,10 +50,10 @@ static inline __m512 reduce6_max(const __m512 *v)
     return _mm512_permutexvar_ps(_mm512_setr_epi32(0, 4, 8, 12, 2, 6, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), e);
 }
 
-/* o[6][g * 16 ..] (ld d) = alpha o + p[6][BK] . v[BK][16 G columns]: 6 G
- * accumulators, each P value broadcast once for the G column vectors. G is
- * a constant where this is inlined, so the arrays live in registers. */
-static inline __attribute__((always_inline)) void pv_cols(int G, int d, const float *p,
+/* o[6][g * 16 ..] (ld d) = alpha o + p[6][0, kv) . v[0, kv)[16 G columns]:
+ * 6 G accumulators, each P value broadcast once for the G column vectors. G
+ * is a constant where this is inlined, so the arrays live in registers. */
+static inline __attribute__((always_inline)) void pv_cols(int G, int d, int kv, const float *p,
                                                           const float *v, float *o,
                                                           const __m512 *al, int rescale)
 {
@@ -64,7 +64,7 @@ static inline __attribute__((always_inline)) void pv_cols(int G, int d, const fl
             if (rescale)
                 c[r][g] = _mm512_mul_ps(al[r], c[r][g]);
         }
-    for (int jj = 0; jj < BK; jj++) {
+    for (int jj = 0; jj < kv; jj++) {
         __m512 b[4];
         for (int g = 0; g < G; g++)
             b[g] = _mm512_loadu_ps(v + g * 16);
@@ -83,14 +83,19 @@ static inline __attribute__((always_inline)) void pv_cols(int G, int d, const fl
 /* s[6][BK] = q[d][6] . kp (padding keys -inf): 24 accumulators, each k
  * step loads 4 vectors of keys for 24 FMAs; stored once at the end. Its own
  * phase, so that nothing else competes for the registers (with the softmax
- * in the same scope GCC spilled five of the accumulators inside the loop). */
-static inline __attribute__((always_inline)) void s_tile(int d, const float *q, const float *kp,
+ * in the same scope GCC spilled five of the accumulators inside the loop).
+ * G (a constant where inlined): the 16-key groups computed, the rest all
+ * padding (-inf), as in a last block with few keys. */
+static inline __attribute__((always_inline)) void s_tile(int G, int d, const float *q, const float *kp,
                                                          int valid, int padded, float *s,
                                                          const float *o)
 {
     __m512 c[MR][4];
     for (int r = 0; r < MR; r++)
         for (int p = 0; p < 4; p++)
+            c[r][p] = _mm512_set1_ps(-INFINITY);
+    for (int r = 0; r < MR; r++)
+        for (int p = 0; p < G; p++)
             c[r][p] = _mm512_setzero_ps();
     /* the next panel's q and o follow this one's (the driver's layouts); with
      * the K / V block, the 16 panels' q and o overflow L1: fetch them early */
@@ -101,14 +106,13 @@ static inline __attribute__((always_inline)) void s_tile(int d, const float *q, 
             _mm_prefetch(qn + k * 64, _MM_HINT_T0);
             _mm_prefetch(on + k * 64, _MM_HINT_T0);
         }
-        __m512 b0 = _mm512_loadu_ps(b), b1 = _mm512_loadu_ps(b + NR);
-        __m512 b2 = _mm512_loadu_ps(b + 2 * NR), b3 = _mm512_loadu_ps(b + 3 * NR);
+        __m512 bv[4];
+        for (int p = 0; p < G; p++)
+            bv[p] = _mm512_loadu_ps(b + p * NR);
         for (int r = 0; r < MR; r++) {
             __m512 t = _mm512_set1_ps(q[k * MR + r]);
-            c[r][0] = _mm512_fmadd_ps(t, b0, c[r][0]);
-            c[r][1] = _mm512_fmadd_ps(t, b1, c[r][1]);
-            c[r][2] = _mm512_fmadd_ps(t, b2, c[r][2]);
-            c[r][3] = _mm512_fmadd_ps(t, b3, c[r][3]);
+            for (int p = 0; p < G; p++)
+                c[r][p] = _mm512_fmadd_ps(t, bv[p], c[r][p]);
         }
     }
 #pragma GCC unroll 4
@@ -135,7 +139,15 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
                                                         const float *v, int valid, float *s,
                                                         float *o, float *m, float *l, int padded)
 {
-    s_tile(d, q, kp, valid, padded, s, o);
+    if (!padded)
+        s_tile(4, d, q, kp, valid, 0, s, o);
+    else /* a last block: the key groups it has */
+        switch ((valid + NR - 1) / NR) {
+        case 1: s_tile(1, d, q, kp, valid, 1, s, o); break;
+        case 2: s_tile(2, d, q, kp, valid, 1, s, o); break;
+        case 3: s_tile(3, d, q, kp, valid, 1, s, o); break;
+        default: s_tile(4, d, q, kp, valid, 1, s, o); break;
+        }
     __m512 red[MR];
     for (int r = 0; r < MR; r++) {
         const float *sr = s + r * BK;
@@ -179,15 +191,16 @@ static inline __attribute__((always_inline)) void block(int d, const float *q, c
     __m512 al[MR];
     for (int r = 0; r < MR; r++)
         al[r] = _mm512_permutexvar_ps(_mm512_set1_epi32(r), al_v);
-    int c0 = 0;
+    /* P V over the keys that exist (the AVX2 pieces' order) */
+    int c0 = 0, kv = padded ? valid : BK;
     for (; c0 + 64 <= d; c0 += 64)
-        pv_cols(4, d, s, v + c0, o + c0, al, rescale);
+        pv_cols(4, d, kv, s, v + c0, o + c0, al, rescale);
     if (d - c0 >= 32) {
-        pv_cols(2, d, s, v + c0, o + c0, al, rescale);
+        pv_cols(2, d, kv, s, v + c0, o + c0, al, rescale);
         c0 += 32;
     }
     if (c0 < d)
-        pv_cols(1, d, s, v + c0, o + c0, al, rescale);
+        pv_cols(1, d, kv, s, v + c0, o + c0, al, rescale);
 }
 
 /* Two copies: only the last key block has padding keys, and without the
