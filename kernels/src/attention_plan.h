@@ -181,14 +181,14 @@ struct fk__attn_i16_job {
 #if defined(__x86_64__)
 /* The two products of one 6-query panel and BK-key block in zmm with
  * vpdpwssd (x86/attention_i16_avx512.c): the AVX2 tiles' bits. */
-void fk__attn_i16_s_block_avx512(int dp, const uint32_t *q, const uint32_t *kb, const float *sq,
+void fk__attn_i16_s_block_avx512(int dp, int kv, const uint32_t *q, const uint32_t *kb, const float *sq,
                                  const float *sk, float *s);
-void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
-                                 const float *alpha, const float *ps);
+void fk__attn_i16_pv_tile_avx512(int dp, int kv, const uint32_t *p, const uint32_t *v, const float *sv,
+                                 float *o, const float *alpha, const float *ps);
 /* The same two products with AVX-VNNI (x86/attention_i16_vnni.c). */
-void fk__attn_i16_s_block_vnni(int dp, const uint32_t *q, const uint32_t *kb, const float *sq,
+void fk__attn_i16_s_block_vnni(int dp, int kv, const uint32_t *q, const uint32_t *kb, const float *sq,
                                const float *sk, float *s);
-void fk__attn_i16_pv_tile_vnni(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
+void fk__attn_i16_pv_tile_vnni(int dp, int kv, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
                                const float *alpha, const float *ps);
 /* The int16 softmax's codes of one 6 x BK block in zmm: pairs in pb, row
  * sums in tot, NaN rows as the returned bits (x86/attention_i16_avx512.c). */

@@ -293,9 +293,10 @@ static void softmax_block(int wide, float *s, int valid, float *m, float *l, flo
 
 /* ------------------------------------------------------------------- task */
 
-typedef void s_block_fn(int dp, const uint32_t *q, const uint32_t *kb, const float *sq, const float *sk,
+/* kv: the block's keys (a last block's tiles past them may be skipped) */
+typedef void s_block_fn(int dp, int kv, const uint32_t *q, const uint32_t *kb, const float *sq, const float *sk,
                         float *s);
-typedef void pv_tile_fn(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
+typedef void pv_tile_fn(int dp, int kv, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
                         const float *alpha, const float *ps);
 
 static void attn_task(void *arg, int task, int thread)
@@ -332,9 +333,9 @@ static void attn_task(void *arg, int task, int thread)
         const float *sk = h.sk + (size_t)kb * BK, *sv = h.sv + (size_t)kb * (size_t)dp;
         for (int i = 0; i < panels; i++) {
             float *oi = o + (size_t)i * MR * (size_t)dp;
-            s_fn(dp, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
+            s_fn(dp, valid, qq + (size_t)i * qstride, kbb, sq + i * MR, sk, s);
             softmax_block(wide, s, valid, mrow + i * MR, lrow + i * MR, alpha, ps, pb);
-            pv_fn(dp, pb, vbb, sv, oi, alpha, ps);
+            pv_fn(dp, valid, pb, vbb, sv, oi, alpha, ps);
         }
     }
     fk__attn_task_write(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d, o, dp, lrow);

@@ -46,10 +46,12 @@ _Static_assert(BK == 4 * NR, "s_block_avx512 takes a block as four 16-key groups
                            { c##40, c##41, c##42, c##43 }, { c##50, c##51, c##52, c##53 } }
 
 /* s[6][BK] = (q pairs [dp/2][6] . the block's key pairs) * sq[r] * sk[key]:
- * 24 int32 accumulators, the four groups' key pairs loaded once per step. */
-void fk__attn_i16_s_block_avx512(int dp, const uint32_t *q, const uint32_t *kb, const float *sq,
+ * 24 int32 accumulators, the four groups' key pairs loaded once per step
+ * (all four in a last block too: kv unused). */
+void fk__attn_i16_s_block_avx512(int dp, int kv, const uint32_t *q, const uint32_t *kb, const float *sq,
                                  const float *sk, float *s)
 {
+    (void)kv;
     DECL24(c);
     const size_t gs = (size_t)dp / 2 * NR; /* pairs per 16-key group */
     for (int i = 0; i < dp / 2; i++, kb += NR, q += MR) {
@@ -85,15 +87,16 @@ static inline __attribute__((always_inline)) void pv_out(int dp, int c0, int n, 
     }
 }
 
-void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
-                                 const float *alpha, const float *ps)
+void fk__attn_i16_pv_tile_avx512(int dp, int kv, const uint32_t *p, const uint32_t *v, const float *sv,
+                                 float *o, const float *alpha, const float *ps)
 {
-    const int P = BK / 2; /* a row's p pairs */
+    const int P = BK / 2;       /* a row's p pairs */
+    const int kp = (kv + 1) / 2; /* those with keys: a last block's padding codes are 0 */
     int c0 = 0;
     for (; c0 + 64 <= dp; c0 += 64) { /* the models' head dims: 64 columns in 24 accumulators */
         DECL24(c);
         const uint32_t *vr = v + c0;
-        for (int jp = 0; jp < P; jp++, vr += dp) {
+        for (int jp = 0; jp < kp; jp++, vr += dp) {
             __m512i b0 = _mm512_loadu_si512(vr), b1 = _mm512_loadu_si512(vr + 16);
             __m512i b2 = _mm512_loadu_si512(vr + 32), b3 = _mm512_loadu_si512(vr + 48);
             ROW4(c, 0, p[jp]); ROW4(c, 1, p[P + jp]); ROW4(c, 2, p[2 * P + jp]);
@@ -105,7 +108,7 @@ void fk__attn_i16_pv_tile_avx512(int dp, const uint32_t *p, const uint32_t *v, c
     for (; c0 < dp; c0 += 16) { /* 16 columns at a time */
         __m512i c0r = _mm512_setzero_si512(), c1r = c0r, c2r = c0r, c3r = c0r, c4r = c0r, c5r = c0r;
         const uint32_t *vr = v + c0;
-        for (int jp = 0; jp < P; jp++, vr += dp) {
+        for (int jp = 0; jp < kp; jp++, vr += dp) {
             __m512i b = _mm512_loadu_si512(vr);
             DP(c0r, _mm512_set1_epi32((int)p[jp]), b);
             DP(c1r, _mm512_set1_epi32((int)p[P + jp]), b);

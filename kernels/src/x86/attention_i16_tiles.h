@@ -46,15 +46,19 @@ static inline __attribute__((always_inline)) void s_tile6(int dp, const uint32_t
     }
 }
 
-__attribute__((noinline)) static void s_block(int dp, const uint32_t *q, const uint32_t *kb,
+/* the 16-key tiles of a block that hold keys: kv of them (a last block's
+ * tiles past its keys are skipped; the softmax sets their s to -inf) */
+__attribute__((noinline)) static void s_block(int dp, int kv, const uint32_t *q, const uint32_t *kb,
                                               const float *sq, const float *sk, float *s)
 {
-    for (int p = 0; p < BK / NR; p++)
+    for (int p = 0; p * NR < kv; p++)
         s_tile6(dp, q, kb + (size_t)p * (size_t)dp / 2 * NR, sq, sk + p * NR, s + p * NR);
 }
 
-/* o[6][dp] columns c0 .. c0 + 15 = alpha[r] o[r] + (p codes . v codes) ps[r] sv */
-static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const uint32_t *p,
+/* o[6][dp] columns c0 .. c0 + 15 = alpha[r] o[r] + (p codes . v codes) ps[r] sv,
+ * over the block's first kp key pairs (a last block's padding codes are 0:
+ * skipping them changes no sum) */
+static inline __attribute__((always_inline)) void pv_cols(int dp, int kp, int c0, const uint32_t *p,
                                                            const uint32_t *v, const float *sv,
                                                            float *o, const float *alpha,
                                                            const float *ps)
@@ -62,7 +66,7 @@ static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const 
     __m256i c00 = _mm256_setzero_si256(), c01 = c00, c10 = c00, c11 = c00, c20 = c00, c21 = c00;
     __m256i c30 = c00, c31 = c00, c40 = c00, c41 = c00, c50 = c00, c51 = c00;
     const uint32_t *vr = v + c0;
-    for (int jp = 0; jp < BK / 2; jp++, vr += dp) {
+    for (int jp = 0; jp < kp; jp++, vr += dp) {
         __m256i b0 = _mm256_loadu_si256((const __m256i *)vr);
         __m256i b1 = _mm256_loadu_si256((const __m256i *)(vr + 8));
         __m256i t = _mm256_set1_epi32((int)p[0 * (BK / 2) + jp]);
@@ -90,12 +94,13 @@ static inline __attribute__((always_inline)) void pv_cols(int dp, int c0, const 
     }
 }
 
-__attribute__((noinline)) static void pv_tile(int dp, const uint32_t *p, const uint32_t *v,
+__attribute__((noinline)) static void pv_tile(int dp, int kv, const uint32_t *p, const uint32_t *v,
                                               const float *sv, float *o, const float *alpha,
                                               const float *ps)
 {
+    int kp = (kv + 1) / 2;
     for (int c0 = 0; c0 < dp; c0 += 16)
-        pv_cols(dp, c0, p, v, sv, o, alpha, ps);
+        pv_cols(dp, kp, c0, p, v, sv, o, alpha, ps);
 }
 
 #endif

@@ -21,14 +21,14 @@
 #define I16_DOT(acc, t, b) __asm__("%{vex%} vpdpwssd %2, %1, %0" : "+x"(acc) : "x"(t), "x"(b))
 #include "attention_i16_tiles.h"
 
-void fk__attn_i16_s_block_vnni(int dp, const uint32_t *q, const uint32_t *kb, const float *sq, const float *sk,
-                               float *s)
+void fk__attn_i16_s_block_vnni(int dp, int kv, const uint32_t *q, const uint32_t *kb, const float *sq,
+                               const float *sk, float *s)
 {
-    s_block(dp, q, kb, sq, sk, s);
+    s_block(dp, kv, q, kb, sq, sk, s);
 }
 
-void fk__attn_i16_pv_tile_vnni(int dp, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
+void fk__attn_i16_pv_tile_vnni(int dp, int kv, const uint32_t *p, const uint32_t *v, const float *sv, float *o,
                                const float *alpha, const float *ps)
 {
-    pv_tile(dp, p, v, sv, o, alpha, ps);
+    pv_tile(dp, kv, p, v, sv, o, alpha, ps);
 }
