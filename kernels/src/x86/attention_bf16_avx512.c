@@ -253,10 +253,13 @@ static void attn_task(void *arg, int task, int thread)
         const uint32_t *vbb = vb + (size_t)k0 / 2 * (size_t)dp;
         for (int i = 0; i < panels; i++) {
             const uint32_t *qi = qb2 + (size_t)i * qstride;
-            for (int kk = 0; kk < nk; kk += BK)
+            /* a last block: S only for the key blocks it has (the softmax
+             * sets the rest to -inf), P V up to its last key pair (the
+             * padding's p are 0 in bf16 and its v rows 0) */
+            for (int kk = 0; kk < valid; kk += BK)
                 s_block(dp, qi, kbb + (size_t)kk * (size_t)dp / 2, s + kk);
             softmax_block(s, nk, valid, mrow + i * MR, lrow + i * MR, alpha, pb);
-            pv_tile(dp, nk / 2, pb, vbb, o + (size_t)i * MR * (size_t)dp, alpha);
+            pv_tile(dp, (valid + 1) / 2, pb, vbb, o + (size_t)i * MR * (size_t)dp, alpha);
         }
     }
     fk__attn_task_write(j->out, j->ldo, q0, rows, (j->h0 + hh) * d, d, o, dp, lrow);
