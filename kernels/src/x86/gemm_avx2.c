@@ -89,7 +89,7 @@ __attribute__((noinline)) static void ukr_f32(int ntaps, int kc, const float *co
 }
 
 /* The GEMM's common call, a packed micro-panel a[kc][6] into a tile of its
- * own (ldc 16), as a copy of its own: with the rows' offsets and strides
+ * own (ldc 16), as an entry of its own: with the rows' offsets and strides
  * constant the call builds no row pointers and saves no registers, which
  * the generic entry and exit did for every 6 x 16 x 256 step (AVX2 f32
  * blocks 1-2.5 % faster, Zen 4, 2 threads). The same operations: the same
