@@ -90,12 +90,10 @@ static inline __attribute__((always_inline)) void s_tile(int G, int d, const flo
                                                          int valid, int padded, float *s,
                                                          const float *o)
 {
+    /* groups past G stay 0: the padding mask below stores them as -inf */
     __m512 c[MR][4];
     for (int r = 0; r < MR; r++)
         for (int p = 0; p < 4; p++)
-            c[r][p] = _mm512_set1_ps(-INFINITY);
-    for (int r = 0; r < MR; r++)
-        for (int p = 0; p < G; p++)
             c[r][p] = _mm512_setzero_ps();
     /* the next panel's q and o follow this one's (the driver's layouts); with
      * the K / V block, the 16 panels' q and o overflow L1: fetch them early */
