@@ -737,7 +737,8 @@ int bench_kernels(int argc, char **argv)
     printf("caches (%s): L1d %zu KiB, L2 %zu KiB (%zu per core), L3 %zu KiB (%zu KiB per core)\n",
            src_names[ci.source & 3], ci.l1d >> 10, ci.l2 >> 10,
            (ci.l2_share ? ci.l2_share : ci.l2) >> 10, ci.l3 >> 10, ci.l3_share >> 10);
-    printf("GEMM blocks%s: kc %d, mc %d, nc %d (fp32; int8 kc x 4); int8 path %s\n",
+    printf("GEMM blocks%s: kc %d, mc %d, nc %d (fp32, a 16-column sliver; AVX-512 pairs of kc / 2; int8 kc x 4); "
+           "int8 path %s\n",
            getenv("FK_GEMM_BLOCKS") ? " (FK_GEMM_BLOCKS)" : "", bl.kc, bl.mc, bl.nc, fk_ctx_q8_path(probe));
     fk_ctx_free(probe);
 
